@@ -1,0 +1,1 @@
+"""pythonfmu slave classes and the FMU builders (see DESIGN.md, "FMU rules")."""

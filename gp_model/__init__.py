@@ -1,0 +1,22 @@
+"""Gaussian-process mathematics for flightgp.
+
+numpy/scipy only; imports nothing from ``validation`` or ``fmu_src``. The public API is what this
+module exports; everything else lives in private modules.
+"""
+from ._errors import GPNumericalError, ModelFileError
+from ._gp import GaussianProcess, PerOutputGP
+from ._inference import (AnnealingResult, MaximumLikelihoodResult, MCMCResult,
+                         anneal_hyperparameters, maximize_marginal_likelihood, metropolis,
+                         simulated_annealing)
+from ._kernels import (HigdonKernel, SquaredExponentialARD, alpha_from_length_scale,
+                       length_scale_from_alpha)
+from ._model_file import load_model, read_header, save_model
+from ._priors import IndependentPrior
+
+__all__ = [
+    "AnnealingResult", "GaussianProcess", "GPNumericalError", "HigdonKernel", "IndependentPrior",
+    "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "PerOutputGP",
+    "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
+    "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
+    "read_header", "save_model", "simulated_annealing",
+]

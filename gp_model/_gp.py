@@ -1,0 +1,339 @@
+"""Exact Gaussian-process regression (Rasmussen & Williams 2006, ch. 2 and 5).
+
+Conventions
+-----------
+- Hyperparameters of a :class:`GaussianProcess` form one unconstrained vector
+  ``theta = [kernel.theta..., ln sigma_n^2]``; they act on *standardised* inputs and outputs when
+  ``normalize_inputs`` / ``normalize_outputs`` are on (the default), so the same priors and
+  starting points suit any units.
+- Several outputs (``y`` of shape (n, m)) share one set of hyperparameters and one Cholesky
+  factor, as Ko et al. (ICRA 2007) did; :class:`PerOutputGP` gives each output its own GP.
+- Learned state carries a trailing underscore (``theta_``, ``L_``, ``alpha_``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg, stats
+from scipy.linalg import lapack
+
+from ._errors import GPNumericalError
+from ._kernels import StationaryKernel
+from ._linalg import robust_cholesky
+from ._priors import IndependentPrior
+from ._scaling import Standardizer
+
+LOG_2PI = np.log(2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class _Posterior:
+    """Everything prediction needs for one hyperparameter vector."""
+
+    theta: np.ndarray  # (p,)
+    L: np.ndarray  # (n, n) lower Cholesky factor of K + (sigma_n^2 + jitter) I
+    alpha: np.ndarray  # (n, m) = (K + sigma_n^2 I)^-1 Y
+    jitter: float
+
+
+class GaussianProcess:
+    """Exact GP regression with a stationary kernel and Gaussian noise.
+
+    Parameters
+    ----------
+    kernel : StationaryKernel
+        Covariance function; its ``theta`` is the starting point for hyperparameter inference.
+    noise_variance : float, default 1e-2
+        ``sigma_n^2`` of the (standardised) outputs.
+    normalize_inputs, normalize_outputs : bool, default True
+        Standardise each input / output column to zero mean and unit variance before fitting.
+
+    Attributes
+    ----------
+    theta_ : ndarray, shape (p,)
+        Hyperparameters in use (after :meth:`fit`).
+    theta_samples_ : ndarray, shape (S, p) or None
+        Hyperparameter samples; when set, predictions are the mixture over them.
+    X_train_, Y_train_ : ndarray, shapes (n, d), (n, m)
+        Standardised training data.
+    L_, alpha_ : ndarray
+        Cholesky factor and weights for ``theta_`` (Rasmussen & Williams, Alg. 2.1).
+    """
+
+    def __init__(self, kernel: StationaryKernel, *, noise_variance: float = 1e-2,
+                 normalize_inputs: bool = True, normalize_outputs: bool = True) -> None:
+        if not noise_variance > 0:
+            raise ValueError(f"noise_variance must be positive, got {noise_variance}")
+        self.kernel = kernel
+        self.noise_variance = float(noise_variance)
+        self.normalize_inputs = normalize_inputs
+        self.normalize_outputs = normalize_outputs
+        self.theta_samples_ = None
+        self._sample_posteriors = None
+
+    # -- hyperparameters --------------------------------------------------------------------
+    @property
+    def theta(self) -> np.ndarray:
+        """Configured hyperparameters ``[kernel.theta..., ln noise_variance]``, shape (p,)."""
+        return np.append(self.kernel.theta, np.log(self.noise_variance))
+
+    @property
+    def theta_names(self) -> list[str]:
+        return self.kernel.theta_names + ["ln_noise_variance"]
+
+    def prior(self) -> IndependentPrior:
+        """Default prior on ``theta``: the kernel's, plus log-normal noise around 1e-2 of the
+        standardised output variance (a 2-sigma range of about 5e-5 to 2)."""
+        noise = IndependentPrior([stats.norm(np.log(1e-2), 2.5)], ["ln_noise_variance"])
+        return self.kernel.prior() + noise
+
+    # -- fitting ------------------------------------------------------------------------------
+    def fit(self, X, y, *, theta=None) -> "GaussianProcess":
+        """Condition on training data with fixed hyperparameters.
+
+        Parameters
+        ----------
+        X : ndarray, shape (n, d)
+            Training inputs.
+        y : ndarray, shape (n,) or (n, m)
+            Training targets.
+        theta : ndarray, shape (p,), optional
+            Hyperparameters; defaults to :attr:`theta` (the configured kernel and noise).
+
+        Raises
+        ------
+        ValueError
+            On mismatched shapes or non-finite data.
+        GPNumericalError
+            If the kernel matrix cannot be factorised even with jitter.
+        """
+        X = np.asarray(X, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if X.ndim != 2 or X.shape[1] != self.kernel.n_dims:
+            raise ValueError(f"X must have shape (n, {self.kernel.n_dims}), got {X.shape}")
+        if y.ndim not in (1, 2) or len(y) != len(X):
+            raise ValueError(f"y must have shape ({len(X)},) or ({len(X)}, m), got {y.shape}")
+        if len(X) == 0:
+            raise ValueError("no training data")
+        if not (np.isfinite(X).all() and np.isfinite(y).all()):
+            raise ValueError("training data contain NaN or inf")
+        self._y_1d = y.ndim == 1
+        Y = y.reshape(len(y), -1)
+        self.input_scaler_ = Standardizer(enabled=self.normalize_inputs).fit(X)
+        self.output_scaler_ = Standardizer(enabled=self.normalize_outputs).fit(Y)
+        self.X_train_ = self.input_scaler_.transform(X)
+        self.Y_train_ = self.output_scaler_.transform(Y)
+        self.set_hyperparameters(self.theta if theta is None else theta)
+        return self
+
+    def set_hyperparameters(self, theta, samples=None) -> "GaussianProcess":
+        """Use ``theta`` (shape (p,)) and optionally a sample set (shape (S, p)) for the mixture.
+
+        The configured ``kernel`` and ``noise_variance`` are updated to match ``theta``.
+        """
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (len(self.theta),):
+            raise ValueError(f"theta must have shape ({len(self.theta)},), got {theta.shape}")
+        self.kernel = self.kernel.clone_with_theta(theta[:-1])
+        self.noise_variance = float(np.exp(theta[-1]))
+        posterior, _ = self._factorise(theta)
+        self.theta_ = theta
+        self.L_, self.alpha_, self.jitter_ = posterior.L, posterior.alpha, posterior.jitter
+        self._posterior = posterior
+        if samples is not None:
+            samples = np.atleast_2d(np.asarray(samples, dtype=float))
+            if samples.shape[1] != len(theta):
+                raise ValueError(f"samples must have shape (S, {len(theta)}), got {samples.shape}")
+        self.theta_samples_ = samples
+        self._sample_posteriors = None
+        return self
+
+    def _factorise(self, theta, *, quiet: bool = False) -> tuple[_Posterior, np.ndarray]:
+        """The posterior at ``theta`` and the noise-free kernel matrix, shape (n, n)."""
+        # Rasmussen & Williams Alg. 2.1, lines 2-3: L = chol(K + sigma_n^2 I), alpha = L^T\(L\y).
+        K = self.kernel(self.X_train_, theta=theta[:-1])
+        K_noisy = K.copy()
+        K_noisy.flat[:: len(K) + 1] += np.exp(theta[-1])
+        L, jitter = robust_cholesky(K_noisy, quiet=quiet)
+        alpha = linalg.cho_solve((L, True), self.Y_train_, check_finite=False)
+        return _Posterior(np.asarray(theta, dtype=float), L, alpha, jitter), K
+
+    # -- likelihood ---------------------------------------------------------------------------
+    def log_marginal_likelihood(self, theta=None, *, return_gradient: bool = False):
+        """Log marginal likelihood of the (standardised) training outputs, summed over outputs.
+
+        ``log p(Y|X, theta) = sum_j [-1/2 y_j^T alpha_j - sum_i ln L_ii - n/2 ln 2 pi]``
+        (Rasmussen & Williams eq. 2.30 / Alg. 2.1 line 7); gradient eq. 5.9:
+        ``d/dtheta_k = 1/2 tr((alpha alpha^T - m K^-1) dK/dtheta_k)``.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (p,), optional
+            Defaults to ``theta_``.
+        return_gradient : bool
+
+        Returns
+        -------
+        lml : float
+            ``-inf`` if the kernel matrix cannot be factorised at ``theta``.
+        gradient : ndarray, shape (p,)
+            Only when ``return_gradient``.
+        """
+        theta = self.theta_ if theta is None else np.asarray(theta, dtype=float)
+        try:
+            post, K = self._factorise(theta, quiet=True)
+        except GPNumericalError:
+            return (-np.inf, np.zeros_like(theta)) if return_gradient else -np.inf
+        n, m = self.Y_train_.shape
+        lml = (-0.5 * np.einsum("ij,ij->", self.Y_train_, post.alpha)
+               - m * np.log(np.diag(post.L)).sum() - 0.5 * m * n * LOG_2PI)
+        if not return_gradient:
+            return float(lml)
+        K_inv, info = lapack.dpotri(post.L, lower=1)  # inverse from the Cholesky factor
+        if info != 0:
+            raise GPNumericalError(f"LAPACK dpotri failed (info={info})")
+        # dpotri fills the lower triangle only; the upper one is still the zeros of L.
+        K_inv += K_inv.T
+        K_inv.flat[:: n + 1] *= 0.5
+        W = post.alpha @ post.alpha.T - m * K_inv
+        gradient = 0.5 * np.append(
+            self.kernel.gradient_contraction(self.X_train_, K, W, theta=theta[:-1]),
+            np.exp(theta[-1]) * np.trace(W),
+        )
+        return float(lml), gradient
+
+    # -- prediction ---------------------------------------------------------------------------
+    def predict(self, X, *, return_var: bool = False, return_cov: bool = False,
+                include_noise: bool = False, use_samples: bool = True):
+        """Predictive distribution at ``X``.
+
+        Parameters
+        ----------
+        X : ndarray, shape (k, d)
+        return_var : bool
+            Also return the marginal variances.
+        return_cov : bool
+            Also return the full covariance (not with ``return_var``).
+        include_noise : bool, default False
+            Predict a noisy observation ``y`` instead of the latent ``f``.
+        use_samples : bool, default True
+            When ``theta_samples_`` is set, return the mixture over the samples: mean
+            ``E_s[mu_s]`` and (co)variance ``E_s[Sigma_s + mu_s mu_s^T] - mu mu^T`` (law of total
+            variance), so hyperparameter uncertainty reaches the bounds.
+
+        Returns
+        -------
+        mean : ndarray, shape (k,) or (k, m)
+        var : ndarray, shape like ``mean``; or cov, shape (k, k) or (k, k, m)
+        """
+        if return_var and return_cov:
+            raise ValueError("ask for return_var or return_cov, not both")
+        Xs = self.input_scaler_.transform(np.atleast_2d(np.asarray(X, dtype=float)))
+        posteriors = self._posteriors() if use_samples else [self._posterior]
+        want = "cov" if return_cov else "var" if return_var else None
+        means, spreads = zip(*(self._predict_one(p, Xs, want, include_noise) for p in posteriors))
+        mean = np.mean(means, axis=0)  # (k, m)
+        scale = self.output_scaler_.scale_
+        out_mean = self.output_scaler_.inverse_transform(mean)
+        if want is None:
+            return out_mean[:, 0] if self._y_1d else out_mean
+        if want == "var":
+            second = np.mean([s[:, None] + mu**2 for s, mu in zip(spreads, means)], axis=0)
+            spread = np.maximum(second - mean**2, 0.0) * scale**2  # (k, m)
+            return (out_mean[:, 0], spread[:, 0]) if self._y_1d else (out_mean, spread)
+        second = np.mean([s[:, :, None] + mu[:, None, :] * mu[None, :, :]
+                          for s, mu in zip(spreads, means)], axis=0)
+        cov = (second - mean[:, None, :] * mean[None, :, :]) * scale**2  # (k, k, m)
+        return (out_mean[:, 0], cov[:, :, 0]) if self._y_1d else (out_mean, cov)
+
+    def _predict_one(self, post: _Posterior, Xs, want, include_noise):
+        """Standardised mean (k, m) and latent/noisy variance (k,) or covariance (k, k)."""
+        Ks = self.kernel(Xs, self.X_train_, theta=post.theta[:-1])
+        mean = Ks @ post.alpha  # R&W Alg. 2.1 line 4
+        if want is None:
+            return mean, None
+        v = linalg.solve_triangular(post.L, Ks.T, lower=True, check_finite=False)  # line 5
+        noise = np.exp(post.theta[-1]) if include_noise else 0.0
+        if want == "var":
+            var = self.kernel.diag(Xs, theta=post.theta[:-1]) - np.einsum("ij,ij->j", v, v)
+            return mean, np.maximum(var, 0.0) + noise  # line 6
+        cov = self.kernel(Xs, theta=post.theta[:-1]) - v.T @ v
+        cov[np.diag_indices_from(cov)] += noise
+        return mean, cov
+
+    def _posteriors(self) -> list[_Posterior]:
+        if self.theta_samples_ is None:
+            return [self._posterior]
+        if self._sample_posteriors is None:
+            self._sample_posteriors = [self._factorise(t)[0] for t in self.theta_samples_]
+        return self._sample_posteriors
+
+    def __repr__(self) -> str:
+        return f"GaussianProcess({self.kernel!r}, noise_variance={self.noise_variance:.4g})"
+
+
+class PerOutputGP:
+    """One independent :class:`GaussianProcess` per output column.
+
+    Parameters
+    ----------
+    gps : list of GaussianProcess
+        One fitted single-output GP per output, in output order.
+    """
+
+    def __init__(self, gps) -> None:
+        self.gps = list(gps)
+
+    @classmethod
+    def fit(cls, make_gp, X, Y) -> "PerOutputGP":
+        """Fit ``make_gp()`` to each column of ``Y`` (shape (n, m)) with inputs ``X`` (n, d)."""
+        Y = np.asarray(Y, dtype=float)
+        if Y.ndim != 2:
+            raise ValueError(f"Y must have shape (n, m), got {Y.shape}")
+        return cls([make_gp().fit(X, Y[:, j]) for j in range(Y.shape[1])])
+
+    def predict(self, X, *, return_var: bool = False, include_noise: bool = False,
+                use_samples: bool = True):
+        """Mean, shape (k, m), and with ``return_var`` the variances, shape (k, m)."""
+        results = [gp.predict(X, return_var=return_var, include_noise=include_noise,
+                              use_samples=use_samples) for gp in self.gps]
+        if not return_var:
+            return np.column_stack(results)
+        return np.column_stack([r[0] for r in results]), np.column_stack([r[1] for r in results])
+
+
+# -- portable state (used by gp_model._model_file) -----------------------------------------------
+def gp_to_arrays(gp: GaussianProcess) -> tuple[dict, dict]:
+    """JSON-safe metadata and named arrays that fully describe a fitted GP."""
+    meta = {"kernel": gp.kernel.kind, "normalize_inputs": gp.normalize_inputs,
+            "normalize_outputs": gp.normalize_outputs, "y_1d": bool(gp._y_1d),
+            "theta_names": gp.theta_names}
+    arrays = {"X_train": gp.X_train_, "Y_train": gp.Y_train_, "theta": gp.theta_,
+              "input_mean": gp.input_scaler_.mean_, "input_scale": gp.input_scaler_.scale_,
+              "output_mean": gp.output_scaler_.mean_, "output_scale": gp.output_scaler_.scale_}
+    if gp.theta_samples_ is not None:
+        arrays["theta_samples"] = gp.theta_samples_
+    return meta, arrays
+
+
+def gp_from_arrays(meta: dict, arrays: dict) -> GaussianProcess:
+    """Inverse of :func:`gp_to_arrays`; raises KeyError/ValueError on inconsistent content."""
+    from ._kernels import KERNELS
+
+    kernel_class = KERNELS[meta["kernel"]]
+    theta = np.asarray(arrays["theta"], dtype=float)
+    X_train, Y_train = np.asarray(arrays["X_train"], float), np.asarray(arrays["Y_train"], float)
+    if theta.ndim != 1 or X_train.ndim != 2 or Y_train.ndim != 2 or len(X_train) != len(Y_train):
+        raise ValueError("inconsistent array shapes")
+    if theta.size != X_train.shape[1] + 2:
+        raise ValueError(f"theta has {theta.size} entries, expected {X_train.shape[1] + 2}")
+    kernel = kernel_class(1.0, np.full(X_train.shape[1], 0.5)).clone_with_theta(theta[:-1])
+    gp = GaussianProcess(kernel, noise_variance=float(np.exp(theta[-1])),
+                         normalize_inputs=bool(meta["normalize_inputs"]),
+                         normalize_outputs=bool(meta["normalize_outputs"]))
+    gp._y_1d = bool(meta["y_1d"])
+    gp.input_scaler_ = Standardizer.from_arrays(arrays["input_mean"], arrays["input_scale"])
+    gp.output_scaler_ = Standardizer.from_arrays(arrays["output_mean"], arrays["output_scale"])
+    gp.X_train_, gp.Y_train_ = X_train, Y_train
+    return gp.set_hyperparameters(theta, samples=arrays.get("theta_samples"))

@@ -1,0 +1,117 @@
+"""Portable model files: one ``.npz`` holding named arrays and a JSON header, never pickle.
+
+Layout: the array ``__header__`` is a JSON string ``{"format": "flightgp-model", "version": 1,
+"type": <model type>, "meta": {...}}``; every other array is named ``<part>/<name>``, where a
+part is one GP of the model (``gp0``, ``gp1``, ...). Files are written to a temporary file in the
+target folder and renamed, so a crash never leaves half a model behind.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import ModelFileError
+from ._gp import GaussianProcess, PerOutputGP, gp_from_arrays, gp_to_arrays
+
+FORMAT = "flightgp-model"
+VERSION = 1
+
+
+def save_model(path, model, *, meta: dict | None = None) -> Path:
+    """Write ``model`` (a :class:`GaussianProcess` or :class:`PerOutputGP`) to ``path``.
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file; ``.npz`` is appended if missing.
+    model : GaussianProcess or PerOutputGP
+        Fitted model.
+    meta : dict, optional
+        Extra JSON-serialisable information stored in the header (e.g. the training recording).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_name(path.name + ".npz")
+    gps = model.gps if isinstance(model, PerOutputGP) else [model]
+    if not all(isinstance(gp, GaussianProcess) for gp in gps):
+        raise TypeError(f"cannot save a {type(model).__name__}")
+    parts, arrays = [], {}
+    for i, gp in enumerate(gps):
+        part_meta, part_arrays = gp_to_arrays(gp)
+        parts.append(part_meta)
+        arrays.update({f"gp{i}/{name}": value for name, value in part_arrays.items()})
+    header = {"format": FORMAT, "version": VERSION, "type": type(model).__name__,
+              "parts": parts, "meta": meta or {}}
+    arrays["__header__"] = np.array(json.dumps(header))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "wb") as stream:
+            np.savez(stream, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+    return path
+
+
+def read_header(path) -> dict:
+    """The JSON header of a model file (format, version, type, meta)."""
+    return _open(path)[0]
+
+
+def load_model(path):
+    """Read a model written by :func:`save_model`.
+
+    Raises
+    ------
+    ModelFileError
+        Missing, corrupt, not a flightgp model, of another format version, or inconsistent.
+    """
+    header, arrays = _open(path)
+    try:
+        gps = []
+        for i, part_meta in enumerate(header["parts"]):
+            prefix = f"gp{i}/"
+            part = {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
+            gps.append(gp_from_arrays(part_meta, part))
+    except (KeyError, ValueError, TypeError) as error:
+        raise ModelFileError(f"{path}: model file is inconsistent ({type(error).__name__}: {error})") from None
+    if header["type"] == "GaussianProcess" and len(gps) == 1:
+        return gps[0]
+    if header["type"] == "PerOutputGP":
+        return PerOutputGP(gps)
+    raise ModelFileError(f"{path}: unknown model type {header['type']!r}")
+
+
+def _open(path) -> tuple[dict, dict]:
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f"{path}: no such model file")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {name: npz[name] for name in npz.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise ModelFileError(f"{path}: not a readable .npz model file ({error})") from None
+    try:
+        header = json.loads(str(arrays.pop("__header__")))
+    except (KeyError, json.JSONDecodeError):
+        raise ModelFileError(f"{path}: no flightgp header; not a flightgp model file") from None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise ModelFileError(f"{path}: not a flightgp model file (format {header.get('format')!r})")
+    if header.get("version") != VERSION:
+        raise ModelFileError(
+            f"{path}: model file version {header.get('version')!r}; this flightgp reads version "
+            f"{VERSION}. Retrain the model or use the flightgp release that wrote it."
+        )
+    return header, arrays

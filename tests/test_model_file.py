@@ -1,0 +1,102 @@
+"""Portable model files: exact round trip, no pickle, clear errors."""
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from gp_model import (GaussianProcess, HigdonKernel, ModelFileError, PerOutputGP,
+                      SquaredExponentialARD, load_model, read_header, save_model)
+
+
+@pytest.fixture
+def data():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(25, 3))
+    return X, np.column_stack([np.sin(X[:, 0]), X[:, 1] * X[:, 2]])
+
+
+def test_round_trip_gp_with_samples_predicts_identically(tmp_path, data):
+    X, Y = data
+    gp = GaussianProcess(HigdonKernel(1.2, [0.3, 0.6, 0.8]), noise_variance=0.03).fit(X, Y)
+    gp.set_hyperparameters(gp.theta_, samples=gp.theta_ + np.random.default_rng(1).normal(0, 0.1, (5, 5)))
+    path = save_model(tmp_path / "model", gp, meta={"trained_on": "id.csv"})
+    assert path.name == "model.npz"
+    loaded = load_model(path)
+    Xs = X[:7] + 0.1
+    for a, b in zip(gp.predict(Xs, return_var=True), loaded.predict(Xs, return_var=True)):
+        np.testing.assert_array_equal(a, b)
+    assert read_header(path)["meta"] == {"trained_on": "id.csv"}
+
+
+def test_round_trip_per_output_gp(tmp_path, data):
+    X, Y = data
+    model = PerOutputGP.fit(lambda: GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)), X, Y)
+    loaded = load_model(save_model(tmp_path / "m.npz", model))
+    assert isinstance(loaded, PerOutputGP)
+    np.testing.assert_array_equal(model.predict(X, return_var=True)[1], loaded.predict(X, return_var=True)[1])
+
+
+def test_file_loads_without_pickle(tmp_path, data):
+    X, Y = data
+    path = save_model(tmp_path / "m.npz", GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)).fit(X, Y))
+    with np.load(path, allow_pickle=False) as npz:  # raises if any object array were stored
+        assert "__header__" in npz.files
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ModelFileError, match="no such model file"):
+        load_model(tmp_path / "nope.npz")
+
+
+def test_corrupt_file(tmp_path):
+    path = tmp_path / "bad.npz"
+    path.write_bytes(b"PK\x03\x04 this is not a zip archive")
+    with pytest.raises(ModelFileError, match="not a readable"):
+        load_model(path)
+
+
+def test_npz_that_is_not_a_model(tmp_path):
+    path = tmp_path / "other.npz"
+    np.savez(path, x=np.arange(3))
+    with pytest.raises(ModelFileError, match="no flightgp header"):
+        load_model(path)
+
+
+def _rewrite_header(path, change):
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    header = json.loads(str(arrays["__header__"]))
+    change(header)
+    arrays["__header__"] = np.array(json.dumps(header))
+    np.savez(path, **arrays)
+
+
+def test_wrong_version_says_which(tmp_path, data):
+    X, Y = data
+    path = save_model(tmp_path / "m.npz", GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)).fit(X, Y))
+    _rewrite_header(path, lambda h: h.update(version=99))
+    with pytest.raises(ModelFileError, match="version 99.*reads version 1"):
+        load_model(path)
+
+
+def test_truncated_arrays_are_inconsistent(tmp_path, data):
+    X, Y = data
+    path = save_model(tmp_path / "m.npz", GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)).fit(X, Y))
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays["gp0/theta"] = arrays["gp0/theta"][:2]
+    np.savez(path, **arrays)
+    with pytest.raises(ModelFileError, match="inconsistent"):
+        load_model(path)
+
+
+def test_failed_save_leaves_existing_file_untouched(tmp_path, data):
+    X, Y = data
+    path = save_model(tmp_path / "m.npz", GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)).fit(X, Y))
+    before = path.read_bytes()
+    with pytest.raises(TypeError):
+        save_model(path, object())
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["m.npz"]  # no temporary left behind
+    assert zipfile.is_zipfile(path)

@@ -1,0 +1,1 @@
+"""Vehicles, manoeuvres, recordings, co-simulation, paper reproductions, diagnose and the CLI."""

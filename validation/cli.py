@@ -1,0 +1,68 @@
+"""The ``flightgp`` command line.
+
+Each subcommand lives in its own module, which exposes ``register(subparsers)``; that function
+adds the subparser and sets ``func`` (called with the parsed arguments, returns an exit code).
+
+Exit codes (DESIGN.md, "Command line"): 0 success, 2 bad input or usage (one line on stderr, no
+traceback), 1 internal error.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from gp_model import ModelFileError
+
+from .errors import BadInputError
+
+#: Modules that each register one or more subcommands, in the order ``--help`` lists them.
+COMMAND_MODULES = (
+    "validation._cmd_demo",
+    "validation._cmd_bench",
+    "validation._cmd_record",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="flightgp",
+        description="Gaussian-process flight-dynamics models, FMU export and simulation diagnosis.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``flightgp``; returns the exit code (also used by the console script)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)  # usage errors exit 2 with argparse's one-line message
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return int(args.func(args) or 0)
+    except (BadInputError, ModelFileError) as error:
+        print(f"flightgp {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"flightgp {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as error:  # noqa: BLE001 - last line of defence: say what broke, exit 1
+        if args.verbose:
+            raise
+        print(
+            f"flightgp {args.command}: internal error: {type(error).__name__}: {error} "
+            "(run with -v for the traceback and please report it)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
