@@ -11,6 +11,7 @@ from ._inference import (AnnealingResult, MaximumLikelihoodResult, MCMCResult,
 from ._kernels import (HigdonKernel, SquaredExponentialARD, alpha_from_length_scale,
                        length_scale_from_alpha)
 from ._model_file import load_model, read_header, save_model
+from ._moment_matching import predict_uncertain_input
 from ._priors import IndependentPrior
 
 __all__ = [
@@ -18,5 +19,5 @@ __all__ = [
     "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "PerOutputGP",
     "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
-    "read_header", "save_model", "simulated_annealing",
+    "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",
 ]

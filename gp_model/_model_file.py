@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
+import secrets
 import zipfile
 from pathlib import Path
 
@@ -54,13 +54,13 @@ def save_model(path, model, *, meta: dict | None = None) -> Path:
               "parts": parts, "meta": meta or {}}
     arrays["__header__"] = np.array(json.dumps(header))
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
-        with os.fdopen(handle, "wb") as stream:
+        with open(temporary, "xb") as stream:
             np.savez(stream, **arrays)
-        os.replace(tmp, path)
+        os.replace(temporary, path)
     except BaseException:
-        os.unlink(tmp)
+        temporary.unlink(missing_ok=True)
         raise
     return path
 

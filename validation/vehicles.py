@@ -38,6 +38,53 @@ class Vehicle(Protocol):
         ...
 
 
+def check_history(time, inputs, input_names, *, evenly_sampled: bool = True):
+    """Validate a ``simulate`` call's arguments; the one check every vehicle uses.
+
+    Parameters
+    ----------
+    time : array_like, shape (n,)
+        Sample times, s; at least 2, finite, strictly increasing, and (if ``evenly_sampled``)
+        evenly spaced to a relative 1e-6 (far above the rounding of ``t0 + k*h`` grids, far
+        below any real irregularity).
+    inputs : array_like, shape (n, len(input_names))
+    input_names : sequence of str
+        Column names, for messages.
+
+    Returns
+    -------
+    time : ndarray, shape (n,)
+    inputs : ndarray, shape (n, n_inputs)
+    step : float
+        Mean sample interval, s.
+    """
+    time = np.asarray(time, dtype=float)
+    inputs = np.asarray(inputs, dtype=float)
+    n_inputs = len(input_names)
+    if time.ndim != 1 or len(time) < 2:
+        raise BadInputError(f"time must be a 1-D array of at least 2 samples, got shape {time.shape}")
+    if inputs.shape != (len(time), n_inputs):
+        raise BadInputError(f"inputs must have shape ({len(time)}, {n_inputs}), one row per time sample "
+                            f"with columns {', '.join(input_names)}; got shape {inputs.shape}")
+    if not np.all(np.isfinite(time)):
+        raise BadInputError(f"time has a non-finite value at sample {int(np.argmin(np.isfinite(time)))}")
+    bad = np.argwhere(~np.isfinite(inputs))
+    if len(bad):
+        row, column = bad[0]
+        raise BadInputError(f"inputs have a non-finite value at row {row}, column {input_names[column]!r}")
+    steps = np.diff(time)
+    step = (time[-1] - time[0]) / (len(time) - 1)
+    if np.any(steps <= 0):
+        worst = int(np.argmin(steps))
+        raise BadInputError(f"time must be strictly increasing; it goes from {time[worst]:.9g} s to "
+                            f"{time[worst + 1]:.9g} s at sample {worst}")
+    worst = int(np.argmax(np.abs(steps - step)))
+    if evenly_sampled and abs(steps[worst] - step) > 1e-6 * step:
+        raise BadInputError(f"time must be evenly spaced; the step at sample {worst} is "
+                            f"{steps[worst]:.9g} s against a mean of {step:.9g} s")
+    return time, inputs, float(step)
+
+
 def vehicle_names() -> list[str]:
     """Every name :func:`get_vehicle` accepts, JSBSim aircraft shown as ``jsbsim:<aircraft>``."""
     names = []
@@ -48,16 +95,16 @@ def vehicle_names() -> list[str]:
 
 def get_vehicle(name: str) -> Vehicle:
     """The vehicle called ``name``; :class:`BadInputError` naming the valid choices otherwise."""
-    bo105 = re.fullmatch(r"bo105-(\d+)kt(-flight)?", name)
-    if bo105:
-        speed = int(bo105.group(1))
+    match = re.fullmatch(r"bo105-(\d+)kt(-flight)?", name)
+    if match:
+        speed = int(match.group(1))
         if speed not in BO105_SPEEDS_KT:
             raise BadInputError(
                 f"no Bo105 model at {speed} kt: Padfield tabulates {', '.join(map(str, BO105_SPEEDS_KT))} kt"
             )
         from . import bo105
 
-        return bo105.Bo105FlightTest(speed) if bo105.group(2) else bo105.Bo105Reference(speed)
+        return bo105.Bo105FlightTest(speed) if match.group(2) else bo105.Bo105Reference(speed)
     if name in ("blimp", "blimp-flight"):
         from . import blimp
 

@@ -1,0 +1,51 @@
+"""The flightgp command line: exit codes, bench gp, demo."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from validation.cli import main
+
+
+def test_bench_gp_writes_report_with_ratios(tmp_path, capsys):
+    assert main(["bench", "gp", "--sizes", "30", "60", "--restarts", "0", "--out-dir", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "gp.json").read_text())
+    assert [row["n"] for row in report["rows"]] == [30, 60]
+    for row in report["rows"]:
+        for key in ("fit_s", "fit_s_sklearn", "lml", "lml_sklearn", "predict_s", "predict_s_sklearn"):
+            assert row[key] == row[key] and row[key] != float("inf"), key  # finite
+        assert row["fit_s"] > 0 and row["fit_s_sklearn"] > 0
+        # Both optimisers start from the same hyperparameters on the same function; flightgp's
+        # optimum must be at least as good (1e-3 covers L-BFGS-B stopping tolerances).
+        assert row["lml"] >= row["lml_sklearn"] - 1e-3
+    assert "speedup" in capsys.readouterr().out
+
+
+def test_bench_unknown_name_exits_2(tmp_path, capsys):
+    assert main(["bench", "nope", "--out-dir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown benchmark nope" in err and "Traceback" not in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_usage_error_exits_2_without_traceback():
+    result = subprocess.run([sys.executable, "-m", "validation.cli", "no-such-command"],
+                            capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "invalid choice" in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
+def test_demo_runs_end_to_end(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    names = {p.name for p in tmp_path.iterdir()}
+    assert {"flight_test.csv", "reference.csv", "pitch_rate.png", "pitch_rate_gp.npz", "summary.json"} <= names
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["training_points"] == 32  # every 25th of 800 one-step pairs, as the paper
+    rmse = summary["one_step_rmse_q_rad_s"]
+    # One-step pitch rate is dominated by 100 Hz sensor noise (a few mrad/s): both predictors
+    # must sit near that floor, far below the 0.2 rad/s peak of the manoeuvre.
+    assert 0 < rmse["gp"] < 0.02 and 0 < rmse["reference"] < 0.05
+    assert 0.8 <= summary["coverage95_q"] <= 1.0
+    assert "GP trained on 32 points" in capsys.readouterr().out

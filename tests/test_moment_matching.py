@@ -1,0 +1,185 @@
+"""Moment matching at uncertain inputs: limits, Monte Carlo, invariances and argument checks."""
+import numpy as np
+import pytest
+
+from gp_model import (GaussianProcess, HigdonKernel, PerOutputGP, SquaredExponentialARD,
+                      alpha_from_length_scale, predict_uncertain_input)
+
+LENGTH_SCALES = ([0.8, 1.2, 1.5], [1.0, 0.7, 2.0])  # standardised input units, one set per output
+SIGNAL_VARIANCES = (1.0, 1.5)
+NOISE_VARIANCES = (1e-2, 3e-2)
+
+
+def targets(X):
+    """Two smooth, non-linear outputs of 3-D inputs, shape (n, 2)."""
+    return np.column_stack([np.sin(1.5 * X[:, 0]) + 0.3 * X[:, 1] * X[:, 2],
+                            np.cos(X[:, 1]) - 0.5 * X[:, 0] ** 2])
+
+
+def training_inputs(seed=0):
+    """Two different training sets, so that the two GPs standardise their inputs differently."""
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-2, 2, size=(40, 3)), rng.uniform(-1, 3, size=(50, 3)) * [1.0, 2.0, 0.5]
+
+
+def make_kernel(kind, j):
+    if kind == "se_ard":
+        return SquaredExponentialARD(SIGNAL_VARIANCES[j], LENGTH_SCALES[j])
+    return HigdonKernel(SIGNAL_VARIANCES[j], alpha_from_length_scale(LENGTH_SCALES[j]))
+
+
+def fit_pair(kind="se_ard", *, input_scale=1.0, input_offset=0.0, output_scale=(1.0, 1.0),
+             output_offset=(0.0, 0.0)):
+    """Two single-output GPs, data optionally expressed in other units ``x' = c x + o``."""
+    gps = []
+    for j, X in enumerate(training_inputs()):
+        y = targets(X)[:, j] * output_scale[j] + output_offset[j]
+        gp = GaussianProcess(make_kernel(kind, j), noise_variance=NOISE_VARIANCES[j])
+        gps.append(gp.fit(X * input_scale + input_offset, y))
+    return gps
+
+
+MEAN = np.array([0.3, 0.5, 0.2])
+COV = np.array([[0.30, 0.10, -0.05],
+                [0.10, 0.45, 0.12],
+                [-0.05, 0.12, 0.25]])  # input spread ~0.5-0.7 against length scales ~1
+
+
+@pytest.mark.parametrize("kind", ["se_ard", "higdon"])
+@pytest.mark.parametrize("include_noise", [False, True])
+def test_zero_input_covariance_gives_ordinary_prediction(kind, include_noise):
+    gps = fit_pair(kind)
+    for cov_size in (0.0, 1e-14):
+        out_mean, out_cov, cross_cov = predict_uncertain_input(
+            gps, MEAN, cov_size * COV, include_noise=include_noise)
+        predictions = [gp.predict(MEAN[None], return_var=True, include_noise=include_noise)
+                       for gp in gps]
+        # Same quantities by another route (q^T K^-1 q against |L^-1 k|^2): rounding only, and the
+        # O(cov) terms at cov = 1e-14 x COV are below 1e-13 for outputs and gradients of O(1).
+        np.testing.assert_allclose(out_mean, [p[0][0] for p in predictions], rtol=1e-10)
+        np.testing.assert_allclose(np.diag(out_cov), [p[1][0] for p in predictions], rtol=1e-10)
+        np.testing.assert_allclose(out_cov[0, 1], 0.0, atol=1e-12)
+        np.testing.assert_allclose(cross_cov, 0.0, atol=1e-12)
+        if cov_size == 0.0:
+            # Every term of eq. (6) and of M(P) is an exact zero when S = 0.
+            assert out_cov[0, 1] == 0.0 and not cross_cov.any()
+
+
+def test_small_input_covariance_matches_linearisation():
+    # For S = eps^2 C, Cov[x, f] = S J^T + O(eps^4) and Cov[mu_a, mu_b] = J_a S J_b^T + O(eps^4)
+    # (odd central moments of a Gaussian vanish), J the Jacobian of the predictive means.
+    gps = fit_pair()
+    eps = 1e-3
+    _, out_cov, cross_cov = predict_uncertain_input(gps, MEAN, eps**2 * COV)
+    h = 1e-5  # central differences: truncation ~h^2 = 1e-10, rounding ~1e-16 / h = 1e-11
+    J = np.array([[(gp.predict((MEAN + h * e)[None])[0] - gp.predict((MEAN - h * e)[None])[0])
+                   / (2 * h) for e in np.eye(3)] for gp in gps])  # (2, 3)
+    # Relative error O(eps^2) = 1e-6 times curvature over slope (~10 for these outputs).
+    np.testing.assert_allclose(cross_cov, eps**2 * COV @ J.T, rtol=1e-4)
+    np.testing.assert_allclose(out_cov[0, 1], eps**2 * J[0] @ COV @ J[1], rtol=1e-4)
+
+
+def test_agrees_with_monte_carlo():
+    gps = fit_pair()
+    out_mean, out_cov, cross_cov = predict_uncertain_input(gps, MEAN, COV, include_noise=True)
+
+    n_samples = 200_000
+    x = np.random.default_rng(42).multivariate_normal(MEAN, COV, size=n_samples)  # (N, 3)
+    mu, var = (np.column_stack(columns) for columns in zip(
+        *(gp.predict(x, return_var=True, include_noise=True) for gp in gps)))  # (N, 2) each
+    d_mu, d_x = mu - mu.mean(axis=0), x - x.mean(axis=0)
+    # Each moment is the sample mean of a per-sample quantity g; its standard error is
+    # std(g) / sqrt(N) (law of total variance: Cov[f] = Cov[mu(x)] + E[var(x)]).
+    per_sample = {
+        "mean": (mu, out_mean),
+        "cov": (d_mu[:, :, None] * d_mu[:, None, :] + var[:, :, None] * np.eye(2), out_cov),
+        "cross_cov": (d_x[:, :, None] * d_mu[:, None, :], cross_cov),
+    }
+    for name, (g, analytic) in per_sample.items():
+        estimate = g.mean(axis=0)
+        standard_error = g.std(axis=0) / np.sqrt(n_samples)
+        # 5 standard errors: with 15 compared numbers a false alarm has probability ~1e-5.
+        assert np.all(np.abs(analytic - estimate) < 5 * standard_error), (
+            name, analytic, estimate, standard_error)
+
+    # The test has power: the plug-in variance at the input mean, which ignores the input
+    # uncertainty, is many standard errors away from the Monte Carlo variance.
+    plug_in = np.array([gp.predict(MEAN[None], return_var=True, include_noise=True)[1][0]
+                        for gp in gps])
+    g = d_mu**2 + var
+    assert np.all(np.abs(plug_in - g.mean(axis=0)) > 50 * g.std(axis=0) / np.sqrt(n_samples))
+
+
+def test_higdon_and_se_kernels_with_equal_weights_agree():
+    se = predict_uncertain_input(fit_pair("se_ard"), MEAN, COV)
+    higdon = predict_uncertain_input(fit_pair("higdon"), MEAN, COV)
+    for a, b in zip(se, higdon):
+        # Weights equal to ~1e-15 after logit/expit; K + sigma_n^2 I (condition ~1e3 here)
+        # amplifies that to ~1e-12 in beta: 1e-9 leaves a wide margin for other BLAS builds.
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_results_follow_a_change_of_units():
+    c_x, o_x = 10.0, np.array([5.0, -3.0, 100.0])  # x' = 10 x + o_x
+    c_y, o_y = np.array([3.0, 0.5]), np.array([-2.0, 40.0])  # y'_a = c_a y_a + o_a
+    base = predict_uncertain_input(fit_pair(), MEAN, COV)
+    other_units = fit_pair(input_scale=c_x, input_offset=o_x, output_scale=c_y,
+                           output_offset=o_y)
+    out_mean, out_cov, cross_cov = predict_uncertain_input(other_units, c_x * MEAN + o_x,
+                                                           c_x**2 * COV)
+    # Standardisation removes the units up to rounding of the scalers (~1e-15), amplified by
+    # K + sigma_n^2 I (condition ~1e3 here) to ~1e-12: 1e-9 leaves a wide margin.
+    np.testing.assert_allclose(out_mean, c_y * base[0] + o_y, rtol=1e-9)
+    np.testing.assert_allclose(out_cov, np.outer(c_y, c_y) * base[1], rtol=1e-9)
+    np.testing.assert_allclose(cross_cov, c_x * base[2] * c_y, rtol=1e-9, atol=1e-12)
+
+
+def test_output_order_does_not_matter():
+    # The common frame is that of gps[0]; the two GPs standardise differently, so reversing
+    # them changes the frame but must only permute the results.
+    gps = fit_pair()
+    out_mean, out_cov, cross_cov = predict_uncertain_input(gps, MEAN, COV)
+    rev_mean, rev_cov, rev_cross = predict_uncertain_input(gps[::-1], MEAN, COV)
+    # Frame changes are affine maps of O(1) numbers: rounding only.
+    np.testing.assert_allclose(rev_mean, out_mean[::-1], rtol=1e-12)
+    np.testing.assert_allclose(rev_cov, out_cov[::-1, ::-1], rtol=1e-12)
+    np.testing.assert_allclose(rev_cross, cross_cov[:, ::-1], rtol=1e-12)
+
+
+def test_output_and_joint_covariances_are_symmetric_positive_semidefinite():
+    cov = 4.0 * COV
+    _, out_cov, cross_cov = predict_uncertain_input(fit_pair(), MEAN, cov, include_noise=False)
+    assert np.array_equal(out_cov, out_cov.T)
+    # The joint covariance of (x, f) is what a free run propagates. Eigenvalues of a PSD matrix
+    # are >= 0 up to rounding of order eps * max|entry| (5 x 5 here), far below 1e-12.
+    joint = np.block([[cov, cross_cov], [cross_cov.T, out_cov]])
+    assert np.linalg.eigvalsh(joint).min() > -1e-12 * np.abs(joint).max()
+
+
+@pytest.mark.parametrize("mean, cov, message", [
+    (MEAN[:2], COV, r"mean must have shape \(3,\)"),
+    (MEAN, COV[:2, :2], r"cov must have shape \(3, 3\)"),
+    (MEAN, COV + np.triu(np.full((3, 3), 0.01), 1), "not symmetric"),
+    (MEAN, np.diag([0.3, -0.1, 0.2]), "not positive semi-definite"),
+    (np.array([0.3, np.nan, 0.2]), COV, "NaN or inf"),
+])
+def test_bad_input_distribution_is_refused(mean, cov, message):
+    with pytest.raises(ValueError, match=message):
+        predict_uncertain_input(fit_pair(), mean, cov)
+
+
+def test_bad_gp_lists_are_refused():
+    X, _ = training_inputs()
+    y = targets(X)
+    se = SquaredExponentialARD(1.0, [1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="empty"):
+        predict_uncertain_input([], MEAN, COV)
+    with pytest.raises(ValueError, match="not fitted"):
+        predict_uncertain_input([GaussianProcess(se)], MEAN, COV)
+    with pytest.raises(ValueError, match="2 outputs"):
+        predict_uncertain_input([GaussianProcess(se).fit(X, y)], MEAN, COV)
+    two_d = GaussianProcess(SquaredExponentialARD(1.0, [1.0, 1.0])).fit(X[:, :2], y[:, 0])
+    with pytest.raises(ValueError, match="input dimension 2"):
+        predict_uncertain_input(fit_pair() + [two_d], MEAN, COV)
+    with pytest.raises(TypeError, match="pass its .gps"):
+        predict_uncertain_input(PerOutputGP(fit_pair()), MEAN, COV)
