@@ -21,6 +21,9 @@ def register(subparsers) -> None:
                         help="training-set sizes for `bench gp` (default: 100 500 2000)")
     parser.add_argument("--restarts", type=int, default=1,
                         help="random restarts of the hyperparameter optimiser (default 1)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="BLAS threads for flightgp and its peer alike (default 1: on a 2-core "
+                             "machine a second BLAS thread spins between calls and slows both)")
     parser.add_argument("--out-dir", type=Path, default=Path("build/bench"),
                         help="where the JSON reports go (default build/bench)")
     parser.set_defaults(func=run)
@@ -34,9 +37,15 @@ def run(args: argparse.Namespace) -> int:
         raise BadInputError(f"--sizes must all be at least 10, got {args.sizes}")
     if args.restarts < 0:
         raise BadInputError(f"--restarts must be 0 or more, got {args.restarts}")
+    if args.threads < 1:
+        raise BadInputError(f"--threads must be 1 or more, got {args.threads}")
+    from threadpoolctl import threadpool_limits
+
     for name in args.names or list(BENCHMARKS):
         bench, format_table = BENCHMARKS[name]
-        report = bench(sizes=tuple(args.sizes), n_restarts=args.restarts)
+        with threadpool_limits(args.threads):
+            report = bench(sizes=tuple(args.sizes), n_restarts=args.restarts)
+        report["blas_threads"] = args.threads
         print(format_table(report))
         path = write_json(args.out_dir / f"{name}.json", report)
         print(f"written {path}")

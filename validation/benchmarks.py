@@ -81,7 +81,8 @@ def bench_gp(*, sizes=(100, 500, 2000), n_restarts: int = 1, n_dims: int = 4, se
 def format_gp_table(report: dict) -> str:
     """The ``bench gp`` report as a fixed-width table."""
     lines = [f"GP fit and predict vs {report['peer']} (d={report['n_dims']}, "
-             f"restarts={report['n_restarts']}; speedup = sklearn time / flightgp time)",
+             f"restarts={report['n_restarts']}, BLAS threads={report.get('blas_threads', '?')}; "
+             "speedup = sklearn time / flightgp time)",
              f"{'n':>6} {'fit s':>9} {'sklearn':>9} {'speedup':>8} {'lml':>11} {'lml sklearn':>12}"
              f" {'predict s':>10} {'sklearn':>9} {'speedup':>8}"]
     for r in report["rows"]:
