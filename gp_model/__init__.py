@@ -12,11 +12,12 @@ from ._kernels import (HigdonKernel, SquaredExponentialARD, alpha_from_length_sc
                        length_scale_from_alpha)
 from ._model_file import load_model, read_header, save_model
 from ._moment_matching import predict_uncertain_input
+from ._narx import FreeRunResult, GPNarx, NarxStructure
 from ._priors import IndependentPrior
 
 __all__ = [
-    "AnnealingResult", "GaussianProcess", "GPNumericalError", "HigdonKernel", "IndependentPrior",
-    "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "PerOutputGP",
+    "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "HigdonKernel", "IndependentPrior",
+    "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP",
     "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
     "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",

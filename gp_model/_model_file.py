@@ -17,19 +17,20 @@ import numpy as np
 
 from ._errors import ModelFileError
 from ._gp import GaussianProcess, PerOutputGP, gp_from_arrays, gp_to_arrays
+from ._narx import GPNarx, NarxStructure
 
 FORMAT = "flightgp-model"
 VERSION = 1
 
 
 def save_model(path, model, *, meta: dict | None = None) -> Path:
-    """Write ``model`` (a :class:`GaussianProcess` or :class:`PerOutputGP`) to ``path``.
+    """Write a fitted model to ``path``.
 
     Parameters
     ----------
     path : str or Path
         Target file; ``.npz`` is appended if missing.
-    model : GaussianProcess or PerOutputGP
+    model : GaussianProcess, PerOutputGP or GPNarx
         Fitted model.
     meta : dict, optional
         Extra JSON-serialisable information stored in the header (e.g. the training recording).
@@ -42,16 +43,14 @@ def save_model(path, model, *, meta: dict | None = None) -> Path:
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
-    gps = model.gps if isinstance(model, PerOutputGP) else [model]
-    if not all(isinstance(gp, GaussianProcess) for gp in gps):
-        raise TypeError(f"cannot save a {type(model).__name__}")
+    gps, structure = _decompose(model)
     parts, arrays = [], {}
     for i, gp in enumerate(gps):
         part_meta, part_arrays = gp_to_arrays(gp)
         parts.append(part_meta)
         arrays.update({f"gp{i}/{name}": value for name, value in part_arrays.items()})
     header = {"format": FORMAT, "version": VERSION, "type": type(model).__name__,
-              "parts": parts, "meta": meta or {}}
+              "parts": parts, "structure": structure, "meta": meta or {}}
     arrays["__header__"] = np.array(json.dumps(header))
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
@@ -85,13 +84,28 @@ def load_model(path):
             prefix = f"gp{i}/"
             part = {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
             gps.append(gp_from_arrays(part_meta, part))
+        if header["type"] == "GaussianProcess" and len(gps) == 1:
+            return gps[0]
+        if header["type"] == "PerOutputGP":
+            return PerOutputGP(gps)
+        if header["type"] == "GPNarx":
+            return GPNarx(NarxStructure(**header["structure"]), PerOutputGP(gps))
     except (KeyError, ValueError, TypeError) as error:
         raise ModelFileError(f"{path}: model file is inconsistent ({type(error).__name__}: {error})") from None
-    if header["type"] == "GaussianProcess" and len(gps) == 1:
-        return gps[0]
-    if header["type"] == "PerOutputGP":
-        return PerOutputGP(gps)
     raise ModelFileError(f"{path}: unknown model type {header['type']!r}")
+
+
+def _decompose(model) -> tuple[list, dict | None]:
+    """The GPs of ``model`` and, for a NARX model, its structure as JSON-safe data."""
+    if isinstance(model, GaussianProcess):
+        return [model], None
+    if isinstance(model, PerOutputGP):
+        return model.gps, None
+    if isinstance(model, GPNarx):
+        s = model.structure
+        return model.model.gps, {"input_names": list(s.input_names), "output_names": list(s.output_names),
+                                 "input_lags": list(s.input_lags), "output_lags": list(s.output_lags)}
+    raise TypeError(f"cannot save a {type(model).__name__}")
 
 
 def _open(path) -> tuple[dict, dict]:

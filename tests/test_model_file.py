@@ -100,3 +100,20 @@ def test_failed_save_leaves_existing_file_untouched(tmp_path, data):
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["m.npz"]  # no temporary left behind
     assert zipfile.is_zipfile(path)
+
+
+def test_round_trip_narx_model_free_runs_identically(tmp_path):
+    from gp_model import GPNarx, NarxStructure
+
+    rng = np.random.default_rng(3)
+    u = np.repeat(rng.uniform(-1, 1, 30), 4)[:, None]
+    y = np.zeros((len(u), 1))
+    for k in range(1, len(u)):
+        y[k] = 0.8 * y[k - 1] + 0.3 * np.tanh(u[k - 1])
+    structure = NarxStructure(("u",), ("y",), input_lags=(1, 2), output_lags=(1,))
+    model = GPNarx.fit(structure, [(u, y + 0.01 * rng.standard_normal(y.shape))], stride=3, n_samples=32)
+    loaded = load_model(save_model(tmp_path / "narx.npz", model))
+    assert isinstance(loaded, GPNarx) and loaded.structure == structure
+    a = model.free_run(u, y[:2], n_runs=50, seed=1, keep_runs=True)
+    b = loaded.free_run(u, y[:2], n_runs=50, seed=1, keep_runs=True)
+    np.testing.assert_array_equal(a.runs, b.runs)

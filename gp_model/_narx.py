@@ -1,0 +1,457 @@
+"""GP-NARX models: ``y(k) = f(u(k - i) for i in input_lags, y(k - j) for j in output_lags) + e``.
+
+One GP per output (Bo105 GP-NARX paper, AHS 74th Forum, 2018: pitch, roll and yaw rate each
+from the cyclic input and the previous rates). Two kinds of prediction:
+
+- one-step-ahead (OSAP): the regressors hold *measured* past outputs;
+- free run (full-model prediction, FMP): the model's own predictions are fed back. Three ways
+  to carry the uncertainty along, chosen by ``method``:
+
+  * ``"monte_carlo"`` (the paper's): R runs, each drawing its output at every step from the
+    GP's predictive distribution, each run with hyperparameters drawn from the annealing
+    samples; vectorised over runs;
+  * ``"moment_matching"``: the exact mean and covariance of the GP output at a Gaussian input
+    (Girard et al., NIPS 2003), propagated as a joint Gaussian over the lagged outputs;
+  * ``"mean"``: the naive rollout that feeds back the mean and reports the GP variance at it.
+
+Arrays follow one convention: ``inputs`` has shape (n, n_inputs), ``outputs`` (n, n_outputs),
+row k is sample k of an evenly sampled recording.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg
+
+from ._gp import GaussianProcess, PerOutputGP
+
+
+@dataclass(frozen=True)
+class NarxStructure:
+    """Which signals at which lags form the regressor vector.
+
+    Parameters
+    ----------
+    input_names : tuple of str
+        Exogenous inputs, e.g. ``("theta_1s",)``.
+    output_names : tuple of str
+        Predicted outputs, fed back in free run, e.g. ``("p", "q", "r")``.
+    input_lags : tuple of int, default (1,)
+        Lags ``i >= 0`` of every input: ``u(k - i)`` enters the regressor of ``y(k)``.
+    output_lags : tuple of int, default (1,)
+        Lags ``j >= 1`` of every output.
+    """
+
+    input_names: tuple
+    output_names: tuple
+    input_lags: tuple = (1,)
+    output_lags: tuple = (1,)
+
+    def __post_init__(self) -> None:
+        for name in ("input_names", "output_names", "input_lags", "output_lags"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+        if not self.output_names:
+            raise ValueError("a NARX model needs at least one output")
+        if any(lag < 0 for lag in self.input_lags) or any(lag < 1 for lag in self.output_lags):
+            raise ValueError("input lags must be >= 0 and output lags >= 1 "
+                             f"(got {self.input_lags}, {self.output_lags})")
+        if not self.output_lags:
+            raise ValueError("a NARX model needs at least one output lag")
+
+    @property
+    def max_lag(self) -> int:
+        """Samples of history needed before the first prediction."""
+        return max((*self.input_lags, *self.output_lags))
+
+    @property
+    def regressor_names(self) -> list[str]:
+        """``"theta_1s(k-1)"``, ..., ``"q(k-2)"``: inputs first, then outputs, lag by lag."""
+        def lagged(name, lag):
+            return f"{name}(k)" if lag == 0 else f"{name}(k-{lag})"
+        return ([lagged(n, i) for n in self.input_names for i in self.input_lags]
+                + [lagged(n, j) for n in self.output_names for j in self.output_lags])
+
+    def regressors(self, inputs, outputs) -> tuple[np.ndarray, np.ndarray]:
+        """Regressor matrix and targets for every ``k >= max_lag`` of one recording.
+
+        Parameters
+        ----------
+        inputs : ndarray, shape (n, n_inputs)
+        outputs : ndarray, shape (n, n_outputs)
+
+        Returns
+        -------
+        X : ndarray, shape (n - max_lag, n_regressors)
+        Y : ndarray, shape (n - max_lag, n_outputs)
+            ``Y[i] = outputs[max_lag + i]``.
+        """
+        inputs, outputs = self._check(inputs, outputs)
+        n, start = len(outputs), self.max_lag
+        if n <= start:
+            raise ValueError(f"need more than {start} samples for lags up to {start}, got {n}")
+        columns = [inputs[start - i:n - i, c] for c in range(inputs.shape[1]) for i in self.input_lags]
+        columns += [outputs[start - j:n - j, c] for c in range(outputs.shape[1]) for j in self.output_lags]
+        return np.column_stack(columns), outputs[start:]
+
+    def _check(self, inputs, outputs):
+        inputs = np.asarray(inputs, dtype=float).reshape(len(outputs), -1)
+        outputs = np.asarray(outputs, dtype=float)
+        if outputs.ndim != 2 or outputs.shape[1] != len(self.output_names):
+            raise ValueError(f"outputs must have shape (n, {len(self.output_names)}), got {outputs.shape}")
+        if inputs.shape[1] != len(self.input_names):
+            raise ValueError(f"inputs must have shape (n, {len(self.input_names)}), got {inputs.shape}")
+        return inputs, outputs
+
+
+@dataclass
+class FreeRunResult:
+    """A free-run prediction.
+
+    Attributes
+    ----------
+    mean : ndarray, shape (n, n_outputs)
+        Predicted outputs; the first ``max_lag`` rows are the given initial outputs.
+    var : ndarray, shape (n, n_outputs)
+        Predictive variance (zero on the initial rows).
+    runs : ndarray, shape (R, n, n_outputs) or None
+        The Monte Carlo runs (``method="monte_carlo"`` only).
+    method : str
+    """
+
+    mean: np.ndarray
+    var: np.ndarray
+    runs: np.ndarray | None
+    method: str
+
+
+class GPNarx:
+    """A GP-NARX model: a :class:`NarxStructure` and one fitted GP per output.
+
+    Parameters
+    ----------
+    structure : NarxStructure
+    model : PerOutputGP
+        ``model.gps[j]`` predicts ``structure.output_names[j]`` from the regressor vector.
+    """
+
+    def __init__(self, structure: NarxStructure, model: PerOutputGP) -> None:
+        if len(model.gps) != len(structure.output_names):
+            raise ValueError("one GP per output")
+        self.structure = structure
+        self.model = model
+
+    @classmethod
+    def fit(cls, structure: NarxStructure, recordings, *, kernel: str = "higdon",
+            hyperparameters: str = "annealing", stride: int = 1, rows=None, seed: int = 0,
+            progress: bool = False, **inference_options) -> "GPNarx":
+        """Train one GP per output on regressors built from one or more recordings.
+
+        Parameters
+        ----------
+        structure : NarxStructure
+        recordings : sequence of (inputs, outputs)
+            Each an evenly sampled pair of arrays, shapes (n_i, n_inputs), (n_i, n_outputs);
+            regressors never straddle two recordings.
+        kernel : {"higdon", "squared_exponential_ard"}
+        hyperparameters : {"annealing", "maximum_likelihood"}
+            Simulated annealing (the Bo105 paper's; predictions then average over the
+            samples) or type-II maximum likelihood.
+        stride : int, default 1
+            Keep every ``stride``-th regressor row of each recording (the paper: 25).
+        rows : sequence of int, optional
+            Instead of ``stride``: these rows of the stacked regressor matrix.
+        seed : int, default 0
+            Output ``j`` uses seed ``seed + j``.
+        progress : bool
+        **inference_options
+            Passed to :func:`~gp_model.anneal_hyperparameters` or
+            :func:`~gp_model.maximize_marginal_likelihood`.
+        """
+        from ._inference import anneal_hyperparameters, maximize_marginal_likelihood
+        from ._kernels import KERNELS
+
+        if kernel not in KERNELS:
+            raise ValueError(f"unknown kernel {kernel!r}; use one of {', '.join(KERNELS)}")
+        if hyperparameters not in ("annealing", "maximum_likelihood"):
+            raise ValueError(f"unknown hyperparameter method {hyperparameters!r}")
+        if stride < 1:
+            raise ValueError(f"stride must be >= 1, got {stride}")
+        blocks = [structure.regressors(u, y) for u, y in recordings]
+        if rows is None:
+            blocks = [(X[::stride], Y[::stride]) for X, Y in blocks]
+        X = np.vstack([b[0] for b in blocks])
+        Y = np.vstack([b[1] for b in blocks])
+        if rows is not None:
+            X, Y = X[np.asarray(rows)], Y[np.asarray(rows)]
+        n_dims = X.shape[1]
+        start = {"higdon": 0.5, "squared_exponential_ard": 1.0}[kernel]
+        gps = []
+        for j in range(Y.shape[1]):
+            gp = GaussianProcess(KERNELS[kernel](1.0, np.full(n_dims, start)),
+                                 noise_variance=1e-2).fit(X, Y[:, j])
+            if hyperparameters == "annealing":
+                anneal_hyperparameters(gp, seed=seed + j, progress=progress, **inference_options)
+            else:
+                maximize_marginal_likelihood(gp, seed=seed + j, **inference_options)
+            gps.append(gp)
+        return cls(structure, PerOutputGP(gps))
+
+    # -- one step ---------------------------------------------------------------------------
+    def one_step(self, inputs, outputs, *, include_noise: bool = True):
+        """One-step-ahead prediction from measured history (OSAP).
+
+        Returns
+        -------
+        mean, var : ndarray, shape (n - max_lag, n_outputs)
+            Prediction of ``outputs[max_lag:]``.
+        """
+        X, _ = self.structure.regressors(inputs, outputs)
+        return self.model.predict(X, return_var=True, include_noise=include_noise)
+
+    # -- free run ---------------------------------------------------------------------------
+    def free_run(self, inputs, initial_outputs, *, method: str = "monte_carlo", n_runs: int = 1000,
+                 seed: int = 0, include_noise: bool = True, use_samples: bool = True,
+                 keep_runs: bool = False, progress: bool = False) -> FreeRunResult:
+        """Free-run (full-model) prediction over the whole input history.
+
+        Parameters
+        ----------
+        inputs : ndarray, shape (n, n_inputs)
+            Exogenous inputs for every sample.
+        initial_outputs : ndarray, shape (max_lag, n_outputs) or longer
+            Measured outputs that start the run; only the first ``max_lag`` rows are used.
+        method : {"monte_carlo", "moment_matching", "mean"}
+        n_runs : int, default 1000
+            Monte Carlo runs R.
+        seed : int, default 0
+            Seed of the Monte Carlo draws (hyperparameter assignment and predictive samples).
+        include_noise : bool, default True
+            Add the GP noise variance to the reported variance (bounds for measured data); the
+            fed-back samples are always latent-function draws.
+        use_samples : bool, default True
+            Draw each Monte Carlo run's hyperparameters from the GP's samples (the paper's
+            method) and average the mean rollout over them; False uses the point
+            hyperparameters ``theta_``, as moment matching always does.
+        keep_runs : bool
+            Keep the individual Monte Carlo runs in the result.
+        progress : bool
+            Show a progress bar over time steps.
+        """
+        inputs = np.asarray(inputs, dtype=float).reshape(len(inputs), -1)
+        initial = np.asarray(initial_outputs, dtype=float)[: self.structure.max_lag]
+        if initial.shape != (self.structure.max_lag, len(self.structure.output_names)):
+            raise ValueError(f"initial_outputs must have at least {self.structure.max_lag} rows of "
+                             f"{len(self.structure.output_names)} outputs, got {np.shape(initial_outputs)}")
+        if len(inputs) <= self.structure.max_lag:
+            raise ValueError(f"need more than {self.structure.max_lag} input samples")
+        if method == "monte_carlo":
+            return self._free_run_monte_carlo(inputs, initial, n_runs=n_runs, seed=seed,
+                                              include_noise=include_noise, use_samples=use_samples,
+                                              keep_runs=keep_runs, progress=progress)
+        if method == "mean":
+            return self._free_run_mean(inputs, initial, include_noise=include_noise,
+                                       use_samples=use_samples)
+        if method == "moment_matching":
+            return self._free_run_moment_matching(inputs, initial, include_noise=include_noise)
+        raise ValueError(f"unknown free-run method {method!r}; use monte_carlo, moment_matching or mean")
+
+    def _regressor_rows(self, inputs, history, k):
+        """Regressors of step ``k`` for every run: ``history`` (R, n, n_outputs)."""
+        s = self.structure
+        u_part = [np.broadcast_to(inputs[k - i, c], (history.shape[0],))
+                  for c in range(inputs.shape[1]) for i in s.input_lags]
+        y_part = [history[:, k - j, c] for c in range(history.shape[2]) for j in s.output_lags]
+        return np.column_stack(u_part + y_part)
+
+    def _free_run_mean(self, inputs, initial, *, include_noise, use_samples):
+        n, n_out, start = len(inputs), len(self.structure.output_names), self.structure.max_lag
+        predictors = [_BatchPredictor.for_mixture(gp, use_samples=use_samples) for gp in self.model.gps]
+        history = np.zeros((1, n, n_out))
+        history[0, :start] = initial
+        var = np.zeros((n, n_out))
+        for k in range(start, n):
+            x = self._regressor_rows(inputs, history, k)
+            for j, predictor in enumerate(predictors):
+                # Mixture over hyperparameter samples, law of total variance (as GP.predict).
+                means, variances = predictor(np.repeat(x, len(predictor.assignment), axis=0))
+                history[0, k, j] = means.mean()
+                var[k, j] = (variances + means**2).mean() - means.mean() ** 2
+                if include_noise:
+                    var[k, j] += predictor.noise_variance.mean()
+        return FreeRunResult(history[0], var, None, "mean")
+
+    def _free_run_monte_carlo(self, inputs, initial, *, n_runs, seed, include_noise, use_samples,
+                              keep_runs, progress):
+        rng = np.random.default_rng(seed)
+        n, n_out, start = len(inputs), len(self.structure.output_names), self.structure.max_lag
+        predictors = [_BatchPredictor.for_runs(gp, n_runs, rng, use_samples=use_samples)
+                      for gp in self.model.gps]
+        history = np.zeros((n_runs, n, n_out))
+        history[:, :start] = initial
+        noise_var = np.zeros((n, n_out))
+        steps = range(start, n)
+        if progress:
+            from tqdm.auto import tqdm
+
+            steps = tqdm(steps, desc="free run (Monte Carlo)", unit="step", leave=False)
+        for k in steps:
+            X = self._regressor_rows(inputs, history, k)
+            for j, predictor in enumerate(predictors):
+                mean, var = predictor(X)
+                history[:, k, j] = mean + np.sqrt(var) * rng.standard_normal(n_runs)
+                noise_var[k, j] = predictor.noise_variance.mean() if include_noise else 0.0
+        var = history.var(axis=0) + noise_var
+        var[:start] = 0.0
+        return FreeRunResult(history.mean(axis=0), var, history if keep_runs else None, "monte_carlo")
+
+    def _free_run_moment_matching(self, inputs, initial, *, include_noise):
+        from ._moment_matching import _MomentMatcher
+
+        predict_uncertain_input = _MomentMatcher(self.model.gps)
+        s = self.structure
+        n, n_out, start = len(inputs), len(s.output_names), s.max_lag
+        # Joint Gaussian over the lagged outputs y(k-1), ..., y(k-L), L = max output lag,
+        # ordered lag-major: index (lag-1) * n_out + output.
+        n_lags = max(s.output_lags)
+        z_mean = np.concatenate([initial[start - lag] for lag in range(1, n_lags + 1)])
+        z_cov = np.zeros((n_lags * n_out, n_lags * n_out))
+        # Rows of z that form the output part of the regressor (output-major, lag order).
+        z_rows = [(j - 1) * n_out + c for c in range(n_out) for j in s.output_lags]
+        n_u = len(s.input_names) * len(s.input_lags)
+        mean_out, var_out = np.zeros((n, n_out)), np.zeros((n, n_out))
+        mean_out[:start] = initial
+        for k in range(start, n):
+            u_part = np.array([inputs[k - i, c] for c in range(inputs.shape[1]) for i in s.input_lags])
+            x_mean = np.concatenate([u_part, z_mean[z_rows]])
+            x_cov = np.zeros((len(x_mean), len(x_mean)))
+            x_cov[n_u:, n_u:] = z_cov[np.ix_(z_rows, z_rows)]
+            y_mean, y_cov, cross = predict_uncertain_input(x_mean, x_cov, include_noise=False)
+            mean_out[k] = y_mean
+            noise = np.array([gp.noise_variance * gp.output_scaler_.scale_[0] ** 2
+                              for gp in self.model.gps]) if include_noise else 0.0
+            var_out[k] = np.diag(y_cov) + noise
+            cov_z_y = _cross_covariance_of_lagged_outputs(z_cov, z_rows, cross[n_u:])
+            shifted_mean = np.concatenate([y_mean, z_mean[: (n_lags - 1) * n_out]])
+            new_cov = np.zeros_like(z_cov)
+            new_cov[:n_out, :n_out] = y_cov
+            keep = (n_lags - 1) * n_out
+            new_cov[n_out:, n_out:] = z_cov[:keep, :keep]
+            new_cov[n_out:, :n_out] = cov_z_y[:keep]
+            new_cov[:n_out, n_out:] = cov_z_y[:keep].T
+            z_mean, z_cov = shifted_mean, 0.5 * (new_cov + new_cov.T)
+        return FreeRunResult(mean_out, var_out, None, "moment_matching")
+
+    # -- interpretation ---------------------------------------------------------------------
+    def relevance(self) -> dict[str, dict[str, float]]:
+        """ARD relevance of each regressor for each output.
+
+        The kernel weight ``w_i`` of a standardised regressor (``1/(2 l_i^2)``, or
+        ``-4 ln alpha_i`` for Higdon's kernel) measures how fast the output changes with it;
+        weights are normalised to sum to 1 per output. Uses the point hyperparameters.
+        """
+        names = self.structure.regressor_names
+        result = {}
+        for name, gp in zip(self.structure.output_names, self.model.gps):
+            weights = gp.kernel.weights()
+            result[name] = dict(zip(names, (weights / weights.sum()).tolist()))
+        return result
+
+
+def _cross_covariance_of_lagged_outputs(z_cov, z_rows, cross_x_y):
+    """``Cov(z, y)`` for all lagged outputs ``z`` given ``Cov(x_z, y)`` for the rows ``z_rows``
+    of ``z`` that are regressors.
+
+    Rows of ``z`` that are regressors take the exact cross-covariance; any other row (a lag the
+    structure skips) gets its linear-Gaussian projection ``Cov(z, x_z) Cov(x_z)^+ Cov(x_z, y)``
+    (Deisenroth 2010, sec. 2.3.2, uses the same approximation for non-Gaussian joints).
+    """
+    x_cov = z_cov[np.ix_(z_rows, z_rows)]
+    cov_z_y = z_cov[:, z_rows] @ np.linalg.pinv(x_cov, rcond=1e-10, hermitian=True) @ cross_x_y
+    cov_z_y[z_rows] = cross_x_y
+    return cov_z_y
+
+
+class _BatchPredictor:
+    """Predictive mean and latent variance of one GP for many rows at once, row ``r`` with the
+    hyperparameter sample ``assignment[r]`` (of the GP's samples, or its point estimate).
+
+    Per sample it precomputes kernel weights, signal variance, ``alpha`` and ``L^-1``. With few
+    distinct samples the rows are grouped by sample and each group costs one matrix product;
+    with many, the per-sample arrays are gathered per row once and a call is one batched
+    (R, n, n) product (memory R n^2 doubles).
+    """
+
+    #: Up to this many distinct samples, rows are grouped by sample (a loop of matrix products);
+    #: above it, a Python loop over groups costs more than the batched product.
+    MAX_GROUPS = 16
+    #: Largest per-row gather (R n^2 doubles) accepted, bytes.
+    MAX_BYTES = 1 << 30
+
+    def __init__(self, gp: GaussianProcess, assignment: np.ndarray, *, use_samples: bool) -> None:
+        posteriors = gp._posteriors() if use_samples else [gp._posterior]
+        n, n_rows = gp.X_train_.shape[0], len(assignment)
+        thetas = np.array([p.theta for p in posteriors])
+        self.weights = np.array([gp.kernel.weights(t[:-1]) for t in thetas])  # (S, d)
+        self.signal = np.exp(thetas[:, 0])  # (S,)
+        self.alpha = np.array([p.alpha[:, 0] for p in posteriors])  # (S, n)
+        self.L_inv = np.array([linalg.solve_triangular(p.L, np.eye(n), lower=True) for p in posteriors])
+        self.assignment = np.asarray(assignment)
+        self.groups = None
+        if len(posteriors) <= self.MAX_GROUPS:
+            self.groups = [(s, np.flatnonzero(self.assignment == s)) for s in range(len(posteriors))]
+        elif n_rows * n * n * 8 > self.MAX_BYTES:
+            raise ValueError(f"Monte Carlo with {n_rows} runs and {len(posteriors)} hyperparameter "
+                             f"samples on {n} training points needs {n_rows * n * n * 8 / 2**30:.1f} "
+                             "GiB; use fewer runs, use_samples=False, or fewer training points")
+        else:
+            self.row_weights = self.weights[self.assignment]
+            self.row_signal = self.signal[self.assignment]
+            self.row_alpha = self.alpha[self.assignment][:, :, None]
+            self.row_L_inv = self.L_inv[self.assignment]
+        self.X_train = gp.X_train_
+        self.input_scaler, self.output_scaler = gp.input_scaler_, gp.output_scaler_
+        self.noise_variance = np.exp(thetas[:, -1])[self.assignment] * gp.output_scaler_.scale_[0] ** 2
+
+    @classmethod
+    def for_runs(cls, gp: GaussianProcess, n_runs: int, rng: np.random.Generator, *,
+                 use_samples: bool):
+        """``n_runs`` rows with the GP's hyperparameter samples dealt out at random, evenly
+        (or all with the point hyperparameters)."""
+        n_samples = len(gp._posteriors()) if use_samples else 1
+        return cls(gp, rng.permutation(n_runs) % n_samples, use_samples=use_samples)
+
+    @classmethod
+    def for_mixture(cls, gp: GaussianProcess, *, use_samples: bool):
+        """One row per hyperparameter sample (evaluate all at the same input for the mixture)."""
+        n_samples = len(gp._posteriors()) if use_samples else 1
+        return cls(gp, np.arange(n_samples), use_samples=use_samples)
+
+    def _kernel_rows(self, Xs, weights, signal):
+        """``k(x_r, X_train)`` for rows ``Xs`` (R, d) with per-row ``weights`` (R, d) or (d,).
+
+        ``sum_i w_i (x_i - X_ni)^2`` is expanded into products: no (R, n, d) temporary.
+        """
+        weights = np.broadcast_to(weights, Xs.shape)
+        weighted = weights * Xs
+        sq = ((weighted * Xs).sum(axis=1)[:, None] - 2.0 * weighted @ self.X_train.T
+              + weights @ (self.X_train**2).T)
+        return np.asarray(signal)[..., None] * np.exp(-np.maximum(sq, 0.0))
+
+    def __call__(self, X):
+        """Mean and latent variance, each shape (R,), in output units, at rows of ``X`` (R, d)."""
+        Xs = self.input_scaler.transform(X)
+        mean, var = np.empty(len(Xs)), np.empty(len(Xs))
+        if self.groups is not None:
+            for s, rows in self.groups:
+                k = self._kernel_rows(Xs[rows], self.weights[s], self.signal[s])
+                mean[rows] = k @ self.alpha[s]
+                v = k @ self.L_inv[s].T
+                var[rows] = self.signal[s] - np.einsum("rm,rm->r", v, v)
+        else:
+            k = self._kernel_rows(Xs, self.row_weights, self.row_signal)
+            mean = (k[:, None, :] @ self.row_alpha)[:, 0, 0]
+            v = (self.row_L_inv @ k[:, :, None])[:, :, 0]
+            var = self.row_signal - np.einsum("rm,rm->r", v, v)
+        scale = self.output_scaler.scale_[0]
+        return mean * scale + self.output_scaler.mean_[0], np.maximum(var, 0.0) * scale**2
