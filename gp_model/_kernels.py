@@ -34,7 +34,7 @@ import numpy as np
 from scipy import stats
 from scipy.special import expit, logit
 
-from ._priors import IndependentPrior
+from ._priors import IndependentPrior, LogitBeta
 
 
 class StationaryKernel:
@@ -231,10 +231,12 @@ class HigdonKernel(StationaryKernel):
         return expit(self.theta[1:])
 
     def prior(self):
-        # A uniform prior on each alpha in (0, 1) is the standard logistic density in logit
-        # space (the density of logit(U), U ~ U(0, 1)).
+        # alpha_i ~ Beta(1, 0.1), the default of Higdon's GPMSA code (Higdon et al., JASA 103,
+        # 2008; QUESO's GPMSA port: emulator correlation strength Beta(1.0, 0.1)): most mass
+        # near alpha = 1, so an input is irrelevant until the data say otherwise. A uniform
+        # prior instead favours short length scales, which extrapolate badly in free run.
         return IndependentPrior(
-            [stats.norm(0.0, 1.5)] + [stats.logistic(0.0, 1.0)] * self.n_dims, self.theta_names
+            [stats.norm(0.0, 1.5)] + [LogitBeta(1.0, 0.1)] * self.n_dims, self.theta_names
         )
 
 
