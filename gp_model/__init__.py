@@ -4,7 +4,7 @@ numpy/scipy only; imports nothing from ``validation`` or ``fmu_src``. The public
 module exports; everything else lives in private modules.
 """
 from ._errors import GPNumericalError, ModelFileError
-from ._gp import GaussianProcess, PerOutputGP
+from ._gp import GaussianProcess, PerOutputGP, PredictiveForm
 from ._inference import (AnnealingResult, MaximumLikelihoodResult, MCMCResult,
                          anneal_hyperparameters, maximize_marginal_likelihood, metropolis,
                          simulated_annealing)
@@ -17,7 +17,7 @@ from ._priors import IndependentPrior
 
 __all__ = [
     "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "HigdonKernel", "IndependentPrior",
-    "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP",
+    "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP", "PredictiveForm",
     "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
     "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",

@@ -28,6 +28,34 @@ LOG_2PI = np.log(2.0 * np.pi)
 
 
 @dataclass(frozen=True)
+class PredictiveForm:
+    """A fitted GP's prediction at one hyperparameter vector, reduced to three arrays.
+
+    For a standardised input ``x`` with kernel vector ``k = k(x, basis)`` (shape (m,)):
+
+        mean(x) = k @ weights,        var(x) = k(x, x) - |variance_factor @ k|^2   (latent)
+
+    Exact GP (Rasmussen & Williams, Alg. 2.1): ``basis`` = training inputs, ``weights`` =
+    ``alpha``, ``variance_factor = L^-1``. A sparse GP fills the same slots with its inducing
+    points, so free runs (and generated code) need one prediction routine for both.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (p,)
+        Hyperparameters ``[kernel.theta..., ln sigma_n^2]``.
+    basis : ndarray, shape (m, d)
+        Standardised basis inputs.
+    weights : ndarray, shape (m,)
+    variance_factor : ndarray, shape (m, m)
+    """
+
+    theta: np.ndarray
+    basis: np.ndarray
+    weights: np.ndarray
+    variance_factor: np.ndarray
+
+
+@dataclass(frozen=True)
 class _Posterior:
     """Everything prediction needs for one hyperparameter vector."""
 
@@ -261,6 +289,19 @@ class GaussianProcess:
         cov = self.kernel(Xs, theta=post.theta[:-1]) - v.T @ v
         cov[np.diag_indices_from(cov)] += noise
         return mean, cov
+
+    def predictive_forms(self, *, use_samples: bool = True) -> list[PredictiveForm]:
+        """One :class:`PredictiveForm` per hyperparameter sample (or for ``theta_`` alone).
+
+        Requires a single-output GP (``y`` of shape (n,) or (n, 1)).
+        """
+        if self.Y_train_.shape[1] != 1:
+            raise ValueError("predictive forms need a single-output GP; use PerOutputGP")
+        posteriors = self._posteriors() if use_samples else [self._posterior]
+        eye = np.eye(len(self.X_train_))
+        return [PredictiveForm(p.theta, self.X_train_, p.alpha[:, 0],
+                               linalg.solve_triangular(p.L, eye, lower=True, check_finite=False))
+                for p in posteriors]
 
     def _posteriors(self) -> list[_Posterior]:
         if self.theta_samples_ is None:

@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg
 
 from ._gp import GaussianProcess, PerOutputGP
 
@@ -372,11 +371,17 @@ def _cross_covariance_of_lagged_outputs(z_cov, z_rows, cross_x_y):
     return cov_z_y
 
 
+def _n_samples(gp, use_samples: bool) -> int:
+    """How many hyperparameter vectors a GP predicts with."""
+    return len(gp.theta_samples_) if use_samples and gp.theta_samples_ is not None else 1
+
+
 class _BatchPredictor:
     """Predictive mean and latent variance of one GP for many rows at once, row ``r`` with the
     hyperparameter sample ``assignment[r]`` (of the GP's samples, or its point estimate).
 
-    Per sample it precomputes kernel weights, signal variance, ``alpha`` and ``L^-1``. With few
+    Works on any GP that offers ``predictive_forms`` (:class:`~gp_model._gp.PredictiveForm`):
+    per sample, kernel weights, signal variance, mean weights and variance factor. With few
     distinct samples the rows are grouped by sample and each group costs one matrix product;
     with many, the per-sample arrays are gathered per row once and a call is one batched
     (R, n, n) product (memory R n^2 doubles).
@@ -388,44 +393,42 @@ class _BatchPredictor:
     #: Largest per-row gather (R n^2 doubles) accepted, bytes.
     MAX_BYTES = 1 << 30
 
-    def __init__(self, gp: GaussianProcess, assignment: np.ndarray, *, use_samples: bool) -> None:
-        posteriors = gp._posteriors() if use_samples else [gp._posterior]
-        n, n_rows = gp.X_train_.shape[0], len(assignment)
-        thetas = np.array([p.theta for p in posteriors])
+    def __init__(self, gp, assignment: np.ndarray, *, use_samples: bool) -> None:
+        forms = gp.predictive_forms(use_samples=use_samples)
+        n, n_rows = forms[0].basis.shape[0], len(assignment)
+        thetas = np.array([f.theta for f in forms])
         self.weights = np.array([gp.kernel.weights(t[:-1]) for t in thetas])  # (S, d)
         self.signal = np.exp(thetas[:, 0])  # (S,)
-        self.alpha = np.array([p.alpha[:, 0] for p in posteriors])  # (S, n)
-        self.L_inv = np.array([linalg.solve_triangular(p.L, np.eye(n), lower=True) for p in posteriors])
+        self.alpha = np.array([f.weights for f in forms])  # (S, n)
+        self.L_inv = np.array([f.variance_factor for f in forms])  # (S, n, n)
         self.assignment = np.asarray(assignment)
         self.groups = None
-        if len(posteriors) <= self.MAX_GROUPS:
-            self.groups = [(s, np.flatnonzero(self.assignment == s)) for s in range(len(posteriors))]
+        if len(forms) <= self.MAX_GROUPS:
+            self.groups = [(s, np.flatnonzero(self.assignment == s)) for s in range(len(forms))]
         elif n_rows * n * n * 8 > self.MAX_BYTES:
-            raise ValueError(f"Monte Carlo with {n_rows} runs and {len(posteriors)} hyperparameter "
-                             f"samples on {n} training points needs {n_rows * n * n * 8 / 2**30:.1f} "
+            raise ValueError(f"Monte Carlo with {n_rows} runs and {len(forms)} hyperparameter "
+                             f"samples on {n} basis points needs {n_rows * n * n * 8 / 2**30:.1f} "
                              "GiB; use fewer runs, use_samples=False, or fewer training points")
         else:
             self.row_weights = self.weights[self.assignment]
             self.row_signal = self.signal[self.assignment]
             self.row_alpha = self.alpha[self.assignment][:, :, None]
             self.row_L_inv = self.L_inv[self.assignment]
-        self.X_train = gp.X_train_
+        self.X_train = forms[0].basis
         self.input_scaler, self.output_scaler = gp.input_scaler_, gp.output_scaler_
         self.noise_variance = np.exp(thetas[:, -1])[self.assignment] * gp.output_scaler_.scale_[0] ** 2
 
     @classmethod
-    def for_runs(cls, gp: GaussianProcess, n_runs: int, rng: np.random.Generator, *,
-                 use_samples: bool):
+    def for_runs(cls, gp, n_runs: int, rng: np.random.Generator, *, use_samples: bool):
         """``n_runs`` rows with the GP's hyperparameter samples dealt out at random, evenly
         (or all with the point hyperparameters)."""
-        n_samples = len(gp._posteriors()) if use_samples else 1
+        n_samples = _n_samples(gp, use_samples)
         return cls(gp, rng.permutation(n_runs) % n_samples, use_samples=use_samples)
 
     @classmethod
-    def for_mixture(cls, gp: GaussianProcess, *, use_samples: bool):
+    def for_mixture(cls, gp, *, use_samples: bool):
         """One row per hyperparameter sample (evaluate all at the same input for the mixture)."""
-        n_samples = len(gp._posteriors()) if use_samples else 1
-        return cls(gp, np.arange(n_samples), use_samples=use_samples)
+        return cls(gp, np.arange(_n_samples(gp, use_samples)), use_samples=use_samples)
 
     def _kernel_rows(self, Xs, weights, signal):
         """``k(x_r, X_train)`` for rows ``Xs`` (R, d) with per-row ``weights`` (R, d) or (d,).

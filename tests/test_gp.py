@@ -166,3 +166,19 @@ def test_mixture_over_samples_obeys_law_of_total_variance():
     assert np.all(var >= variances.mean(0) - 1e-15)
     point_mean = gp.predict(Xs, use_samples=False)
     np.testing.assert_allclose(point_mean, parts[0][0], rtol=1e-12)
+
+
+def test_predictive_forms_reproduce_predict():
+    X, y = make_data()
+    gp = GaussianProcess(HigdonKernel(1.0, [0.4, 0.6]), noise_variance=0.02).fit(X, y)
+    gp.set_hyperparameters(gp.theta_, samples=np.array([gp.theta_, gp.theta_ + 0.2]))
+    Xs = gp.input_scaler_.transform(make_data(n=6, seed=8)[0])
+    for form, use in zip(gp.predictive_forms(), [0, 1]):
+        single = GaussianProcess(HigdonKernel(1.0, [0.5, 0.5])).fit(X, y, theta=form.theta)
+        mean, var = single.predict(gp.input_scaler_.inverse_transform(Xs), return_var=True)
+        k = single.kernel(Xs, form.basis)
+        scale = gp.output_scaler_.scale_[0]
+        np.testing.assert_allclose(k @ form.weights * scale + gp.output_scaler_.mean_[0], mean, rtol=1e-10)
+        latent = single.kernel.diag(Xs) - ((k @ form.variance_factor.T) ** 2).sum(1)
+        np.testing.assert_allclose(latent * scale**2, var, rtol=1e-8, atol=1e-14)
+    assert len(gp.predictive_forms(use_samples=False)) == 1
