@@ -210,8 +210,9 @@ class GPNarx:
 
     # -- free run ---------------------------------------------------------------------------
     def free_run(self, inputs, initial_outputs, *, method: str = "monte_carlo", n_runs: int = 1000,
-                 seed: int = 0, include_noise: bool = True, use_samples: bool = True,
-                 keep_runs: bool = False, progress: bool = False) -> FreeRunResult:
+                 seed: int = 0, include_noise: bool = True, feedback_noise: bool = True,
+                 use_samples: bool = True, keep_runs: bool = False,
+                 progress: bool = False) -> FreeRunResult:
         """Free-run (full-model) prediction over the whole input history.
 
         Parameters
@@ -226,8 +227,13 @@ class GPNarx:
         seed : int, default 0
             Seed of the Monte Carlo draws (hyperparameter assignment and predictive samples).
         include_noise : bool, default True
-            Add the GP noise variance to the reported variance (bounds for measured data); the
-            fed-back samples are always latent-function draws.
+            Report the variance of a noisy measurement (bounds for measured data) rather than
+            of the latent function.
+        feedback_noise : bool, default True
+            Feed back draws of the noisy output, i.e. sample the full predictive distribution
+            at every step (the Bo105 paper's method), so the GP noise acts as process noise
+            (turbulence, unmodelled dynamics). False feeds back latent draws, treating the
+            noise as pure measurement noise. Moment matching propagates the same choice.
         use_samples : bool, default True
             Draw each Monte Carlo run's hyperparameters from the GP's samples (the paper's
             method) and average the mean rollout over them; False uses the point
@@ -246,13 +252,15 @@ class GPNarx:
             raise ValueError(f"need more than {self.structure.max_lag} input samples")
         if method == "monte_carlo":
             return self._free_run_monte_carlo(inputs, initial, n_runs=n_runs, seed=seed,
-                                              include_noise=include_noise, use_samples=use_samples,
+                                              include_noise=include_noise,
+                                              feedback_noise=feedback_noise, use_samples=use_samples,
                                               keep_runs=keep_runs, progress=progress)
         if method == "mean":
             return self._free_run_mean(inputs, initial, include_noise=include_noise,
                                        use_samples=use_samples)
         if method == "moment_matching":
-            return self._free_run_moment_matching(inputs, initial, include_noise=include_noise)
+            return self._free_run_moment_matching(inputs, initial, include_noise=include_noise,
+                                                  feedback_noise=feedback_noise)
         raise ValueError(f"unknown free-run method {method!r}; use monte_carlo, moment_matching or mean")
 
     def _regressor_rows(self, inputs, history, k):
@@ -280,8 +288,8 @@ class GPNarx:
                     var[k, j] += predictor.noise_variance.mean()
         return FreeRunResult(history[0], var, None, "mean")
 
-    def _free_run_monte_carlo(self, inputs, initial, *, n_runs, seed, include_noise, use_samples,
-                              keep_runs, progress):
+    def _free_run_monte_carlo(self, inputs, initial, *, n_runs, seed, include_noise,
+                              feedback_noise, use_samples, keep_runs, progress):
         rng = np.random.default_rng(seed)
         n, n_out, start = len(inputs), len(self.structure.output_names), self.structure.max_lag
         predictors = [_BatchPredictor.for_runs(gp, n_runs, rng, use_samples=use_samples)
@@ -298,13 +306,16 @@ class GPNarx:
             X = self._regressor_rows(inputs, history, k)
             for j, predictor in enumerate(predictors):
                 mean, var = predictor(X)
+                if feedback_noise:
+                    var = var + predictor.noise_variance
                 history[:, k, j] = mean + np.sqrt(var) * rng.standard_normal(n_runs)
-                noise_var[k, j] = predictor.noise_variance.mean() if include_noise else 0.0
+                if include_noise and not feedback_noise:
+                    noise_var[k, j] = predictor.noise_variance.mean()
         var = history.var(axis=0) + noise_var
         var[:start] = 0.0
         return FreeRunResult(history.mean(axis=0), var, history if keep_runs else None, "monte_carlo")
 
-    def _free_run_moment_matching(self, inputs, initial, *, include_noise):
+    def _free_run_moment_matching(self, inputs, initial, *, include_noise, feedback_noise):
         from ._moment_matching import _MomentMatcher
 
         predict_uncertain_input = _MomentMatcher(self.model.gps)
@@ -325,11 +336,11 @@ class GPNarx:
             x_mean = np.concatenate([u_part, z_mean[z_rows]])
             x_cov = np.zeros((len(x_mean), len(x_mean)))
             x_cov[n_u:, n_u:] = z_cov[np.ix_(z_rows, z_rows)]
-            y_mean, y_cov, cross = predict_uncertain_input(x_mean, x_cov, include_noise=False)
+            y_mean, y_cov, cross = predict_uncertain_input(x_mean, x_cov, include_noise=feedback_noise)
             mean_out[k] = y_mean
-            noise = np.array([gp.noise_variance * gp.output_scaler_.scale_[0] ** 2
-                              for gp in self.model.gps]) if include_noise else 0.0
-            var_out[k] = np.diag(y_cov) + noise
+            var_out[k] = np.diag(y_cov)
+            if include_noise and not feedback_noise:
+                var_out[k] += [gp.noise_variance * gp.output_scaler_.scale_[0] ** 2 for gp in self.model.gps]
             cov_z_y = _cross_covariance_of_lagged_outputs(z_cov, z_rows, cross[n_u:])
             shifted_mean = np.concatenate([y_mean, z_mean[: (n_lags - 1) * n_out]])
             new_cov = np.zeros_like(z_cov)

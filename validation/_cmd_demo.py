@@ -2,16 +2,17 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from .errors import BadInputError
 
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "demo", help="run the built-in Bo105 case end to end",
-        description="Record the Bo105 80 kt 3-2-1-1 from the flight-test stand-in, train a GP, "
-                    "compare it with the physics reference, and write recordings, model, plot "
-                    "and summary.json to DIR.",
+        description="Record the Bo105 80 kt 3-2-1-1 from the flight-test stand-in, train a "
+                    "GP-NARX, free-run it against the physics reference, and write recordings, "
+                    "model, plots and results.json to DIR.",
     )
     parser.add_argument("--out", type=Path, default=Path("build/demo"), metavar="DIR",
                         help="output folder (default build/demo)")
@@ -21,18 +22,12 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .demo import run_demo
+    from .reproduce_bo105 import format_results
 
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInputError(f"{args.out} exists and is not a folder")
     print(f"flightgp demo: Bo105 80 kt 3-2-1-1 -> {args.out}/")
-    summary = run_demo(args.out, seed=args.seed)
-    rmse = summary["one_step_rmse_q_rad_s"]
-    print(f"  {summary['case']}")
-    print(f"  GP trained on {summary['training_points']} points "
-          f"({summary['annealing_stages']} annealing stages)")
-    print(f"  one-step pitch-rate RMSE on held-out samples: GP {rmse['gp']:.4f} rad/s, "
-          f"physics reference {rmse['reference']:.4f} rad/s; "
-          f"GP 95 % band covers {100 * summary['coverage95_q']:.0f} %")
-    print(f"  note: {summary['note']}")
-    print(f"  written: {', '.join(sorted(p.name for p in Path(args.out).iterdir()))}")
-    if args.verbose:
-        print(json.dumps(summary, indent=2))
+    results = run_demo(args.out, seed=args.seed)
+    print(format_results(results))
+    print(f"written: {', '.join(sorted(p.name for p in args.out.iterdir()))}")
     return 0

@@ -20,8 +20,10 @@ from .errors import BadInputError
 #: Modules that each register one or more subcommands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
     "validation._cmd_demo",
-    "validation._cmd_bench",
     "validation._cmd_record",
+    "validation._cmd_narx",
+    "validation._cmd_reproduce",
+    "validation._cmd_bench",
 )
 
 

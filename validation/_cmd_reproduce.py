@@ -1,0 +1,35 @@
+"""``flightgp reproduce PAPER --out DIR``: the seed papers' experiments from one command."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+PAPERS = ("bo105",)
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "reproduce", help="reproduce a seed paper's experiment",
+        description="bo105: the Bo105 GP-NARX paper (AHS 74th Forum, 2018) on the flight-test "
+                    "stand-in, plus its future work. Writes figures, recordings, models and "
+                    "results.json to DIR and prints the RMSE table.")
+    parser.add_argument("paper", choices=PAPERS)
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
+    parser.add_argument("--paper-only", action="store_true", help="skip the beyond-the-paper studies")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .errors import BadInputError
+    from .reproduce_bo105 import format_results, reproduce_bo105
+
+    if args.runs < 10:
+        raise BadInputError(f"--runs must be at least 10 for meaningful bounds, got {args.runs}")
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInputError(f"{args.out} exists and is not a folder")
+    results = reproduce_bo105(args.out, seed=args.seed, n_runs=args.runs, beyond=not args.paper_only)
+    print(format_results(results))
+    print(f"written {args.out}/results.json and figures")
+    return 0
