@@ -11,8 +11,11 @@ in zeta is chosen so that the entropy of the tempered target changes by a fixed 
 
     dH/dzeta = -( Cov_zeta(ln p, ln L) + zeta Var_zeta(ln L) ),                          (2)
 
-so ``delta_zeta = entropy_step / |Cov(ln p, ln L) + zeta Var(ln L)|``, with the moments
-estimated from the samples of the stage just run. Between stages the chains are resampled with
+so to first order ``delta_zeta = entropy_step / |Cov(ln p, ln L) + zeta Var(ln L)|``. That
+undershoots (Var(ln L) shrinks within a step), so the step is found exactly instead, by
+bisection on the entropy at the candidate zeta estimated by importance-reweighting the samples
+of the stage just run (eq. 3 in :func:`_next_zeta`); one step never raises zeta tenfold or more.
+Between stages the chains are resampled with
 weights ``L^delta_zeta`` (sequential Monte Carlo, Del Moral et al., JRSS-B 68, 2006) and the
 Gaussian random-walk proposal is re-tuned: its shape to the stage's sample covariance and its
 width towards the 0.234 acceptance rate (Roberts, Gelman & Gilks, Ann. Appl. Probab. 7, 1997).
@@ -25,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import optimize
+from scipy.special import logsumexp
 
 from ._gp import GaussianProcess
 from ._priors import IndependentPrior
@@ -296,18 +300,41 @@ def anneal_hyperparameters(gp: GaussianProcess, **options) -> AnnealingResult:
 
 
 def _next_zeta(stage: MCMCResult, zeta: float, entropy_step: float) -> float:
-    """Eq. (2): the zeta increment that changes the target's entropy by ``entropy_step``."""
+    """The next zeta: the one at which the tempered target's entropy is ``entropy_step`` lower.
+
+    The entropy at a candidate ``zeta' = zeta + d`` is estimated from the stage's samples by
+    importance weights ``w ∝ L^d`` (eq. 3):
+
+        H(zeta') - H(zeta) = -(E'[ln p] + zeta' E'[ln L]) + (E[ln p] + zeta E[ln L])
+                             + ln E[L^d],
+
+    (``ln Z(zeta') - ln Z(zeta) = ln E_zeta[L^d]``), and ``d`` is found by bisection. The
+    first-order rule of eq. (2) undershoots because Var(ln L) shrinks within a step.
+    """
     ll, lp = stage.log_likelihood.ravel(), stage.log_prior.ravel()
-    finite = np.isfinite(ll)
+    finite = np.isfinite(ll) & np.isfinite(lp)
     if finite.sum() < 2:
         return min(1.0, 10.0 * zeta)
     ll, lp = ll[finite], lp[finite]
-    rate = abs(np.cov(lp, ll)[0, 1] + zeta * ll.var(ddof=1))
-    if rate == 0.0:
-        return 1.0
-    # Never more than a tenfold increase in one stage: the moments come from the current
-    # stage only and say little about the target far ahead.
-    return float(min(1.0, zeta + entropy_step / rate, 10.0 * zeta))
+    baseline = lp.mean() + zeta * ll.mean()
+
+    def entropy_drop(d: float) -> float:
+        log_w = d * ll
+        log_mean_weight = logsumexp(log_w) - np.log(len(ll))
+        w = np.exp(log_w - log_w.max())
+        w /= w.sum()
+        return float(w @ lp + (zeta + d) * (w @ ll) - baseline - log_mean_weight)
+
+    # Never more than a tenfold increase in one stage: the importance weights degenerate and
+    # say little about a target far ahead.
+    d_max = min(1.0, 10.0 * zeta) - zeta
+    if entropy_drop(d_max) <= entropy_step:
+        return zeta + d_max
+    low, high = 0.0, d_max
+    for _ in range(60):  # relative precision 2^-60 of d_max
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if entropy_drop(middle) < entropy_step else (low, middle)
+    return zeta + high
 
 
 def _resample(states, ll, lp, log_weights, rng):

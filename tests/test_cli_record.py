@@ -92,9 +92,9 @@ def test_inspect_summarises_a_recording(tmp_path, capsys):
 
 def test_inspect_bad_recording_exits_2_naming_row_and_column(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
-    bad.write_text("time,q\n0,0.1\n0.01,abc\n")
+    bad.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,q\n0,0,0,0,0,0.1\n0.01,0,0,0,0,abc\n")
     assert main(["inspect", str(bad)]) == 2
-    assert f"{bad}, row 3, column 2 ('q'): 'abc' is not a number" in _one_error_line(capsys, "inspect")
+    assert f"{bad}, row 3, column 6 ('q'): 'abc' is not a number" in _one_error_line(capsys, "inspect")
 
 
 def test_inspect_checks_columns_against_the_vehicle(tmp_path, capsys):
@@ -109,13 +109,13 @@ def test_inspect_checks_columns_against_the_vehicle(tmp_path, capsys):
 def test_console_script_gives_exit_2_one_line_no_traceback(tmp_path):
     """The installed ``flightgp`` script (next to this Python) on a file with degrees in it."""
     bad = tmp_path / "bad.csv"
-    bad.write_text("time,theta_1s,q\n0,0,0\n0.01,0,28.6\n")
+    bad.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,q\n0,0,0,0,0,0\n0.01,0,0,0,0,28.6\n")
     script = Path(sys.executable).with_name("flightgp")
     result = subprocess.run([str(script), "inspect", str(bad)], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stdout == ""
     assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
-    assert "row 3, column 3 ('q')" in result.stderr and "looks like degrees" in result.stderr
+    assert "row 3, column 6 ('q')" in result.stderr and "looks like degrees" in result.stderr
 
 
 class _FakeVehicle:

@@ -120,3 +120,27 @@ def test_higdon_annealing_agrees_with_se_length_scales():
     # Same model in another parametrisation (eq. 2 of gp_model._kernels): the recovered alphas
     # map to the true length scales within the 25 % of the SE test.
     np.testing.assert_allclose(length_scale_from_alpha(alphas), TRUE_LENGTHS, rtol=0.25)
+
+
+def test_annealing_steps_change_entropy_by_about_the_entropy_step():
+    """Conjugate check of eq. (2): prior N(0, 1) and likelihood N(x; 3, 0.05^2) give Gaussian
+    tempered targets with variance 1 / (1 + zeta / 0.05^2), whose entropy is known exactly, so
+    each stage's entropy change can be compared with the requested step."""
+    from gp_model import simulated_annealing
+    from gp_model._priors import IndependentPrior
+    from scipy import stats
+
+    sigma2 = 0.05**2
+    result = simulated_annealing(lambda x: -0.5 * (x[0] - 3.0) ** 2 / sigma2,
+                                 IndependentPrior([stats.norm(0.0, 1.0)], ["x"]),
+                                 entropy_step=0.5, n_samples=200, n_chains=16, seed=0)
+    zeta = np.array(result.zeta_schedule)
+    entropy = 0.5 * np.log(2 * np.pi * np.e / (1 + zeta / sigma2))
+    changes = -np.diff(entropy)
+    # Stages limited by the tenfold cap, or the last one clipped at zeta = 1, change less.
+    capped = np.isclose(zeta[1:], 10 * zeta[:-1]) | (zeta[1:] == 1.0)
+    free = changes[~capped]
+    assert len(free) >= 2
+    # The moments behind each step come from 16 chains x 40 steps: a factor of two either way.
+    assert np.all((free > 0.2) & (free < 1.0)), free
+    assert np.median(free) == pytest.approx(0.5, rel=0.4)

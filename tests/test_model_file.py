@@ -91,12 +91,19 @@ def test_truncated_arrays_are_inconsistent(tmp_path, data):
         load_model(path)
 
 
-def test_failed_save_leaves_existing_file_untouched(tmp_path, data):
+def test_failed_save_leaves_existing_file_untouched(tmp_path, data, monkeypatch):
     X, Y = data
-    path = save_model(tmp_path / "m.npz", GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)).fit(X, Y))
+    gp = GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)).fit(X, Y)
+    path = save_model(tmp_path / "m.npz", gp)
     before = path.read_bytes()
-    with pytest.raises(TypeError):
-        save_model(path, object())
+
+    def fail(*args):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("gp_model._model_file.os.replace", fail)  # the last step of a save
+    gp.set_hyperparameters(gp.theta_ + 0.1)
+    with pytest.raises(OSError, match="No space"):
+        save_model(path, gp)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["m.npz"]  # no temporary left behind
     assert zipfile.is_zipfile(path)

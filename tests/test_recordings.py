@@ -114,10 +114,38 @@ def test_vehicle_puts_columns_in_its_order(tmp_path):
 
 
 def test_without_vehicle_registry_inputs_are_inputs(tmp_path):
-    rows = ["time,q,theta_1s,r,theta_0", "0,0.1,0.2,0.3,0.4", "0.5,0.5,0.06,0.7,0.08"]
+    rows = ["time,q,theta_1s,r,theta_0,theta_0T,theta_1c", "0,0.1,0.2,0.3,0.4,0,0",
+            "0.5,0.5,0.06,0.7,0.08,0,0"]
     recording = read_recording(_write(tmp_path, rows))
-    assert recording.input_names == ("theta_1s", "theta_0")
+    assert recording.input_names == ("theta_1s", "theta_0", "theta_0T", "theta_1c")
     assert recording.output_names == ("q", "r")
+
+
+def test_without_vehicle_unknown_column_is_named(tmp_path):
+    with pytest.raises(BadInputError, match=r"row 1, column 2 \('foo'\): unknown column"):
+        read_recording(_write(tmp_path, ["time,foo", "0,1", "0.01,2"]))
+
+
+def test_without_vehicle_columns_must_fit_one_vehicle(tmp_path):
+    # q alone, with none of the Bo105 inputs: no vehicle records that.
+    with pytest.raises(BadInputError, match="fit no vehicle"):
+        read_recording(_write(tmp_path, ["time,q", "0,0.1", "0.01,0.2"]))
+
+
+def test_degrees_within_magnitude_limits_caught_by_kinematics(tmp_path):
+    """A gentle manoeuvre logged in degrees: every value is below the radian limits, but
+    d theta/dt is 57.3 x q."""
+    time = np.arange(200) * 0.01
+    q = 0.05 * np.sin(2 * np.pi * 0.5 * time)  # rad/s
+    theta = np.degrees(np.cumsum(q) * 0.01)  # deg, at most 0.9 "rad": inside the limit
+    rows = ["time,theta_0,theta_1s,theta_1c,theta_0T,q,theta"]
+    rows += [f"{t!r},0,0,0,0,{a!r},{b!r}" for t, a, b in zip(time.tolist(), q.tolist(), theta.tolist())]
+    with pytest.raises(BadInputError, match=r"column 7 \('theta'\).*looks like degrees"):
+        read_recording(_write(tmp_path, rows))
+    # The same data in radians passes.
+    rows = rows[:1] + [f"{t!r},0,0,0,0,{a!r},{b!r}"
+                       for t, a, b in zip(time.tolist(), q.tolist(), np.radians(theta).tolist())]
+    assert read_recording(_write(tmp_path, rows)).output_names == ("q", "theta")
 
 
 def test_sidecar_may_allow_uneven_sampling(tmp_path):
@@ -179,8 +207,9 @@ BAD_FILES = [
      ["row 6, column 5 ('theta')", "looks like degrees; flightgp expects radians (rad)"]),
     ("heading in deg", ["time,elevator,aileron,psi", "0,0,0,180", "0.01,0,0,180"], None, VEHICLE,
      ["row 2, column 4 ('psi')", "looks like degrees"]),
-    ("blade pitch in deg", ["time,theta_1s,q", "0,0,0", "0.01,1.0,0"], None, None,
-     ["row 3, column 2 ('theta_1s')", "looks like degrees"]),
+    ("blade pitch in deg", ["time,theta_0,theta_1s,theta_1c,theta_0T,q", "0,0,0,0,0,0",
+                            "0.01,0,1.0,0,0,0"], None, None,
+     ["row 3, column 3 ('theta_1s')", "looks like degrees"]),
     ("malformed sidecar", GOOD_ROWS, '{"vehicle": "blimp",\n "seed": }', None,
      ["run.json, row 2, column 10", "malformed JSON sidecar"]),
     ("sidecar not an object", GOOD_ROWS, "[1, 2]", None, ["run.json, row 1, column 1", "JSON object"]),

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .cli import seed
 from .errors import BadInputError
 
 
@@ -16,7 +17,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--out", type=Path, default=Path("build/demo"), metavar="DIR",
                         help="output folder (default build/demo)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     parser.set_defaults(func=run)
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cli import seed
 from .errors import BadInputError
 from .files import write_atomically
 from .narx import (HYPERPARAMETER_METHODS, KERNELS, NarxConfig, free_run, load_trained, one_step,
@@ -37,7 +38,7 @@ def register(subparsers) -> None:
     train.add_argument("--kernel", choices=KERNELS, default=defaults.kernel)
     train.add_argument("--hyperparameters", choices=HYPERPARAMETER_METHODS, default=defaults.hyperparameters)
     train.add_argument("--sparse", type=int, metavar="M", help="sparse GP with M inducing points")
-    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--seed", type=seed, default=0)
     train.set_defaults(func=run_train)
 
     predict = subparsers.add_parser(
@@ -50,7 +51,7 @@ def register(subparsers) -> None:
     predict.add_argument("--method", choices=METHODS, default="monte_carlo",
                          help="free run by Monte Carlo (default), moment matching or mean; or one_step")
     predict.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
-    predict.add_argument("--seed", type=int, default=0)
+    predict.add_argument("--seed", type=seed, default=0)
     predict.add_argument("--plot", action="store_true", help="also write PREDICTION.png")
     predict.set_defaults(func=run_predict)
 

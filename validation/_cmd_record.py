@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .cli import seed
 from .errors import BadInputError
 from .manoeuvres import MANOEUVRES, manoeuvre, time_grid
-from .files import write_atomically
-from .recordings import Recording, column_unit, read_recording, sidecar_path, write_recording
+from .files import write_files_atomically
+from .recordings import Recording, column_limit, column_unit, read_recording, recording_files
 from .vehicles import get_vehicle
 
 #: Default manoeuvre amplitude for angle inputs, deg (the Bo105 paper's 3-2-1-1) ...
@@ -49,7 +50,7 @@ def register(subparsers) -> None:
                         help="time the manoeuvre starts, s (default %(default)s)")
     record.add_argument("--duration", type=float, default=10.0, metavar="S",
                         help="length of the recording, s (default %(default)s)")
-    record.add_argument("--seed", type=int, default=0,
+    record.add_argument("--seed", type=seed, default=0,
                         help="seed of turbulence and sensor noise of flight-test stand-ins (default %(default)s)")
     record.add_argument("--out", required=True, type=Path, metavar="FILE.csv",
                         help="recording to write; folders are created")
@@ -93,11 +94,10 @@ def _record(args: argparse.Namespace) -> int:
     )
     # Everything is computed before the first file is written, so an error leaves no files.
     png = _plot(recording, vehicle_name=vehicle.name, inputs=inputs) if args.plot else None
-    write_recording(args.out, recording)
-    written = [args.out, sidecar_path(args.out)]
+    files = recording_files(args.out, recording)
     if png is not None:
-        write_atomically(args.out.with_suffix(".png"), png)
-        written.append(args.out.with_suffix(".png"))
+        files[args.out.with_suffix(".png")] = png
+    written = write_files_atomically(files)
     print(f"recorded {vehicle.name}: {args.manoeuvre} on {args.input}, {len(time)} samples; "
           f"wrote {', '.join(map(str, written))}")
     return 0
@@ -119,6 +119,14 @@ def _amplitude(args: argparse.Namespace) -> float:
         amplitude = math.radians(DEFAULT_AMPLITUDE_DEG) if angle else DEFAULT_AMPLITUDE_NORMALISED
     if not math.isfinite(amplitude):
         raise BadInputError(f"the amplitude must be a finite number, got {amplitude}")
+    limit = column_limit(args.input)
+    if limit is not None and abs(amplitude) > limit:
+        if column_unit(args.input) == "rad":
+            raise BadInputError(
+                f"amplitude {math.degrees(amplitude):g} deg on {args.input!r} exceeds the plausible "
+                f"+/-{math.degrees(limit):.3g} deg ({limit:g} rad) for that column")
+        raise BadInputError(f"amplitude {amplitude:g} on {args.input!r} exceeds full travel "
+                            "(+/-1 for a normalised command)")
     return amplitude
 
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .cli import seed
+from .errors import BadInputError
+
 PAPERS = ("bo105",)
 
 
@@ -15,14 +18,13 @@ def register(subparsers) -> None:
                     "results.json to DIR and prints the RMSE table.")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
     parser.add_argument("--paper-only", action="store_true", help="skip the beyond-the-paper studies")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from .errors import BadInputError
     from .reproduce_bo105 import format_results, reproduce_bo105
 
     if args.runs < 10:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 
 from gp_model import ModelFileError
@@ -25,6 +26,17 @@ COMMAND_MODULES = (
     "validation._cmd_reproduce",
     "validation._cmd_bench",
 )
+
+
+def seed(text: str) -> int:
+    """argparse type of every ``--seed``: a non-negative integer (numpy's generators need one)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seed must be a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"seed must be 0 or more, got {value}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,6 +63,20 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except (BadInputError, ModelFileError) as error:
         print(f"flightgp {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # The reader went away (`flightgp inspect x.csv | head`): nothing left to say.
+        sys.stdout = open(os.devnull, "w")
+        return 0
+    except OSError as error:
+        # A path the user gave cannot be read or written (missing folder, a file where a folder
+        # should be, no permission, disk full): bad input, not a flightgp fault.
+        where = f": {error.filename}" if error.filename else ""
+        print(f"flightgp {args.command}: error: {error.strerror or error}{where}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"flightgp {args.command}: error: out of memory; ask for fewer samples or runs",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"flightgp {args.command}: interrupted", file=sys.stderr)

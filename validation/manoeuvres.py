@@ -14,6 +14,8 @@ import numpy as np
 
 from .errors import BadInputError
 
+#: Most samples in one manoeuvre (about 28 h at 100 Hz; beyond it memory, not physics, runs out).
+MAX_SAMPLES = 10_000_000
 #: Names accepted by :func:`manoeuvre` (``flightgp record --manoeuvre``).
 MANOEUVRES = ("3211", "doublet", "step", "sweep")
 
@@ -27,6 +29,9 @@ def time_grid(*, duration: float, sample_time: float, start_time: float = 0.0) -
             f"sample time must be positive and at most the duration ({duration} s), got {sample_time}"
         )
     n_steps = int(round(duration / sample_time))
+    if n_steps > MAX_SAMPLES:
+        raise BadInputError(f"{duration} s at {sample_time} s steps is {n_steps + 1} samples; flightgp "
+                            f"handles at most {MAX_SAMPLES} in one recording")
     return start_time + np.arange(n_steps + 1) * sample_time
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import BadInputError
-from .files import write_atomically
+from .files import write_files_atomically
 
 
 @dataclass
@@ -119,6 +119,16 @@ def column_unit(name: str) -> str:
     return _COLUMNS.get(name, ("?", None))[0]
 
 
+def column_limit(name: str) -> float | None:
+    """Largest plausible magnitude of column ``name`` in flightgp's units, or None if unbounded.
+
+    Angles use the limits of the degrees check; normalised commands (unit ``1``) span full
+    travel, so 1.
+    """
+    unit, limit = _COLUMNS.get(name, ("?", None))
+    return 1.0 if unit == "1" else limit
+
+
 def sidecar_path(path: str | os.PathLike) -> Path:
     """The JSON sidecar that belongs to recording ``path`` (``run.csv`` -> ``run.json``)."""
     return Path(path).with_suffix(".json")
@@ -128,7 +138,15 @@ def write_recording(path: str | os.PathLike, recording: Recording) -> None:
     """Write ``recording`` to ``path`` (CSV, must end in ``.csv``) and its JSON sidecar.
 
     The CSV holds ``time``, the inputs and the outputs, in that order; the sidecar holds
-    ``recording.metadata``. Both files are replaced atomically (:func:`write_atomically`).
+    ``recording.metadata``. Both are written as one atomic step
+    (:func:`~validation.files.write_files_atomically`): either both are replaced or neither.
+    """
+    write_files_atomically(recording_files(path, recording))
+
+
+def recording_files(path: str | os.PathLike, recording: Recording) -> dict:
+    """The CSV and sidecar of ``recording`` as ``{path: text}``, for
+    :func:`~validation.files.write_files_atomically` (with any other files of the same step).
 
     Raises
     ------
@@ -157,9 +175,7 @@ def write_recording(path: str | os.PathLike, recording: Recording) -> None:
     lines = [",".join(names)] + [",".join(map(repr, row)) for row in table.tolist()]
     sidecar = json.dumps(recording.metadata, indent=2, sort_keys=True, allow_nan=False,
                          default=_json_default)
-    csv_text = "\n".join(lines) + "\n"
-    write_atomically(sidecar_path(path), sidecar + "\n")
-    write_atomically(path, csv_text)
+    return {path: "\n".join(lines) + "\n", sidecar_path(path): sidecar + "\n"}
 
 
 def read_recording(path: str | os.PathLike, *, vehicle=None) -> Recording:
@@ -204,6 +220,7 @@ def read_recording(path: str | os.PathLike, *, vehicle=None) -> Recording:
     _check_time(path, table[:, 0], line_numbers,
                 uneven_allowed=metadata.get("uneven_sampling", False))
     _check_radians(path, header, table, line_numbers)
+    _check_angle_rate_consistency(path, header, table)
     column = {name: index for index, name in enumerate(header)}
     return Recording(
         time=table[:, 0],
@@ -312,15 +329,12 @@ def _raise_ragged(path: Path, line: int, header: list[str], row: list[str]) -> N
 
 
 @functools.lru_cache(maxsize=1)
-def _registry_input_names() -> frozenset[str]:
-    """Input names of every registry vehicle (flight-test stand-ins share their reference's)."""
+def _registry_signatures() -> tuple[tuple[str, frozenset, frozenset], ...]:
+    """(name, inputs, states) of every reference vehicle (stand-ins share their reference's)."""
     from .vehicles import get_vehicle, vehicle_names  # vehicles imports this module
 
-    return frozenset(
-        input_name
-        for name in vehicle_names() if not name.endswith("-flight")
-        for input_name in get_vehicle(name).input_names
-    )
+    vehicles = [get_vehicle(name) for name in vehicle_names() if not name.endswith("-flight")]
+    return tuple((v.name, frozenset(v.input_names), frozenset(v.state_names)) for v in vehicles)
 
 
 def _split_columns(path: Path, header: list[str], vehicle) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -338,9 +352,21 @@ def _split_columns(path: Path, header: list[str], vehicle) -> tuple[tuple[str, .
         seen.add(name)
     columns = header[1:]
     if vehicle is None:
-        known_inputs = _registry_input_names()
-        input_names = tuple(name for name in columns if name in known_inputs)
-        output_names = tuple(name for name in columns if name not in known_inputs)
+        for index, name in enumerate(columns, start=1):
+            if name not in _COLUMNS:
+                raise BadInputError(f"{_where(path, 1, index, name)}: unknown column; flightgp's "
+                                    "column names are the vehicles' inputs and states (see the "
+                                    "README, Vehicles), or name the vehicle with --vehicle")
+        # The vehicles whose inputs all appear and whose states cover the rest.
+        matches = [(inputs, states) for _, inputs, states in _registry_signatures()
+                   if inputs <= set(columns) and set(columns) - inputs <= states]
+        if not matches:
+            raise BadInputError(f"{_where(path, 1)}: these columns fit no vehicle (a recording holds "
+                                "all of a vehicle's inputs and some of its states); name the "
+                                "vehicle with --vehicle or in the sidecar to see what is missing")
+        inputs, _ = matches[0]
+        input_names = tuple(name for name in columns if name in inputs)
+        output_names = tuple(name for name in columns if name not in inputs)
         if not output_names:
             raise BadInputError(f"{_where(path, 1)}: no output columns, only time and inputs")
         return input_names, output_names
@@ -423,3 +449,36 @@ def _check_radians(path: Path, header: list[str], table: np.ndarray, line_number
                 f"{abs(table[row, column]):g} exceeds the plausible {limit:.3g} {unit}; looks like "
                 f"degrees; flightgp expects radians ({unit})"
             )
+
+
+#: Attitude and the body rate that drives it at small angles (theta_dot ~ q, phi_dot ~ p;
+#: Padfield 2007, eq. 3.9): Bo105/JSBSim lower case, blimp upper case.
+_ANGLE_RATE_PAIRS = (("theta", "q"), ("phi", "p"), ("theta", "Q"), ("phi", "P"))
+_DEGREES_PER_RADIAN = 180.0 / math.pi
+
+
+def _check_angle_rate_consistency(path: Path, header: list[str], table: np.ndarray) -> None:
+    """Degrees that stay inside the magnitude limits: compare an attitude's rate of change with
+    its body rate. At small angles ``d theta/dt ~ q``; a least-squares slope near 57.3 means the
+    angle is in degrees, near 1/57.3 that the rate is. Needs a clear signal (correlation > 0.9),
+    so noise or large-angle flight never triggers it."""
+    time = table[:, 0]
+    if len(time) < 10:
+        return
+    for angle, rate in _ANGLE_RATE_PAIRS:
+        if angle not in header or rate not in header:
+            continue
+        angle_rate = np.gradient(table[:, header.index(angle)], time)
+        body_rate = table[:, header.index(rate)]
+        if np.std(body_rate) == 0 or np.std(angle_rate) == 0:
+            continue
+        correlation = np.corrcoef(angle_rate, body_rate)[0, 1]
+        if correlation < 0.9:
+            continue
+        slope = float(angle_rate @ body_rate / (body_rate @ body_rate))
+        for column, factor in ((angle, slope), (rate, 1.0 / slope)):
+            if _DEGREES_PER_RADIAN / 3 < factor < _DEGREES_PER_RADIAN * 3:
+                raise BadInputError(
+                    f"{path}, column {header.index(column) + 1} ({column!r}): d{angle}/dt is "
+                    f"{slope:.3g} x {rate}, where kinematics give about 1; {column!r} looks like "
+                    "degrees; flightgp expects radians")
