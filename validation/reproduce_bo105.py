@@ -29,7 +29,7 @@ from .files import write_atomically, write_json
 from .manoeuvres import doublet, three_two_one_one, time_grid
 from .narx import NarxConfig, NarxPrediction, free_run, one_step, save_trained, train_narx
 from .plots import png_bytes
-from .recordings import Recording, write_recording
+from .recordings import Recording, column_unit, write_recording
 from .vehicles import get_vehicle
 
 AXES = ("p", "q", "r")
@@ -166,7 +166,7 @@ def paper_figure(prediction: NarxPrediction, reference: np.ndarray | None, *, ti
                  training_time=None, axes=AXES) -> Figure:
     """The paper's style: flight test, physics model, GP mean, 95 % band, training points as
     diamonds; one panel per rate."""
-    figure = Figure(figsize=(8, 7), layout="constrained")
+    figure = Figure(figsize=(8, 2.3 * len(axes) + 0.4), layout="constrained")
     FigureCanvasAgg(figure)
     panels = figure.subplots(len(axes), 1, sharex=True, squeeze=False)[:, 0]
     band = 1.96 * np.sqrt(prediction.var)
@@ -183,7 +183,7 @@ def paper_figure(prediction: NarxPrediction, reference: np.ndarray | None, *, ti
             index = index[index < len(prediction.time)]
             panel.plot(prediction.time[index], prediction.measured[index, j], "D", ms=4,
                        color="tab:green", label="training points")
-        panel.set_ylabel(f"{axis} [rad/s]")
+        panel.set_ylabel(f"{axis} [{column_unit(axis)}]")
         panel.grid(True, alpha=0.3)
     panels[0].legend(fontsize="small", ncol=3, loc="upper right")
     panels[-1].set_xlabel("time [s]")
@@ -219,6 +219,39 @@ def beyond_the_paper(out_dir: Path, *, seed: int, n_runs: int, progress: bool,
     write_atomically(out_dir / "fmp_multi_axis.png", png_bytes(paper_figure(
         prediction, ref, title="Bo105 80 kt, unseen multi-axis doublets: GP-NARX with lateral cyclic and pedal")))
     results["relevance_lag_selection"] = _lag_selection(seed=seed, n_runs=n_runs, progress=progress)
+    results["jsbsim_ah1s"] = _jsbsim_ah1s(out_dir, seed=seed, n_runs=n_runs, progress=progress)
+    return results
+
+
+#: The ah1s in hover is attitude-commanded by its AFCS: pitch rate is a fast (about 3 Hz)
+#: transient and the AFCS feeds back attitude, so the NARX runs at 0.02 s and feeds back the
+#: attitudes too. JSBSim has no sensor noise, so a short step does not drown in it.
+AH1S_CONFIG = NarxConfig(inputs=("longitudinal_cyclic",), outputs=("p", "q", "r", "phi", "theta"),
+                         input_lags=(1, 2), output_lags=(1, 2), decimation=2, stride=4)
+
+
+def _jsbsim_ah1s(out_dir: Path, *, seed: int, n_runs: int, progress: bool) -> dict:
+    """The same pipeline on JSBSim's ah1s in hover (a model nobody here wrote). There is no
+    physics reference to compare with, so the baseline is "no response" (the rates' RMS about
+    their mean): ``explained = 1 - (RMSE / RMS)^2``."""
+    flights = {name: fly_3211("jsbsim:ah1s", input_name="longitudinal_cyclic", amplitude=amplitude,
+                              step_time=step_time, start=1.0, duration=8.0, seed=seed)
+               for name, amplitude, step_time in (("training", 0.1, 0.4), ("unseen", 0.15, 0.3))}
+    trained = train_narx([flights["training"]], AH1S_CONFIG, seed=seed, progress=progress)
+    results = {"config": AH1S_CONFIG.to_json(),
+               "manoeuvres": {"training": "3-2-1-1, 0.1 of full longitudinal cyclic, 0.4 s steps",
+                              "unseen": "3-2-1-1, 0.15 of full longitudinal cyclic, 0.3 s steps"}}
+    for name, recording in flights.items():
+        prediction = free_run(trained, recording, n_runs=n_runs, seed=seed, progress=progress)
+        rms = prediction.measured[prediction.first:, :3].std(axis=0)
+        rmse = prediction.rmse()[:3]
+        results[name] = {"fmp_rmse": _by_axis(rmse), "rate_rms": _by_axis(rms),
+                         "explained": _by_axis(1.0 - (rmse / rms) ** 2),
+                         "coverage95": _by_axis(prediction.coverage()[:3])}
+        if name == "unseen":
+            write_atomically(out_dir / "fmp_ah1s_unseen.png", png_bytes(paper_figure(
+                prediction, None, title="JSBSim ah1s hover, unseen 3-2-1-1: GP-NARX free run",
+                axes=AH1S_CONFIG.outputs)))
     return results
 
 
@@ -288,4 +321,9 @@ def format_results(results: dict) -> str:
                      f"{lags['chosen_lags']['input']}, output lags {lags['chosen_lags']['output']}")
         row("  unseen FMP, wide", lags["unseen_fmp_rmse"]["wide"])
         row("  unseen FMP, chosen", lags["unseen_fmp_rmse"]["chosen"])
+        ah1s = beyond["jsbsim_ah1s"]["unseen"]
+        lines.append("JSBSim ah1s hover, unseen 3-2-1-1 (no physics reference; baseline = no response):")
+        row("  GP FMP RMSE", ah1s["fmp_rmse"])
+        row("  rate RMS (baseline RMSE)", ah1s["rate_rms"])
+        row("  GP 95 % coverage", ah1s["coverage95"])
     return "\n".join(lines)
