@@ -14,11 +14,12 @@ from ._model_file import load_model, read_header, save_model
 from ._moment_matching import predict_uncertain_input
 from ._narx import FreeRunResult, GPNarx, NarxStructure
 from ._priors import IndependentPrior
+from ._sparse_gp import SparseGaussianProcess
 
 __all__ = [
     "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "HigdonKernel", "IndependentPrior",
     "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP", "PredictiveForm",
-    "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
+    "SparseGaussianProcess", "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
     "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",
 ]

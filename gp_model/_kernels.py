@@ -140,10 +140,38 @@ class StationaryKernel:
         -------
         g : ndarray, shape (d + 1,)
         """
+        return self.cross_gradient_contraction(X, X, K, M, theta=theta)
+
+    def cross_gradient_contraction(self, X, Y, K, M, theta=None) -> np.ndarray:
+        """``g_j = sum_ab M_ab dK_ab/dtheta_j`` for ``K = k(X, Y)`` and any ``M`` of its shape.
+
+        Eq. (3) without the symmetry: ``dK_ab/dw_i = -K_ab (x_ai^2 - 2 x_ai y_bi + y_bi^2)``, so
+
+            sum_ab M_ab dK_ab/dw_i = -[ (M∘K 1)^T X^2 + (1^T M∘K) Y^2 - 2 sum_a x_ai ((M∘K) Y)_ai ]_i,
+
+        again two matrix products (sparse GPs need it for ``K_mn`` between inducing and
+        training inputs). ``dK_ab/d ln sigma_f^2 = K_ab``, so ``g_0 = sum(M∘K)``; a jitter
+        proportional to ``sigma_f^2`` added where ``x_a = y_b`` (the diagonal of ``K_mm``) is
+        differentiated correctly too, at a fixed relative jitter, since the weight terms vanish
+        there.
+
+        Parameters
+        ----------
+        X : ndarray, shape (n, d)
+        Y : ndarray, shape (m, d)
+        K : ndarray, shape (n, m)
+            ``self(X, Y, theta=theta)``, passed in because the caller already has it.
+        M : ndarray, shape (n, m)
+            Weighting matrix.
+
+        Returns
+        -------
+        g : ndarray, shape (d + 1,)
+        """
         theta = self.theta if theta is None else theta
         MK = M * K
-        row_sums = MK.sum(axis=1)
-        d_w = -2.0 * (row_sums @ (X * X) - np.einsum("ai,ai->i", X, MK @ X))
+        d_w = -(MK.sum(axis=1) @ (X * X) + MK.sum(axis=0) @ (Y * Y)
+                - 2.0 * np.einsum("ai,ai->i", X, MK @ Y))
         _, dw_dtheta = self._weights_and_derivative(theta[1:])
         return np.concatenate(([MK.sum()], d_w * dw_dtheta))
 

