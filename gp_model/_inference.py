@@ -153,7 +153,7 @@ def _metropolis_steps(log_likelihood, log_prior, states, ll, lp, *, zeta, n_step
                 accepted += 1
         samples[step], lls[step], lps[step] = states, ll, lp
         if progress is not None:
-            progress.update(1)
+            progress(1)
     return MCMCResult(samples, lls, lps, accepted / (n_steps * n_chains))
 
 
@@ -217,7 +217,7 @@ class AnnealingResult:
 def simulated_annealing(log_likelihood, prior: IndependentPrior, *, n_samples: int = 400,
                         n_chains: int = 8, steps_per_stage: int = 40, entropy_step: float = 0.5,
                         zeta_start: float = 1e-4, max_stages: int = 200, seed: int = 0,
-                        progress: bool = False) -> AnnealingResult:
+                        progress=None) -> AnnealingResult:
     """Sample ``p(theta) L(theta)`` by annealing ``p L^zeta`` from ``zeta_start`` to 1 (eqs. 1-2).
 
     Parameters
@@ -237,8 +237,9 @@ def simulated_annealing(log_likelihood, prior: IndependentPrior, *, n_samples: i
     max_stages : int, default 200
         If reached, the next stage jumps to zeta = 1 (logged).
     seed : int, default 0
-    progress : bool
-        Show a progress bar (tqdm) on stderr.
+    progress : callable, optional
+        Called as ``progress(1)`` after every Metropolis step and as
+        ``progress(0, zeta=..., acceptance=...)`` after every stage.
     """
     if not 0 < zeta_start <= 1:
         raise ValueError(f"zeta_start must be in (0, 1], got {zeta_start}")
@@ -253,35 +254,30 @@ def simulated_annealing(log_likelihood, prior: IndependentPrior, *, n_samples: i
     width = 2.38 / np.sqrt(p)
     result = AnnealingResult(np.empty((0, p)), np.empty(0), np.empty(0))
     n_final = int(np.ceil(n_samples / n_chains))
-    bar = _progress_bar(progress, total=None, desc="annealing")
     zeta = zeta_start
-    try:
-        while True:
-            result.zeta_schedule.append(zeta)
-            result.proposal_widths.append(width)
-            stage = _metropolis_steps(log_likelihood, prior.log_pdf, states, ll, lp, zeta=zeta,
-                                      n_steps=steps_per_stage, proposal_chol=width * shape_chol,
-                                      rng=rng, progress=bar)
-            result.acceptance_rates.append(stage.acceptance_rate)
-            states, ll, lp = stage.samples[-1], stage.log_likelihood[-1], stage.log_prior[-1]
-            shape_chol, width = _retune(stage, shape_chol, width)
-            if bar is not None:
-                bar.set_postfix(zeta=f"{zeta:.3g}", acc=f"{stage.acceptance_rate:.2f}")
-            if zeta >= 1.0:
-                break
-            zeta_next = _next_zeta(stage, zeta, entropy_step)
-            if len(result.zeta_schedule) >= max_stages and zeta_next < 1.0:
-                logger.warning("annealing reached %d stages at zeta=%.3g; jumping to zeta=1 "
-                               "(raise entropy_step or max_stages)", max_stages, zeta)
-                zeta_next = 1.0
-            states, ll, lp = _resample(states, ll, lp, (zeta_next - zeta) * ll, rng)
-            zeta = zeta_next
-        final = _metropolis_steps(log_likelihood, prior.log_pdf, states, ll, lp, zeta=1.0,
-                                  n_steps=n_final, proposal_chol=width * shape_chol, rng=rng,
-                                  progress=bar)
-    finally:
-        if bar is not None:
-            bar.close()
+    while True:
+        result.zeta_schedule.append(zeta)
+        result.proposal_widths.append(width)
+        stage = _metropolis_steps(log_likelihood, prior.log_pdf, states, ll, lp, zeta=zeta,
+                                  n_steps=steps_per_stage, proposal_chol=width * shape_chol,
+                                  rng=rng, progress=progress)
+        result.acceptance_rates.append(stage.acceptance_rate)
+        states, ll, lp = stage.samples[-1], stage.log_likelihood[-1], stage.log_prior[-1]
+        shape_chol, width = _retune(stage, shape_chol, width)
+        if progress is not None:
+            progress(0, zeta=f"{zeta:.3g}", acceptance=f"{stage.acceptance_rate:.2f}")
+        if zeta >= 1.0:
+            break
+        zeta_next = _next_zeta(stage, zeta, entropy_step)
+        if len(result.zeta_schedule) >= max_stages and zeta_next < 1.0:
+            logger.warning("annealing reached %d stages at zeta=%.3g; jumping to zeta=1 "
+                           "(raise entropy_step or max_stages)", max_stages, zeta)
+            zeta_next = 1.0
+        states, ll, lp = _resample(states, ll, lp, (zeta_next - zeta) * ll, rng)
+        zeta = zeta_next
+    final = _metropolis_steps(log_likelihood, prior.log_pdf, states, ll, lp, zeta=1.0,
+                              n_steps=n_final, proposal_chol=width * shape_chol, rng=rng,
+                              progress=progress)
     result.samples = final.samples.reshape(-1, p)
     result.log_likelihood = final.log_likelihood.reshape(-1)
     result.log_prior = final.log_prior.reshape(-1)
@@ -362,11 +358,3 @@ def _retune(stage: MCMCResult, shape_chol, width):
         pass
     width *= float(np.exp(np.clip(stage.acceptance_rate - TARGET_ACCEPTANCE, -1.0, 1.0) * 2.0))
     return shape_chol, float(np.clip(width, 1e-3, 10.0))
-
-
-def _progress_bar(enabled: bool, *, total, desc: str):
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="step", leave=False)

@@ -19,6 +19,7 @@ row k is sample k of an evenly sampled recording.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,7 +144,7 @@ class GPNarx:
     @classmethod
     def fit(cls, structure: NarxStructure, recordings, *, kernel: str = "higdon",
             hyperparameters: str = "annealing", stride: int = 1, rows=None, seed: int = 0,
-            n_inducing: int | None = None, progress: bool = False,
+            n_inducing: int | None = None, progress=None,
             **inference_options) -> "GPNarx":
         """Train one GP per output on regressors built from one or more recordings.
 
@@ -168,7 +169,8 @@ class GPNarx:
             Use a :class:`~gp_model.SparseGaussianProcess` with this many inducing inputs per
             output (variational free energy, O(n m^2)) instead of an exact GP (O(n^3)), so that
             all samples can be used (``stride=1``).
-        progress : bool
+        progress : callable, optional
+            Passed to the hyperparameter inference (see :func:`~gp_model.simulated_annealing`).
         **inference_options
             Passed to :func:`~gp_model.anneal_hyperparameters` or
             :func:`~gp_model.maximize_marginal_likelihood`.
@@ -223,8 +225,8 @@ class GPNarx:
     # -- free run ---------------------------------------------------------------------------
     def free_run(self, inputs, initial_outputs, *, method: str = "monte_carlo", n_runs: int = 1000,
                  seed: int = 0, include_noise: bool = True, feedback_noise: bool = True,
-                 use_samples: bool = True, keep_runs: bool = False,
-                 progress: bool = False) -> FreeRunResult:
+                 use_samples: bool = True, keep_runs: bool = False, n_threads: int = 2,
+                 progress=None) -> FreeRunResult:
         """Free-run (full-model) prediction over the whole input history.
 
         Parameters
@@ -252,8 +254,10 @@ class GPNarx:
             hyperparameters ``theta_``, as moment matching always does.
         keep_runs : bool
             Keep the individual Monte Carlo runs in the result.
-        progress : bool
-            Show a progress bar over time steps.
+        n_threads : int, default 2
+            Threads sharing the Monte Carlo runs; the result does not depend on it.
+        progress : callable, optional
+            Called as ``progress(k)`` after every ``k`` predicted steps (Monte Carlo).
         """
         inputs = np.asarray(inputs, dtype=float).reshape(len(inputs), -1)
         initial = np.asarray(initial_outputs, dtype=float)[: self.structure.max_lag]
@@ -266,7 +270,8 @@ class GPNarx:
             return self._free_run_monte_carlo(inputs, initial, n_runs=n_runs, seed=seed,
                                               include_noise=include_noise,
                                               feedback_noise=feedback_noise, use_samples=use_samples,
-                                              keep_runs=keep_runs, progress=progress)
+                                              keep_runs=keep_runs, progress=progress,
+                                              n_threads=n_threads)
         if method == "mean":
             return self._free_run_mean(inputs, initial, include_noise=include_noise,
                                        use_samples=use_samples)
@@ -301,29 +306,46 @@ class GPNarx:
         return FreeRunResult(history[0], var, None, "mean")
 
     def _free_run_monte_carlo(self, inputs, initial, *, n_runs, seed, include_noise,
-                              feedback_noise, use_samples, keep_runs, progress):
+                              feedback_noise, use_samples, keep_runs, progress, n_threads):
         rng = np.random.default_rng(seed)
         n, n_out, start = len(inputs), len(self.structure.output_names), self.structure.max_lag
-        predictors = [_BatchPredictor.for_runs(gp, n_runs, rng, use_samples=use_samples)
-                      for gp in self.model.gps]
-        history = np.zeros((n_runs, n, n_out))
-        history[:, :start] = initial
-        noise_var = np.zeros((n, n_out))
-        steps = range(start, n)
-        if progress:
-            from tqdm.auto import tqdm
+        gps = self.model.gps
+        # All random numbers first, in a fixed order (hyperparameter sample of each run per
+        # output, then one standard normal per step, output and run), so the result does not
+        # depend on how the runs are split between threads.
+        assignments = [rng.permutation(n_runs) % _n_samples(gp, use_samples) for gp in gps]
+        normals = rng.standard_normal((n - start, n_out, n_runs))
+        bounds = np.linspace(0, n_runs, max(1, min(n_threads, n_runs)) + 1).astype(int)
+        chunks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
-            steps = tqdm(steps, desc="free run (Monte Carlo)", unit="step", leave=False)
-        for k in steps:
-            X = self._regressor_rows(inputs, history, k)
-            for j, predictor in enumerate(predictors):
-                mean, var = predictor(X)
-                if feedback_noise:
-                    var = var + predictor.noise_variance
-                history[:, k, j] = mean + np.sqrt(var) * rng.standard_normal(n_runs)
-                if include_noise and not feedback_noise:
-                    noise_var[k, j] = predictor.noise_variance.mean()
-        var = history.var(axis=0) + noise_var
+        def run(rows, report):
+            predictors = [_BatchPredictor(gp, a[rows], use_samples=use_samples)
+                          for gp, a in zip(gps, assignments)]
+            history = np.zeros((rows.stop - rows.start, n, n_out))
+            history[:, :start] = initial
+            for k in range(start, n):
+                X = self._regressor_rows(inputs, history, k)
+                for j, predictor in enumerate(predictors):
+                    mean, var = predictor(X)
+                    if feedback_noise:
+                        var = var + predictor.noise_variance
+                    history[:, k, j] = mean + np.sqrt(var) * normals[k - start, j, rows]
+                if report is not None:
+                    report(1)
+            return history
+
+        # Runs are independent: each thread carries a share of them through the whole horizon
+        # (numpy releases the GIL in the batched products, so two threads use two cores).
+        reports = [progress] + [None] * (len(chunks) - 1)
+        if len(chunks) == 1:
+            parts = [run(chunks[0], progress)]
+        else:
+            with ThreadPoolExecutor(len(chunks)) as pool:
+                parts = list(pool.map(run, chunks, reports))
+        history = np.concatenate(parts)
+        var = history.var(axis=0)
+        if include_noise and not feedback_noise:
+            var += [np.mean(_noise_variances(gp, use_samples)[a]) for gp, a in zip(gps, assignments)]
         var[:start] = 0.0
         return FreeRunResult(history.mean(axis=0), var, history if keep_runs else None, "monte_carlo")
 
@@ -399,6 +421,12 @@ def _n_samples(gp, use_samples: bool) -> int:
     return len(gp.theta_samples_) if use_samples and gp.theta_samples_ is not None else 1
 
 
+def _noise_variances(gp, use_samples: bool) -> np.ndarray:
+    """Noise variance of each hyperparameter vector, in output units, shape (S,)."""
+    thetas = gp.theta_samples_ if use_samples and gp.theta_samples_ is not None else gp.theta_[None]
+    return np.exp(thetas[:, -1]) * gp.output_scaler_.scale_[0] ** 2
+
+
 class _BatchPredictor:
     """Predictive mean and latent variance of one GP for many rows at once, row ``r`` with the
     hyperparameter sample ``assignment[r]`` (of the GP's samples, or its point estimate).
@@ -424,6 +452,8 @@ class _BatchPredictor:
         self.signal = np.exp(thetas[:, 0])  # (S,)
         self.alpha = np.array([f.weights for f in forms])  # (S, n)
         self.L_inv = np.array([f.variance_factor for f in forms])  # (S, n, n)
+        self.log_signal = thetas[:, 0]  # (S,)
+        self.offset = self.log_signal[:, None] - self.weights @ (forms[0].basis ** 2).T  # (S, n)
         self.assignment = np.asarray(assignment)
         self.groups = None
         if len(forms) <= self.MAX_GROUPS:
@@ -435,34 +465,30 @@ class _BatchPredictor:
         else:
             self.row_weights = self.weights[self.assignment]
             self.row_signal = self.signal[self.assignment]
+            self.row_log_signal = self.log_signal[self.assignment]
+            self.row_offset = self.offset[self.assignment]
             self.row_alpha = self.alpha[self.assignment][:, :, None]
             self.row_L_inv = self.L_inv[self.assignment]
         self.X_train = forms[0].basis
         self.input_scaler, self.output_scaler = gp.input_scaler_, gp.output_scaler_
-        self.noise_variance = np.exp(thetas[:, -1])[self.assignment] * gp.output_scaler_.scale_[0] ** 2
-
-    @classmethod
-    def for_runs(cls, gp, n_runs: int, rng: np.random.Generator, *, use_samples: bool):
-        """``n_runs`` rows with the GP's hyperparameter samples dealt out at random, evenly
-        (or all with the point hyperparameters)."""
-        n_samples = _n_samples(gp, use_samples)
-        return cls(gp, rng.permutation(n_runs) % n_samples, use_samples=use_samples)
+        self.noise_variance = _noise_variances(gp, use_samples)[self.assignment]
 
     @classmethod
     def for_mixture(cls, gp, *, use_samples: bool):
         """One row per hyperparameter sample (evaluate all at the same input for the mixture)."""
         return cls(gp, np.arange(_n_samples(gp, use_samples)), use_samples=use_samples)
 
-    def _kernel_rows(self, Xs, weights, signal):
-        """``k(x_r, X_train)`` for rows ``Xs`` (R, d) with per-row ``weights`` (R, d) or (d,).
+    def _kernel_rows(self, Xs, weights, offset, log_signal):
+        """``k(x_r, X_train)`` for rows ``Xs`` (R, d) with per-row (or shared) ``weights``.
 
-        ``sum_i w_i (x_i - X_ni)^2`` is expanded into products: no (R, n, d) temporary.
+        ``ln k = ln sigma_f^2 - sum_i w_i (x_i - X_ni)^2`` expanded into products, with the part
+        that depends on the training points only, ``offset = ln sigma_f^2 - w . X_n^2``,
+        precomputed: no (R, n, d) temporary, one (R, d) x (d, n) product per call. The cap at
+        ``ln sigma_f^2`` removes rounding that would make a squared distance negative.
         """
-        weights = np.broadcast_to(weights, Xs.shape)
         weighted = weights * Xs
-        sq = ((weighted * Xs).sum(axis=1)[:, None] - 2.0 * weighted @ self.X_train.T
-              + weights @ (self.X_train**2).T)
-        return np.asarray(signal)[..., None] * np.exp(-np.maximum(sq, 0.0))
+        exponent = offset + 2.0 * (weighted @ self.X_train.T) - (weighted * Xs).sum(axis=1)[:, None]
+        return np.exp(np.minimum(exponent, np.asarray(log_signal)[..., None]))
 
     def __call__(self, X):
         """Mean and latent variance, each shape (R,), in output units, at rows of ``X`` (R, d)."""
@@ -470,12 +496,12 @@ class _BatchPredictor:
         mean, var = np.empty(len(Xs)), np.empty(len(Xs))
         if self.groups is not None:
             for s, rows in self.groups:
-                k = self._kernel_rows(Xs[rows], self.weights[s], self.signal[s])
+                k = self._kernel_rows(Xs[rows], self.weights[s], self.offset[s], self.log_signal[s])
                 mean[rows] = k @ self.alpha[s]
                 v = k @ self.L_inv[s].T
                 var[rows] = self.signal[s] - np.einsum("rm,rm->r", v, v)
         else:
-            k = self._kernel_rows(Xs, self.row_weights, self.row_signal)
+            k = self._kernel_rows(Xs, self.row_weights, self.row_offset, self.row_log_signal)
             mean = (k[:, None, :] @ self.row_alpha)[:, 0, 0]
             v = (self.row_L_inv @ k[:, :, None])[:, :, 0]
             var = self.row_signal - np.einsum("rm,rm->r", v, v)

@@ -15,6 +15,7 @@ from gp_model import (GaussianProcess, GPNarx, HigdonKernel, NarxStructure, Squa
                       maximize_marginal_likelihood)
 
 from .errors import BadInputError
+from .progress import progress_bar
 
 
 def _synthetic_regression(n: int, n_dims: int, seed: int):
@@ -231,8 +232,9 @@ def bench_narx(*, n_runs: int = 1000, n_steps: int = 800, loop_runs: int = 10, s
     inputs, outputs = _rate_response(NARX_STRIDE * NARX_TRAINING_POINTS + start, seed)
     X, Y = structure.regressors(inputs, outputs)
     X, Y = X[::NARX_STRIDE], Y[::NARX_STRIDE]
-    model = GPNarx.fit(structure, [(inputs, outputs)], kernel="higdon", hyperparameters="annealing",
-                       stride=NARX_STRIDE, seed=seed, progress=progress)
+    with progress_bar("bench narx: training", enabled=progress) as update:
+        model = GPNarx.fit(structure, [(inputs, outputs)], kernel="higdon", hyperparameters="annealing",
+                           stride=NARX_STRIDE, seed=seed, progress=update)
     test_inputs, _ = _rate_response(n_steps + start, seed + 1)
     initial = np.zeros((start, len(structure.output_names)))
 

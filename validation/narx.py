@@ -24,6 +24,7 @@ import numpy as np
 from gp_model import GPNarx, NarxStructure, load_model, read_header, save_model
 
 from .errors import BadInputError
+from .progress import progress_bar
 from .recordings import Recording
 
 #: Kernels and hyperparameter methods ``train`` accepts (names of :meth:`GPNarx.fit`).
@@ -218,9 +219,11 @@ def train_narx(recordings, config: NarxConfig, *, seed: int = 0, progress: bool 
     options = dict(inference_options)
     if config.n_inducing is not None:
         options["n_inducing"] = config.n_inducing
-    model = GPNarx.fit(config.structure(), sequences, kernel=config.kernel,
-                       hyperparameters=config.hyperparameters, rows=keep, seed=seed,
-                       progress=progress, **options)
+    with progress_bar(f"training {len(config.outputs)} GPs ({config.hyperparameters})",
+                      enabled=progress) as update:
+        model = GPNarx.fit(config.structure(), sequences, kernel=config.kernel,
+                           hyperparameters=config.hyperparameters, rows=keep, seed=seed,
+                           progress=update, **options)
     training_time = np.sort(target_time[keep][np.isfinite(target_time[keep])])
     return TrainedNarx(model, config, sample_time, training_time)
 
@@ -241,8 +244,10 @@ def free_run(trained: TrainedNarx, recording: Recording, *, method: str = "monte
     measured outputs."""
     time, u, y = _checked_arrays(trained, recording, name)
     first = trained.config.structure().max_lag
-    result = trained.model.free_run(u, y[:first], method=method, n_runs=n_runs, seed=seed,
-                                    progress=progress)
+    with progress_bar(f"free run ({method.replace('_', ' ')})", enabled=progress and method == "monte_carlo",
+                      total=len(u) - first) as update:
+        result = trained.model.free_run(u, y[:first], method=method, n_runs=n_runs, seed=seed,
+                                        progress=update)
     return NarxPrediction(time, y, result.mean, result.var, first)
 
 
