@@ -155,7 +155,7 @@ class GaussianProcess:
         self.set_hyperparameters(self.theta if theta is None else theta)
         return self
 
-    def set_hyperparameters(self, theta, samples=None) -> "GaussianProcess":
+    def set_hyperparameters(self, theta, *, samples=None) -> "GaussianProcess":
         """Use ``theta`` (shape (p,)) and optionally a sample set (shape (S, p)) for the mixture.
 
         The configured ``kernel`` and ``noise_variance`` are updated to match ``theta``.

@@ -98,7 +98,7 @@ class StationaryKernel:
         """Equivalent ARD length scales ``l_i = 1 / sqrt(2 w_i)``, shape (d,)."""
         return 1.0 / np.sqrt(2.0 * self.weights())
 
-    def __call__(self, X, Y=None, theta=None) -> np.ndarray:
+    def __call__(self, X, Y=None, *, theta=None) -> np.ndarray:
         """Kernel matrix.
 
         Parameters
@@ -120,12 +120,12 @@ class StationaryKernel:
         sq = _squared_distances(Xs, Ys)
         return np.exp(theta[0] - sq)
 
-    def diag(self, X, theta=None) -> np.ndarray:
+    def diag(self, X, *, theta=None) -> np.ndarray:
         """``k(x_a, x_a)`` for each row of ``X``, shape (n,)."""
         theta = self.theta if theta is None else theta
         return np.full(len(X), np.exp(theta[0]))
 
-    def gradient_contraction(self, X, K, M, theta=None) -> np.ndarray:
+    def gradient_contraction(self, X, K, M, *, theta=None) -> np.ndarray:
         """``g_j = sum_ab M_ab dK_ab/dtheta_j`` for a symmetric ``M`` (eq. 3).
 
         Parameters
@@ -142,7 +142,7 @@ class StationaryKernel:
         """
         return self.cross_gradient_contraction(X, X, K, M, theta=theta)
 
-    def cross_gradient_contraction(self, X, Y, K, M, theta=None) -> np.ndarray:
+    def cross_gradient_contraction(self, X, Y, K, M, *, theta=None) -> np.ndarray:
         """``g_j = sum_ab M_ab dK_ab/dtheta_j`` for ``K = k(X, Y)`` and any ``M`` of its shape.
 
         Eq. (3) without the symmetry: ``dK_ab/dw_i = -K_ab (x_ai^2 - 2 x_ai y_bi + y_bi^2)``, so

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import ModelFileError
+from ._errors import GPNumericalError, ModelFileError
 from ._gp import GaussianProcess, PerOutputGP, gp_from_arrays, gp_to_arrays
 from ._narx import GPNarx, NarxStructure
 from ._sparse_gp import SparseGaussianProcess, sparse_gp_from_arrays, sparse_gp_to_arrays
@@ -113,7 +113,9 @@ def load_model(path):
             return GPNarx(NarxStructure(**header["structure"]), PerOutputGP(gps))
     except ModelFileError:
         raise
-    except (KeyError, ValueError, TypeError) as error:
+    except GPNumericalError as error:
+        raise ModelFileError(f"{path}: the stored GP cannot be factorised ({error})") from None
+    except (KeyError, ValueError, TypeError, AttributeError) as error:
         raise ModelFileError(f"{path}: model file is inconsistent ({type(error).__name__}: {error})") from None
     raise ModelFileError(f"{path}: unknown model type {header['type']!r}")
 
@@ -146,11 +148,16 @@ def _open(path) -> tuple[dict, dict]:
         header = json.loads(str(arrays.pop("__header__")))
     except (KeyError, json.JSONDecodeError):
         raise ModelFileError(f"{path}: no flightgp header; not a flightgp model file") from None
-    if not isinstance(header, dict) or header.get("format") != FORMAT:
+    if not isinstance(header, dict):
+        raise ModelFileError(f"{path}: the header is not a JSON object; not a flightgp model file")
+    if header.get("format") != FORMAT:
         raise ModelFileError(f"{path}: not a flightgp model file (format {header.get('format')!r})")
     if header.get("version") != VERSION:
         raise ModelFileError(
             f"{path}: model file version {header.get('version')!r}; this flightgp reads version "
             f"{VERSION}. Retrain the model or use the flightgp release that wrote it."
         )
+    for name, array in arrays.items():
+        if array.dtype.kind in "fc" and not np.all(np.isfinite(array)):
+            raise ModelFileError(f"{path}: array {name!r} holds NaN or inf; the file is corrupt")
     return header, arrays

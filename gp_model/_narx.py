@@ -255,7 +255,8 @@ class GPNarx:
         keep_runs : bool
             Keep the individual Monte Carlo runs in the result.
         n_threads : int, default 2
-            Threads sharing the Monte Carlo runs; the result does not depend on it.
+            Threads sharing the Monte Carlo runs; the result does not depend on it (up to
+            rounding in the last bits).
         progress : callable, optional
             Called as ``progress(k)`` after every ``k`` predicted steps (Monte Carlo).
         """
@@ -312,7 +313,7 @@ class GPNarx:
         gps = self.model.gps
         # All random numbers first, in a fixed order (hyperparameter sample of each run per
         # output, then one standard normal per step, output and run), so the result does not
-        # depend on how the runs are split between threads.
+        # depend on how the runs are split between threads (beyond rounding).
         assignments = [rng.permutation(n_runs) % _n_samples(gp, use_samples) for gp in gps]
         normals = rng.standard_normal((n - start, n_out, n_runs))
         bounds = np.linspace(0, n_runs, max(1, min(n_threads, n_runs)) + 1).astype(int)

@@ -124,3 +124,20 @@ def test_round_trip_narx_model_free_runs_identically(tmp_path):
     a = model.free_run(u, y[:2], n_runs=50, seed=1, keep_runs=True)
     b = loaded.free_run(u, y[:2], n_runs=50, seed=1, keep_runs=True)
     np.testing.assert_array_equal(a.runs, b.runs)
+
+
+@pytest.mark.parametrize("corrupt, message", [
+    (lambda a: a.update({"gp0/theta": np.full_like(a["gp0/theta"], np.nan)}), "NaN or inf"),
+    (lambda a: a["gp0/X_train"].__setitem__((0, 0), np.inf), "NaN or inf"),
+    (lambda a: a.update({"__header__": np.array("[1, 2]")}), "not a JSON object"),
+    (lambda a: a.update({"gp0/theta": np.array([0.0, 0.0, 0.0, 0.0, 800.0])}), "cannot be factorised|inconsistent"),
+])
+def test_corrupt_content_is_a_model_file_error(tmp_path, data, corrupt, message):
+    X, Y = data
+    path = save_model(tmp_path / "m.npz", GaussianProcess(SquaredExponentialARD(1.0, [1.0] * 3)).fit(X, Y))
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k].copy() for k in npz.files}
+    corrupt(arrays)
+    np.savez(path, **arrays)
+    with pytest.raises(ModelFileError, match=message):
+        load_model(path)
