@@ -104,14 +104,7 @@ def reproduce_bo105(out_dir, *, seed: int = 0, n_runs: int = 1000, beyond: bool 
     out_dir = Path(out_dir)
     config = PAPER_CONFIG
     reference = get_vehicle("bo105-80kt")
-    flights = {
-        "training": fly_3211("bo105-80kt-flight", input_name="theta_1s", seed=seed,
-                             amplitude=np.radians(TRAINING_MANOEUVRE["amplitude_deg"]),
-                             **{k: v for k, v in TRAINING_MANOEUVRE.items() if k != "amplitude_deg"}),
-        "unseen": fly_3211("bo105-80kt-flight", input_name="theta_1s", seed=seed + 1,
-                           amplitude=np.radians(UNSEEN_MANOEUVRE["amplitude_deg"]),
-                           **{k: v for k, v in UNSEEN_MANOEUVRE.items() if k != "amplitude_deg"}),
-    }
+    flights = _training_and_unseen(seed)
     for name, recording in flights.items():
         write_recording(out_dir / f"flight_test_{name}.csv", recording)
 
@@ -219,6 +212,7 @@ def beyond_the_paper(out_dir: Path, *, seed: int, n_runs: int, progress: bool,
     write_atomically(out_dir / "fmp_multi_axis.png", png_bytes(paper_figure(
         prediction, ref, title="Bo105 80 kt, unseen multi-axis doublets: GP-NARX with lateral cyclic and pedal")))
     results["relevance_lag_selection"] = _lag_selection(seed=seed, n_runs=n_runs, progress=progress)
+    results["sparse_all_samples"] = _sparse_all_samples(seed=seed, n_runs=n_runs, progress=progress)
     results["jsbsim_ah1s"] = _jsbsim_ah1s(out_dir, seed=seed, n_runs=n_runs, progress=progress)
     return results
 
@@ -227,7 +221,7 @@ def beyond_the_paper(out_dir: Path, *, seed: int, n_runs: int, progress: bool,
 #: transient and the AFCS feeds back attitude, so the NARX runs at 0.02 s and feeds back the
 #: attitudes too. JSBSim has no sensor noise, so a short step does not drown in it.
 AH1S_CONFIG = NarxConfig(inputs=("longitudinal_cyclic",), outputs=("p", "q", "r", "phi", "theta"),
-                         input_lags=(1, 2), output_lags=(1, 2), decimation=2, stride=8)
+                         input_lags=(1, 2), output_lags=(1, 2), decimation=2, stride=10)
 
 
 def _jsbsim_ah1s(out_dir: Path, *, seed: int, n_runs: int, progress: bool) -> dict:
@@ -265,13 +259,44 @@ def _multi_axis_doublets(*, seed: int) -> Recording:
     return vehicle.simulate(time, inputs, seed=seed)
 
 
+#: Inducing points of the all-samples sparse GP (Titsias VFE; chosen by greedy variance).
+SPARSE_INDUCING_POINTS = 40
+
+
+def _sparse_all_samples(*, seed: int, n_runs: int, progress: bool) -> dict:
+    """Every sample of the training manoeuvre (about 780 regressor rows) through a sparse GP,
+    against the paper's every 25th sample through an exact GP; same kernel and annealing."""
+    flights = _training_and_unseen(seed)
+    configs = {"exact_every_25th": PAPER_CONFIG,
+               "sparse_all_samples": replace(PAPER_CONFIG, stride=1, n_inducing=SPARSE_INDUCING_POINTS)}
+    results = {"inducing_points": SPARSE_INDUCING_POINTS}
+    for name, config in configs.items():
+        started = clock.perf_counter()
+        trained = train_narx([flights["training"]], config, seed=seed, progress=progress)
+        seconds = clock.perf_counter() - started
+        results[name] = {"training_rows": int(len(trained.model.model.gps[0].X_train_)),
+                         "training_s": seconds}
+        for flight, recording in flights.items():
+            prediction = free_run(trained, recording, n_runs=n_runs, seed=seed, progress=progress)
+            results[name][f"{flight}_fmp_rmse"] = _by_axis(prediction.rmse())
+            results[name][f"{flight}_coverage95"] = _by_axis(prediction.coverage())
+    return results
+
+
+def _training_and_unseen(seed: int) -> dict:
+    """The paper's training and unseen manoeuvres on the flight-test stand-in."""
+    return {name: fly_3211("bo105-80kt-flight", input_name="theta_1s", seed=seed + offset,
+                           amplitude=np.radians(manoeuvre["amplitude_deg"]),
+                           **{k: v for k, v in manoeuvre.items() if k != "amplitude_deg"})
+            for offset, (name, manoeuvre) in enumerate((("training", TRAINING_MANOEUVRE),
+                                                        ("unseen", UNSEEN_MANOEUVRE)))}
+
+
 def _lag_selection(*, seed: int, n_runs: int, progress: bool) -> dict:
     """Fit a wide candidate structure, keep regressors with ARD relevance >= 2 % for some output,
     refit with the kept lags, and compare free-run RMSE on the unseen manoeuvre."""
-    training = fly_3211("bo105-80kt-flight", input_name="theta_1s", amplitude=np.radians(1.0),
-                        step_time=0.4, start=1.0, duration=8.0, seed=seed)
-    unseen = fly_3211("bo105-80kt-flight", input_name="theta_1s", amplitude=np.radians(1.5),
-                      step_time=0.3, start=1.0, duration=8.0, seed=seed + 1)
+    flights = _training_and_unseen(seed)
+    training, unseen = flights["training"], flights["unseen"]
     wide = replace(PAPER_CONFIG, input_lags=(1, 2, 3, 4), output_lags=(1, 2))
     trained_wide = train_narx([training], wide, seed=seed, progress=progress)
     relevance = trained_wide.model.relevance()
@@ -321,6 +346,13 @@ def format_results(results: dict) -> str:
                      f"{lags['chosen_lags']['input']}, output lags {lags['chosen_lags']['output']}")
         row("  unseen FMP, wide", lags["unseen_fmp_rmse"]["wide"])
         row("  unseen FMP, chosen", lags["unseen_fmp_rmse"]["chosen"])
+        sparse = beyond["sparse_all_samples"]
+        lines.append(f"all samples, sparse GP ({sparse['inducing_points']} inducing points, "
+                     f"{sparse['sparse_all_samples']['training_rows']} rows) vs every 25th, exact:")
+        row("  training FMP, sparse all", sparse["sparse_all_samples"]["training_fmp_rmse"])
+        row("  training FMP, exact 25th", sparse["exact_every_25th"]["training_fmp_rmse"])
+        row("  unseen FMP, sparse all", sparse["sparse_all_samples"]["unseen_fmp_rmse"])
+        row("  unseen FMP, exact 25th", sparse["exact_every_25th"]["unseen_fmp_rmse"])
         ah1s = beyond["jsbsim_ah1s"]["unseen"]
         lines.append("JSBSim ah1s hover, unseen 3-2-1-1 (no physics reference; baseline = no response):")
         row("  GP FMP RMSE", ah1s["fmp_rmse"])
