@@ -65,6 +65,24 @@ class _Posterior:
     jitter: float
 
 
+def mixture_moments(means: np.ndarray, variances: np.ndarray):
+    """Mean and variance of an equal-weight mixture of Gaussians (law of total variance):
+    ``E_s[mu_s]`` and ``E_s[var_s + mu_s^2] - E_s[mu_s]^2``, over the first axis.
+
+    Parameters
+    ----------
+    means, variances : ndarray, shape (S, ...)
+        Per-component moments (broadcastable against each other).
+
+    Returns
+    -------
+    mean, var : ndarray, shape (...)
+    """
+    mean = means.mean(axis=0)
+    var = (variances + means**2).mean(axis=0) - mean**2
+    return mean, np.maximum(var, 0.0)
+
+
 class GaussianProcess:
     """Exact GP regression with a stationary kernel and Gaussian noise.
 
@@ -267,8 +285,8 @@ class GaussianProcess:
         if want is None:
             return out_mean[:, 0] if self._y_1d else out_mean
         if want == "var":
-            second = np.mean([s[:, None] + mu**2 for s, mu in zip(spreads, means)], axis=0)
-            spread = np.maximum(second - mean**2, 0.0) * scale**2  # (k, m)
+            _, spread = mixture_moments(np.array(means), np.array(spreads)[:, :, None])
+            spread = spread * scale**2  # (k, m)
             return (out_mean[:, 0], spread[:, 0]) if self._y_1d else (out_mean, spread)
         second = np.mean([s[:, :, None] + mu[:, None, :] * mu[None, :, :]
                           for s, mu in zip(spreads, means)], axis=0)

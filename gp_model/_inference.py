@@ -79,6 +79,12 @@ def maximize_marginal_likelihood(gp: GaussianProcess, *, n_restarts: int = 3, se
         Further starts drawn from ``gp.prior()`` (clipped to the optimiser's box).
     seed : int, default 0
         Seed of the restart draws.
+
+    Returns
+    -------
+    MaximumLikelihoodResult
+        Best hyperparameters, their log marginal likelihood, every restart's optimum and the
+        number of likelihood evaluations.
     """
     rng = np.random.default_rng(seed)
     starts = [gp.theta_]
@@ -171,6 +177,12 @@ def metropolis(log_target, initial, *, n_steps: int, proposal_scale, seed: int =
     proposal_scale : float or ndarray, shape (p,) or (p, p)
         Standard deviation(s) of the Gaussian proposal, or its covariance's Cholesky factor.
     seed : int, default 0
+
+    Returns
+    -------
+    MCMCResult
+        The chain states after every step, shape (n_steps, n_chains, p), their log target
+        values, and the acceptance rate.
     """
     states = np.atleast_2d(np.asarray(initial, dtype=float))
     p = states.shape[1]
@@ -240,6 +252,12 @@ def simulated_annealing(log_likelihood, prior: IndependentPrior, *, n_samples: i
     progress : callable, optional
         Called as ``progress(1)`` after every Metropolis step and as
         ``progress(0, zeta=..., acceptance=...)`` after every stage.
+
+    Returns
+    -------
+    AnnealingResult
+        Samples at zeta = 1, shape (n_samples, p), their log-likelihoods and log-priors, and the
+        zeta schedule, acceptance rates and proposal widths of every stage.
     """
     if not 0 < zeta_start <= 1:
         raise ValueError(f"zeta_start must be in (0, 1], got {zeta_start}")

@@ -85,6 +85,11 @@ def read_header(path) -> dict:
 def load_model(path):
     """Read a model written by :func:`save_model`.
 
+    Returns
+    -------
+    GaussianProcess, SparseGaussianProcess, PerOutputGP or GPNarx
+        The model, ready to predict (factorisations are recomputed from the stored data).
+
     Raises
     ------
     ModelFileError

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._gp import GaussianProcess, PerOutputGP
+from ._gp import GaussianProcess, PerOutputGP, mixture_moments
 
 
 @dataclass(frozen=True)
@@ -298,10 +298,9 @@ class GPNarx:
         for k in range(start, n):
             x = self._regressor_rows(inputs, history, k)
             for j, predictor in enumerate(predictors):
-                # Mixture over hyperparameter samples, law of total variance (as GP.predict).
+                # Mixture over hyperparameter samples, as GaussianProcess.predict.
                 means, variances = predictor(np.repeat(x, len(predictor.assignment), axis=0))
-                history[0, k, j] = means.mean()
-                var[k, j] = (variances + means**2).mean() - means.mean() ** 2
+                history[0, k, j], var[k, j] = mixture_moments(means, variances)
                 if include_noise:
                     var[k, j] += predictor.noise_variance.mean()
         return FreeRunResult(history[0], var, None, "mean")
