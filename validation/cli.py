@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "validation._cmd_narx",
     "validation._cmd_reproduce",
     "validation._cmd_bench",
+    "validation._cmd_fmu",
 )
 
 

@@ -1,0 +1,252 @@
+"""GP-NARX prediction inside an FMU: numpy and the standard library only.
+
+This file is copied into every GP-NARX FMU (``resources/<package>/_runtime.py``, the package
+name unique to the FMU; DESIGN.md, "Layout and layers"), so it must never import flightgp,
+gp_model or validation: a simulator host has none of them.
+
+Model file (``model.npz``, written by :func:`pack_model`, read without pickle)
+------------------------------------------------------------------------------
+Scalars and names: ``format`` (``"flightgp-fmu-narx"``), ``version``, ``step`` (NARX step, s),
+``input_names``, ``output_names``, ``input_lags``, ``output_lags``, ``envelope_low`` and
+``envelope_high`` (per regressor, the range of the training regressors in physical units).
+Per output ``j`` (prefix ``"<j>/"``), one row per hyperparameter sample ``s`` (S rows; S = 1 for
+point hyperparameters), every array in the GP's standardised units:
+
+============================  ===========  =================================================
+``basis``                     (m, d)       standardised basis inputs (training or inducing)
+``weights``                   (S, m)       mean weights, ``mean_s = k_s . weights_s``
+``variance_factor``           (S, m, m)    ``var_s = sigma_f,s^2 - |variance_factor_s k_s|^2``
+``kernel_weights``            (S, d)       ``w`` of ``k = sigma_f^2 exp(-sum_i w_i (x_i - x'_i)^2)``
+``log_signal_variance``       (S,)         ``ln sigma_f,s^2``
+``noise_variance``            (S,)         ``sigma_n,s^2``
+``input_mean, input_scale``   (d,)         ``x_standardised = (x - input_mean) / input_scale``
+``output_mean, output_scale`` ()           ``y = y_standardised * output_scale + output_mean``
+============================  ===========  =================================================
+
+These are :class:`gp_model.PredictiveForm` s (one per sample) plus the kernel and noise
+hyperparameters and the scalers. :meth:`NarxPredictor.predict` reproduces
+``GaussianProcess.predict(X, return_var=True, include_noise=True)`` exactly (same mixture over
+samples: mean ``E_s[mu_s]``, variance ``E_s[var_s + mu_s^2] - mean^2``, law of total variance),
+up to rounding.
+
+Regressor order (as :class:`gp_model.NarxStructure`): every input at every input lag
+(input-major), then every output at every output lag.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+FORMAT = "flightgp-fmu-narx"
+VERSION = 1
+
+#: Arrays stored per output, with their number of dimensions.
+PER_OUTPUT = {"basis": 2, "weights": 2, "variance_factor": 3, "kernel_weights": 2,
+              "log_signal_variance": 1, "noise_variance": 1, "input_mean": 1, "input_scale": 1,
+              "output_mean": 0, "output_scale": 0}
+
+#: A regressor counts as outside the training envelope when it leaves the training range by
+#: more than this fraction of the range on either side.
+ENVELOPE_MARGIN = 0.1
+
+
+class ModelFormatError(ValueError):
+    """The model file is not a flightgp FMU model of this version, or is inconsistent."""
+
+
+def pack_model(*, step: float, input_names, output_names, input_lags, output_lags,
+               envelope_low, envelope_high, outputs) -> dict:
+    """Arrays for ``numpy.savez`` (see the module docstring).
+
+    Parameters
+    ----------
+    outputs : list of dict
+        One dict per output with the arrays of :data:`PER_OUTPUT`.
+    """
+    arrays = {"format": np.array(FORMAT), "version": np.array(VERSION), "step": np.array(float(step)),
+              "input_names": np.array(list(input_names), dtype=str),
+              "output_names": np.array(list(output_names), dtype=str),
+              "input_lags": np.array(list(input_lags), dtype=np.int64),
+              "output_lags": np.array(list(output_lags), dtype=np.int64),
+              "envelope_low": np.asarray(envelope_low, dtype=float),
+              "envelope_high": np.asarray(envelope_high, dtype=float)}
+    for j, part in enumerate(outputs):
+        for name in PER_OUTPUT:
+            arrays[f"{j}/{name}"] = np.asarray(part[name], dtype=float)
+    return arrays
+
+
+def _read_part(arrays: dict, prefix: str, n_regressors: int) -> dict:
+    """One output's arrays (:data:`PER_OUTPUT`), checked for shape and finiteness."""
+    a = {name: np.array(arrays[prefix + name], dtype=float, order="C") for name in PER_OUTPUT}
+    for name, ndim in PER_OUTPUT.items():
+        if a[name].ndim != ndim:
+            raise ModelFormatError(f"{prefix}{name} has {a[name].ndim} dimensions, expected {ndim}")
+    m, d = a["basis"].shape
+    S = len(a["weights"])
+    expected = {"weights": (S, m), "variance_factor": (S, m, m), "kernel_weights": (S, d),
+                "log_signal_variance": (S,), "noise_variance": (S,), "input_mean": (d,),
+                "input_scale": (d,)}
+    for name, shape in expected.items():
+        if a[name].shape != shape:
+            raise ModelFormatError(f"{prefix}{name} has shape {a[name].shape}, expected {shape}")
+    if d != n_regressors:
+        raise ModelFormatError(f"{prefix}basis has {d} columns but the NARX structure has "
+                               f"{n_regressors} regressors")
+    if not all(np.isfinite(v).all() for v in a.values()) or np.any(a["input_scale"] <= 0):
+        raise ModelFormatError(f"{prefix}: non-finite arrays or non-positive input scales")
+    return a
+
+
+class _Block:
+    """Outputs whose GPs share basis points and input scaling (every output of an exact
+    GP-NARX): all their hyperparameter samples are evaluated in one batch, R rows in all."""
+
+    def __init__(self, parts: list) -> None:
+        first = parts[0]
+        self.basis = first["basis"]
+        self.input_mean, self.input_scale = first["input_mean"], first["input_scale"]
+        stack = lambda name: np.ascontiguousarray(np.concatenate([p[name] for p in parts]))  # noqa: E731
+        self.weights = stack("weights")  # (R, m)
+        self.variance_factor = stack("variance_factor")  # (R, m, m)
+        self.kernel_weights = stack("kernel_weights")  # (R, d)
+        self.log_signal_variance = stack("log_signal_variance")  # (R,)
+        self.signal_variance = np.exp(self.log_signal_variance)
+        self.noise_variance = stack("noise_variance")
+        counts = np.array([len(p["weights"]) for p in parts])
+        self.starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+        self.counts = counts.astype(float)
+        self.output_mean = np.array([float(p["output_mean"]) for p in parts])
+        self.output_scale = np.array([float(p["output_scale"]) for p in parts])
+        for value in vars(self).values():
+            value.flags.writeable = False  # shared by every instance of the FMU in a process
+
+    def predict(self, x: np.ndarray) -> tuple:
+        """Mean and variance (noise included) of the block's outputs at regressor ``x`` (d,), in
+        output units: for each output, the mixture over its hyperparameter samples."""
+        xs = (x - self.input_mean) / self.input_scale
+        squared = (xs - self.basis) ** 2  # (m, d)
+        # k_r = sigma_f,r^2 exp(-sum_i w_r,i (x_i - b_i)^2) for every sample row r: (R, m)
+        k = np.exp(self.log_signal_variance[:, None] - self.kernel_weights @ squared.T)
+        means = np.einsum("rm,rm->r", k, self.weights)
+        v = np.matmul(self.variance_factor, k[:, :, None])[:, :, 0]  # (R, m)
+        latent = np.maximum(self.signal_variance - np.einsum("rm,rm->r", v, v), 0.0)
+        variances = latent + self.noise_variance
+        # Mixture per output, as GaussianProcess.predict: E_s[mu_s], E_s[var_s + mu_s^2] - mean^2.
+        mean = np.add.reduceat(means, self.starts) / self.counts
+        second = np.add.reduceat(variances + means**2, self.starts) / self.counts
+        spread = np.maximum(second - mean**2, 0.0)
+        return mean * self.output_scale + self.output_mean, spread * self.output_scale**2
+
+
+class NarxPredictor:
+    """A GP-NARX model loaded from an FMU model file.
+
+    Attributes
+    ----------
+    step : float
+        NARX step, s.
+    input_names, output_names : tuple of str
+    input_lags, output_lags : tuple of int
+        Lags in NARX steps; input lags >= 1 (no direct feedthrough), output lags >= 1.
+    max_lag : int
+    regressor_names : tuple of str
+    envelope_low, envelope_high : ndarray, shape (d,)
+        Training range of each regressor.
+    n_samples : int
+        Hyperparameter samples of the mixture (of the first output).
+    """
+
+    def __init__(self, arrays: dict) -> None:
+        try:
+            if str(arrays["format"]) != FORMAT:
+                raise ModelFormatError(f"not a {FORMAT} model file (format {str(arrays['format'])!r})")
+            if int(arrays["version"]) != VERSION:
+                raise ModelFormatError(f"model file version {int(arrays['version'])}; this FMU reads "
+                                       f"version {VERSION}")
+            self.step = float(arrays["step"])
+            self.input_names = tuple(str(n) for n in arrays["input_names"])
+            self.output_names = tuple(str(n) for n in arrays["output_names"])
+            self.input_lags = tuple(int(i) for i in arrays["input_lags"])
+            self.output_lags = tuple(int(j) for j in arrays["output_lags"])
+            if not self.output_names or not self.output_lags:
+                raise ModelFormatError("a NARX model needs outputs and output lags")
+            if min(self.input_lags, default=1) < 1 or min(self.output_lags) < 1:
+                raise ModelFormatError(f"lags must be >= 1 (inputs {self.input_lags}, outputs "
+                                       f"{self.output_lags})")
+            if not self.step > 0:
+                raise ModelFormatError(f"NARX step must be positive, got {self.step}")
+            self.max_lag = max((*self.input_lags, *self.output_lags))
+            self.regressor_names = tuple(
+                [f"{n}(k-{i})" for n in self.input_names for i in self.input_lags]
+                + [f"{n}(k-{j})" for n in self.output_names for j in self.output_lags])
+            d = len(self.regressor_names)
+            self.envelope_low = np.asarray(arrays["envelope_low"], dtype=float)
+            self.envelope_high = np.asarray(arrays["envelope_high"], dtype=float)
+            if self.envelope_low.shape != (d,) or self.envelope_high.shape != (d,):
+                raise ModelFormatError(f"training envelope must have {d} entries")
+            parts = [_read_part(arrays, f"{j}/", d) for j in range(len(self.output_names))]
+        except KeyError as error:
+            raise ModelFormatError(f"model file lacks the array {error}") from None
+        margin = ENVELOPE_MARGIN * (self.envelope_high - self.envelope_low)
+        self._lower_limit = self.envelope_low - margin
+        self._upper_limit = self.envelope_high + margin
+        self.n_samples = len(parts[0]["weights"])
+        # Outputs sharing basis and input scaling form one block; order[j] = (block, row).
+        self._order, members = [], []
+        for j, part in enumerate(parts):
+            for b, group in enumerate(members):
+                lead = parts[group[0]]
+                if all(np.array_equal(part[n], lead[n]) for n in ("basis", "input_mean", "input_scale")):
+                    self._order.append((b, len(group)))
+                    group.append(j)
+                    break
+            else:
+                self._order.append((len(members), 0))
+                members.append([j])
+        self._blocks = [_Block([parts[j] for j in group]) for group in members]
+
+    @classmethod
+    def load(cls, path) -> "NarxPredictor":
+        """Read ``path`` (an ``.npz`` written from :func:`pack_model`; never unpickles)."""
+        with np.load(path, allow_pickle=False) as npz:
+            return cls({name: npz[name] for name in npz.files})
+
+    def regressor(self, input_history: np.ndarray, output_history: np.ndarray) -> np.ndarray:
+        """Regressor of the next sample.
+
+        Parameters
+        ----------
+        input_history : ndarray, shape (max_lag, n_inputs)
+        output_history : ndarray, shape (max_lag, n_outputs)
+            Row ``i`` holds the sample ``i`` NARX steps before the current one (row 0: current).
+
+        Returns
+        -------
+        ndarray, shape (d,)
+            For the sample one step after the current one, so lag ``L`` is row ``L - 1``.
+        """
+        parts = [input_history[i - 1, c] for c in range(len(self.input_names)) for i in self.input_lags]
+        parts += [output_history[j - 1, c] for c in range(len(self.output_names)) for j in self.output_lags]
+        return np.array(parts, dtype=float)
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance (measurement noise included) of every output, each shape
+        (n_outputs,), at regressor ``x`` (d,)."""
+        results = [block.predict(x) for block in self._blocks]
+        mean = np.array([results[b][0][i] for b, i in self._order])
+        var = np.array([results[b][1][i] for b, i in self._order])
+        return mean, var
+
+    def outside_envelope(self, x: np.ndarray) -> list[str]:
+        """One phrase per regressor of ``x`` outside the training envelope (empty if inside)."""
+        outside = np.flatnonzero((x < self._lower_limit) | (x > self._upper_limit))
+        return [f"{self.regressor_names[i]} = {x[i]:.6g} (trained on {self.envelope_low[i]:.6g} .. "
+                f"{self.envelope_high[i]:.6g})" for i in outside]
+
+    def describe(self) -> str:
+        """One line for the log."""
+        return json.dumps({"outputs": list(self.output_names), "regressors": list(self.regressor_names),
+                           "basis_points": int(self._blocks[0].basis.shape[0]),
+                           "hyperparameter_samples": self.n_samples, "step_s": self.step})

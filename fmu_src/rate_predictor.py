@@ -1,0 +1,194 @@
+"""The GP-NARX rate predictor FMU (Bo105 GP-NARX paper, AHS 74th Forum, 2018): control inputs
+and the previous rates in, predicted rates and their confidence bounds out.
+
+This file is copied into every rate predictor FMU (``resources/<package>/rate_predictor.py``),
+so it imports only the FMU runtime (:mod:`._base`, :mod:`._runtime`), numpy and the standard
+library. The per-FMU slave script that :mod:`fmu_src.builder` generates subclasses
+:class:`RatePredictor` with the FMU's variable table (:func:`rate_predictor_variables`), its
+package name and its NARX step.
+
+Timing (the sampling convention of :mod:`._base`, with ``h`` = the NARX step)
+-------------------------------------------------------------------------------
+The host must step with ``h`` equal to the model's NARX step (e.g. 0.1 s; declared as the default
+experiment's step size; ``canHandleVariableCommunicationStepSize=false``); any other step or
+communication point is refused with a logged Error and ``fmi2Discard``. At ``t_k`` the host sets
+the controls ``u(t_k)`` and the measured rates ``y_prev(t_k)``; ``fmi2DoStep(t_k, h)`` pushes them
+into the internal lag histories and sets the outputs to the one-step-ahead prediction
+
+    y(t_{k+1}) = f(u(t_{k+1-i}) for i in input_lags, y(t_{k+1-j}) for j in output_lags),
+
+which is exactly ``GPNarx.one_step`` on the recording sampled at ``h`` (from sample ``max_lag``
+on). Before ``t0`` the vehicle is taken to be steady: every lag before ``t0`` holds the values set
+at initialisation (recordings of perturbation models start at trim). At ``t0`` the outputs equal
+the ``*_prev`` inputs (the given initial rates) with zero-width bounds.
+
+Free-run mode (``free_run = true``): the FMU feeds back its own predicted means instead of the
+``*_prev`` inputs, which are then read only once, at initialisation, as the initial rates. Its
+bounds are the one-step bounds at the fed-back mean (``GPNarx.free_run(method="mean")``); they do
+not grow with the horizon as a Monte Carlo free run's would.
+
+Bounds: ``mean -/+ z sd`` with ``z`` the two-sided normal quantile of ``confidence_level`` and
+``sd`` the square root of the mixture variance over the hyperparameter samples, measurement noise
+included (as ``flightgp predict``).
+
+Envelope: when a regressor leaves the training range (by more than 10 % of the range), the FMU
+logs a Warning once per excursion; the GP variance then grows toward the prior's, so the bounds
+widen.
+"""
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+from pathlib import Path
+from statistics import NormalDist
+
+import numpy as np
+
+from ._base import FlightgpSlave, Variable
+from ._runtime import NarxPredictor
+
+#: The model file inside the FMU's package folder.
+MODEL_FILE = "model.npz"
+
+#: Loaded models by path: shared, read-only, by every instance of this FMU in the process (the
+#: module, and so this cache, is unique to one FMU).
+_PREDICTORS: dict = {}
+
+
+def rate_predictor_variables(*, inputs, outputs) -> tuple:
+    """The variable table of a GP-NARX rate predictor.
+
+    Parameters
+    ----------
+    inputs, outputs : sequence of (name, unit, limit, phrase)
+        The model's control inputs and predicted outputs: name, unit (a key of
+        :data:`._base.UNITS`), largest plausible magnitude (None: unbounded) and a phrase saying
+        what it is (e.g. ``"longitudinal cyclic"``).
+
+    Returns
+    -------
+    tuple of Variable
+        Controls, previous outputs (inputs); predicted outputs and their bounds (outputs);
+        ``confidence_level`` and ``free_run`` (parameters).
+    """
+    table = []
+    for name, unit, limit, phrase in inputs:
+        table.append(Variable(name, "input", "continuous", None, unit,
+                              f"{phrase} at the current communication point (perturbation from trim)",
+                              0.0, None if limit is None else -limit, limit))
+    for name, unit, limit, phrase in outputs:
+        table.append(Variable(f"{name}_prev", "input", "continuous", None, unit,
+                              f"measured {phrase} at the current communication point (read only at "
+                              "initialisation when free_run)", 0.0,
+                              None if limit is None else -limit, limit))
+    for name, unit, _, phrase in outputs:
+        table += [
+            Variable(name, "output", "continuous", "exact", unit,
+                     f"predicted {phrase}: GP mean for this communication point", 0.0),
+            Variable(f"{name}_lower", "output", "continuous", "exact", unit,
+                     f"lower bound of the confidence_level band of the {phrase}", 0.0),
+            Variable(f"{name}_upper", "output", "continuous", "exact", unit,
+                     f"upper bound of the confidence_level band of the {phrase}", 0.0),
+        ]
+    table += [
+        Variable("confidence_level", "parameter", "tunable", "exact", "1",
+                 "probability of the two-sided band between the lower and upper bounds", 0.95,
+                 0.5, 0.9999),
+        Variable("free_run", "parameter", "fixed", "exact", None,
+                 "feed back the predicted means instead of the *_prev inputs", False),
+    ]
+    return tuple(table)
+
+
+class RatePredictor(FlightgpSlave):
+    """GP-NARX rate predictor (the generated subclass sets the class attributes below)."""
+
+    #: The FMU's package folder under ``resources/`` (holds this code and the model file).
+    PACKAGE = ""
+    STATE_ATTRIBUTES = ("_input_history", "_output_history", "_outside_envelope")
+    CONSTANT_ATTRIBUTES = ("_predictor", "_input_names", "_output_names")
+
+    def load_constants(self) -> None:
+        self._predictor = self._load_predictor()
+        self._input_names = self._predictor.input_names
+        self._output_names = self._predictor.output_names
+
+    def start_model(self, t0: float) -> None:
+        predictor = self._predictor
+        u0 = self._controls()
+        y0 = self._previous_outputs()
+        self._input_history = np.tile(u0, (predictor.max_lag, 1))  # row i: i steps ago
+        self._output_history = np.tile(y0, (predictor.max_lag, 1))
+        self._outside_envelope = False
+        self._set_outputs(y0, np.zeros_like(y0))
+
+    def advance_model(self, k: int, t: float, h: float) -> None:
+        predictor = self._predictor
+        if self.values["free_run"]:
+            y = np.array([self.values[name] for name in self._output_names])
+        else:
+            y = self._previous_outputs()
+        input_history = _push(self._input_history, self._controls())
+        output_history = _push(self._output_history, y)
+        x = predictor.regressor(input_history, output_history)
+        mean, var = predictor.predict(x)
+        if not (np.isfinite(mean).all() and np.isfinite(var).all()):
+            raise FloatingPointError(f"non-finite prediction {mean.tolist()} (variance {var.tolist()}) "
+                                     f"at regressor {x.tolist()}")
+        outside = predictor.outside_envelope(x)
+        if outside and not self._outside_envelope:
+            self.log_warning(f"t = {t + h:.16g} s: regressor outside the training envelope: "
+                             + "; ".join(outside)
+                             + ". The GP extrapolates; its variance, and so the bounds, widen.")
+        elif self._outside_envelope and not outside:
+            self.log_info(f"t = {t + h:.16g} s: back inside the training envelope")
+        # Commit only after everything that can fail (a refused step leaves the state as it was).
+        self._input_history, self._output_history = input_history, output_history
+        self._outside_envelope = bool(outside)
+        self._set_outputs(mean, var)
+
+    # -- helpers ------------------------------------------------------------------------------
+    def _load_predictor(self) -> NarxPredictor:
+        path = Path(self.resources) / self.PACKAGE / MODEL_FILE
+        key = str(path)
+        if key not in _PREDICTORS:
+            predictor = NarxPredictor.load(path)
+            self.log_info(f"loaded GP-NARX model {path.name}: {predictor.describe()}")
+            _PREDICTORS[key] = predictor
+        predictor = _PREDICTORS[key]
+        declared = {v.name for v in self.VARIABLES}
+        missing = [n for n in predictor.input_names + predictor.output_names if n not in declared]
+        if missing:
+            raise ValueError(f"the model file's signals {missing} have no FMU variables")
+        if self.STEP_SIZE is None or abs(predictor.step - self.STEP_SIZE) > 1e-9 * predictor.step:
+            raise ValueError(f"the model's NARX step {predictor.step:.16g} s differs from the FMU's "
+                             f"step {self.STEP_SIZE} s")
+        return predictor
+
+    def _controls(self) -> np.ndarray:
+        return np.array([self.values[name] for name in self._input_names], dtype=float)
+
+    def _previous_outputs(self) -> np.ndarray:
+        return np.array([self.values[f"{name}_prev"] for name in self._output_names], dtype=float)
+
+    def _set_outputs(self, mean: np.ndarray, var: np.ndarray) -> None:
+        z = _two_sided_quantile(self.values["confidence_level"])
+        for name, m, v in zip(self._output_names, mean.tolist(), var.tolist()):
+            half_width = z * math.sqrt(v)
+            self.values[name] = m
+            self.values[f"{name}_lower"] = m - half_width
+            self.values[f"{name}_upper"] = m + half_width
+
+
+def _push(history: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """A new lag history (row i: i steps ago) with ``row`` as the current sample."""
+    pushed = np.empty_like(history)
+    pushed[0] = row
+    pushed[1:] = history[:-1]
+    return pushed
+
+
+@lru_cache(maxsize=16)
+def _two_sided_quantile(level: float) -> float:
+    """``z`` with ``P(|N(0, 1)| <= z) = level``."""
+    return NormalDist().inv_cdf(0.5 + 0.5 * level)

@@ -1,0 +1,541 @@
+"""FMUs: a contract every flightgp FMU passes, then what is particular to each.
+
+The contract (issue 5, DESIGN.md "FMU rules") is written once against :class:`FmuCase`; an FMU
+joins it by adding a factory to ``FACTORIES`` that builds it into a temporary folder and says how
+to drive it (GPyTorch-style shared contract tests, STYLE.md). Each FMU is built once per module.
+
+Hosts: fmpy's ``simulate_fmu`` and, for fine control, fmpy's ``FMU2Slave`` driven call by call
+(:class:`Host`), with the FMU's log messages captured through the FMI logger callback.
+"""
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+import zipfile
+from ctypes import byref
+from dataclasses import dataclass, field
+from pathlib import Path
+from statistics import NormalDist
+from typing import Callable
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Discard, fmi2Error,
+                       fmi2Warning)
+from fmpy.logging import addLoggerProxy
+from fmpy.validation import validate_fmu
+
+from fmu_src.builder import build_rate_predictor_fmu
+from validation.cli import main
+from validation.narx import NarxConfig, one_step, save_trained, train_narx
+from validation.reproduce_bo105 import PAPER_CONFIG, fly_3211
+
+FMI_FATAL = 4
+
+
+# -- the contract's view of an FMU ------------------------------------------------------------
+@dataclass
+class FmuCase:
+    """A built FMU and how to exercise it.
+
+    Attributes
+    ----------
+    path : Path
+        The ``.fmu`` file.
+    step : float
+        Communication step the FMU requires, s.
+    n_steps : int
+        Steps of the standard run.
+    inputs : callable
+        ``inputs(k)`` -> {name: value} the host sets at ``t_k`` in the standard run (inside the
+        training envelope).
+    reference : callable
+        ``reference()`` -> (expected, first): the Python model's values of every output at every
+        communication point of the standard run, shape (n_steps + 1, n_outputs), and the first row
+        the FMU must match (earlier rows depend on how the FMU starts).
+    far_inputs : dict
+        Inputs far outside the training envelope but inside their declared min/max.
+    bands : list of (lower, upper)
+        Output pairs whose width must grow outside the envelope.
+    bad_inputs : list of (name, value)
+        Values the FMU must refuse with a logged Error and fmi2Discard.
+    parameters : dict
+        Parameter values set before initialisation.
+    """
+
+    path: Path
+    step: float
+    n_steps: int
+    inputs: Callable[[int], dict]
+    reference: Callable[[], tuple]
+    far_inputs: dict
+    bands: list
+    bad_inputs: list
+    parameters: dict = field(default_factory=dict)
+
+    def signal(self) -> np.ndarray:
+        """The standard run's inputs as an fmpy input signal."""
+        rows = [self.inputs(k) for k in range(self.n_steps + 1)]
+        names = list(rows[0])
+        signal = np.zeros(len(rows), dtype=[("time", float)] + [(n, float) for n in names])
+        signal["time"] = np.arange(len(rows)) * self.step
+        for name in names:
+            signal[name] = [row[name] for row in rows]
+        return signal
+
+
+class Host:
+    """One FMU instance driven by FMI 2.0 calls (fmpy), collecting its log messages."""
+
+    def __init__(self, unzipdir: str, *, name: str = "instance", logging: bool = True) -> None:
+        description = read_model_description(unzipdir)
+        self.variables = {v.name: v for v in description.modelVariables}
+        self.outputs = [v.name for v in description.modelVariables if v.causality == "output"]
+        self.messages = []  # (status, category, message)
+        self.callbacks = fmi2CallbackFunctions()
+        self.callbacks.logger = fmi2CallbackLoggerTYPE(self._log)
+        self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(lambda n, size: None)
+        self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(lambda pointer: None)
+        addLoggerProxy(byref(self.callbacks))  # formats the printf-style message, as simulate_fmu
+        self.fmu = FMU2Slave(guid=description.guid, unzipDirectory=unzipdir, instanceName=name,
+                             modelIdentifier=description.coSimulation.modelIdentifier)
+        self.fmu.instantiate(callbacks=self.callbacks, loggingOn=logging)
+
+    def _log(self, environment, instance, status, category, message):
+        self.messages.append((status, (category or b"").decode(), message.decode()))
+
+    def set(self, values: dict) -> None:
+        for name, value in values.items():
+            variable = self.variables[name]
+            if variable.type == "Boolean":
+                self.fmu.setBoolean([variable.valueReference], [bool(value)])
+            else:
+                self.fmu.setReal([variable.valueReference], [float(value)])
+
+    def get(self) -> np.ndarray:
+        return np.array(self.fmu.getReal([self.variables[n].valueReference for n in self.outputs]))
+
+    def start(self, case: FmuCase, inputs: dict | None = None) -> np.ndarray:
+        self.set(case.parameters)
+        self.set(case.inputs(0) if inputs is None else inputs)
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+        return self.get()
+
+    def step(self, case: FmuCase, k: int, inputs: dict | None = None) -> np.ndarray:
+        self.set(case.inputs(k) if inputs is None else inputs)
+        self.fmu.doStep(currentCommunicationPoint=k * case.step, communicationStepSize=case.step)
+        return self.get()
+
+    def run(self, case: FmuCase, first: int = 0, last: int | None = None, inputs=None) -> np.ndarray:
+        """Steps ``first .. last - 1``: outputs after each, shape (last - first, n_outputs)."""
+        inputs = case.inputs if inputs is None else inputs
+        last = case.n_steps if last is None else last
+        return np.array([self.step(case, k, inputs(k)) for k in range(first, last)])
+
+    def close(self) -> None:
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+    def statuses(self) -> set:
+        return {status for status, _, _ in self.messages}
+
+
+# -- the Bo105 GP-NARX rate predictor ------------------------------------------------------------
+@pytest.fixture(scope="module")
+def bo105_flights():
+    """The paper's 3-2-1-1 (training) and an unseen one, Bo105 80 kt flight-test stand-in."""
+    fly = lambda seed, amplitude, step_time: fly_3211(  # noqa: E731
+        "bo105-80kt-flight", input_name="theta_1s", amplitude=np.radians(amplitude),
+        step_time=step_time, start=1.0, duration=8.0, seed=seed)
+    return {"training": fly(0, 1.0, 0.4), "unseen": fly(1, 1.3, 0.3)}
+
+
+@pytest.fixture(scope="module")
+def bo105_trained(bo105_flights):
+    """The paper's configuration: 32 training points, annealing with 400 hyperparameter samples
+    (about 2 s), so the FMU's mixture over samples is exercised as in production."""
+    return train_narx([bo105_flights["training"]], PAPER_CONFIG, seed=0)
+
+
+@pytest.fixture(scope="module")
+def bo105_model_file(tmp_path_factory, bo105_trained):
+    return save_trained(tmp_path_factory.mktemp("model") / "bo105_gp_narx.npz", bo105_trained)
+
+
+def rate_predictor_case(request) -> FmuCase:
+    trained = request.getfixturevalue("bo105_trained")
+    recording = request.getfixturevalue("bo105_flights")["training"]  # inside the envelope
+    model_file = request.getfixturevalue("bo105_model_file")
+    out = request.getfixturevalue("tmp_path_factory").mktemp("fmu")
+    path = build_rate_predictor_fmu(model_file, out, name="bo105_rate_predictor")
+    rows = slice(None, None, trained.config.decimation)
+    controls = {n: recording.input(n)[rows] for n in trained.config.inputs}
+    rates = {n: recording.output(n)[rows] for n in trained.config.outputs}
+    n = len(recording.time[rows])
+
+    def inputs(k):
+        return {**{n: v[k] for n, v in controls.items()}, **{f"{n}_prev": v[k] for n, v in rates.items()}}
+
+    def reference():
+        prediction = one_step(trained, recording)
+        z = NormalDist().inv_cdf(0.975)  # confidence_level 0.95
+        columns = []
+        for j in range(len(trained.config.outputs)):
+            mean, sd = prediction.mean[:, j], np.sqrt(prediction.var[:, j])
+            columns += [mean, mean - z * sd, mean + z * sd]
+        return np.column_stack(columns), prediction.first
+
+    return FmuCase(path=path, step=trained.step, n_steps=n - 1, inputs=inputs, reference=reference,
+                   far_inputs={"theta_1s": 0.3},  # 17 deg of cyclic; trained on +/-1 deg
+                   bands=[(f"{a}_lower", f"{a}_upper") for a in trained.config.outputs],
+                   bad_inputs=[("theta_1s", float("nan")), ("q_prev", float("inf")),
+                               ("theta_1s", 0.6)])  # beyond the declared 0.5 rad
+
+
+#: Every FMU the contract covers: name -> factory(request) -> FmuCase.
+FACTORIES = {"bo105_rate_predictor": rate_predictor_case}
+
+
+@pytest.fixture(scope="module", params=list(FACTORIES))
+def case(request) -> FmuCase:
+    return FACTORIES[request.param](request)
+
+
+@pytest.fixture(scope="module")
+def unzipdir(case, tmp_path_factory):
+    return extract(str(case.path), unzipdir=str(tmp_path_factory.mktemp("unzipped")))
+
+
+@pytest.fixture
+def host(unzipdir):
+    instance = Host(unzipdir)
+    yield instance
+    instance.close()
+
+
+def standard_run(case: FmuCase, host: Host) -> np.ndarray:
+    """Outputs at every communication point of the standard run, shape (n_steps + 1, n_outputs)."""
+    return np.vstack([host.start(case), host.run(case)])
+
+
+# -- the contract ---------------------------------------------------------------------------------
+def test_validates_without_problems(case):
+    assert validate_fmu(str(case.path)) == []
+
+
+def test_runtime_is_self_contained(case):
+    """Inside the FMU, Python code imports only the standard library, numpy, pythonfmu and the
+    FMU's own uniquely named modules: never flightgp's packages, which a host does not have."""
+    allowed = set(sys.stdlib_module_names) | {"numpy", "pythonfmu"}
+    with zipfile.ZipFile(case.path) as archive:
+        sources = {name: archive.read(name).decode() for name in archive.namelist()
+                   if name.endswith(".py") and not name.startswith("resources/pythonfmu/")}
+    own = {Path(name).parts[1].removesuffix(".py") for name in sources}
+    # Module names unique to the FMU: <model identifier>_<content hash>[_lib] (a Python host
+    # shares sys.modules with every FMU it loads).
+    identifier = read_model_description(str(case.path)).coSimulation.modelIdentifier
+    assert own and all(re.fullmatch(rf"{identifier}_[0-9a-f]{{8}}(_lib)?", module) for module in own), own
+    for name, source in sources.items():
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.Import):
+                roots = {alias.name.split(".")[0] for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                roots = {node.module.split(".")[0]}
+            else:
+                continue
+            assert roots <= allowed | own, f"{name} imports {roots - allowed - own}"
+
+
+def test_simulate_fmu_runs_with_finite_outputs(case, host):
+    result = simulate_fmu(str(case.path), input=case.signal(), start_values=case.parameters,
+                          stop_time=case.n_steps * case.step, output_interval=case.step)
+    outputs = host.outputs
+    assert len(result) == case.n_steps + 1
+    values = np.column_stack([result[name] for name in outputs])
+    assert np.all(np.isfinite(values))
+    # simulate_fmu follows the same sampling convention as the call-by-call host.
+    np.testing.assert_array_equal(values, standard_run(case, host))
+
+
+def test_outputs_equal_the_python_model(case, host):
+    expected, first = case.reference()
+    outputs = standard_run(case, host)
+    # 1e-9 rad/s absolute: the FMU evaluates the same formulas as GaussianProcess.predict in a
+    # different order (rounding of order 1e-16 relative), far below any physical meaning.
+    np.testing.assert_allclose(outputs[first:], expected[first:], rtol=0, atol=1e-9)
+    assert host.statuses() <= {0, fmi2Warning}
+
+
+def test_reset_reproduces_a_run(case, host):
+    first = standard_run(case, host)
+    host.fmu.reset()
+    np.testing.assert_array_equal(standard_run(case, host), first)
+
+
+def test_state_save_step_restore_step_is_identical(case, unzipdir, host):
+    half = case.n_steps // 2
+    host.start(case)
+    host.run(case, 0, half)
+    state = host.fmu.getFMUstate()
+    after_save = host.run(case, half)
+    host.fmu.setFMUstate(state)
+    np.testing.assert_array_equal(host.run(case, half), after_save)
+    # The same state, serialised and read back (canSerializeFMUstate), restores it too.
+    copy = host.fmu.deSerializeFMUstate(host.fmu.serializeFMUstate(state))
+    host.fmu.setFMUstate(copy)
+    np.testing.assert_array_equal(host.run(case, half), after_save)
+    # ... also into a fresh instance of the FMU, as a state saved to disk would be.
+    fresh = Host(unzipdir, name="fresh")
+    try:
+        restored = fresh.fmu.deSerializeFMUstate(host.fmu.serializeFMUstate(state))
+        fresh.fmu.setFMUstate(restored)
+        np.testing.assert_array_equal(fresh.run(case, half), after_save)
+        assert fmi2Error not in fresh.statuses()
+        fresh.fmu.freeFMUstate(restored)
+    finally:
+        fresh.close()
+    host.fmu.freeFMUstate(state)
+    host.fmu.freeFMUstate(copy)
+    assert fmi2Error not in host.statuses()  # an incomplete state logs an Error when saved
+
+
+def test_two_instances_in_one_process_stay_independent(case, unzipdir):
+    far = lambda k: {**case.inputs(k), **case.far_inputs}  # noqa: E731
+
+    def alone(inputs, name):
+        host = Host(unzipdir, name=name)
+        try:
+            return np.vstack([host.start(case, inputs(0)), host.run(case, inputs=inputs)])
+        finally:
+            host.close()
+
+    expected = alone(case.inputs, "alone"), alone(far, "alone_far")
+    a, b = Host(unzipdir, name="a"), Host(unzipdir, name="b")
+    try:
+        rows_a, rows_b = [a.start(case)], [b.start(case, far(0))]
+        for k in range(case.n_steps):  # interleaved, with different inputs
+            rows_a.append(a.step(case, k))
+            rows_b.append(b.step(case, k, far(k)))
+    finally:
+        a.close()
+        b.close()
+    np.testing.assert_array_equal(np.array(rows_a), expected[0])
+    np.testing.assert_array_equal(np.array(rows_b), expected[1])
+    assert np.abs(expected[0] - expected[1]).max() > 1e-3  # the two runs really differ
+
+
+@pytest.mark.parametrize("bad", range(3))
+def test_bad_input_is_a_logged_discard_and_the_step_can_be_retried(case, host, bad):
+    name, value = case.bad_inputs[bad]
+    expected = standard_run(case, host)
+    host.fmu.reset()
+    host.start(case)
+    host.run(case, 0, 3)
+    host.set({name: value})
+    with pytest.raises(FMICallException) as refused:
+        host.fmu.doStep(currentCommunicationPoint=3 * case.step, communicationStepSize=case.step)
+    assert refused.value.status == fmi2Discard
+    errors = [message for status, _, message in host.messages if status == fmi2Error]
+    assert errors and name in errors[-1] and "Discard" in errors[-1], host.messages
+    # The refused step changed nothing: with good inputs the run goes on as if it never happened.
+    np.testing.assert_array_equal(host.run(case, 3), expected[4:])
+    assert FMI_FATAL not in host.statuses()
+
+
+@pytest.mark.parametrize("bad_call", ["step size", "communication point", "set an output",
+                                      "unknown value reference", "fixed parameter"])
+def test_illegal_calls_are_logged_discards(case, host, bad_call):
+    host.start(case)
+    host.run(case, 0, 2)
+    t, h = 2 * case.step, case.step
+    if bad_call == "step size":
+        h, phrase = case.step / 2, "expected communicationStepSize"
+    elif bad_call == "communication point":
+        t, phrase = 3 * case.step, "expected currentCommunicationPoint"
+    elif bad_call == "set an output":
+        host.set({host.outputs[0]: 1.0})
+        phrase = f"{host.outputs[0]} is an output"
+    elif bad_call == "unknown value reference":
+        host.fmu.setReal([len(host.variables) + 10], [1.0])
+        phrase = "is not a Real variable"
+    else:
+        fixed = [v for v in host.variables.values()
+                 if v.causality == "parameter" and v.variability == "fixed"]
+        if not fixed:
+            pytest.skip("no fixed parameter")
+        host.set({fixed[0].name: not fixed[0].start if fixed[0].type == "Boolean" else 1.0})
+        phrase = fixed[0].name
+    with pytest.raises(FMICallException) as refused:
+        host.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+    assert refused.value.status == fmi2Discard
+    errors = [message for status, _, message in host.messages if status == fmi2Error]
+    assert any(phrase in message for message in errors), host.messages
+    assert FMI_FATAL not in host.statuses()
+
+
+def test_bad_input_is_a_discard_even_without_logging(case, unzipdir):
+    # pythonfmu 0.7 forwards messages only while the host enables logging; the status still
+    # reaches the host.
+    quiet = Host(unzipdir, name="quiet", logging=False)
+    try:
+        quiet.start(case)
+        name, value = case.bad_inputs[0]
+        quiet.set({name: value})
+        with pytest.raises(FMICallException) as refused:
+            quiet.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=case.step)
+        assert refused.value.status == fmi2Discard
+    finally:
+        quiet.close()
+
+
+def test_outside_the_training_envelope_warns_and_widens_the_bounds(case, host):
+    inside = standard_run(case, host)
+    host.fmu.reset()
+    host.start(case)
+    k = case.n_steps // 2
+    host.run(case, 0, k)
+    assert fmi2Warning not in host.statuses()
+    outside = host.step(case, k, {**case.inputs(k), **case.far_inputs})
+    warnings = [message for status, _, message in host.messages if status == fmi2Warning]
+    assert warnings and "outside the training envelope" in warnings[0]
+    assert all(name in warnings[0] for name in case.far_inputs)
+    index = {name: i for i, name in enumerate(host.outputs)}
+    for lower, upper in case.bands:
+        width_inside = inside[k + 1, index[upper]] - inside[k + 1, index[lower]]
+        width_outside = outside[index[upper]] - outside[index[lower]]
+        assert width_outside > 1.5 * width_inside, (lower, width_inside, width_outside)
+    assert FMI_FATAL not in host.statuses()
+
+
+# -- the rate predictor in particular ---------------------------------------------------------------
+@pytest.fixture(scope="module")
+def rate_predictor(request):
+    return rate_predictor_case(request)
+
+
+def test_rate_predictor_starts_at_the_given_rates(rate_predictor, tmp_path):
+    unzipped = extract(str(rate_predictor.path), unzipdir=str(tmp_path / "u"))
+    host = Host(unzipped)
+    try:
+        start = {**rate_predictor.inputs(0), "p_prev": 0.01, "q_prev": -0.02, "r_prev": 0.03}
+        outputs = dict(zip(host.outputs, host.start(rate_predictor, start)))
+    finally:
+        host.close()
+    for axis, value in (("p", 0.01), ("q", -0.02), ("r", 0.03)):
+        assert outputs[axis] == outputs[f"{axis}_lower"] == outputs[f"{axis}_upper"] == value
+
+
+def test_free_run_mode_equals_the_python_mean_free_run(rate_predictor, bo105_trained, bo105_flights,
+                                                       tmp_path):
+    u = bo105_flights["unseen"].input("theta_1s")[::10, None]  # partly outside the envelope
+    assert len(u) == rate_predictor.n_steps + 1
+    unzipped = extract(str(rate_predictor.path), unzipdir=str(tmp_path / "u"))
+    host = Host(unzipped)
+    free = lambda k: {"theta_1s": u[k, 0]}  # noqa: E731 - the rates are not driven
+    try:
+        host.set({"free_run": True})
+        outputs = np.vstack([host.start(rate_predictor, free(0)), host.run(rate_predictor, inputs=free)])
+    finally:
+        host.close()
+    means = outputs[:, [host.outputs.index(a) for a in "pqr"]]
+    # The FMU starts from rest (every lag before t0 at the t0 values) and predicts row 1 itself;
+    # from there on, it is GPNarx's "mean" free run from the same first rows.
+    python = bo105_trained.model.free_run(u, means[:2], method="mean")
+    np.testing.assert_allclose(means[2:], python.mean[2:], rtol=0, atol=1e-9)
+    sd = (outputs[:, host.outputs.index("q_upper")] - means[:, 1]) / NormalDist().inv_cdf(0.975)
+    np.testing.assert_allclose(sd[2:], np.sqrt(python.var[2:, 1]), rtol=0, atol=1e-9)
+
+
+def test_confidence_level_sets_the_band(rate_predictor, tmp_path):
+    unzipped = extract(str(rate_predictor.path), unzipdir=str(tmp_path / "u"))
+    widths = {}
+    for level in (0.6827, 0.95):
+        host = Host(unzipped, name=f"level{level}")
+        try:
+            host.set({"confidence_level": level})
+            host.start(rate_predictor)
+            row = dict(zip(host.outputs, host.run(rate_predictor, 0, 5)[-1]))
+        finally:
+            host.close()
+        widths[level] = row["q_upper"] - row["q_lower"]
+    z = NormalDist().inv_cdf
+    assert widths[0.95] / widths[0.6827] == pytest.approx(z(0.975) / z(0.5 + 0.6827 / 2), rel=1e-12)
+
+
+def test_two_fmus_of_one_name_run_their_own_models(rate_predictor, bo105_flights, tmp_path):
+    """DESIGN.md: a Python host shares sys.modules with every FMU it loads. Two FMUs with the same
+    name but different models get different module names, and each runs its own model."""
+    other = train_narx([bo105_flights["training"]],
+                       NarxConfig(hyperparameters="maximum_likelihood", stride=10), seed=0, n_restarts=0)
+    other_path = build_rate_predictor_fmu(save_trained(tmp_path / "other.npz", other), tmp_path / "fmu",
+                                          name="bo105_rate_predictor")
+    modules = [zipfile.ZipFile(p).read("resources/slavemodule.txt").decode().strip()
+               for p in (rate_predictor.path, other_path)]
+    assert modules[0] != modules[1]
+    runs = []
+    for i, path in enumerate((rate_predictor.path, other_path)):  # both loaded into this process
+        host = Host(extract(str(path), unzipdir=str(tmp_path / f"u{i}")), name=f"fmu{i}")
+        try:
+            runs.append(standard_run(rate_predictor, host))
+        finally:
+            host.close()
+    assert np.abs(runs[0] - runs[1]).max() > 1e-3
+    expected, first = rate_predictor.reference()
+    np.testing.assert_allclose(runs[0][first:], expected[first:], rtol=0, atol=1e-9)
+    q = host.outputs.index("q")
+    np.testing.assert_allclose(runs[1][first:, q], one_step(other, bo105_flights["training"]).mean[first:, 1],
+                               rtol=0, atol=1e-9)
+
+
+def test_fmu_runs_where_flightgp_is_not_importable(rate_predictor):
+    """A simulator host has no flightgp: run the FMU in a Python where gp_model, validation and
+    fmu_src cannot be imported."""
+    script = (
+        "import sys\n"
+        "for name in ('gp_model', 'validation', 'fmu_src'): sys.modules[name] = None\n"
+        "import numpy as np\n"
+        "from fmpy import simulate_fmu\n"
+        f"result = simulate_fmu({str(rate_predictor.path)!r}, start_values={{'free_run': True}}, "
+        f"stop_time=2.0)\n"
+        "assert len(result) == 21 and np.isfinite(result['q']).all()\n"
+        "print('ok')\n")
+    completed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert completed.returncode == 0 and completed.stdout.strip().endswith("ok"), completed.stderr
+
+
+# -- flightgp build-fmu ------------------------------------------------------------------------------
+def test_build_fmu_command_writes_the_fmu(bo105_model_file, tmp_path, capsys):
+    assert main(["build-fmu", str(bo105_model_file), "--out", str(tmp_path / "out"), "--name", "rates"]) == 0
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["rates.fmu"]
+    assert validate_fmu(str(tmp_path / "out" / "rates.fmu")) == []
+    assert "rates.fmu" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("problem", ["missing", "not a model", "bad name", "out is a file", "input lag 0"])
+def test_build_fmu_bad_input_exits_2_and_writes_nothing(bo105_model_file, bo105_flights, tmp_path, capsys,
+                                                        problem):
+    model, out, name = str(bo105_model_file), tmp_path / "out", []
+    if problem == "missing":
+        model = str(tmp_path / "nope.npz")
+    elif problem == "not a model":
+        (tmp_path / "junk.npz").write_text("not a zip")
+        model = str(tmp_path / "junk.npz")
+    elif problem == "bad name":
+        name = ["--name", "2 fast"]
+    elif problem == "out is a file":
+        out.write_text("keep me")
+    else:
+        config = NarxConfig(input_lags=(0, 1), hyperparameters="maximum_likelihood", stride=25)
+        trained = train_narx([bo105_flights["training"]], config, seed=0, n_restarts=0)
+        model = str(save_trained(tmp_path / "lag0.npz", trained))
+    assert main(["build-fmu", model, "--out", str(out), *name]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("flightgp build-fmu: error:") and "Traceback" not in err
+    assert not out.is_dir() or not any(out.iterdir())
