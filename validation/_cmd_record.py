@@ -22,56 +22,36 @@ DEFAULT_AMPLITUDE_NORMALISED = 0.1
 _FLIGHT_SUFFIX = "-flight"
 
 
-def register(subparsers) -> None:
-    record = subparsers.add_parser(
-        "record",
-        help="fly a test manoeuvre on a vehicle and write the recording",
-        description=(
-            "Fly a manoeuvre on one input of a vehicle, all other inputs held at trim, and write "
-            "OUT (CSV: time, inputs, outputs) with its JSON sidecar (same name, .json). The "
-            "recording starts at trim at t = 0 s."
-        ),
-    )
-    record.add_argument("--vehicle", required=True,
+def add_flight_arguments(parser, *, required: bool = True) -> None:
+    """The options that describe a manoeuvre flown on a vehicle (``record``, ``cosim``)."""
+    parser.add_argument("--vehicle", required=required,
                         help="vehicle name, e.g. bo105-80kt, bo105-80kt-flight, blimp, jsbsim:c172x")
-    record.add_argument("--manoeuvre", choices=MANOEUVRES, default="3211",
+    parser.add_argument("--manoeuvre", choices=MANOEUVRES, default="3211",
                         help="input shape (default %(default)s)")
-    record.add_argument("--input", required=True, metavar="NAME",
+    parser.add_argument("--input", required=required, metavar="NAME",
                         help="the vehicle input that flies the manoeuvre, e.g. theta_1s")
-    amplitude = record.add_mutually_exclusive_group()
+    amplitude = parser.add_mutually_exclusive_group()
     amplitude.add_argument("--amplitude-deg", type=float, metavar="DEG",
                            help=f"amplitude of an angle input, deg (default {DEFAULT_AMPLITUDE_DEG:g})")
     amplitude.add_argument("--amplitude", type=float, metavar="VALUE",
                            help="amplitude in the input's own unit: rad for angles, fraction of full "
                                 f"travel for normalised commands (default {DEFAULT_AMPLITUDE_NORMALISED:g})")
-    record.add_argument("--step-time", type=float, default=0.4, metavar="S",
+    parser.add_argument("--step-time", type=float, default=0.4, metavar="S",
                         help="width of one step of a 3211 or doublet, s (default %(default)s)")
-    record.add_argument("--start", type=float, default=1.0, metavar="S",
+    parser.add_argument("--start", type=float, default=1.0, metavar="S",
                         help="time the manoeuvre starts, s (default %(default)s)")
-    record.add_argument("--duration", type=float, default=10.0, metavar="S",
+    parser.add_argument("--duration", type=float, default=10.0, metavar="S",
                         help="length of the recording, s (default %(default)s)")
-    record.add_argument("--seed", type=seed, default=0,
+    parser.add_argument("--seed", type=seed, default=0,
                         help="seed of turbulence and sensor noise of flight-test stand-ins (default %(default)s)")
-    record.add_argument("--out", required=True, type=Path, metavar="FILE.csv",
-                        help="recording to write; folders are created")
-    record.add_argument("--plot", action="store_true",
-                        help="also write FILE.png; a -flight stand-in is overlaid with its reference")
-    record.set_defaults(func=_record)
-
-    inspect = subparsers.add_parser(
-        "inspect",
-        help="check a recording and print a summary",
-        description="Check a recording (and its JSON sidecar) and print duration, sampling and "
-                    "each column's unit and range. A malformed file exits with code 2 and names "
-                    "file, row and column.",
-    )
-    inspect.add_argument("recording", type=Path, metavar="FILE.csv")
-    inspect.add_argument("--vehicle", help="check the columns against this vehicle "
-                                           "(default: the sidecar's vehicle, if any)")
-    inspect.set_defaults(func=_inspect)
 
 
-def _record(args: argparse.Namespace) -> int:
+def fly(args: argparse.Namespace) -> tuple[Recording, np.ndarray]:
+    """Fly the manoeuvre that :func:`add_flight_arguments`' options describe.
+
+    Returns the recording (metadata: vehicle, seed, manoeuvre) and the input history, shape
+    (n, n_inputs).
+    """
     vehicle = get_vehicle(args.vehicle)
     if args.input not in vehicle.input_names:
         raise BadInputError(
@@ -92,13 +72,49 @@ def _record(args: argparse.Namespace) -> int:
         manoeuvre={"kind": args.manoeuvre, "input": args.input, "amplitude": amplitude,
                    "unit": column_unit(args.input), "step_time": args.step_time, "start": args.start},
     )
+    return recording, inputs
+
+
+def register(subparsers) -> None:
+    record = subparsers.add_parser(
+        "record",
+        help="fly a test manoeuvre on a vehicle and write the recording",
+        description=(
+            "Fly a manoeuvre on one input of a vehicle, all other inputs held at trim, and write "
+            "OUT (CSV: time, inputs, outputs) with its JSON sidecar (same name, .json). The "
+            "recording starts at trim at t = 0 s."
+        ),
+    )
+    add_flight_arguments(record)
+    record.add_argument("--out", required=True, type=Path, metavar="FILE.csv",
+                        help="recording to write; folders are created")
+    record.add_argument("--plot", action="store_true",
+                        help="also write FILE.png; a -flight stand-in is overlaid with its reference")
+    record.set_defaults(func=_record)
+
+    inspect = subparsers.add_parser(
+        "inspect",
+        help="check a recording and print a summary",
+        description="Check a recording (and its JSON sidecar) and print duration, sampling and "
+                    "each column's unit and range. A malformed file exits with code 2 and names "
+                    "file, row and column.",
+    )
+    inspect.add_argument("recording", type=Path, metavar="FILE.csv")
+    inspect.add_argument("--vehicle", help="check the columns against this vehicle "
+                                           "(default: the sidecar's vehicle, if any)")
+    inspect.set_defaults(func=_inspect)
+
+
+def _record(args: argparse.Namespace) -> int:
+    recording, inputs = fly(args)
+    vehicle = get_vehicle(args.vehicle)
     # Everything is computed before the first file is written, so an error leaves no files.
     png = _plot(recording, vehicle_name=vehicle.name, inputs=inputs) if args.plot else None
     files = recording_files(args.out, recording)
     if png is not None:
         files[args.out.with_suffix(".png")] = png
     written = write_files_atomically(files)
-    print(f"recorded {vehicle.name}: {args.manoeuvre} on {args.input}, {len(time)} samples; "
+    print(f"recorded {vehicle.name}: {args.manoeuvre} on {args.input}, {len(recording.time)} samples; "
           f"wrote {', '.join(map(str, written))}")
     return 0
 

@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "validation._cmd_record",
     "validation._cmd_narx",
     "validation._cmd_reproduce",
+    "validation._cmd_cosim",
     "validation._cmd_bench",
     "validation._cmd_fmu",
 )
