@@ -74,3 +74,12 @@ def test_bench_option_of_a_benchmark_not_run_exits_2(tmp_path, capsys):
     assert main(["bench", "gp", "--runs", "50", "--out-dir", str(tmp_path)]) == 2
     assert "--runs applies to `bench narx` only" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_bench_fmu_times_both_fmus(tmp_path, capsys):
+    assert main(["bench", "fmu", "--fmu-steps", "50", "--out-dir", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "fmu.json").read_text())
+    assert report["steps"] == 50 and report["training_points"] == 32
+    assert 0 < report["bare_us_per_step"] < report["gp_us_per_step"]
+    assert report["gp_over_bare"] == pytest.approx(report["gp_us_per_step"] / report["bare_us_per_step"])
+    assert "bare us/step" in capsys.readouterr().out

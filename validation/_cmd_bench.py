@@ -10,7 +10,8 @@ from .files import write_json
 
 #: Checks of the benchmark-specific options: dest -> (smallest value, what it is).
 _MINIMA = {"sizes": (10, "training-set sizes"), "restarts": (0, "restarts"),
-           "runs": (1, "Monte Carlo runs"), "steps": (1, "time steps")}
+           "runs": (1, "Monte Carlo runs"), "steps": (1, "time steps"),
+           "fmu_steps": (10, "FMU steps")}
 
 
 def register(subparsers) -> None:
@@ -30,6 +31,8 @@ def register(subparsers) -> None:
                         help="`bench narx`: Monte Carlo runs of the free run (default 1000)")
     parser.add_argument("--steps", type=int,
                         help="`bench narx`: time steps of the free run (default 800)")
+    parser.add_argument("--fmu-steps", type=int,
+                        help="`bench fmu`: communication steps timed per repeat (default 2000)")
     parser.add_argument("--threads", type=int, default=1,
                         help="BLAS threads for flightgp and its peer alike (default 1: on a 2-core "
                              "machine a second BLAS thread spins between calls and slows both)")
@@ -44,15 +47,15 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         raise BadInputError(f"unknown benchmark {', '.join(unknown)}; available: {', '.join(BENCHMARKS)}")
     for dest, (minimum, what) in _MINIMA.items():
-        value = getattr(args, dest)
+        value, option = getattr(args, dest), "--" + dest.replace("_", "-")
         if value is None:
             continue
         owners = [name for name, bench in BENCHMARKS.items() if dest in bench.options]
         if not set(owners) & set(names):
-            raise BadInputError(f"--{dest} applies to `bench {' '.join(owners)}` only, which is not "
-                                f"being run; name it or drop --{dest}")
+            raise BadInputError(f"{option} applies to `bench {' '.join(owners)}` only, which is not "
+                                f"being run; name it or drop {option}")
         if min(value if isinstance(value, list) else [value]) < minimum:
-            raise BadInputError(f"--{dest} ({what}) must be at least {minimum}, got {value}")
+            raise BadInputError(f"{option} ({what}) must be at least {minimum}, got {value}")
     if args.threads < 1:
         raise BadInputError(f"--threads must be 1 or more, got {args.threads}")
     from threadpoolctl import threadpool_limits

@@ -297,6 +297,137 @@ def format_narx_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+#: A bare pythonfmu FMU with the rate predictor's variables that copies its inputs to its outputs:
+#: the per-step overhead any pythonfmu FMU pays in fmpy, the peer of ``bench fmu``.
+_BARE_FMU_SCRIPT = """
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+
+INPUTS = {inputs!r}
+OUTPUTS = {outputs!r}
+
+
+class {name}(Fmi2Slave):
+    description = "bare pythonfmu FMU: outputs copy inputs (flightgp bench fmu peer)"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        for name in INPUTS:
+            setattr(self, name, 0.0)
+            self.register_variable(Real(name, causality=Fmi2Causality.input,
+                                        variability=Fmi2Variability.continuous, start=0.0))
+        for name in OUTPUTS:
+            setattr(self, name, 0.0)
+            self.register_variable(Real(name, causality=Fmi2Causality.output,
+                                        variability=Fmi2Variability.continuous, initial="exact",
+                                        start=0.0))
+
+    def do_step(self, current_time, step_size):
+        for index, name in enumerate(OUTPUTS):
+            setattr(self, name, getattr(self, INPUTS[index % len(INPUTS)]))
+        return True
+"""
+
+
+def _time_fmu_steps(fmu_path, inputs, outputs, *, n_steps: int, step: float, repeats: int = 3) -> float:
+    """Best-of-``repeats`` wall time per communication step (s) of ``setReal(inputs)``,
+    ``doStep``, ``getReal(outputs)`` in fmpy's FMU2Slave, with varying input values."""
+    import shutil
+
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    description = read_model_description(str(fmu_path))
+    refs = {v.name: v.valueReference for v in description.modelVariables}
+    unzipdir = extract(str(fmu_path))
+    try:
+        fmu = FMU2Slave(guid=description.guid, unzipDirectory=unzipdir,
+                        modelIdentifier=description.coSimulation.modelIdentifier, instanceName="bench")
+        fmu.instantiate()
+        in_refs, out_refs = [refs[n] for n in inputs], [refs[n] for n in outputs]
+        values = 0.01 * np.sin(np.arange(n_steps)[:, None] + np.arange(len(inputs)))
+        best = np.inf
+        for _ in range(repeats):
+            fmu.reset()
+            fmu.setupExperiment(startTime=0.0)
+            fmu.enterInitializationMode()
+            fmu.exitInitializationMode()
+            begin = time.perf_counter()
+            for k in range(n_steps):  # time from the step counter, t = k h
+                fmu.setReal(in_refs, values[k].tolist())
+                fmu.doStep(currentCommunicationPoint=k * step, communicationStepSize=step)
+                fmu.getReal(out_refs)
+            best = min(best, (time.perf_counter() - begin) / n_steps)
+        fmu.terminate()
+        fmu.freeInstance()
+    finally:
+        shutil.rmtree(unzipdir, ignore_errors=True)
+    return best
+
+
+def bench_fmu(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> dict:
+    """Per-step cost in fmpy of the Bo105 GP rate-predictor FMU (the paper's model: 32
+    training points, Higdon kernel, 400 annealing samples per output) against a bare pythonfmu
+    FMU with the same variables, both built and timed in this run.
+
+    Returns
+    -------
+    dict
+        ``{"steps", "gp_us_per_step", "bare_us_per_step", "gp_over_bare", "goal_ratio",
+        "goal_met", "training_points", "hyperparameter_samples"}``.
+    """
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from fmu_src.builder import build_rate_predictor_fmu
+
+    from .narx import save_trained, train_narx
+    from .reproduce_bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+    recording = fly_3211("bo105-80kt-flight", input_name="theta_1s",
+                         amplitude=np.radians(TRAINING_MANOEUVRE["amplitude_deg"]),
+                         step_time=TRAINING_MANOEUVRE["step_time"], start=1.0, duration=8.0, seed=seed)
+    trained = train_narx([recording], PAPER_CONFIG, seed=seed, progress=progress)
+    inputs = [*PAPER_CONFIG.inputs, *(f"{o}_prev" for o in PAPER_CONFIG.outputs)]
+    outputs = [n for o in PAPER_CONFIG.outputs for n in (o, f"{o}_lower", f"{o}_upper")]
+    with tempfile.TemporaryDirectory(prefix="flightgp-bench-fmu-") as scratch:
+        scratch = Path(scratch)
+        gp_fmu = build_rate_predictor_fmu(save_trained(scratch / "gp.npz", trained), scratch,
+                                          name="bench_gp_rate_predictor")
+        script = scratch / "bench_bare_fmu.py"
+        script.write_text(_BARE_FMU_SCRIPT.format(inputs=inputs, outputs=outputs, name="bench_bare_fmu"))
+        subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(script), "-d", str(scratch)],
+                       check=True, capture_output=True)
+        step = trained.step
+        bare = _time_fmu_steps(scratch / "bench_bare_fmu.fmu", inputs, outputs, n_steps=n_steps, step=step)
+        gp = _time_fmu_steps(gp_fmu, inputs, outputs, n_steps=n_steps, step=step)
+    samples = [len(g.theta_samples_) for g in trained.model.model.gps]
+    return {"steps": n_steps, "gp_us_per_step": gp * 1e6, "bare_us_per_step": bare * 1e6,
+            "gp_over_bare": gp / bare, "goal_ratio": FMU_GOAL_RATIO, "goal_met": gp / bare <= FMU_GOAL_RATIO,
+            "training_points": int(len(trained.model.model.gps[0].X_train_)),
+            "hyperparameter_samples": samples,
+            "real_time_factor_at_narx_step": step / gp}
+
+
+#: Goal of ``bench fmu`` (issue 5): the GP adds at most this factor to the bare FMU's step cost.
+FMU_GOAL_RATIO = 3.0
+
+
+def format_fmu_table(report: dict) -> str:
+    """The ``bench fmu`` report as a table."""
+    return "\n".join([
+        f"Rate-predictor FMU step cost in fmpy (setReal + doStep + getReal, best of 3 x "
+        f"{report['steps']} steps) vs a bare pythonfmu FMU with the same variables; "
+        f"{report['training_points']} training points, {report['hyperparameter_samples'][0]} "
+        "hyperparameter samples per output",
+        f"{'GP FMU us/step':>15} {'bare us/step':>13} {'ratio':>8} {'goal':>7} {'met':>4} {'x real time':>12}",
+        f"{report['gp_us_per_step']:15.1f} {report['bare_us_per_step']:13.1f} "
+        f"{report['gp_over_bare']:7.1f}x {'<=' + format(report['goal_ratio'], 'g') + 'x':>7} "
+        f"{'yes' if report['goal_met'] else 'no':>4} {report['real_time_factor_at_narx_step']:12.0f}",
+    ])
+
+
 @dataclass(frozen=True)
 class Benchmark:
     """One entry of :data:`BENCHMARKS`.
@@ -320,4 +451,5 @@ class Benchmark:
 BENCHMARKS = {
     "gp": Benchmark(bench_gp, format_gp_table, {"sizes": "sizes", "restarts": "n_restarts"}),
     "narx": Benchmark(bench_narx, format_narx_table, {"runs": "n_runs", "steps": "n_steps"}),
+    "fmu": Benchmark(bench_fmu, format_fmu_table, {"fmu_steps": "n_steps"}),
 }
