@@ -9,7 +9,10 @@ the FMU), so it imports only pythonfmu, numpy and the standard library.
 Sampling convention
 -------------------
 Communication points are ``t_k = t0 + k h``, ``k`` counted by the FMU (never accumulated), ``h``
-the FMU's fixed communication step (:attr:`FlightgpSlave.STEP_SIZE`; any step if None).
+the FMU's fixed communication step: :attr:`FlightgpSlave.STEP_SIZE`, or, if that is None, the step
+of the first ``fmi2DoStep`` after initialisation (FMI 2.0 tells an FMU its step no earlier), which
+the FMU may restrict (:meth:`FlightgpSlave.step_problem`) and then keeps until reset. Every FMU
+declares ``canHandleVariableCommunicationStepSize = false``.
 
 - ``fmi2ExitInitializationMode``: the outputs at ``t0`` are computed from the inputs and
   parameters set during initialisation, so they are valid before the first ``fmi2DoStep``.
@@ -37,6 +40,9 @@ so no exception leaves this class. pythonfmu 0.7 lets a slave return only ``fmi2
   Error and reads as NaN (Real), 0, false or "".
 - ``exit_initialization_mode`` failures (e.g. an unreadable model file) are logged as Errors;
   the outputs keep their start values and every ``do_step`` returns ``fmi2Discard``.
+- A model that cannot undo a failed step (an external simulator that has already advanced)
+  raises :class:`ModelFailure`: that step and every later one return ``fmi2Discard`` (logged
+  Error) until the host resets or re-instantiates the FMU.
 - Warnings (e.g. inputs outside the training envelope) are logged; the step succeeds.
 - pythonfmu 0.7 forwards log messages to the host only while the host has logging enabled
   (``loggingOn`` in ``fmi2Instantiate`` or ``fmi2SetDebugLogging``); the FMU cannot override
@@ -51,6 +57,11 @@ not saved, and are loaded again (:meth:`FlightgpSlave.load_constants`) when a st
 into an instance that has not loaded them (a fresh instance, a deserialised state). Any other
 instance attribute is a bug: saving then logs an Error naming it. The saved state is JSON data,
 so it also serialises (``fmi2SerializeFMUstate``).
+
+An FMU whose state cannot be captured completely (e.g. one that wraps an external simulator
+whose API does not expose all of its internal state) sets :attr:`CAN_GET_AND_SET_FMU_STATE` to
+False: it is built without ``canGetAndSetFMUstate`` and ``canSerializeFMUstate``, and if a host
+asks anyway, saving logs an Error and restoring is refused (next ``do_step``: ``fmi2Discard``).
 """
 from __future__ import annotations
 
@@ -77,6 +88,11 @@ UNITS = {
 TIME_TOLERANCE = 1e-6
 
 _STATE_FORMAT = "flightgp-fmu-state-1"
+_NO_STATE_FORMAT = "flightgp-fmu-no-state"
+
+
+class ModelFailure(RuntimeError):
+    """Raised by a model that failed a step it cannot undo; the FMU stops stepping until reset."""
 
 
 @dataclass(frozen=True)
@@ -147,7 +163,8 @@ class Variable:
 
 
 class _TableReal(Real):
-    """pythonfmu's Real plus ``unit``, ``displayUnit``, ``min`` and ``max``."""
+    """pythonfmu's Real plus ``unit``, ``displayUnit``, ``min`` and ``max``, and a ``start``
+    written with 17 significant digits (pythonfmu writes 16, which does not round-trip a double)."""
 
     def __init__(self, variable: Variable, **kwargs) -> None:
         super().__init__(variable.name, **kwargs)
@@ -162,6 +179,8 @@ class _TableReal(Real):
         real = node.find("Real")
         for key, value in self._extra.items():
             real.set(key, value)
+        if self.start is not None:
+            real.set("start", repr(float(self.start)))
         return node
 
 
@@ -178,7 +197,11 @@ class FlightgpSlave(Fmi2Slave):
     VARIABLES : tuple of Variable
         The variable table (value references in this order).
     STEP_SIZE : float or None
-        Required communication step, s (None: any positive step).
+        Required communication step, s (None: the first step's, see :meth:`step_problem`).
+    DEFAULT_STEP_SIZE : float or None
+        Step of the default experiment when ``STEP_SIZE`` is None, s.
+    CAN_GET_AND_SET_FMU_STATE : bool
+        Whether the FMU can save and restore its complete state (module docstring, "State").
     DEFAULT_STOP_TIME : float
         Stop time of the default experiment, s.
     STATE_ATTRIBUTES : tuple of str
@@ -196,20 +219,26 @@ class FlightgpSlave(Fmi2Slave):
     advance_model(k, t, h)
         One step from ``t = t_k`` to ``t + h``: read inputs, update state, set outputs. If it
         raises, it must leave the state as it was (compute first, commit last): the step is
-        then refused and may be retried.
+        then refused and may be retried; if it cannot (the state has already moved), it raises
+        :class:`ModelFailure`.
+    step_problem(h), optional
+        When ``STEP_SIZE`` is None: why steps of ``h`` s are impossible, or None.
     """
 
     VARIABLES: tuple = ()
     STEP_SIZE: float | None = None
+    DEFAULT_STEP_SIZE: float | None = None
+    CAN_GET_AND_SET_FMU_STATE = True
     DEFAULT_STOP_TIME = 10.0
     STATE_ATTRIBUTES: tuple = ()
     CONSTANT_ATTRIBUTES: tuple = ()
-    _BASE_STATE = ("_start_time", "_step_count", "_mode", "_refused")
+    _BASE_STATE = ("_start_time", "_step_count", "_step_size", "_mode", "_refused")
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self.default_experiment = DefaultExperiment(start_time=0.0, stop_time=self.DEFAULT_STOP_TIME,
-                                                    step_size=self.STEP_SIZE)
+        self.default_experiment = DefaultExperiment(
+            start_time=0.0, stop_time=self.DEFAULT_STOP_TIME,
+            step_size=self.DEFAULT_STEP_SIZE if self.STEP_SIZE is None else self.STEP_SIZE)
         names = [v.name for v in self.VARIABLES]
         if len(set(names)) != len(names):
             raise ValueError(f"{self.modelName}: duplicate variable names in {names}")
@@ -230,6 +259,7 @@ class FlightgpSlave(Fmi2Slave):
                 getter=lambda name=variable.name: self.values[name]))
         self._start_time = 0.0
         self._step_count = 0
+        self._step_size = self.STEP_SIZE  # None until the first step fixes it
         self._mode = "instantiated"  # -> "initialization" -> "stepping"; or "failed"
         self._refused = None  # message of a refused setter, reported by the next do_step
         self._own_attributes = (set(vars(self)) | {"_own_attributes"}) - set(self._BASE_STATE)
@@ -364,6 +394,7 @@ class FlightgpSlave(Fmi2Slave):
                 self._mode = "failed"
                 return
             self._step_count = 0
+            self._step_size = self.STEP_SIZE
             self._refused = None
             self.load_constants()
             self.start_model(self._start_time)
@@ -378,16 +409,23 @@ class FlightgpSlave(Fmi2Slave):
             if refusal:
                 self._log_error(f"fmi2DoStep at t = {current_time:.16g} s refused (fmi2Discard): {refusal}")
                 return False
-            self.advance_model(self._step_count, float(current_time), float(step_size))
+            h = float(step_size) if self._step_size is None else self._step_size
+            self.advance_model(self._step_count, float(current_time), h)
+            self._step_size = h
             self._step_count += 1
             return True
+        except ModelFailure as error:
+            self._mode = "failed"
+            self._log_exception(f"fmi2DoStep at t = {current_time:.16g} s (fmi2Discard; the FMU cannot "
+                                "continue: reset or re-instantiate it)", error)
+            return False
         except Exception as error:  # noqa: BLE001 - would be fmi2Fatal
             self._log_exception(f"fmi2DoStep at t = {current_time:.16g} s (fmi2Discard)", error)
             return False
 
     def _step_refusal(self, current_time, step_size) -> str | None:
         if self._mode == "failed":
-            return "initialisation failed (see the earlier error); re-instantiate or reset the FMU"
+            return "the FMU failed earlier (see the earlier error); reset or re-instantiate it"
         if self._mode != "stepping":
             return f"not ready to step (the FMU is {self._mode}; step after fmi2ExitInitializationMode)"
         if self._refused is not None:
@@ -396,17 +434,23 @@ class FlightgpSlave(Fmi2Slave):
         problems = self.input_problems()
         if problems:
             return "; ".join(problems)
-        if self.STEP_SIZE is not None:
-            h = self.STEP_SIZE
-            if abs(step_size - h) > TIME_TOLERANCE * h:
-                return (f"expected communicationStepSize = {h:.16g} s but was {step_size:.16g} s "
-                        "(this FMU advances in steps of exactly its model step)")
-            expected = self._start_time + self._step_count * h
-            if abs(current_time - expected) > TIME_TOLERANCE * h:
-                return (f"expected currentCommunicationPoint = {expected:.16g} s but was "
-                        f"{current_time:.16g} s")
-        elif not step_size > 0:
-            return f"communicationStepSize must be positive, got {step_size:.16g}"
+        h = self._step_size
+        if h is None:  # the first step fixes the step
+            if not step_size > 0:
+                return f"communicationStepSize must be positive, got {step_size:.16g}"
+            problem = self.step_problem(float(step_size))
+            if problem:
+                return problem
+            h = float(step_size)
+        elif abs(step_size - h) > TIME_TOLERANCE * h:
+            why = ("its model step" if self.STEP_SIZE is not None
+                   else "the step of its first fmi2DoStep, until reset")
+            return (f"expected communicationStepSize = {h:.16g} s but was {step_size:.16g} s "
+                    f"(this FMU advances in steps of exactly {why})")
+        expected = self._start_time + self._step_count * h
+        if abs(current_time - expected) > TIME_TOLERANCE * h:
+            return (f"expected currentCommunicationPoint = {expected:.16g} s but was "
+                    f"{current_time:.16g} s")
         return None
 
     def terminate(self):
@@ -416,6 +460,11 @@ class FlightgpSlave(Fmi2Slave):
     def load_constants(self) -> None:
         pass
 
+    def step_problem(self, h: float) -> str | None:
+        """Why the FMU cannot take communication steps of ``h`` s, or None (asked at the first step
+        when ``STEP_SIZE`` is None; the step is then fixed until reset)."""
+        return None
+
     def start_model(self, t0: float) -> None:
         raise NotImplementedError
 
@@ -424,6 +473,10 @@ class FlightgpSlave(Fmi2Slave):
 
     # -- state --------------------------------------------------------------------------------
     def _get_fmu_state(self):
+        if not self.CAN_GET_AND_SET_FMU_STATE:
+            self._log_error("fmi2GetFMUstate: this FMU cannot save its complete state "
+                            "(canGetAndSetFMUstate is false); the state returned cannot be restored")
+            return {"format": _NO_STATE_FORMAT}
         state_names = self._BASE_STATE + tuple(self.STATE_ATTRIBUTES)
         unsaved = set(vars(self)) - self._own_attributes - set(state_names) - set(self.CONSTANT_ATTRIBUTES)
         if unsaved:
@@ -434,6 +487,8 @@ class FlightgpSlave(Fmi2Slave):
 
     def _set_fmu_state(self, state):
         try:
+            if not self.CAN_GET_AND_SET_FMU_STATE:
+                raise ValueError("this FMU cannot restore a state (canGetAndSetFMUstate is false)")
             if not isinstance(state, dict) or state.get("format") != _STATE_FORMAT:
                 raise ValueError("not an FMU state saved by this FMU")
             if set(state["values"]) != set(self.values):

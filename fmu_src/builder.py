@@ -1,12 +1,21 @@
-"""Build FMUs from trained models (runs in the flightgp environment, not inside an FMU).
+"""Build FMUs (runs in the flightgp environment, not inside an FMU).
+
+- :func:`build_rate_predictor_fmu`: a trained GP-NARX model (:mod:`fmu_src.rate_predictor`);
+- :func:`build_bo105_reference_fmu`: Padfield's linear Bo105 at a tabulated speed
+  (:mod:`fmu_src.bo105_reference`);
+- :func:`build_jsbsim_fmu`: a JSBSim aircraft (:mod:`fmu_src.jsbsim_aircraft`; the host needs
+  the ``jsbsim`` package);
+- :func:`build_reference_fmu`: either reference by its vehicle name (``bo105-80kt``,
+  ``jsbsim:c172x``).
 
 An FMU built here carries, under ``resources/``:
 
 - ``<module>.py``: the slave script pythonfmu loads, generated per FMU: one class named after the
-  FMU that subclasses the model's slave (:class:`fmu_src.rate_predictor.RatePredictor`) and sets
-  its variable table, package and step as data;
-- ``<module>_lib/``: a package holding copies of :mod:`fmu_src._base`, :mod:`fmu_src._runtime`,
-  the model's slave module, and the model file ``model.npz`` (numpy arrays, no pickle).
+  FMU that subclasses the model's slave (e.g. :class:`fmu_src.rate_predictor.RatePredictor`) and
+  sets its variable table, package and step as data;
+- ``<module>_lib/``: a package holding copies of :mod:`fmu_src._base`, the model's slave module
+  and what it imports (:mod:`fmu_src._runtime` for GP models), and the model file ``model.npz``
+  (numpy arrays, no pickle).
 
 ``<module>`` is ``<name>_<hash>``, the hash (8 hex digits of SHA-256) taken over the model's arrays,
 the copied code and the variable table. A Python host shares ``sys.modules`` with every FMU it
@@ -20,6 +29,7 @@ temporary file next to the target and renamed, so no half-written FMU is ever le
 from __future__ import annotations
 
 import hashlib
+import importlib
 import io
 import re
 import subprocess
@@ -39,6 +49,11 @@ SIGNAL_PHRASES = {
     "theta_1c": "lateral cyclic pitch", "theta_0T": "tail rotor collective pitch",
     "p": "roll rate", "q": "pitch rate", "r": "yaw rate",
     "phi": "roll angle", "theta": "pitch angle", "psi": "heading",
+    "u": "forward velocity", "v": "lateral velocity", "w": "vertical velocity (positive down)",
+    "elevator": "elevator (pitch stick) command", "aileron": "aileron (roll stick) command",
+    "rudder": "rudder pedal command", "collective": "collective lever command",
+    "longitudinal_cyclic": "longitudinal cyclic stick command",
+    "lateral_cyclic": "lateral cyclic stick command", "pedal": "tail rotor pedal command",
 }
 
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}\Z")
@@ -70,17 +85,11 @@ def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) ->
         Bad ``name``; a model the FMU cannot run (an input lag 0, a signal without a known unit);
         ``out_dir`` is a file.
     """
-    from validation.errors import BadInputError
     from validation.files import write_atomically
     from validation.narx import load_trained
 
-    model_path, out_dir = Path(model_path), Path(out_dir)
-    name = _default_name(model_path) if name is None else name
-    if not _NAME.match(name):
-        raise BadInputError(f"FMU name {name!r} must start with a letter and hold only letters, "
-                            "digits and underscores (at most 64); it becomes the FMI model identifier")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadInputError(f"{out_dir} exists and is not a folder")
+    model_path = Path(model_path)
+    target = _target(out_dir, _default_name(model_path.stem) if name is None else name)
     trained = load_trained(model_path)
     arrays = export_narx_arrays(trained)
     interface = _interface(trained.config)
@@ -88,11 +97,12 @@ def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) ->
                    f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
                    f"{trained.step:g} s; {len(arrays['0/basis'])} basis points, "
                    f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}")
-    fmu_bytes = _build(name, slave_module="rate_predictor", slave_class="RatePredictor",
+    fmu_bytes = _build(target.stem, slave_module="rate_predictor", slave_class="RatePredictor",
                        variables_call=f"rate_predictor_variables(\n        inputs={interface['inputs']!r},"
                                       f"\n        outputs={interface['outputs']!r},\n    )",
-                       step=trained.step, description=description, arrays=arrays)
-    return write_atomically(out_dir / f"{name}.fmu", fmu_bytes)
+                       attributes={"STEP_SIZE": float(trained.step)}, description=description,
+                       arrays=arrays, support_modules=("_runtime",))
+    return write_atomically(target, fmu_bytes)
 
 
 def export_narx_arrays(trained) -> dict:
@@ -132,22 +142,184 @@ def export_narx_arrays(trained) -> dict:
                                envelope_high=training.max(axis=0), outputs=outputs)
 
 
-def _interface(config) -> dict:
-    """(name, unit, limit, phrase) of every input and output, from the recording conventions."""
+def build_bo105_reference_fmu(speed_kt: int, out_dir, *, name: str | None = None,
+                              derivatives: dict | None = None) -> Path:
+    """Build the Bo105 physics reference FMU (``bo105-<V>kt``, :mod:`fmu_src.bo105_reference`).
+
+    Parameters
+    ----------
+    speed_kt : int
+        Trim speed, kt; one of Padfield's 0, 20, ..., 140.
+    out_dir : path
+        Folder for the FMU (created if missing).
+    name : str, optional
+        Model identifier and file name; default ``bo105_<V>kt_reference``.
+    derivatives : dict of str -> float, optional
+        Derivatives to replace (``Bo105Reference.with_derivatives``, e.g. ``{"M_q": -2.4}``);
+        the FMU then runs the corrected model.
+
+    Returns
+    -------
+    Path
+        ``out_dir/<name>.fmu``.
+
+    Raises
+    ------
+    validation.errors.BadInputError
+        An untabulated speed, an unknown or non-finite derivative, a bad ``name``, ``out_dir`` a
+        file.
+    """
+    from validation.bo105 import INPUT_NAMES, STATE_NAMES, Bo105Reference
+    from validation.files import write_atomically
+
+    from . import bo105_reference
+
+    reference = Bo105Reference(speed_kt)
+    if derivatives:
+        reference = reference.with_derivatives(derivatives)
+    target = _target(out_dir, f"bo105_{reference.speed_kt}kt_reference" if name is None else name)
+    assert (INPUT_NAMES, STATE_NAMES) == (bo105_reference.INPUT_NAMES, bo105_reference.STATE_NAMES)
+    changed = "" if not derivatives else "; changed derivatives " + ", ".join(
+        f"{key} = {reference.derivative(key):.6g}" for key in derivatives)
+    source = f"Padfield (2007) linear 6-DOF model at {reference.speed_kt} kt{changed}"
+    arrays = bo105_reference.pack_model(A=reference.A, B=reference.B, speed_kt=reference.speed_kt,
+                                        source=source)
+    inputs = tuple(_signal(n, "input") for n in INPUT_NAMES)
+    states = tuple(_signal(n, "state") for n in STATE_NAMES)
+    description = (f"Bo105 physics reference: {source}, exact zero-order-hold discretisation at the "
+                   "host's step; inputs theta_0, theta_1s, theta_1c, theta_0T, outputs u, w, q, theta, "
+                   "v, p, phi, r (perturbations from trim)")
+    fmu_bytes = _build(target.stem, slave_module="bo105_reference", slave_class="Bo105ReferenceSlave",
+                       variables_call=f"bo105_reference_variables(\n        inputs={inputs!r},"
+                                      f"\n        states={states!r},\n    )",
+                       attributes={}, description=description, arrays=arrays)
+    return write_atomically(target, fmu_bytes)
+
+
+#: Travel of each normalised JSBSim command (``fcs/<control>-cmd-norm``).
+_COMMAND_TRAVEL = {"fcs/collective-cmd-norm": (0.0, 1.0)}  # every other command: -1..1
+
+
+def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path:
+    """Build the FMU of a JSBSim aircraft (``jsbsim:<aircraft>``, :mod:`fmu_src.jsbsim_aircraft`).
+
+    The FMU reaches the starting condition of :class:`validation.jsbsim_vehicles.JSBSimVehicle`
+    (fixed-wing: trimmed level cruise; ``ah1s``: hover from its flight-test script) with the same
+    recipe, whose numbers travel in the model file. The host's Python needs the ``jsbsim``
+    package.
+
+    Parameters
+    ----------
+    aircraft : str
+        An aircraft that ships with the ``jsbsim`` package, e.g. ``"c172x"``, ``"ah1s"``.
+    out_dir : path
+        Folder for the FMU (created if missing).
+    name : str, optional
+        Model identifier and file name; default ``jsbsim_<aircraft>``.
+
+    Returns
+    -------
+    Path
+        ``out_dir/<name>.fmu``.
+
+    Raises
+    ------
+    validation.errors.BadInputError
+        JSBSim has no such aircraft (the message names similar ones) or cannot trim it; a bad
+        ``name``; ``out_dir`` a file.
+    """
+    import jsbsim
+    from validation import jsbsim_vehicles
+    from validation.files import write_atomically
+
+    from . import jsbsim_aircraft
+
+    vehicle = jsbsim_vehicles.JSBSimVehicle(aircraft)
+    target = _target(out_dir, _default_name(f"jsbsim_{aircraft}") if name is None else name)
+    # Reaching the starting condition here raises BadInputError for an aircraft JSBSim cannot trim.
+    steady = vehicle.simulate(np.array([0.0, vehicle.sample_time]), np.zeros((2, len(vehicle.input_names))))
+    # The recipe of JSBSimVehicle._start, as data (tests/test_fmu.py proves the FMU flies the same).
+    hover = jsbsim_vehicles._HOVER_SCRIPTS.get(aircraft)
+    properties = (jsbsim_vehicles._HELICOPTER_CONTROLS if hover else jsbsim_vehicles._FIXED_WING_CONTROLS)
+    controls = [(n, properties[n], *_COMMAND_TRAVEL.get(properties[n], (-1.0, 1.0)))
+                for n in vehicle.input_names]
+    states = [(n, *jsbsim_vehicles._STATES[n]) for n in vehicle.state_names]
+    if hover:
+        recipe = {"start": "script", "script": hover[0], "script_time": hover[1],
+                  "after_start": [("simulation/test-variant", 0.0)]}
+        condition = f"hovering, {hover[1]:g} s into its flight-test script {hover[0]}"
+    else:
+        recipe = {"start": "trim",
+                  "initial_conditions": [("ic/h-sl-ft", jsbsim_vehicles.CRUISE_ALTITUDE_FT),
+                                         ("ic/vc-kts", jsbsim_vehicles.CRUISE_AIRSPEED_KT),
+                                         ("ic/gamma-deg", 0.0), ("ic/psi-true-deg", 90.0)]}
+        condition = (f"trimmed in level flight at {jsbsim_vehicles.CRUISE_AIRSPEED_KT:g} kt calibrated, "
+                     f"{jsbsim_vehicles.CRUISE_ALTITUDE_FT:g} ft, heading east")
+    arrays = jsbsim_aircraft.pack_model(aircraft=aircraft, jsbsim_version=jsbsim.__version__,
+                                        controls=controls, states=states, **recipe)
+    trim = ", ".join(f"{k} {v:.4g}" for k, v in steady.metadata["trim"].items())
+    description = (f"JSBSim {aircraft} {condition} (trim: {trim}); inputs {', '.join(vehicle.input_names)} "
+                   f"(normalised command perturbations), outputs {', '.join(vehicle.state_names)} (SI, "
+                   f"absolute); step a multiple of 0.01 s. Needs the jsbsim Python package "
+                   f"({jsbsim.__version__}) in the host's Python")
+    inputs = tuple((n, low, high, SIGNAL_PHRASES[n]) for n, _, low, high in controls)
+    outputs = tuple((n, _signal(n, "state")[1], SIGNAL_PHRASES[n], float(steady.output(n)[0]))
+                    for n in vehicle.state_names)
+    fmu_bytes = _build(target.stem, slave_module="jsbsim_aircraft", slave_class="JSBSimAircraft",
+                       variables_call=f"jsbsim_variables(\n        inputs={inputs!r},"
+                                      f"\n        states={outputs!r},\n    )",
+                       attributes={}, description=description, arrays=arrays)
+    return write_atomically(target, fmu_bytes)
+
+
+def reference_fmu_names() -> list[str]:
+    """The names :func:`build_reference_fmu` accepts (``jsbsim:<aircraft>`` as a pattern)."""
+    from validation.vehicles import BO105_SPEEDS_KT
+
+    return [f"bo105-{v}kt" for v in BO105_SPEEDS_KT] + ["jsbsim:<aircraft>"]
+
+
+def build_reference_fmu(reference: str, out_dir, *, name: str | None = None) -> Path:
+    """Build the FMU of a physics reference by its vehicle name (DESIGN.md): ``bo105-<V>kt``
+    (:func:`build_bo105_reference_fmu`) or ``jsbsim:<aircraft>`` (:func:`build_jsbsim_fmu`).
+
+    Raises
+    ------
+    validation.errors.BadInputError
+        Any other name (the message lists the valid ones), or what the builder raises.
+    """
+    from validation.errors import BadInputError
+    from validation.vehicles import BO105_SPEEDS_KT
+
+    match = re.fullmatch(r"bo105-(\d+)kt", reference)
+    if match and int(match.group(1)) in BO105_SPEEDS_KT:
+        return build_bo105_reference_fmu(int(match.group(1)), out_dir, name=name)
+    if reference.startswith("jsbsim:") and reference != "jsbsim:":
+        return build_jsbsim_fmu(reference.split(":", 1)[1], out_dir, name=name)
+    raise BadInputError(f"no reference FMU {reference!r}; valid: {', '.join(reference_fmu_names())} "
+                        "(e.g. jsbsim:c172x, jsbsim:ah1s; flight-test stand-ins and the blimp have none)")
+
+
+def _signal(name: str, kind: str) -> tuple:
+    """(name, unit, limit, phrase) of a signal, from the recording conventions."""
     from validation.errors import BadInputError
     from validation.recordings import column_limit, column_unit
 
     from ._base import UNITS
 
-    def describe(name, kind):
-        unit = column_unit(name)
-        if unit not in UNITS:
-            raise BadInputError(f"the model's {kind} {name!r} has no known SI unit (got {unit!r}); an "
-                                f"FMU variable needs one of {', '.join(UNITS)}")
-        return (name, unit, column_limit(name), SIGNAL_PHRASES.get(name, f"{kind} {name}"))
+    unit = column_unit(name)
+    if unit not in UNITS:
+        raise BadInputError(f"the model's {kind} {name!r} has no known SI unit (got {unit!r}); an "
+                            f"FMU variable needs one of {', '.join(UNITS)}")
+    return (name, unit, column_limit(name), SIGNAL_PHRASES.get(name, f"{kind} {name}"))
 
-    inputs = tuple(describe(n, "input") for n in config.inputs)
-    outputs = tuple(describe(n, "output") for n in config.outputs)
+
+def _interface(config) -> dict:
+    """(name, unit, limit, phrase) of every input and output, from the recording conventions."""
+    from validation.errors import BadInputError
+
+    inputs = tuple(_signal(n, "input") for n in config.inputs)
+    outputs = tuple(_signal(n, "output") for n in config.outputs)
     generated = {f"{n}{suffix}" for n in config.outputs for suffix in ("_prev", "_lower", "_upper")}
     reserved = generated | {"confidence_level", "free_run"}
     clash = sorted((set(config.inputs) | set(config.outputs)) & reserved)
@@ -156,9 +328,23 @@ def _interface(config) -> dict:
     return {"inputs": inputs, "outputs": outputs}
 
 
-def _default_name(model_path: Path) -> str:
-    name = re.sub(r"\W+", "_", model_path.stem).strip("_") or "model"
+def _default_name(text: str) -> str:
+    """``text`` made into an FMU name (see :func:`_target`)."""
+    name = re.sub(r"\W+", "_", text).strip("_") or "model"
     return name if name[0].isalpha() else f"model_{name}"
+
+
+def _target(out_dir, name: str) -> Path:
+    """``out_dir/<name>.fmu`` after checking ``name`` and ``out_dir`` (BadInputError)."""
+    from validation.errors import BadInputError
+
+    out_dir = Path(out_dir)
+    if not _NAME.match(name):
+        raise BadInputError(f"FMU name {name!r} must start with a letter and hold only letters, "
+                            "digits and underscores (at most 64); it becomes the FMI model identifier")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise BadInputError(f"{out_dir} exists and is not a folder")
+    return out_dir / f"{name}.fmu"
 
 
 _SCRIPT = '''"""{name}: {description}.
@@ -182,16 +368,22 @@ class {name}({slave_class}):
 
     description = {description!r}
     PACKAGE = {package!r}
-    STEP_SIZE = {step!r}
-    VARIABLES = {variables_call}
+{attributes}    VARIABLES = {variables_call}
 '''
 
 
-def _build(name: str, *, slave_module: str, slave_class: str, variables_call: str, step: float,
-           description: str, arrays: dict) -> bytes:
-    """Stage the slave script and package, run pythonfmu, return the FMU's bytes."""
+def _build(name: str, *, slave_module: str, slave_class: str, variables_call: str, attributes: dict,
+           description: str, arrays: dict, support_modules: tuple = ()) -> bytes:
+    """Stage the slave script and package, run pythonfmu, return the FMU's bytes.
+
+    ``attributes`` (class attribute name -> value with an exact ``repr``) are set on the generated
+    class; ``support_modules`` are the fmu_src modules the slave module imports besides ``_base``.
+    Whether the FMU claims ``canGetAndSetFMUstate`` (and ``canSerializeFMUstate``) is the slave
+    class's ``CAN_GET_AND_SET_FMU_STATE``.
+    """
+    slave = getattr(importlib.import_module(f"{__package__}.{slave_module}"), slave_class)
     sources = {"__init__.py": f'"""Runtime of the {name} FMU (copies of flightgp\'s fmu_src)."""\n'}
-    for module in ("_base", "_runtime", slave_module):
+    for module in ("_base", *support_modules, slave_module):
         sources[f"{module}.py"] = (HERE / f"{module}.py").read_text(encoding="utf-8")
     digest = hashlib.sha256()
     for key in sorted(arrays):
@@ -200,13 +392,14 @@ def _build(name: str, *, slave_module: str, slave_class: str, variables_call: st
         digest.update(value.tobytes())
     for file_name in sorted(sources):
         digest.update(file_name.encode() + sources[file_name].encode())
-    digest.update(f"{name}|{slave_class}|{variables_call}|{step!r}|{description}".encode())
+    lines = "".join(f"    {key} = {value!r}\n" for key, value in attributes.items())
+    digest.update(f"{name}|{slave_class}|{variables_call}|{lines}|{description}".encode())
     module = f"{name}_{digest.hexdigest()[:8]}"
     package = f"{module}_lib"
     script = _SCRIPT.format(name=name, description=description, package=package,
                             slave_module=slave_module, slave_class=slave_class,
                             variables_function=variables_call.split("(", 1)[0],
-                            variables_call=variables_call, step=float(step))
+                            variables_call=variables_call, attributes=lines)
     with tempfile.TemporaryDirectory(prefix="flightgp_fmu_") as staging:
         staging = Path(staging)
         package_dir = staging / package
@@ -218,9 +411,9 @@ def _build(name: str, *, slave_module: str, slave_class: str, variables_call: st
         (package_dir / "model.npz").write_bytes(buffer.getvalue())
         (staging / f"{module}.py").write_text(script, encoding="utf-8")
         out = staging / "out"
+        state = ["--handle-state", "--serialize-state"] if slave.CAN_GET_AND_SET_FMU_STATE else []
         command = [sys.executable, "-m", "pythonfmu", "build", "-f", str(staging / f"{module}.py"),
-                   "-d", str(out), "--no-variable-step", "--handle-state", "--serialize-state",
-                   str(package_dir)]
+                   "-d", str(out), "--no-variable-step", *state, str(package_dir)]
         result = subprocess.run(command, cwd=staging, capture_output=True, text=True)
         fmu = out / f"{name}.fmu"
         if result.returncode != 0 or not fmu.is_file():

@@ -1,21 +1,23 @@
 """FMUs: a contract every flightgp FMU passes, then what is particular to each.
 
 The contract (issue 5, DESIGN.md "FMU rules") is written once against :class:`FmuCase`; an FMU
-joins it by adding a factory to ``FACTORIES`` that builds it into a temporary folder and says how
-to drive it (GPyTorch-style shared contract tests, STYLE.md). Each FMU is built once per module.
+joins it by adding a factory to ``FACTORIES`` that says how to drive it (GPyTorch-style shared
+contract tests, STYLE.md). Each FMU is built once per module (a module fixture per FMU).
 
 Hosts: fmpy's ``simulate_fmu`` and, for fine control, fmpy's ``FMU2Slave`` driven call by call
-(:class:`Host`), with the FMU's log messages captured through the FMI logger callback.
+(:class:`Host`), with the FMU's log messages captured through the FMI logger callback; and the
+second host, libcosim (:func:`validation.hosts.simulate_in_libcosim`).
 """
 from __future__ import annotations
 
 import ast
+import json
 import re
 import subprocess
 import sys
 import zipfile
 from ctypes import byref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from statistics import NormalDist
 from typing import Callable
@@ -29,9 +31,17 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2Warning)
 from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
+from pythonfmu.enums import Fmi2Status
 
-from fmu_src.builder import build_rate_predictor_fmu
+from fmu_src._base import FlightgpSlave, ModelFailure, Variable
+from fmu_src.builder import build_bo105_reference_fmu, build_jsbsim_fmu, build_rate_predictor_fmu
+from validation.bo105 import INPUT_NAMES as BO105_INPUTS
+from validation.bo105 import STATE_NAMES as BO105_STATES
+from validation.bo105 import Bo105Reference
 from validation.cli import main
+from validation.hosts import simulate_in_libcosim
+from validation.jsbsim_vehicles import JSBSimVehicle
+from validation.manoeuvres import doublet, step, three_two_one_one
 from validation.narx import NarxConfig, one_step, save_trained, train_narx
 from validation.reproduce_bo105 import PAPER_CONFIG, fly_3211
 
@@ -59,13 +69,23 @@ class FmuCase:
         communication point of the standard run, shape (n_steps + 1, n_outputs), and the first row
         the FMU must match (earlier rows depend on how the FMU starts).
     far_inputs : dict
-        Inputs far outside the training envelope but inside their declared min/max.
+        Inputs far from the standard run's (outside the training envelope, if the FMU has one)
+        but inside their declared min/max.
     bands : list of (lower, upper)
         Output pairs whose width must grow outside the envelope.
     bad_inputs : list of (name, value)
         Values the FMU must refuse with a logged Error and fmi2Discard.
     parameters : dict
         Parameter values set before initialisation.
+    tolerance : float
+        Largest absolute difference allowed between the FMU's outputs and the Python model's
+        (the factory says why).
+    training_envelope : bool
+        False for physics FMUs, which have no training envelope.
+    no_state_reason : str or None
+        Why the FMU does not claim canGetAndSetFMUstate (None: it does, and must save completely).
+    runtime_packages : frozenset of str
+        Packages besides numpy and pythonfmu the FMU imports at run time (the host needs them).
     """
 
     path: Path
@@ -77,6 +97,10 @@ class FmuCase:
     bands: list
     bad_inputs: list
     parameters: dict = field(default_factory=dict)
+    tolerance: float = 1e-9
+    training_envelope: bool = True
+    no_state_reason: str | None = None
+    runtime_packages: frozenset = frozenset()
 
     def signal(self) -> np.ndarray:
         """The standard run's inputs as an fmpy input signal."""
@@ -169,12 +193,16 @@ def bo105_model_file(tmp_path_factory, bo105_trained):
     return save_trained(tmp_path_factory.mktemp("model") / "bo105_gp_narx.npz", bo105_trained)
 
 
+@pytest.fixture(scope="module")
+def rate_predictor_fmu(bo105_model_file, tmp_path_factory):
+    return build_rate_predictor_fmu(bo105_model_file, tmp_path_factory.mktemp("fmu"),
+                                    name="bo105_rate_predictor")
+
+
 def rate_predictor_case(request) -> FmuCase:
     trained = request.getfixturevalue("bo105_trained")
     recording = request.getfixturevalue("bo105_flights")["training"]  # inside the envelope
-    model_file = request.getfixturevalue("bo105_model_file")
-    out = request.getfixturevalue("tmp_path_factory").mktemp("fmu")
-    path = build_rate_predictor_fmu(model_file, out, name="bo105_rate_predictor")
+    path = request.getfixturevalue("rate_predictor_fmu")
     rows = slice(None, None, trained.config.decimation)
     controls = {n: recording.input(n)[rows] for n in trained.config.inputs}
     rates = {n: recording.output(n)[rows] for n in trained.config.outputs}
@@ -192,6 +220,8 @@ def rate_predictor_case(request) -> FmuCase:
             columns += [mean, mean - z * sd, mean + z * sd]
         return np.column_stack(columns), prediction.first
 
+    # tolerance 1e-9 rad/s: the FMU evaluates the same formulas as GaussianProcess.predict in a
+    # different order (rounding of order 1e-16 relative), far below any physical meaning.
     return FmuCase(path=path, step=trained.step, n_steps=n - 1, inputs=inputs, reference=reference,
                    far_inputs={"theta_1s": 0.3},  # 17 deg of cyclic; trained on +/-1 deg
                    bands=[(f"{a}_lower", f"{a}_upper") for a in trained.config.outputs],
@@ -199,8 +229,91 @@ def rate_predictor_case(request) -> FmuCase:
                                ("theta_1s", 0.6)])  # beyond the declared 0.5 rad
 
 
+# -- the Bo105 physics reference -------------------------------------------------------------------
+BO105_SPEED_KT = 80
+
+
+@pytest.fixture(scope="module")
+def bo105_reference_fmu(tmp_path_factory):
+    return build_bo105_reference_fmu(BO105_SPEED_KT, tmp_path_factory.mktemp("fmu"))
+
+
+def bo105_controls(time: np.ndarray) -> np.ndarray:
+    """All four Bo105 controls moving, shape (len(time), 4), rad: a 1 deg theta_1s 3-2-1-1, then a
+    theta_1c doublet, a theta_0 step and a theta_0T doublet."""
+    deg = np.radians(1.0)
+    columns = {"theta_0": step(time, amplitude=0.5 * deg, start=5.0),
+               "theta_1s": three_two_one_one(time, amplitude=deg, step_time=0.4, start=1.0),
+               "theta_1c": doublet(time, amplitude=0.5 * deg, step_time=0.5, start=4.0),
+               "theta_0T": doublet(time, amplitude=deg, step_time=0.5, start=6.0)}
+    return np.column_stack([columns[name] for name in BO105_INPUTS])
+
+
+def bo105_reference_case(request) -> FmuCase:
+    path = request.getfixturevalue("bo105_reference_fmu")
+    h, n = 0.05, 160
+    time = np.arange(n + 1) * h
+    controls = bo105_controls(time)
+
+    def reference():
+        return Bo105Reference(BO105_SPEED_KT).simulate_states(time, controls), 0
+
+    # tolerance 1e-9: the FMU's numpy Pade expm and scipy's differ by rounding (1e-15 relative);
+    # measured 1e-16 over the run.
+    return FmuCase(path=path, step=h, n_steps=n, inputs=lambda k: dict(zip(BO105_INPUTS, controls[k])),
+                   reference=reference, far_inputs={"theta_1s": 0.05},  # a steady 3 deg of cyclic
+                   bands=[], training_envelope=False,
+                   bad_inputs=[("theta_1s", float("nan")), ("theta_0T", float("inf")),
+                               ("theta_1c", 0.6)])  # beyond the declared 0.5 rad
+
+
+# -- JSBSim's c172x ---------------------------------------------------------------------------------
+JSBSIM_STEP = JSBSimVehicle.sample_time
+JSBSIM_NO_STATE = ("JSBSim's Python API cannot capture its complete internal state (integrator "
+                   "histories, flight-control filters and actuators, engine), so the FMU does not "
+                   "claim canGetAndSetFMUstate")
+
+
+@pytest.fixture(scope="module")
+def jsbsim_fmu(tmp_path_factory):
+    return build_jsbsim_fmu("c172x", tmp_path_factory.mktemp("fmu"))
+
+
+def c172x_controls(time: np.ndarray) -> np.ndarray:
+    """elevator 3-2-1-1 (0.15: above the c172x elevator's 0.05 rad hysteresis), aileron doublet,
+    rudder still; shape (len(time), 3), normalised perturbations from trim."""
+    return np.column_stack([three_two_one_one(time, amplitude=0.15, step_time=0.5, start=0.5),
+                            doublet(time, amplitude=0.1, step_time=0.5, start=2.5), np.zeros_like(time)])
+
+
+def jsbsim_reference(h: float, n: int, controls: np.ndarray, aircraft: str = "c172x") -> np.ndarray:
+    """JSBSimVehicle's states at ``k h``, k = 0..n, under ``controls`` (n + 1 rows) each held over
+    ``h`` (``h / 0.01`` JSBSim steps of the same value)."""
+    substeps = round(h / JSBSIM_STEP)
+    fine = np.repeat(controls, substeps, axis=0)[: n * substeps + 1]
+    recording = JSBSimVehicle(aircraft).simulate(np.arange(len(fine)) * JSBSIM_STEP, fine)
+    return recording.outputs[::substeps]
+
+
+def jsbsim_case(request) -> FmuCase:
+    path = request.getfixturevalue("jsbsim_fmu")
+    h, n = 0.05, 80  # 5 JSBSim steps per communication step
+    controls = c172x_controls(np.arange(n + 1) * h)
+    names = JSBSimVehicle("c172x").input_names
+    # tolerance 0: the same JSBSim library in the same process, the same recipe to the same trim,
+    # the same commands (trim + perturbation in float64) written in the same order, the same
+    # 0.01 s steps: JSBSim is deterministic, so the FMU reproduces JSBSimVehicle bit for bit.
+    return FmuCase(path=path, step=h, n_steps=n, inputs=lambda k: dict(zip(names, controls[k])),
+                   reference=lambda: (jsbsim_reference(h, n, controls), 0),
+                   far_inputs={"aileron": 0.3}, bands=[], training_envelope=False, tolerance=0.0,
+                   bad_inputs=[("elevator", float("nan")), ("aileron", -float("inf")),
+                               ("rudder", 1.5)],  # trim -0.004 + 1.5: beyond the pedal's travel
+                   no_state_reason=JSBSIM_NO_STATE, runtime_packages=frozenset({"jsbsim"}))
+
+
 #: Every FMU the contract covers: name -> factory(request) -> FmuCase.
-FACTORIES = {"bo105_rate_predictor": rate_predictor_case}
+FACTORIES = {"bo105_rate_predictor": rate_predictor_case, "bo105_80kt_reference": bo105_reference_case,
+             "jsbsim_c172x": jsbsim_case}
 
 
 @pytest.fixture(scope="module", params=list(FACTORIES))
@@ -233,7 +346,7 @@ def test_validates_without_problems(case):
 def test_runtime_is_self_contained(case):
     """Inside the FMU, Python code imports only the standard library, numpy, pythonfmu and the
     FMU's own uniquely named modules: never flightgp's packages, which a host does not have."""
-    allowed = set(sys.stdlib_module_names) | {"numpy", "pythonfmu"}
+    allowed = set(sys.stdlib_module_names) | {"numpy", "pythonfmu"} | case.runtime_packages
     with zipfile.ZipFile(case.path) as archive:
         sources = {name: archive.read(name).decode() for name in archive.namelist()
                    if name.endswith(".py") and not name.startswith("resources/pythonfmu/")}
@@ -255,7 +368,8 @@ def test_runtime_is_self_contained(case):
 
 def test_simulate_fmu_runs_with_finite_outputs(case, host):
     result = simulate_fmu(str(case.path), input=case.signal(), start_values=case.parameters,
-                          stop_time=case.n_steps * case.step, output_interval=case.step)
+                          stop_time=case.n_steps * case.step, step_size=case.step,
+                          output_interval=case.step)
     outputs = host.outputs
     assert len(result) == case.n_steps + 1
     values = np.column_stack([result[name] for name in outputs])
@@ -267,9 +381,7 @@ def test_simulate_fmu_runs_with_finite_outputs(case, host):
 def test_outputs_equal_the_python_model(case, host):
     expected, first = case.reference()
     outputs = standard_run(case, host)
-    # 1e-9 rad/s absolute: the FMU evaluates the same formulas as GaussianProcess.predict in a
-    # different order (rounding of order 1e-16 relative), far below any physical meaning.
-    np.testing.assert_allclose(outputs[first:], expected[first:], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(outputs[first:], expected[first:], rtol=0, atol=case.tolerance)
     assert host.statuses() <= {0, fmi2Warning}
 
 
@@ -279,7 +391,30 @@ def test_reset_reproduces_a_run(case, host):
     np.testing.assert_array_equal(standard_run(case, host), first)
 
 
+def test_state_capability_is_declared_honestly(case, unzipdir, host):
+    """canGetAndSetFMUstate and canSerializeFMUstate are claimed exactly when the FMU can save its
+    complete state; an FMU that cannot refuses a save or restore with a logged Error, and the next
+    step with fmi2Discard, never fmi2Fatal."""
+    capabilities = read_model_description(unzipdir).coSimulation
+    claims = case.no_state_reason is None
+    assert capabilities.canGetAndSetFMUstate == capabilities.canSerializeFMUstate == claims
+    if claims:
+        return
+    host.start(case)
+    host.run(case, 0, 2)
+    state = host.fmu.getFMUstate()
+    host.fmu.setFMUstate(state)
+    errors = [message for status, _, message in host.messages if status == fmi2Error]
+    assert any("cannot save" in m for m in errors) and any("cannot restore" in m for m in errors), errors
+    with pytest.raises(FMICallException) as refused:
+        host.fmu.doStep(currentCommunicationPoint=2 * case.step, communicationStepSize=case.step)
+    assert refused.value.status == fmi2Discard
+    assert FMI_FATAL not in host.statuses()
+
+
 def test_state_save_step_restore_step_is_identical(case, unzipdir, host):
+    if case.no_state_reason:
+        pytest.skip(case.no_state_reason)
     half = case.n_steps // 2
     host.start(case)
     host.run(case, 0, half)
@@ -396,6 +531,8 @@ def test_bad_input_is_a_discard_even_without_logging(case, unzipdir):
 
 
 def test_outside_the_training_envelope_warns_and_widens_the_bounds(case, host):
+    if not case.training_envelope:
+        pytest.skip("a physics FMU has no training envelope")
     inside = standard_run(case, host)
     host.fmu.reset()
     host.start(case)
@@ -414,10 +551,59 @@ def test_outside_the_training_envelope_warns_and_widens_the_bounds(case, host):
     assert FMI_FATAL not in host.statuses()
 
 
+def test_runs_where_flightgp_is_not_importable_and_prints_nothing(case, tmp_path):
+    """A simulator host has no flightgp: run the FMU (standard run, fmpy) in a Python where
+    gp_model, validation and fmu_src cannot be imported. The FMU writes nothing to standard output
+    or error (JSBSim's messages included) and no file into the working folder."""
+    np.save(tmp_path / "signal.npy", case.signal())
+    script = (
+        "import sys\n"
+        "for name in ('gp_model', 'validation', 'fmu_src'): sys.modules[name] = None\n"
+        "import numpy as np\n"
+        "from fmpy import simulate_fmu\n"
+        f"result = simulate_fmu({str(case.path)!r}, input=np.load({str(tmp_path / 'signal.npy')!r}), "
+        f"start_values={case.parameters!r}, stop_time={case.n_steps * case.step!r}, "
+        f"step_size={case.step!r}, output_interval={case.step!r})\n"
+        f"sys.exit(0 if len(result) == {case.n_steps + 1} and all(np.isfinite(result[n]).all() "
+        "for n in result.dtype.names) else 3)\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    completed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                               timeout=120, cwd=work)
+    assert completed.returncode == 0, completed.stderr
+    assert completed.stdout == "" and completed.stderr == ""
+    assert list(work.iterdir()) == []
+
+
+def test_second_host_libcosim_agrees_with_fmpy(case, host):
+    """The same inputs in libcosim (Open Simulation Platform) and fmpy give the same outputs: every
+    flightgp FMU is deterministic, so to 1e-12 (measured: identical). libcosim initialises inside
+    its first step and observes the outputs after each step; the inputs at t0 are also given as
+    start values, as fmpy's host sets them before initialisation."""
+    expected = standard_run(case, host)[1:]
+    rows = [case.inputs(k) for k in range(case.n_steps)]
+    inputs = {name: np.array([row[name] for row in rows]) for name in rows[0]}
+    result = simulate_in_libcosim(case.path, step_size=case.step, n_steps=case.n_steps, inputs=inputs,
+                                  start_values={**case.parameters, **case.inputs(0)}, outputs=host.outputs)
+    np.testing.assert_allclose(result["time"], np.arange(1, case.n_steps + 1) * case.step, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.column_stack([result[name] for name in host.outputs]), expected,
+                               rtol=0, atol=1e-12)
+
+
 # -- the rate predictor in particular ---------------------------------------------------------------
 @pytest.fixture(scope="module")
 def rate_predictor(request):
     return rate_predictor_case(request)
+
+
+@pytest.fixture(scope="module")
+def bo105_reference(request):
+    return bo105_reference_case(request)
+
+
+@pytest.fixture(scope="module")
+def jsbsim_c172x(request):
+    return jsbsim_case(request)
 
 
 def test_rate_predictor_starts_at_the_given_rates(rate_predictor, tmp_path):
@@ -494,20 +680,156 @@ def test_two_fmus_of_one_name_run_their_own_models(rate_predictor, bo105_flights
                                rtol=0, atol=1e-9)
 
 
-def test_fmu_runs_where_flightgp_is_not_importable(rate_predictor):
-    """A simulator host has no flightgp: run the FMU in a Python where gp_model, validation and
-    fmu_src cannot be imported."""
+# -- the base slave's policies that no built FMU triggers on demand ---------------------------------
+def test_a_step_the_model_cannot_undo_stops_the_fmu_until_reset():
+    """A model that cannot roll back a failed step (JSBSim inside an FMU) raises ModelFailure: that
+    step and every later one are refused (fmi2Discard, logged Errors), never retried on a moved
+    state. The slave is driven directly in Python, as pythonfmu's native layer would."""
+
+    class Counter(FlightgpSlave):
+        VARIABLES = (Variable("y", "output", "continuous", "exact", "1", "steps taken", 0.0),)
+
+        def start_model(self, t0):
+            self.values["y"] = 0.0
+
+        def advance_model(self, k, t, h):
+            if k == 2:
+                raise ModelFailure("the simulator inside has moved on")
+            self.values["y"] += 1.0
+
+    slave = Counter(instance_name="counter")
+    slave.setup_experiment(0.0)
+    slave.enter_initialization_mode()
+    slave.exit_initialization_mode()
+    assert slave.do_step(0.0, 0.1) and slave.do_step(0.1, 0.1)
+    assert not slave.do_step(0.2, 0.1)
+    assert not slave.do_step(0.2, 0.1)  # no retry on a state that has moved
+    assert slave.values["y"] == 2.0
+    errors = [m.msg for m in slave.log_queue if m.status == Fmi2Status.error]
+    assert "the simulator inside has moved on" in errors[0] and "reset" in errors[0]
+    assert "failed earlier" in errors[1]
+
+
+# -- the Bo105 reference in particular --------------------------------------------------------------
+def test_bo105_reference_starts_at_the_given_state_and_follows_the_hosts_step(bo105_reference, tmp_path):
+    """The host picks the step (here 0.01 s, then after a reset 0.1 s); the first step fixes it and
+    the FMU discretises exactly for it: Bo105Reference.simulate_states from the same start state."""
+    start = dict(zip(BO105_STATES, [1.0, -0.5, 0.02, 0.01, 0.3, -0.03, 0.02, 0.01]))
+    host = Host(extract(str(bo105_reference.path), unzipdir=str(tmp_path / "u")))
+    try:
+        for h in (0.01, 0.1):
+            n = round(6.0 / h)
+            time = np.arange(n + 1) * h
+            controls = bo105_controls(time)
+            run = replace(bo105_reference, step=h, n_steps=n,
+                          inputs=lambda k: dict(zip(BO105_INPUTS, controls[k])),  # noqa: B023
+                          parameters={f"{name}_start": value for name, value in start.items()})
+            outputs = standard_run(run, host)
+            np.testing.assert_array_equal(outputs[0], list(start.values()))
+            expected = Bo105Reference(BO105_SPEED_KT).simulate_states(time, controls,
+                                                                      initial_state=list(start.values()))
+            # 1e-9 as the contract: expm implementations differ by rounding only (measured 1e-13).
+            np.testing.assert_allclose(outputs, expected, rtol=0, atol=1e-9)
+            host.fmu.reset()
+    finally:
+        host.close()
+    assert host.statuses() == {0}
+
+
+def test_bo105_reference_with_changed_derivatives_runs_the_corrected_model(bo105_reference, tmp_path):
+    corrections = {"M_q": -2.4, "L_q": -3.35}
+    path = build_bo105_reference_fmu(BO105_SPEED_KT, tmp_path, name="bo105_corrected",
+                                     derivatives=corrections)
+    assert "M_q = -2.4" in read_model_description(str(path)).description
+    corrected = replace(bo105_reference, path=path)
+    result = simulate_fmu(str(path), input=corrected.signal(), stop_time=corrected.n_steps * corrected.step,
+                          step_size=corrected.step, output_interval=corrected.step)
+    time = np.arange(corrected.n_steps + 1) * corrected.step  # the grid the case's inputs are on
+    np.testing.assert_allclose(result["time"], time, rtol=0, atol=1e-12)
+    expected = (Bo105Reference(BO105_SPEED_KT).with_derivatives(corrections)
+                .simulate_states(time, bo105_controls(time)))
+    np.testing.assert_allclose(np.column_stack([result[name] for name in BO105_STATES]), expected,
+                               rtol=0, atol=1e-9)
+    assert np.abs(expected - bo105_reference.reference()[0]).max() > 1e-2  # the corrections matter
+
+
+# -- the JSBSim FMU in particular --------------------------------------------------------------------
+def test_jsbsim_fmu_at_jsbsims_own_step_is_jsbsimvehicle_step_for_step(jsbsim_c172x, tmp_path):
+    n = 300
+    controls = c172x_controls(np.arange(n + 1) * JSBSIM_STEP)
+    run = replace(jsbsim_c172x, step=JSBSIM_STEP, n_steps=n,
+                  inputs=lambda k: dict(zip(JSBSimVehicle("c172x").input_names, controls[k])))
+    host = Host(extract(str(jsbsim_c172x.path), unzipdir=str(tmp_path / "u")))
+    try:
+        outputs = standard_run(run, host)
+    finally:
+        host.close()
+    # Bit for bit (see jsbsim_case): same library, recipe, trim, commands and steps.
+    np.testing.assert_array_equal(outputs, jsbsim_reference(JSBSIM_STEP, n, controls))
+    # The outputs' start values (initial="exact") are the starting condition's, found at build time.
+    np.testing.assert_array_equal([float(host.variables[name].start) for name in host.outputs], outputs[0])
+    # The starting condition is reported through the FMI logger (JSBSim's own messages go there
+    # too: see test_runs_where_flightgp_is_not_importable_and_prints_nothing).
+    assert any("c172x at its starting condition: elevator trim" in m for _, _, m in host.messages)
+
+
+def test_jsbsim_step_must_be_a_whole_multiple_of_its_step(jsbsim_c172x, tmp_path):
+    host = Host(extract(str(jsbsim_c172x.path), unzipdir=str(tmp_path / "u")))
+    try:
+        host.start(jsbsim_c172x)
+        with pytest.raises(FMICallException) as refused:
+            host.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.015)
+        assert refused.value.status == fmi2Discard
+        assert "not a whole multiple of JSBSim's 0.01 s step" in host.messages[-1][2]
+        # The refused first step fixed nothing: 0.02 s (two JSBSim steps) is now the step.
+        host.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.02)
+        host.fmu.doStep(currentCommunicationPoint=0.02, communicationStepSize=0.02)
+    finally:
+        host.close()
+    assert FMI_FATAL not in host.statuses()
+
+
+def test_jsbsim_fmu_in_a_host_without_jsbsim_says_what_to_install(jsbsim_c172x):
+    """Initialisation fails with a logged Error naming the package; the steps are refused
+    (fmi2Discard, which fmpy's simulate_fmu takes as the end of the run), never fmi2Fatal."""
     script = (
-        "import sys\n"
-        "for name in ('gp_model', 'validation', 'fmu_src'): sys.modules[name] = None\n"
-        "import numpy as np\n"
+        "import json, sys\n"
+        "sys.modules['jsbsim'] = None\n"
         "from fmpy import simulate_fmu\n"
-        f"result = simulate_fmu({str(rate_predictor.path)!r}, start_values={{'free_run': True}}, "
-        f"stop_time=2.0)\n"
-        "assert len(result) == 21 and np.isfinite(result['q']).all()\n"
-        "print('ok')\n")
+        "messages = []\n"
+        "def logger(environment, instance, status, category, message):\n"
+        "    messages.append((status, message.decode()))\n"
+        f"simulate_fmu({str(jsbsim_c172x.path)!r}, stop_time=0.1, debug_logging=True, logger=logger)\n"
+        "print(json.dumps(messages))\n")
     completed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
-    assert completed.returncode == 0 and completed.stdout.strip().endswith("ok"), completed.stderr
+    assert completed.returncode == 0, completed.stderr
+    messages = json.loads(completed.stdout)
+    assert messages[0][0] == fmi2Error and "install the jsbsim package" in messages[0][1]
+    assert "refused (fmi2Discard)" in messages[-1][1]
+    assert FMI_FATAL not in {status for status, _ in messages}
+
+
+def test_jsbsim_ah1s_fmu_hovers_and_responds_like_the_vehicle(tmp_path):
+    path = build_jsbsim_fmu("ah1s", tmp_path)
+    assert validate_fmu(str(path)) == []
+    names = JSBSimVehicle("ah1s").input_names
+    h, n = 0.02, 100
+    controls = np.zeros((n + 1, len(names)))
+    controls[:, names.index("longitudinal_cyclic")] = doublet(np.arange(n + 1) * h, amplitude=0.05,
+                                                              step_time=0.3, start=0.2)
+    case = FmuCase(path=path, step=h, n_steps=n, inputs=lambda k: dict(zip(names, controls[k])),
+                   reference=None, far_inputs={}, bands=[], bad_inputs=[])
+    host = Host(extract(str(path), unzipdir=str(tmp_path / "u")))
+    try:
+        np.testing.assert_array_equal(standard_run(case, host), jsbsim_reference(h, n, controls, "ah1s"))
+        # The collective rests near 0.6 in the hover; +0.5 would push it past its travel (0..1).
+        host.set({"collective": 0.5})
+        with pytest.raises(FMICallException) as refused:
+            host.fmu.doStep(currentCommunicationPoint=n * h, communicationStepSize=h)
+        assert refused.value.status == fmi2Discard
+        assert "outside its travel 0..1" in host.messages[-1][2]
+    finally:
+        host.close()
 
 
 # -- flightgp build-fmu ------------------------------------------------------------------------------
@@ -539,3 +861,27 @@ def test_build_fmu_bad_input_exits_2_and_writes_nothing(bo105_model_file, bo105_
     err = capsys.readouterr().err
     assert err.startswith("flightgp build-fmu: error:") and "Traceback" not in err
     assert not out.is_dir() or not any(out.iterdir())
+
+
+@pytest.mark.parametrize("reference, file_name", [("bo105-80kt", "bo105_80kt_reference.fmu"),
+                                                  ("jsbsim:c172x", "jsbsim_c172x.fmu")])
+def test_build_fmu_command_builds_reference_fmus(reference, file_name, tmp_path, capsys):
+    assert main(["build-fmu", "--reference", reference, "--out", str(tmp_path / "out")]) == 0
+    assert [p.name for p in (tmp_path / "out").iterdir()] == [file_name]
+    assert validate_fmu(str(tmp_path / "out" / file_name)) == []
+    assert file_name in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("arguments", [["--reference", "bo105-85kt"], ["--reference", "bo105-80kt-flight"],
+                                       ["--reference", "blimp"], ["--reference", "jsbsim:"],
+                                       ["--reference", "jsbsim:nope"], ["--reference", "jsbsim:ZLT-NT"],
+                                       [], ["model.npz", "--reference", "bo105-80kt"]])
+def test_build_fmu_bad_reference_exits_2_naming_the_valid_ones(arguments, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["build-fmu", *arguments, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("flightgp build-fmu: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert "jsbsim:c172x" in err or "jsbsim:<aircraft>" in err
+    if not any(a.startswith("jsbsim:") for a in arguments):
+        assert "bo105-<V>kt" in err or "bo105-80kt, bo105-100kt" in err
+    assert not out.exists()

@@ -1,28 +1,44 @@
-"""``flightgp build-fmu MODEL_FILE --out DIR [--name NAME]``: a trained GP-NARX model as an FMI 2.0
-co-simulation FMU (the rate predictor of :mod:`fmu_src.rate_predictor`)."""
+"""``flightgp build-fmu (MODEL_FILE | --reference NAME) --out DIR [--name NAME]``: an FMI 2.0
+co-simulation FMU of a trained GP-NARX model (the rate predictor of
+:mod:`fmu_src.rate_predictor`) or of a physics reference (``bo105-<V>kt``:
+:mod:`fmu_src.bo105_reference`; ``jsbsim:<aircraft>``: :mod:`fmu_src.jsbsim_aircraft`)."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from .errors import BadInputError
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "build-fmu", help="build an FMI 2.0 co-simulation FMU from a trained GP-NARX model",
-        description="Build a GP-NARX rate predictor FMU (pythonfmu) from a model file written by "
-                    "`flightgp train`: the model's control inputs and the previous outputs in, the "
-                    "predicted outputs and their confidence bounds out, one NARX step per "
-                    "communication step. Writes DIR/NAME.fmu.")
-    parser.add_argument("model", type=Path, metavar="MODEL_FILE", help="trained model (.npz)")
+        "build-fmu", help="build an FMI 2.0 co-simulation FMU from a trained GP-NARX model or a reference",
+        description="Build a pythonfmu FMU and write DIR/NAME.fmu. From MODEL_FILE (written by "
+                    "`flightgp train`): the GP-NARX rate predictor, the model's control inputs and the "
+                    "previous outputs in, the predicted outputs and their confidence bounds out, one "
+                    "NARX step per communication step. With --reference: a physics reference, "
+                    "bo105-<V>kt (Padfield's linear Bo105, V in 0, 20, ..., 140) or jsbsim:<aircraft> "
+                    "(a JSBSim aircraft, e.g. jsbsim:c172x or jsbsim:ah1s; the host needs the jsbsim "
+                    "Python package).")
+    parser.add_argument("model", type=Path, nargs="?", metavar="MODEL_FILE", help="trained model (.npz)")
+    parser.add_argument("--reference", metavar="NAME",
+                        help="build a reference FMU instead: bo105-<V>kt or jsbsim:<aircraft>")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for the FMU")
     parser.add_argument("--name", help="FMU name and model identifier (letters, digits, underscores; "
-                                       "default: the model file's name)")
+                                       "default: the model file's name, bo105_<V>kt_reference or "
+                                       "jsbsim_<aircraft>)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from fmu_src.builder import build_rate_predictor_fmu
+    from fmu_src.builder import build_rate_predictor_fmu, build_reference_fmu
 
-    path = build_rate_predictor_fmu(args.model, args.out, name=args.name)
+    if (args.model is None) == (args.reference is None):
+        raise BadInputError("give either MODEL_FILE (a trained GP-NARX model) or --reference NAME "
+                            "(bo105-<V>kt or jsbsim:<aircraft>), not both or neither")
+    if args.reference is not None:
+        path = build_reference_fmu(args.reference, args.out, name=args.name)
+    else:
+        path = build_rate_predictor_fmu(args.model, args.out, name=args.name)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0

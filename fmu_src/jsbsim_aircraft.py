@@ -1,0 +1,303 @@
+"""The JSBSim aircraft FMU: one of the aircraft that ship with the ``jsbsim`` package, flown by
+JSBSim inside the FMU from a steady starting condition (``jsbsim:<aircraft>``, DESIGN.md).
+
+The host's Python needs the ``jsbsim`` package (1.3.x; it brings the aircraft) besides numpy and
+pythonfmu. This file is copied into every JSBSim FMU (``resources/<package>/jsbsim_aircraft.py``),
+so it imports only :mod:`._base`, numpy, the standard library and ``jsbsim`` (at
+initialisation, so that a host without it gets a logged Error, not a failed instantiation).
+
+Starting condition (the recipe of :class:`validation.jsbsim_vehicles.JSBSimVehicle`, whose
+numbers travel in ``resources/<package>/model.npz``, written by :func:`pack_model`)
+----------------------------------------------------------------------------------------------
+- ``start = "trim"`` (fixed-wing, e.g. ``c172x``): ``load_model``, JSBSim step 0.01 s, the
+  initial conditions (100 kt calibrated, 4000 ft, level, heading east), ``run_ic``, engines
+  running, ``do_trim(1)`` (full trim: all six accelerations to zero).
+- ``start = "script"`` (``ah1s``): the aircraft's own flight-test script, run to the hover at
+  its ``script_time``; then properties such as ``simulation/test-variant = 0`` (no later script
+  event fires).
+
+Inputs are normalised stick and pedal commands (``fcs/<control>-cmd-norm``) as perturbations
+from their values at the starting condition; outputs are JSBSim's body velocities (m/s), body
+rates (rad/s) and Euler angles (rad), absolute values, in SI.
+
+Timing (the sampling convention of :mod:`._base`)
+--------------------------------------------------
+JSBSim integrates with a fixed step of 0.01 s. The communication step ``h`` must be a whole
+multiple ``n`` of it (0.01 s in the default experiment); the first ``fmi2DoStep`` fixes it until
+reset. ``fmi2DoStep(t_k, h)`` sets the commands to trim + the inputs at ``t_k``, holds them over
+``n`` JSBSim steps and sets the outputs to the state at ``t_{k+1}``. With ``h = 0.01`` s this is
+``JSBSimVehicle.simulate`` step for step (``states[k]`` is the output at ``t_k``). The outputs at
+``t0`` (valid after initialisation) are the starting condition.
+
+Limits: a command (trim + input) outside its travel (-1..1; collective 0..1) is refused with a
+logged Error and ``fmi2Discard``, as is NaN or inf. If JSBSim fails inside a step (its state
+stops being finite, or it raises), the step cannot be undone: it and every later step return
+``fmi2Discard`` until the host resets the FMU.
+
+State: JSBSim's Python API does not expose its complete internal state (the integrators' past
+derivatives, flight-control filter and actuator histories, engine and propeller states), so
+this FMU does not claim ``canGetAndSetFMUstate``. JSBSim's messages (banner, warnings), which
+it would print on standard output, go to the FMI logger: the FMU never prints.
+"""
+from __future__ import annotations
+
+import contextlib
+import weakref
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ._base import FlightgpSlave, ModelFailure, Variable
+
+FORMAT = "flightgp-fmu-jsbsim"
+VERSION = 1
+#: The model file inside the FMU's package folder.
+MODEL_FILE = "model.npz"
+#: JSBSim's integration step, s (validation.jsbsim_vehicles.JSBSimVehicle.sample_time).
+JSBSIM_STEP = 0.01
+#: Relative tolerance on "the step is a whole multiple of JSBSIM_STEP".
+_MULTIPLE_TOLERANCE = 1e-6
+
+
+def pack_model(*, aircraft: str, start: str, jsbsim_version: str, controls, states,
+               initial_conditions=(), script: str = "", script_time: float = 0.0,
+               after_start=()) -> dict:
+    """Arrays of the FMU's model file (strings as numpy unicode arrays; no pickle).
+
+    Parameters
+    ----------
+    aircraft : str
+        Folder under ``jsbsim.get_default_root_dir()/aircraft``.
+    start : {"trim", "script"}
+        How the starting condition is reached (module docstring).
+    jsbsim_version : str
+        The version the recipe was checked with at build time.
+    controls : sequence of (input name, property, low, high)
+        Each input, the JSBSim command it perturbs and that command's travel.
+    states : sequence of (output name, property, factor to SI)
+    initial_conditions : sequence of (property, value)
+        ``start = "trim"``: set before ``run_ic``.
+    script, script_time : str, float
+        ``start = "script"``: the script (relative to the JSBSim root) and the time, s, to run it to.
+    after_start : sequence of (property, value)
+        Set once the starting condition is reached.
+    """
+    if start not in ("trim", "script"):
+        raise ValueError(f"start must be 'trim' or 'script', got {start!r}")
+    pairs = lambda rows: (np.array([r[0] for r in rows], dtype=str),  # noqa: E731
+                          np.array([float(r[1]) for r in rows], dtype=float))
+    ic_names, ic_values = pairs(initial_conditions)
+    after_names, after_values = pairs(after_start)
+    return {"format": np.array(FORMAT), "version": np.array(VERSION), "aircraft": np.array(aircraft),
+            "start": np.array(start), "jsbsim_version": np.array(jsbsim_version),
+            "input_names": np.array([c[0] for c in controls], dtype=str),
+            "control_properties": np.array([c[1] for c in controls], dtype=str),
+            "control_low": np.array([c[2] for c in controls], dtype=float),
+            "control_high": np.array([c[3] for c in controls], dtype=float),
+            "state_names": np.array([s[0] for s in states], dtype=str),
+            "state_properties": np.array([s[1] for s in states], dtype=str),
+            "state_factors": np.array([s[2] for s in states], dtype=float),
+            "ic_names": ic_names, "ic_values": ic_values,
+            "script": np.array(script), "script_time": np.array(float(script_time)),
+            "after_start_names": after_names, "after_start_values": after_values}
+
+
+def jsbsim_variables(*, inputs, states) -> tuple:
+    """The variable table of a JSBSim aircraft FMU.
+
+    Parameters
+    ----------
+    inputs : sequence of (name, low, high, phrase)
+        Controls: name, the command's travel (normalised) and what it is.
+    states : sequence of (name, unit, phrase, start)
+        ``start``: the value at the starting condition (measured at build time, so that the
+        outputs' ``initial="exact"`` start values are the values after initialisation).
+
+    Returns
+    -------
+    tuple of Variable
+        The control perturbations (inputs; declared range: the travel's width either way, the
+        command itself is checked against the travel at each step) and the states (outputs).
+    """
+    table = [Variable(name, "input", "continuous", None, "1",
+                      f"{phrase} (normalised, full travel {low:g}..{high:g}): perturbation from its "
+                      "value at the starting condition, held from this communication point to the next",
+                      0.0, -(high - low), high - low)
+             for name, low, high, phrase in inputs]
+    table += [Variable(name, "output", "continuous", "exact", unit, f"{phrase} (JSBSim, absolute value)",
+                       float(start))
+              for name, unit, phrase, start in states]
+    return tuple(table)
+
+
+class JSBSimAircraft(FlightgpSlave):
+    """A JSBSim aircraft (the generated subclass sets the class attributes)."""
+
+    #: The FMU's package folder under ``resources/`` (holds this code and the model file).
+    PACKAGE = ""
+    DEFAULT_STEP_SIZE = JSBSIM_STEP
+    CAN_GET_AND_SET_FMU_STATE = False
+    CONSTANT_ATTRIBUTES = ("_jsbsim", "_model", "_log_sink")
+    STATE_ATTRIBUTES = ("_fdm", "_trim")  # not savable: see the module docstring
+
+    def load_constants(self) -> None:
+        try:
+            import jsbsim
+
+            jsbsim.set_logger  # noqa: B018 - JSBSim >= 1.3 routes its messages through a logger
+        except (ImportError, AttributeError):
+            raise ImportError("this FMU runs JSBSim inside: install the jsbsim package, version 1.3 or "
+                              "later (pip install jsbsim), in the host's Python") from None
+        path = Path(self.resources) / self.PACKAGE / MODEL_FILE
+        with np.load(path, allow_pickle=False) as npz:
+            model = {name: npz[name] for name in npz.files}
+        if str(model.get("format")) != FORMAT or int(model.get("version", -1)) != VERSION:
+            raise ValueError(f"{path.name} is not a {FORMAT} model file of version {VERSION}")
+        declared = {v.name for v in self.VARIABLES}
+        missing = [str(n) for n in (*model["input_names"], *model["state_names"]) if str(n) not in declared]
+        if missing:
+            raise ValueError(f"the model file's signals {missing} have no FMU variables")
+        self._jsbsim, self._model = jsbsim, model
+        self._log_sink = _fmi_logger(jsbsim, self)
+        built_with = str(model["jsbsim_version"])
+        if jsbsim.__version__ != built_with:
+            self.log_warning(f"this FMU was built and checked with JSBSim {built_with}; the host has "
+                             f"{jsbsim.__version__}: the starting condition and response may differ")
+
+    def start_model(self, t0: float) -> None:
+        model = self._model
+        aircraft = str(model["aircraft"])
+        root = Path(self._jsbsim.get_default_root_dir())
+        if not (root / "aircraft" / aircraft / f"{aircraft}.xml").is_file():
+            raise FileNotFoundError(f"the host's JSBSim ({root}) has no aircraft {aircraft!r}")
+        self._fdm = None  # until started: input_problems checks no travel against an old trim
+        with self._messages_to_fmi_log():
+            fdm = self._jsbsim.FGFDMExec(str(root))
+            fdm.set_debug_level(0)
+            if str(model["start"]) == "script":
+                fdm.load_script(str(model["script"]))
+                fdm.disable_output()
+                fdm.set_dt(JSBSIM_STEP)  # overrides the script's own step
+                fdm.run_ic()
+                for _ in range(int(round(float(model["script_time"]) / JSBSIM_STEP))):
+                    fdm.run()
+            else:
+                fdm.load_model(aircraft)
+                fdm.disable_output()
+                fdm.set_dt(JSBSIM_STEP)
+                for name, value in zip(model["ic_names"], model["ic_values"]):
+                    fdm[str(name)] = float(value)
+                fdm.run_ic()
+                fdm["propulsion/set-running"] = -1  # -1: all engines
+                try:
+                    fdm.do_trim(1)  # 1 = tFull: all six accelerations to zero
+                except self._jsbsim.TrimFailureError:
+                    raise RuntimeError(f"JSBSim cannot trim {aircraft} at the starting condition") from None
+            for name, value in zip(model["after_start_names"], model["after_start_values"]):
+                fdm[str(name)] = float(value)
+            trim = np.array([fdm[str(name)] for name in model["control_properties"]])
+        self.log_info(f"JSBSim {self._jsbsim.__version__}, {aircraft} at its starting condition: "
+                      + ", ".join(f"{n} trim {v:.6g}" for n, v in zip(model["input_names"], trim.tolist()))
+                      + f"; {fdm['velocities/vc-kts']:.4g} kt calibrated, {fdm['position/h-sl-ft']:.6g} ft")
+        self._fdm, self._trim = fdm, trim
+        if not self._set_outputs():
+            self._fdm = None
+            raise RuntimeError(f"JSBSim's state at the starting condition of {aircraft} is not finite")
+
+    def step_problem(self, h: float) -> str | None:
+        n = round(h / JSBSIM_STEP)
+        if n < 1 or abs(n * JSBSIM_STEP - h) > _MULTIPLE_TOLERANCE * JSBSIM_STEP:
+            return (f"communicationStepSize = {h:.16g} s is not a whole multiple of JSBSim's "
+                    f"{JSBSIM_STEP:g} s step")
+        return None
+
+    def input_problems(self) -> list[str]:
+        problems = super().input_problems()
+        if problems or getattr(self, "_fdm", None) is None:
+            return problems
+        model = self._model
+        commands = self._commands()
+        for i in np.flatnonzero((commands < model["control_low"]) | (commands > model["control_high"])):
+            name = str(model["input_names"][i])
+            problems.append(f"{name} = {self.values[name]:.16g} puts {model['control_properties'][i]} at "
+                            f"{commands[i]:.6g} (trim {self._trim[i]:.6g}), outside its travel "
+                            f"{model['control_low'][i]:g}..{model['control_high'][i]:g}")
+        return problems
+
+    def advance_model(self, k: int, t: float, h: float) -> None:
+        fdm, model = self._fdm, self._model
+        substeps = round(h / JSBSIM_STEP)
+        commands = self._commands()
+        try:
+            with self._messages_to_fmi_log():
+                for name, value in zip(model["control_properties"], commands.tolist()):
+                    fdm[str(name)] = value
+                for _ in range(substeps):
+                    fdm.run()
+        except Exception as error:  # noqa: BLE001 - JSBSim has moved on; the step cannot be undone
+            raise ModelFailure(f"JSBSim failed between t = {t:.16g} s and {t + h:.16g} s: "
+                               f"{type(error).__name__}: {error}") from None
+        if not self._set_outputs():
+            raise ModelFailure(f"JSBSim's states stopped being finite at t = {t + h:.16g} s "
+                               f"(commands {commands.tolist()}); try smaller inputs")
+
+    # -- helpers ------------------------------------------------------------------------------
+    def _commands(self) -> np.ndarray:
+        """trim + the input perturbations, as JSBSimVehicle computes them."""
+        return self._trim + np.array([self.values[str(name)] for name in self._model["input_names"]])
+
+    def _set_outputs(self) -> bool:
+        """Outputs from JSBSim's state; False (outputs unchanged) if any is not finite."""
+        model, fdm = self._model, self._fdm
+        values = [fdm[str(p)] * f for p, f in zip(model["state_properties"], model["state_factors"].tolist())]
+        if not np.isfinite(values).all():
+            return False
+        for name, value in zip(model["state_names"], values):
+            self.values[str(name)] = float(value)
+        return True
+
+    @contextlib.contextmanager
+    def _messages_to_fmi_log(self):
+        """Route JSBSim's messages to the FMI logger for the duration (JSBSim's logger is per
+        thread, and a host may call the FMU from any thread)."""
+        jsbsim = self._jsbsim
+        previous = jsbsim.get_logger()
+        jsbsim.set_logger(self._log_sink)
+        try:
+            yield
+        finally:
+            jsbsim.set_logger(previous)
+
+
+def _fmi_logger(jsbsim, slave: FlightgpSlave):
+    """A ``jsbsim.FGLogger`` that hands each JSBSim message to ``slave``'s FMI log: warnings and
+    errors as Warnings, the rest (banner, notices) as information. It holds ``slave`` weakly (the
+    slave holds it)."""
+    return _logger_class(jsbsim)(weakref.ref(slave))
+
+
+@lru_cache(maxsize=1)
+def _logger_class(jsbsim):
+    class FmiLogger(jsbsim.FGLogger):
+        def __init__(self, slave_ref) -> None:
+            super().__init__()
+            self._slave_ref = slave_ref
+            self._warning = False
+            self._parts: list[str] = []
+
+        def set_level(self, level) -> None:
+            self._warning = jsbsim.LogLevel.WARN <= level <= jsbsim.LogLevel.FATAL
+            self._parts = []
+
+        def message(self, message: str) -> None:
+            self._parts.append(message)
+
+        def flush(self) -> None:
+            text = " ".join("".join(self._parts).split())
+            self._parts = []
+            owner = self._slave_ref()
+            if text and owner is not None:
+                (owner.log_warning if self._warning else owner.log_info)(f"JSBSim: {text}")
+
+    return FmiLogger
