@@ -40,9 +40,14 @@ def test_usage_error_exits_2_without_traceback():
 def test_demo_runs_the_bo105_case_end_to_end(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path)]) == 0
     names = {p.name for p in tmp_path.iterdir()}
-    assert {"flight_test_training.csv", "bo105_gp_narx.npz", "fmp.png", "osap.png", "results.json"} <= names
+    assert {"flight_test_training.csv", "bo105_gp_narx.npz", "fmp.png", "osap.png", "results.json",
+            "bo105_gp_rate_predictor.fmu", "bo105_80kt_reference.fmu", "report.md"} <= names
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["config"]["training_points"] == 32
+    cosim = json.loads((tmp_path / "cosim_training" / "cosim.json").read_text())
+    assert set(cosim["rmse"]) == {"gp", "reference"}
+    assert (tmp_path / "cosim_unseen" / "bo105_gp_rate_predictor" / "bo105_gp_rate_predictor_ref.csv").is_file()
+    assert "GP FMU (free run)" in (tmp_path / "report.md").read_text()
     assert "FMP   GP" in capsys.readouterr().out
 
 

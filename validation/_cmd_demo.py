@@ -12,8 +12,9 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "demo", help="run the built-in Bo105 case end to end",
         description="Record the Bo105 80 kt 3-2-1-1 from the flight-test stand-in, train a "
-                    "GP-NARX, free-run it against the physics reference, and write recordings, "
-                    "model, plots and results.json to DIR.",
+                    "GP-NARX, free-run it against the physics reference, export it as an FMU, "
+                    "co-simulate it in fmpy, and write recordings, model, FMUs, plots, "
+                    "results.json and report.md to DIR.",
     )
     parser.add_argument("--out", type=Path, default=Path("build/demo"), metavar="DIR",
                         help="output folder (default build/demo)")
@@ -22,13 +23,15 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .demo import run_demo
+    from .demo import format_cosim, run_demo
     from .reproduce_bo105 import format_results
 
     if args.out.exists() and not args.out.is_dir():
         raise BadInputError(f"{args.out} exists and is not a folder")
     print(f"flightgp demo: Bo105 80 kt 3-2-1-1 -> {args.out}/")
-    results = run_demo(args.out, seed=args.seed)
-    print(format_results(results))
+    demo = run_demo(args.out, seed=args.seed)
+    print(format_results(demo["results"]))
+    print()
+    print(format_cosim(demo["cosim"]))
     print(f"written: {', '.join(sorted(p.name for p in args.out.iterdir()))}")
     return 0
