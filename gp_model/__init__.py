@@ -5,6 +5,7 @@ module exports; everything else lives in private modules.
 """
 from ._errors import GPNumericalError, ModelFileError
 from ._gp import GaussianProcess, PerOutputGP, PredictiveForm
+from ._greybox import GreyBoxGP
 from ._inference import (AnnealingResult, MaximumLikelihoodResult, MCMCResult,
                          anneal_hyperparameters, maximize_marginal_likelihood, metropolis,
                          simulated_annealing)
@@ -17,7 +18,7 @@ from ._priors import IndependentPrior
 from ._sparse_gp import SparseGaussianProcess
 
 __all__ = [
-    "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "HigdonKernel", "IndependentPrior",
+    "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "GreyBoxGP", "HigdonKernel", "IndependentPrior",
     "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP", "PredictiveForm",
     "SparseGaussianProcess", "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",

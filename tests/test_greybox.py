@@ -1,0 +1,128 @@
+"""Tests of the grey-box model (gp_model/_greybox.py): physics step plus residual GP.
+
+Properties: the residual GP is zero where the physics is exact; a known unmodelled term is
+recovered; GP-only is the identity physics; rollouts are vectorised consistently; conditioned
+sampling draws one function per rollout (same input, same residual) with the GP's variance.
+"""
+import numpy as np
+import pytest
+
+from gp_model import GreyBoxGP
+
+DT = 0.1
+
+
+def physics(states, inputs):
+    """A damped cart: position, velocity; force input. Exact forward-Euler step."""
+    x, v = states[:, 0], states[:, 1]
+    u = inputs[:, 0]
+    return np.column_stack([x + DT * v, v + DT * (u - 0.5 * v)])
+
+
+def unmodelled(states, inputs):
+    """What the 'real' system adds to the velocity step and the physics leaves out."""
+    return 0.05 * np.sin(2.0 * states[:, 1]) + 0.02 * inputs[:, 0] ** 2
+
+
+def trajectory(steps, seed, *, extra=False):
+    rng = np.random.default_rng(seed)
+    inputs = rng.uniform(-1.0, 1.0, (steps, 1))
+    states = np.zeros((steps, 2))
+    for k in range(steps - 1):
+        states[k + 1] = physics(states[k:k + 1], inputs[k:k + 1])[0]
+        if extra:
+            states[k + 1, 1] += unmodelled(states[k:k + 1], inputs[k:k + 1])[0]
+    return states, inputs
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_residual_gp_is_zero_where_the_physics_is_exact(shared):
+    states, inputs = trajectory(80, seed=0)
+    model = GreyBoxGP(state_columns=[1], shared=shared, n_restarts=0).fit_trajectories(
+        [(states, inputs)], physics)
+    test_states, test_inputs = trajectory(30, seed=1)
+    mean, var = model.predict_one_step(test_states, test_inputs, physics)
+    # Residuals are exactly zero, so the GP posterior mean is exactly zero (alpha = 0).
+    np.testing.assert_allclose(mean, physics(test_states, test_inputs), atol=1e-12)
+    assert mean.shape == var.shape == (30, 2) and np.all(var >= 0)
+    rollout = model.rollout(test_states[0], test_inputs[:-1], physics)
+    np.testing.assert_allclose(rollout, test_states, atol=1e-12)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_known_unmodelled_term_is_recovered(shared):
+    training = [trajectory(120, seed=s, extra=True) for s in (2, 3)]
+    model = GreyBoxGP(state_columns=[1], shared=shared, noise_variance=1e-4, n_restarts=0).fit_trajectories(
+        training, physics)
+    states, inputs = trajectory(60, seed=4, extra=True)
+    mean, var = model.predict_one_step(states[:-1], inputs[:-1], physics)
+    truth_residual = unmodelled(states[:-1], inputs[:-1])
+    learned = mean[:, 1] - physics(states[:-1], inputs[:-1])[:, 1]
+    # The term spans about +-0.07; 5 % of that is a tight fit for 240 training pairs.
+    assert np.max(np.abs(learned - truth_residual)) < 0.004
+    assert np.max(np.abs(mean[:, 0] - states[1:, 0])) < 1e-3  # position step is exact physics
+    # The grey box beats the physics alone over a whole free rollout.
+    physics_only = [states[0]]
+    for k in range(len(states) - 1):
+        physics_only.append(physics(physics_only[-1][None], inputs[k:k + 1])[0])
+    rollout = model.rollout(states[0], inputs[:-1], physics)
+    assert np.abs(rollout - states).max() < 0.1 * np.abs(np.array(physics_only) - states).max()
+
+
+def test_gp_only_learns_the_whole_increment():
+    states, inputs = trajectory(100, seed=5, extra=True)
+    model = GreyBoxGP(shared=True, noise_variance=1e-4, n_restarts=0).fit_trajectories(
+        [(states, inputs)], None)
+    assert np.allclose(model.residuals(states[:-1], inputs[:-1], states[1:], None), np.diff(states, axis=0))
+    mean, _ = model.predict_one_step(states[:-1], inputs[:-1], None)
+    assert np.sqrt(np.mean((mean - states[1:]) ** 2)) < 2e-3
+
+
+def test_vectorised_rollout_matches_single_rollouts():
+    states, inputs = trajectory(60, seed=6, extra=True)
+    model = GreyBoxGP(state_columns=[1], n_restarts=0).fit_trajectories([(states, inputs)], physics)
+    starts = states[[0, 10, 20]]
+    controls = np.stack([inputs[0:15], inputs[10:25], inputs[20:35]])
+    together = model.rollout(starts, controls, physics)
+    assert together.shape == (3, 16, 2)
+    for r in range(3):
+        # Batched and single kernel products round differently; 15 steps amplify that to ~1e-9.
+        np.testing.assert_allclose(together[r], model.rollout(starts[r], controls[r], physics), atol=1e-8)
+
+
+def test_conditioned_samples_are_one_function_per_rollout():
+    states, inputs = trajectory(80, seed=7, extra=True)
+    # GP inputs: the control only, so a constant control revisits one GP input every step.
+    model = GreyBoxGP(state_columns=[], n_restarts=0).fit_trajectories([(states, inputs)], physics)
+    constant = np.full((5, 1), 0.3)
+    runs = model.sample_rollouts(states[0], constant, physics, n_samples=400, seed=1)
+    assert runs.shape == (400, 6, 2)
+    increments = np.stack([runs[:, k + 1] - physics(runs[:, k], np.broadcast_to(constant[k], (400, 1)))
+                           for k in range(5)], axis=1)  # (400, 5, 2) drawn residuals
+    # Conditioning on the earlier draws at the same input leaves (almost) no variance.
+    np.testing.assert_allclose(increments, np.broadcast_to(increments[:, :1], increments.shape), atol=1e-4)
+    # The first draw has the GP's latent mean and variance (400 draws: mean within ~4 standard
+    # errors, variance within ~30 %, the chi-square spread at 400 samples being ~7 %).
+    mean, var = model.gp_.predict(model.gp_inputs(states[:1], constant[:1]), return_var=True)
+    first = increments[:, 0]
+    assert np.all(np.abs(first.mean(axis=0) - mean[0]) < 4 * np.sqrt(var[0] / 400) + 1e-12)
+    assert np.allclose(first.var(axis=0), var[0], rtol=0.3)
+    again = model.sample_rollouts(states[0], constant, physics, n_samples=400, seed=1)
+    np.testing.assert_array_equal(runs, again)
+
+
+def test_bad_shapes_are_refused_with_the_expected_shapes():
+    states, inputs = trajectory(20, seed=8)
+    model = GreyBoxGP(state_columns=[1], n_restarts=0).fit_trajectories([(states, inputs)], physics)
+    with pytest.raises(ValueError, match="fitted with 2 states and 1 inputs"):
+        model.predict_one_step(np.zeros((3, 3)), np.zeros((3, 1)), physics)
+    with pytest.raises(ValueError, match="same n"):
+        model.fit(states, inputs[:-1], states, physics)
+    with pytest.raises(ValueError, match="physics_step returned shape"):
+        model.predict_one_step(states, inputs, lambda s, u: s[:, :1])
+    with pytest.raises(ValueError, match="initial_state must have shape"):
+        model.rollout(np.zeros(2), np.zeros((4, 2)), physics)
+    with pytest.raises(ValueError, match="state_columns"):
+        GreyBoxGP(state_columns=[5]).fit(states, inputs, states, physics)
+    with pytest.raises(ValueError, match="NaN"):
+        model.predict_one_step(np.full((1, 2), np.nan), np.zeros((1, 1)), physics)
