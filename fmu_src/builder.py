@@ -5,6 +5,10 @@
   (:mod:`fmu_src.bo105_reference`);
 - :func:`build_jsbsim_fmu`: a JSBSim aircraft (:mod:`fmu_src.jsbsim_aircraft`; the host needs
   the ``jsbsim`` package);
+- :func:`build_blimp_rkgp_fmu`: a trained blimp grey-box model (``GreyBoxGP`` with the physics
+  ``blimp_rk4``; :mod:`fmu_src.blimp_rkgp`);
+- :func:`build_model_fmu`: the FMU of any trained model file, by its type (what
+  ``flightgp build-fmu MODEL_FILE`` runs);
 - :func:`build_reference_fmu`: either reference by its vehicle name (``bo105-80kt``,
   ``jsbsim:c172x``).
 
@@ -270,6 +274,169 @@ def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path
                                       f"\n        states={outputs!r},\n    )",
                        attributes={}, description=description, arrays=arrays)
     return write_atomically(target, fmu_bytes)
+
+
+#: The ``kind`` of the physics description of a blimp grey-box model (its model file's header).
+BLIMP_PHYSICS = "blimp_rk4"
+
+
+def blimp_physics_description(params, *, max_step: float | None = None) -> dict:
+    """The JSON description of :func:`validation.blimp_identification.physics_step` for a
+    blimp grey-box model file (``save_model(..., physics=...)``).
+
+    Parameters
+    ----------
+    params : validation.blimp.BlimpParameters
+        The (identified) parameters of the ODE.
+    max_step : float, optional
+        Longest RK4 substep, s; default the reference's (0.01 s).
+    """
+    from validation.blimp import _MAX_STEP, INPUT_NAMES, STATE_NAMES, BlimpParameters
+
+    return {"kind": BLIMP_PHYSICS, "parameter_names": list(BlimpParameters.vector_names()),
+            "parameters": [float(v) for v in params.to_vector()],
+            "max_step": float(_MAX_STEP if max_step is None else max_step),
+            "state_names": list(STATE_NAMES), "input_names": [*INPUT_NAMES, "dt"]}
+
+
+def blimp_physics_from_description(description: dict):
+    """``(params, physics_step)`` rebuilt from :func:`blimp_physics_description`'s dict.
+
+    Raises
+    ------
+    validation.errors.BadInputError
+        Not a ``blimp_rk4`` description, or its parameters do not match ``BlimpParameters``.
+    """
+    from validation.blimp import INPUT_NAMES, STATE_NAMES, BlimpParameters
+    from validation.blimp_identification import physics_step
+    from validation.errors import BadInputError
+
+    if not isinstance(description, dict) or description.get("kind") != BLIMP_PHYSICS:
+        kind = description.get("kind") if isinstance(description, dict) else None
+        raise BadInputError(f"the model's physics is {kind!r}; the blimp RKGP FMU needs {BLIMP_PHYSICS!r} "
+                            "(a GreyBoxGP trained with validation.blimp_identification.physics_step)")
+    try:
+        if (list(description["parameter_names"]) != list(BlimpParameters.vector_names())
+                or list(description["state_names"]) != list(STATE_NAMES)
+                or list(description["input_names"]) != [*INPUT_NAMES, "dt"]):
+            raise ValueError("its parameter, state or input names differ from this flightgp's blimp")
+        params = BlimpParameters.from_vector(np.asarray(description["parameters"], dtype=float))
+        max_step = float(description["max_step"])
+        if not max_step > 0:
+            raise ValueError(f"max_step must be positive, got {max_step}")
+    except (KeyError, TypeError, ValueError) as error:
+        raise BadInputError(f"the model's {BLIMP_PHYSICS} physics description is unusable: {error}") from None
+    return params, physics_step(params, max_step=max_step)
+
+
+def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
+    """Build the blimp RKGP FMU (:mod:`fmu_src.blimp_rkgp`) of a trained grey-box model file.
+
+    Parameters
+    ----------
+    model_path : path
+        A ``GreyBoxGP`` saved by :func:`gp_model.save_model` with
+        ``physics=blimp_physics_description(params)``, trained on 12 blimp states and the inputs
+        ``u_gondola, mu, u_tail, dt`` (:func:`validation.blimp_identification.recording_arrays`).
+    out_dir : path
+        Folder for the FMU (created if missing).
+    name : str, optional
+        Model identifier and file name; default the model file's stem, made into a name.
+
+    Returns
+    -------
+    Path
+        ``out_dir/<name>.fmu``.
+
+    Raises
+    ------
+    gp_model.ModelFileError
+        Missing, corrupt or not a grey-box model file.
+    validation.errors.BadInputError
+        Other physics than ``blimp_rk4``; hyperparameter samples; a bad ``name`` or ``out_dir``.
+    """
+    from scipy import linalg
+
+    from gp_model import GreyBoxGP, ModelFileError, load_model, read_header
+    from validation.blimp import INPUT_NAMES, STATE_NAMES, _hanging_state
+    from validation.errors import BadInputError
+    from validation.files import write_atomically
+
+    from . import blimp_rkgp
+
+    model_path = Path(model_path)
+    target = _target(out_dir, _default_name(model_path.stem) if name is None else name)
+    model = load_model(model_path)
+    if not isinstance(model, GreyBoxGP):
+        raise ModelFileError(f"{model_path}: a {type(model).__name__}, not a GreyBoxGP; the blimp RKGP "
+                             "FMU needs a grey-box model")
+    physics = read_header(model_path)["physics"]
+    params, _ = blimp_physics_from_description(physics)
+    if (model.n_states_, model.n_inputs_) != (len(STATE_NAMES), len(INPUT_NAMES) + 1):
+        raise BadInputError(f"the model has {model.n_states_} states and {model.n_inputs_} inputs; the "
+                            f"blimp RKGP FMU needs {len(STATE_NAMES)} and {len(INPUT_NAMES) + 1} "
+                            "(u_gondola, mu, u_tail, dt)")
+    gps = [model.gp_] if model.shared else model.gp_.gps
+    parts = []
+    for gp in gps:
+        if gp.theta_samples_ is not None:
+            raise BadInputError("the blimp RKGP FMU evaluates point hyperparameters; this model mixes "
+                                f"{len(gp.theta_samples_)} samples. Train it by maximum likelihood")
+        posterior = gp._posterior
+        parts.append({"basis": gp.X_train_, "weights": posterior.alpha,
+                      "variance_factor": linalg.solve_triangular(posterior.L, np.eye(len(posterior.L)),
+                                                                 lower=True, check_finite=False),
+                      "kernel_weights": gp.kernel.weights(gp.theta_[:-1]),
+                      "log_signal_variance": gp.theta_[0],
+                      "input_mean": gp.input_scaler_.mean_, "input_scale": gp.input_scaler_.scale_,
+                      "output_mean": gp.output_scaler_.mean_, "output_scale": gp.output_scaler_.scale_})
+    if not all(type(gp.kernel).__name__ == "SquaredExponentialARD" for gp in gps):
+        raise BadInputError("the blimp RKGP FMU evaluates the squared-exponential ARD kernel only")
+    X = gps[0].input_scaler_.inverse_transform(gps[0].X_train_)
+    arrays = blimp_rkgp.pack_model(
+        parameter_names=physics["parameter_names"], parameters=physics["parameters"],
+        max_step=physics["max_step"], state_columns=model.state_columns_,
+        envelope_low=X.min(axis=0), envelope_high=X.max(axis=0), parts=parts)
+    nominal_step = float(np.median(X[:, -1]))
+    start = _hanging_state(params)
+    inputs = tuple((n, *_signal(n, "input")[1:3], _BLIMP_PHRASES[n]) for n in INPUT_NAMES)
+    states = tuple((n, *_signal(n, "state")[1:3], _BLIMP_PHRASES[n], float(s))
+                   for n, s in zip(STATE_NAMES, start))
+    gp_inputs = [STATE_NAMES[c] for c in model.state_columns_] + [*INPUT_NAMES, "dt"]
+    description = (f"Blimp RKGP (Ko et al. 2007): RK4 blimp ODE plus a GP residual "
+                   f"({'shared' if model.shared else 'one GP per state'}, {len(X)} points, inputs "
+                   f"{', '.join(gp_inputs)}); commands u_gondola, mu, u_tail in, the 12 states and their "
+                   f"one-step standard deviations out; communication step = frame interval dt "
+                   f"(trained {X[:, -1].min():.4g} .. {X[:, -1].max():.4g} s); model {model_path.name}")
+    fmu_bytes = _build(target.stem, slave_module="blimp_rkgp", slave_class="BlimpRKGP",
+                       variables_call=f"blimp_rkgp_variables(\n        inputs={inputs!r},"
+                                      f"\n        states={states!r},\n    )",
+                       attributes={"DEFAULT_STEP_SIZE": nominal_step}, description=description,
+                       arrays=arrays, support_modules=("_runtime",))
+    return write_atomically(target, fmu_bytes)
+
+
+#: What the blimp's signals are (validation.blimp, module docstring: NED earth, body axes).
+_BLIMP_PHRASES = {
+    "u_gondola": "gondola fan command (positive pushes forward)",
+    "mu": "gondola thrust angle (positive tilts the thrust up)",
+    "u_tail": "tail fan command (positive yaws the nose right)",
+    "x": "north position", "y": "east position", "z": "down position",
+    "phi": "roll angle", "theta": "pitch angle", "psi": "heading",
+    "U": "forward body velocity", "V": "rightward body velocity", "W": "downward body velocity",
+    "P": "roll rate", "Q": "pitch rate", "R": "yaw rate",
+}
+
+
+def build_model_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
+    """The FMU of a trained model file, by its type: a ``GreyBoxGP`` (blimp physics) gives the
+    blimp RKGP FMU (:func:`build_blimp_rkgp_fmu`), anything else the GP-NARX rate predictor
+    (:func:`build_rate_predictor_fmu`, which says when the file is not a GP-NARX model)."""
+    from gp_model import read_header
+
+    if read_header(model_path).get("type") == "GreyBoxGP":
+        return build_blimp_rkgp_fmu(model_path, out_dir, name=name)
+    return build_rate_predictor_fmu(model_path, out_dir, name=name)
 
 
 def reference_fmu_names() -> list[str]:

@@ -307,3 +307,47 @@ def _conditional_draw(gp: GaussianProcess, visited: np.ndarray, drawn: list, rng
             var = var - weights @ cross
         draw[j] = mu + np.sqrt(max(var, 0.0)) * rng.standard_normal()
     return draw
+
+
+# -- portable state (used by gp_model._model_file) -----------------------------------------------
+def greybox_to_parts(model: GreyBoxGP) -> tuple[dict, list]:
+    """JSON-safe structure and the residual GPs of a fitted :class:`GreyBoxGP`.
+
+    Returns
+    -------
+    structure : dict
+        ``state_columns`` (the fitted ``state_columns_``), ``shared``, ``n_states``,
+        ``n_inputs``, ``noise_variance``, ``n_restarts``.
+    gps : list of GaussianProcess
+        ``[gp_]`` when shared, else the per-output GPs in output order.
+    """
+    if not hasattr(model, "gp_"):
+        raise ValueError("the GreyBoxGP is not fitted; call fit() before saving it")
+    structure = {"state_columns": [int(c) for c in model.state_columns_], "shared": model.shared,
+                 "n_states": int(model.n_states_), "n_inputs": int(model.n_inputs_),
+                 "noise_variance": model.noise_variance, "n_restarts": model.n_restarts}
+    return structure, [model.gp_] if model.shared else list(model.gp_.gps)
+
+
+def greybox_from_parts(structure: dict, gps: list) -> GreyBoxGP:
+    """Inverse of :func:`greybox_to_parts`; raises KeyError/ValueError on inconsistent content."""
+    model = GreyBoxGP(state_columns=structure["state_columns"], shared=bool(structure["shared"]),
+                      noise_variance=float(structure["noise_variance"]),
+                      n_restarts=int(structure["n_restarts"]))
+    model.n_states_, model.n_inputs_ = int(structure["n_states"]), int(structure["n_inputs"])
+    model.state_columns_ = np.asarray(structure["state_columns"], dtype=int)
+    d = len(model.state_columns_) + model.n_inputs_
+    if model.state_columns_.size and (model.state_columns_.min() < 0
+                                      or model.state_columns_.max() >= model.n_states_):
+        raise ValueError(f"state_columns {structure['state_columns']} outside 0..{model.n_states_ - 1}")
+    expected = 1 if model.shared else model.n_states_
+    if len(gps) != expected:
+        raise ValueError(f"a {'shared' if model.shared else 'per-output'} grey-box model with "
+                         f"{model.n_states_} states has {expected} GP part(s), not {len(gps)}")
+    for gp in gps:
+        outputs = gp.Y_train_.shape[1]
+        if gp.X_train_.shape[1] != d or outputs != (model.n_states_ if model.shared else 1):
+            raise ValueError(f"a residual GP has {gp.X_train_.shape[1]} inputs and {outputs} outputs; "
+                             f"expected {d} inputs and {model.n_states_ if model.shared else 1}")
+    model.gp_ = gps[0] if model.shared else PerOutputGP(gps)
+    return model

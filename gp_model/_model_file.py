@@ -5,7 +5,15 @@ Layout: the array ``__header__`` is a JSON string ``{"format": "flightgp-model",
 part is one GP of the model (``gp0``, ``gp1``, ...). Each part's metadata names its kind,
 ``"gp_type"``: ``"exact"`` (:class:`~gp_model.GaussianProcess`) or ``"sparse_vfe"``
 (:class:`~gp_model.SparseGaussianProcess`, which also stores its inducing inputs); files written
-before sparse GPs existed have no ``gp_type`` and hold exact GPs. Files are written to a
+before sparse GPs existed have no ``gp_type`` and hold exact GPs.
+
+Grey-box models (:class:`~gp_model.GreyBoxGP`, type ``"GreyBoxGP"``) store their residual GPs as
+parts (one when shared, else one per state), their structure (``state_columns``, ``shared``,
+``n_states``, ``n_inputs``, ``noise_variance``, ``n_restarts``) under ``"structure"``, and under
+``"physics"`` a JSON description of the physics step they were trained with: at least ``"kind"``
+(e.g. ``"blimp_rk4"``: :func:`fmu_src.builder.blimp_physics_description`) and whatever numbers
+rebuild the step. The physics callable itself is never stored; whoever loads the model rebuilds
+it from that description. Files are written to a
 temporary file in the target folder and renamed, so a crash never leaves half a model behind.
 """
 from __future__ import annotations
@@ -20,6 +28,7 @@ import numpy as np
 
 from ._errors import GPNumericalError, ModelFileError
 from ._gp import GaussianProcess, PerOutputGP, gp_from_arrays, gp_to_arrays
+from ._greybox import GreyBoxGP, greybox_from_parts, greybox_to_parts
 from ._narx import GPNarx, NarxStructure
 from ._sparse_gp import SparseGaussianProcess, sparse_gp_from_arrays, sparse_gp_to_arrays
 
@@ -33,17 +42,20 @@ PART_TYPES = {
 }
 
 
-def save_model(path, model, *, meta: dict | None = None) -> Path:
+def save_model(path, model, *, meta: dict | None = None, physics: dict | None = None) -> Path:
     """Write a fitted model to ``path``.
 
     Parameters
     ----------
     path : str or Path
         Target file; ``.npz`` is appended if missing.
-    model : GaussianProcess, SparseGaussianProcess, PerOutputGP or GPNarx
+    model : GaussianProcess, SparseGaussianProcess, PerOutputGP, GPNarx or GreyBoxGP
         Fitted model; the GPs of a PerOutputGP or GPNarx may be exact or sparse.
     meta : dict, optional
         Extra JSON-serialisable information stored in the header (e.g. the training recording).
+    physics : dict, required for a GreyBoxGP and refused otherwise
+        JSON-serialisable description of the physics step the grey-box model was trained with,
+        with a string ``"kind"`` (module docstring).
 
     Returns
     -------
@@ -54,6 +66,12 @@ def save_model(path, model, *, meta: dict | None = None) -> Path:
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
     gps, structure = _decompose(model)
+    is_greybox = isinstance(model, GreyBoxGP)
+    if is_greybox and not (isinstance(physics, dict) and isinstance(physics.get("kind"), str)):
+        raise ValueError("a GreyBoxGP needs physics={'kind': ..., ...}: the description of the "
+                         "physics step it was trained with (the callable itself is not stored)")
+    if physics is not None and not is_greybox:
+        raise ValueError(f"physics is only stored with a GreyBoxGP, not a {type(model).__name__}")
     parts, arrays = [], {}
     for i, gp in enumerate(gps):
         gp_type = next((name for name, (cls, _, _) in PART_TYPES.items() if type(gp) is cls), None)
@@ -64,6 +82,8 @@ def save_model(path, model, *, meta: dict | None = None) -> Path:
         arrays.update({f"gp{i}/{name}": value for name, value in part_arrays.items()})
     header = {"format": FORMAT, "version": VERSION, "type": type(model).__name__,
               "parts": parts, "structure": structure, "meta": meta or {}}
+    if is_greybox:
+        header["physics"] = physics
     arrays["__header__"] = np.array(json.dumps(header))
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
@@ -78,7 +98,7 @@ def save_model(path, model, *, meta: dict | None = None) -> Path:
 
 
 def read_header(path) -> dict:
-    """The JSON header of a model file (format, version, type, meta)."""
+    """The JSON header of a model file (format, version, type, meta; physics for a GreyBoxGP)."""
     return _open(path)[0]
 
 
@@ -87,7 +107,7 @@ def load_model(path):
 
     Returns
     -------
-    GaussianProcess, SparseGaussianProcess, PerOutputGP or GPNarx
+    GaussianProcess, SparseGaussianProcess, PerOutputGP, GPNarx or GreyBoxGP
         The model, ready to predict (factorisations are recomputed from the stored data).
 
     Raises
@@ -116,6 +136,14 @@ def load_model(path):
             return PerOutputGP(gps)
         if header["type"] == "GPNarx":
             return GPNarx(NarxStructure(**header["structure"]), PerOutputGP(gps))
+        if header["type"] == "GreyBoxGP":
+            physics = header.get("physics")
+            if not (isinstance(physics, dict) and isinstance(physics.get("kind"), str)):
+                raise ValueError("a GreyBoxGP file must describe its physics (a header 'physics' "
+                                 "with a 'kind')")
+            if not all(type(gp) is GaussianProcess for gp in gps):
+                raise ValueError("a GreyBoxGP file holds exact GPs only")
+            return greybox_from_parts(header["structure"], gps)
     except ModelFileError:
         raise
     except GPNumericalError as error:
@@ -131,6 +159,9 @@ def _decompose(model) -> tuple[list, dict | None]:
         return [model], None
     if isinstance(model, PerOutputGP):
         return model.gps, None
+    if isinstance(model, GreyBoxGP):
+        structure, gps = greybox_to_parts(model)
+        return gps, structure
     if isinstance(model, GPNarx):
         s = model.structure
         return model.model.gps, {"input_names": list(s.input_names), "output_names": list(s.output_names),

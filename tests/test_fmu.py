@@ -34,7 +34,13 @@ from fmpy.validation import validate_fmu
 from pythonfmu.enums import Fmi2Status
 
 from fmu_src._base import FlightgpSlave, ModelFailure, Variable
-from fmu_src.builder import build_bo105_reference_fmu, build_jsbsim_fmu, build_rate_predictor_fmu
+from fmu_src.builder import (blimp_physics_description, build_blimp_rkgp_fmu, build_bo105_reference_fmu,
+                              build_jsbsim_fmu, build_rate_predictor_fmu)
+from gp_model import GreyBoxGP, save_model
+from validation.blimp import INPUT_NAMES as BLIMP_INPUTS
+from validation.blimp import STATE_NAMES as BLIMP_STATES
+from validation.blimp import BlimpFlightTest, BlimpParameters
+from validation.blimp_identification import physics_step, recording_arrays
 from validation.bo105 import INPUT_NAMES as BO105_INPUTS
 from validation.bo105 import STATE_NAMES as BO105_STATES
 from validation.bo105 import Bo105Reference
@@ -73,6 +79,8 @@ class FmuCase:
         but inside their declared min/max.
     bands : list of (lower, upper)
         Output pairs whose width must grow outside the envelope.
+    spreads : list of str
+        Standard-deviation outputs that must grow outside the envelope.
     bad_inputs : list of (name, value)
         Values the FMU must refuse with a logged Error and fmi2Discard.
     parameters : dict
@@ -97,6 +105,7 @@ class FmuCase:
     bands: list
     bad_inputs: list
     parameters: dict = field(default_factory=dict)
+    spreads: list = field(default_factory=list)
     tolerance: float = 1e-9
     training_envelope: bool = True
     no_state_reason: str | None = None
@@ -311,9 +320,69 @@ def jsbsim_case(request) -> FmuCase:
                    no_state_reason=JSBSIM_NO_STATE, runtime_packages=frozenset({"jsbsim"}))
 
 
+# -- the blimp RKGP (RK4 physics plus GP residual) ----------------------------------------------------
+BLIMP_HOLD = 10  # frames each random command level is held (0.5 s at 20 Hz)
+
+
+@pytest.fixture(scope="module")
+def blimp_trained():
+    """10 s of blimp-flight under random piecewise-constant commands (many levels, so maximum
+    likelihood finds no degenerate length scale for a command seen at two or three values), and a
+    shared-GP RKGP on the reference's RK4 physics, leaving out position and yaw (Ko et al.):
+    200 training pairs, about 1 s. Motion capture is off (true states, frames every 0.05 s): on
+    the differentiated, noisy mocap velocities the maximum-likelihood GP interpolates the noise
+    (noise variance at its lower bound) and its variance is at the prior's along any free run,
+    so there would be nothing to widen outside the envelope. The other blimp-flight effects
+    (motor lag, dead band, tail asymmetry, CG offset, buoyancy drift) are the residual it learns."""
+    time = np.arange(201) * BlimpFlightTest.sample_time
+    rng = np.random.default_rng(0)
+    levels = lambda low, high: np.repeat(rng.uniform(low, high, 21), BLIMP_HOLD)[:len(time)]  # noqa: E731
+    commands = np.column_stack([levels(0.2, 0.8), levels(-0.2, 0.4), levels(-0.6, 0.6)])
+    states, inputs = recording_arrays(BlimpFlightTest(mocap=False).simulate(time, commands, seed=0))
+    params = BlimpParameters()
+    model = GreyBoxGP(state_columns=(3, 4, 6, 7, 8, 9, 10, 11), n_restarts=0).fit_trajectories(
+        [(states, inputs)], physics_step(params))
+    return {"model": model, "params": params, "states": states, "commands": commands}
+
+
+@pytest.fixture(scope="module")
+def blimp_model_file(tmp_path_factory, blimp_trained):
+    return save_model(tmp_path_factory.mktemp("model") / "blimp_rkgp.npz", blimp_trained["model"],
+                      physics=blimp_physics_description(blimp_trained["params"]))
+
+
+@pytest.fixture(scope="module")
+def blimp_rkgp_fmu(blimp_model_file, tmp_path_factory):
+    return build_blimp_rkgp_fmu(blimp_model_file, tmp_path_factory.mktemp("fmu"))
+
+
+def blimp_rkgp_case(request) -> FmuCase:
+    trained = request.getfixturevalue("blimp_trained")
+    path = request.getfixturevalue("blimp_rkgp_fmu")
+    h, n = BlimpFlightTest.sample_time, 80  # the training commands' first 4 s: inside the envelope
+    commands, start = trained["commands"], trained["states"][0]
+
+    def reference():
+        physics = physics_step(trained["params"])
+        steps = np.column_stack([commands[:n], np.full(n, h)])  # dt column = the FMU's step
+        mean = trained["model"].rollout(start, steps, physics)
+        _, var = trained["model"].predict_one_step(mean[:-1], steps, physics)
+        return np.hstack([mean, np.vstack([np.zeros(12), np.sqrt(var)])]), 0
+
+    # tolerance 1e-9: the same formulas as GreyBoxGP.rollout and GaussianProcess.predict evaluated
+    # for one state instead of a batch (different rounding, ~1e-16 relative per step, grown by the
+    # dynamics over 80 steps; measured 4e-11 on the states, 2e-11 on the sds).
+    return FmuCase(path=path, step=h, n_steps=n, inputs=lambda k: dict(zip(BLIMP_INPUTS, commands[k])),
+                   reference=reference, parameters={f"{s}_start": v for s, v in zip(BLIMP_STATES, start)},
+                   far_inputs={"u_gondola": -1.0, "mu": 1.5},  # trained on 0.2 .. 0.8 and -0.2 .. 0.4
+                   bands=[], spreads=[f"{s}_sd" for s in ("U", "V", "W", "P", "Q", "R")],
+                   bad_inputs=[("u_gondola", float("nan")), ("mu", float("inf")),
+                               ("u_tail", 1.5)])  # beyond the declared -1 .. 1
+
+
 #: Every FMU the contract covers: name -> factory(request) -> FmuCase.
 FACTORIES = {"bo105_rate_predictor": rate_predictor_case, "bo105_80kt_reference": bo105_reference_case,
-             "jsbsim_c172x": jsbsim_case}
+             "jsbsim_c172x": jsbsim_case, "blimp_rkgp": blimp_rkgp_case}
 
 
 @pytest.fixture(scope="module", params=list(FACTORIES))
@@ -548,6 +617,8 @@ def test_outside_the_training_envelope_warns_and_widens_the_bounds(case, host):
         width_inside = inside[k + 1, index[upper]] - inside[k + 1, index[lower]]
         width_outside = outside[index[upper]] - outside[index[lower]]
         assert width_outside > 1.5 * width_inside, (lower, width_inside, width_outside)
+    for name in case.spreads:
+        assert outside[index[name]] > 1.5 * inside[k + 1, index[name]], name
     assert FMI_FATAL not in host.statuses()
 
 
@@ -885,3 +956,48 @@ def test_build_fmu_bad_reference_exits_2_naming_the_valid_ones(arguments, tmp_pa
     if not any(a.startswith("jsbsim:") for a in arguments):
         assert "bo105-<V>kt" in err or "bo105-80kt, bo105-100kt" in err
     assert not out.exists()
+
+
+# -- the blimp RKGP in particular -------------------------------------------------------------------
+def test_blimp_rkgp_declares_the_interface_and_refuses_steps_it_was_not_trained_for(blimp_rkgp_fmu, tmp_path):
+    description = read_model_description(str(blimp_rkgp_fmu))
+    by_causality = lambda c: [v.name for v in description.modelVariables if v.causality == c]  # noqa: E731
+    assert by_causality("input") == list(BLIMP_INPUTS)
+    assert by_causality("output") == list(BLIMP_STATES) + [f"{s}_sd" for s in BLIMP_STATES]
+    assert by_causality("parameter") == [f"{s}_start" for s in BLIMP_STATES]
+    # The default start is the reference parameters' hanging equilibrium: CG on the z axis, level.
+    assert all(float(v.start) == 0.0 for v in description.modelVariables if v.causality == "parameter")
+    # Default step: the median training frame interval (20 Hz).
+    assert abs(float(description.defaultExperiment.stepSize) - 0.05) < 1e-12
+    host = Host(extract(str(blimp_rkgp_fmu), unzipdir=str(tmp_path / "unzipped")))
+    try:
+        host.fmu.setupExperiment(startTime=0.0)
+        host.fmu.enterInitializationMode()
+        host.fmu.exitInitializationMode()
+        np.testing.assert_array_equal(host.get(), np.zeros(24))  # at rest, hanging; sd 0
+        with pytest.raises(FMICallException) as refused:  # twice the frame interval
+            host.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.1)
+        assert refused.value.status == fmi2Discard
+        errors = [message for status, _, message in host.messages if status == fmi2Error]
+        assert "frame intervals the GP residual was trained on" in errors[-1]
+        host.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.05)  # then it steps
+        assert np.all(np.isfinite(host.get()))
+    finally:
+        host.close()
+
+
+def test_build_fmu_command_builds_the_blimp_rkgp_from_a_greybox_model(blimp_model_file, tmp_path, capsys):
+    assert main(["build-fmu", str(blimp_model_file), "--out", str(tmp_path / "out"), "--name", "blimp"]) == 0
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["blimp.fmu"]
+    assert validate_fmu(str(tmp_path / "out" / "blimp.fmu")) == []
+    names = [v.name for v in read_model_description(str(tmp_path / "out" / "blimp.fmu")).modelVariables]
+    assert "u_gondola" in names and "R_sd" in names
+    assert "blimp.fmu" in capsys.readouterr().out
+
+
+def test_build_fmu_refuses_a_greybox_model_of_other_physics(blimp_trained, tmp_path, capsys):
+    model = save_model(tmp_path / "cart.npz", blimp_trained["model"], physics={"kind": "damped_cart"})
+    assert main(["build-fmu", str(model), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("flightgp build-fmu: error:") and "blimp_rk4" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()

@@ -1,6 +1,7 @@
 """``flightgp build-fmu (MODEL_FILE | --reference NAME) --out DIR [--name NAME]``: an FMI 2.0
-co-simulation FMU of a trained GP-NARX model (the rate predictor of
-:mod:`fmu_src.rate_predictor`) or of a physics reference (``bo105-<V>kt``:
+co-simulation FMU of a trained model (a GP-NARX model: the rate predictor of
+:mod:`fmu_src.rate_predictor`; a blimp grey-box ``GreyBoxGP``: the RKGP FMU of
+:mod:`fmu_src.blimp_rkgp`) or of a physics reference (``bo105-<V>kt``:
 :mod:`fmu_src.bo105_reference`; ``jsbsim:<aircraft>``: :mod:`fmu_src.jsbsim_aircraft`)."""
 from __future__ import annotations
 
@@ -12,11 +13,14 @@ from .errors import BadInputError
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "build-fmu", help="build an FMI 2.0 co-simulation FMU from a trained GP-NARX model or a reference",
+        "build-fmu", help="build an FMI 2.0 co-simulation FMU from a trained model or a reference",
         description="Build a pythonfmu FMU and write DIR/NAME.fmu. From MODEL_FILE (written by "
                     "`flightgp train`): the GP-NARX rate predictor, the model's control inputs and the "
                     "previous outputs in, the predicted outputs and their confidence bounds out, one "
-                    "NARX step per communication step. With --reference: a physics reference, "
+                    "NARX step per communication step; or, from a blimp grey-box model (GreyBoxGP with "
+                    "blimp_rk4 physics), the blimp RKGP FMU: motor commands in, the 12 states and their "
+                    "one-step standard deviations out, RK4 physics plus GP residual inside. With "
+                    "--reference: a physics reference, "
                     "bo105-<V>kt (Padfield's linear Bo105, V in 0, 20, ..., 140) or jsbsim:<aircraft> "
                     "(a JSBSim aircraft, e.g. jsbsim:c172x or jsbsim:ah1s; the host needs the jsbsim "
                     "Python package).")
@@ -31,7 +35,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fmu_src.builder import build_rate_predictor_fmu, build_reference_fmu
+    from fmu_src.builder import build_model_fmu, build_reference_fmu
 
     if (args.model is None) == (args.reference is None):
         raise BadInputError("give either MODEL_FILE (a trained GP-NARX model) or --reference NAME "
@@ -39,6 +43,6 @@ def run(args: argparse.Namespace) -> int:
     if args.reference is not None:
         path = build_reference_fmu(args.reference, args.out, name=args.name)
     else:
-        path = build_rate_predictor_fmu(args.model, args.out, name=args.name)
+        path = build_model_fmu(args.model, args.out, name=args.name)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0
