@@ -7,7 +7,7 @@ from pathlib import Path
 from .cli import seed
 from .errors import BadInputError
 
-PAPERS = ("bo105",)
+PAPERS = ("bo105", "blimp")
 
 
 def register(subparsers) -> None:
@@ -15,7 +15,10 @@ def register(subparsers) -> None:
         "reproduce", help="reproduce a seed paper's experiment",
         description="bo105: the Bo105 GP-NARX paper (AHS 74th Forum, 2018) on the flight-test "
                     "stand-in, plus its future work. Writes figures, recordings, models and "
-                    "results.json to DIR and prints the RMSE table.")
+                    "results.json to DIR and prints the RMSE table. blimp: Table I of the blimp "
+                    "RKGP paper (Ko et al., ICRA 2007) on the blimp-flight stand-in: one-second "
+                    "predictions of RK, ODE, RKGP, ODEGP and GP-only; writes results.json and "
+                    "predictions.png (--runs and --paper-only apply to bo105 only).")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
@@ -25,12 +28,18 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInputError(f"{args.out} exists and is not a folder")
+    if args.paper == "blimp":
+        from .reproduce_blimp import format_results, reproduce_blimp
+
+        print(format_results(reproduce_blimp(args.out, seed=args.seed)))
+        print(f"written {args.out}/results.json and predictions.png")
+        return 0
     from .reproduce_bo105 import format_results, reproduce_bo105
 
     if args.runs < 10:
         raise BadInputError(f"--runs must be at least 10 for meaningful bounds, got {args.runs}")
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"{args.out} exists and is not a folder")
     results = reproduce_bo105(args.out, seed=args.seed, n_runs=args.runs, beyond=not args.paper_only)
     print(format_results(results))
     print(f"written {args.out}/results.json and figures")
