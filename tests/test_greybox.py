@@ -2,7 +2,8 @@
 
 Properties: the residual GP is zero where the physics is exact; a known unmodelled term is
 recovered; GP-only is the identity physics; rollouts are vectorised consistently; conditioned
-sampling draws one function per rollout (same input, same residual) with the GP's variance.
+sampling draws one function per rollout (same input, same residual) with the GP's joint
+posterior mean and covariance at the visited inputs.
 """
 import numpy as np
 import pytest
@@ -109,6 +110,47 @@ def test_conditioned_samples_are_one_function_per_rollout():
     assert np.allclose(first.var(axis=0), var[0], rtol=0.3)
     again = model.sample_rollouts(states[0], constant, physics, n_samples=400, seed=1)
     np.testing.assert_array_equal(runs, again)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_conditioned_sampling_reproduces_the_joint_posterior_covariance(shared):
+    # GP inputs are the control only, so the inputs a rollout visits are known in advance (the
+    # controls), whatever the physics does with the state: the residuals drawn along a rollout
+    # are then draws of the latent function at fixed points and must have the GP's joint
+    # posterior mean and covariance there (Ko et al. 2007, sec. IV-C), correlations included.
+    states, inputs = trajectory(15, seed=7, extra=True)
+    # Fixed hyperparameters (unit length scale in standardised units): type-II ML on the control
+    # alone collapses the length scale and with it every correlation this test is about.
+    model = GreyBoxGP(state_columns=[], shared=shared).fit_trajectories([(states, inputs)], physics,
+                                                                       optimize=False)
+    # Four close controls beyond the training range (neighbour correlations 0.6-0.96) and one
+    # back inside it (nearly independent of them).
+    controls = np.array([[1.2], [1.4], [1.6], [1.9], [-0.1]])
+    n = 2000
+    runs = model.sample_rollouts(states[0], controls, physics, n_samples=n, seed=11)
+    drawn = np.stack([runs[:, k + 1] - physics(runs[:, k], np.broadcast_to(controls[k], (n, 1)))
+                      for k in range(len(controls))], axis=1)  # (n, 5, 2) drawn residuals
+    X = model.gp_inputs(np.zeros((len(controls), 2)), controls)
+    gps = [model.gp_] if shared else model.gp_.gps
+    joint = [gp.predict(X, return_cov=True) for gp in gps]
+    mean = np.column_stack([m.reshape(len(X), -1) for m, _ in joint])  # (5, 2)
+    cov = np.concatenate([c.reshape(len(X), len(X), -1) for _, c in joint], axis=2)  # (5, 5, 2)
+    for j in range(2):
+        # Whitened by the GP's joint covariance, correct draws are iid standard normal: their
+        # mean has standard error 1/sqrt(n) and their second moment matrix S = I with standard
+        # error 1/sqrt(n) off the diagonal and sqrt(2/n) on it (Gaussian fourth moments).
+        # Five standard errors on each of the 5 + 15 entries: a correct sampler fails with
+        # probability below 1e-5, and the seed is fixed.
+        L = np.linalg.cholesky(cov[:, :, j])
+        z = np.linalg.solve(L, (drawn[:, :, j] - mean[:, j]).T)  # (5, n)
+        second = z @ z.T / n
+        standard_error = np.where(np.eye(len(X), dtype=bool), np.sqrt(2 / n), np.sqrt(1 / n))
+        assert np.all(np.abs(z.mean(axis=1)) < 5 / np.sqrt(n))
+        assert np.all(np.abs(second - np.eye(len(X))) < 5 * standard_error), second
+        # Power: independent draws with the right marginal variances (no conditioning) would
+        # have S = L^-1 diag(C) L^-T, which misses I by far more than the tolerance.
+        independent = np.linalg.solve(L, np.linalg.solve(L, np.diag(np.diag(cov[:, :, j]))).T)
+        assert np.max(np.abs(independent - np.eye(len(X))) / standard_error) > 50
 
 
 def test_bad_shapes_are_refused_with_the_expected_shapes():

@@ -1,9 +1,10 @@
-"""Tests of the blimp RKGP Table I reproduction (validation/reproduce_blimp.py) and its command.
+"""Tests of the blimp RKGP Tables I and II reproduction (validation/reproduce_blimp.py) and its command.
 
 The quick reproduction (one 30 s training flight, 20 start states, about 10 s) runs end to end;
 the assertions are the properties that hold by construction or by physics, not the paper's
 headline (RKGP beating RK does not come out on this stand-in; results.json explains why).
 """
+import dataclasses
 import json
 import math
 
@@ -35,6 +36,58 @@ def test_quick_reproduction_writes_table1_with_finite_values(quick):
         assert math.isfinite(entry["value"]) and entry["standard_error"] > 0
     assert written["notes"]
     assert "RKGP" in format_results(written) and "position" in format_results(written)
+
+
+TABLE2_ROWS = ("stand_in", "rkgp_sampled", "rkgp_mean")
+SPREAD_KEYS = {"x_std_m", "y_std_m", "z_std_m", "yaw_std_deg", "position_spread_m",
+               "offset_from_stand_in_m", "yaw_offset_from_stand_in_deg"}
+
+
+def test_quick_reproduction_writes_table2(quick):
+    out, results = quick
+    table2 = json.loads((out / "results.json").read_text())["table2"]
+    assert (out / "table2.png").stat().st_size > 0
+    assert set(table2) == {*TABLE2_ROWS, "setup"}
+    for row in TABLE2_ROWS:
+        assert SPREAD_KEYS <= set(table2[row])
+        assert all(math.isfinite(v) for v in table2[row].values()), (row, table2[row])
+    # The mean-only rollout is one deterministic end point: zero spread by construction. GP
+    # sampling draws different residual functions, so its end points spread; so do the stand-in
+    # runs (drift, jitter, marker noise differ with the seed).
+    spreads = {row: table2[row]["position_spread_m"] for row in TABLE2_ROWS}
+    assert spreads["rkgp_mean"] == 0.0 and table2["rkgp_mean"]["yaw_std_deg"] == 0.0
+    assert spreads["rkgp_sampled"] > spreads["rkgp_mean"] and spreads["stand_in"] > 0
+    assert table2["stand_in"]["offset_from_stand_in_m"] == pytest.approx(0.0, abs=1e-12)
+    assert table2["setup"]["stand_in_runs"] == 20 and table2["setup"]["n_samples"] == 20
+    assert "RKGP sampled" in format_results(results)
+    assert any(note.startswith("Table II") for note in results["notes"])
+
+
+def test_table2_is_reproducible_from_the_seed(quick):
+    from gp_model import GreyBoxGP
+    from validation.blimp import FLIGHT_TEST_PARAMETERS
+    from validation.blimp_identification import physics_step
+    from validation.reproduce_blimp import (GP_STATE_COLUMNS, QUICK_TABLE2, RK_MAX_STEP, _table2,
+                                            _transitions)
+
+    # A cheap model (known parameters, fixed hyperparameters, a short flight) through the same
+    # Table II code twice with one seed and once with another: the full run is seeded the same way.
+    flight = random_command_flight(3.0, [5, 1, 0])
+    rk = physics_step(FLIGHT_TEST_PARAMETERS, max_step=RK_MAX_STEP)
+    model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, n_restarts=0).fit(
+        *_transitions([flight], 2), rk, optimize=False)
+    setup = dataclasses.replace(QUICK_TABLE2, horizon_frames=10, stand_in_runs=3, n_samples=3)
+    first, paths = _table2(flight, model, rk, setup, 5, False)
+    again, paths_again = _table2(flight, model, rk, setup, 5, False)
+    other, other_paths = _table2(flight, model, rk, setup, 6, False)
+    for a, b in zip(paths, paths_again):
+        np.testing.assert_array_equal(a, b)
+    for row in TABLE2_ROWS:
+        assert {k: v for k, v in first[row].items() if k != "seconds"} == \
+            {k: v for k, v in again[row].items() if k != "seconds"}
+    assert first["stand_in"]["position_spread_m"] != other["stand_in"]["position_spread_m"]
+    assert first["rkgp_sampled"]["position_spread_m"] != other["rkgp_sampled"]["position_spread_m"]
+    np.testing.assert_array_equal(paths[2], other_paths[2])  # the mean rollout has no random part
 
 
 def test_comparisons_and_notes_agree_with_the_table(quick):

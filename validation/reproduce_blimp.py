@@ -1,4 +1,4 @@
-"""Reproduce the blimp RKGP paper's Table I (Ko, Klein, Fox & Haehnel, ICRA 2007).
+"""Reproduce the blimp RKGP paper's Tables I and II (Ko, Klein, Fox & Haehnel, ICRA 2007).
 
 The paper's experiment, with our stand-in (README, "Vehicles"): the ``blimp-flight`` stand-in
 flies random command sequences; the blimp ODE's unknown parameters are identified on training
@@ -20,6 +20,18 @@ Errors (Table I): for each state group the Euclidean norm of the error vector at
 horizon (orientation: roll, pitch and yaw differences, yaw wrapped to [-pi, pi)), root mean
 square over the start states. Compute time: wall time of one one-second prediction from one
 start state (the start states are predicted one by one, not vectorised), mean over starts.
+
+Table II (the paper's sec. IV-C): one fixed start and one fixed command sequence, the first
+:attr:`Table2Setup.horizon_frames` commands of the first held-out flight, which like every
+stand-in flight starts at rest at the origin. The stand-in flies them ``stand_in_runs`` times
+with different seeds (buoyancy drift, mocap timing jitter and marker noise differ); RKGP starts
+from that flight's recorded first frame with the nominal frame interval and is rolled out
+(a) with GP sampling, :meth:`gp_model.GreyBoxGP.sample_rollouts` (each residual drawn from the
+latent GP conditioned on the residuals already drawn along the same rollout, no observation
+noise added), and (b) mean-only. Spread of a set of end points: standard deviation (ddof 0) of
+x, y, z and yaw (yaw deviations wrapped to [-pi, pi) about the stand-in's circular mean), and the
+mean Euclidean distance of the end positions from their mean; offset: distance of a set's mean
+end position from the stand-in runs' mean end position.
 """
 from __future__ import annotations
 
@@ -88,6 +100,31 @@ class Table1Setup:
 DEFAULT_SETUP = Table1Setup()
 QUICK_SETUP = Table1Setup(training_flights=1, training_duration=30.0, held_out_flights=1,
                           held_out_duration=15.0, n_starts=20, gp_stride=3)
+
+
+@dataclass(frozen=True)
+class Table2Setup:
+    """Sizes of the Table II experiment.
+
+    Attributes
+    ----------
+    horizon_frames : int
+        Length of the fixed command sequence, mocap frames (40: 2 s at 20 Hz; long enough for
+        the fans to spin up (0.3 s lag) and the end points to spread, short enough that 100
+        conditioned samples cost seconds).
+    stand_in_runs : int
+        Repeated stand-in runs (the paper's twenty).
+    n_samples : int
+        Sampled RKGP rollouts.
+    """
+
+    horizon_frames: int = 40
+    stand_in_runs: int = 20
+    n_samples: int = 100
+
+
+DEFAULT_TABLE2 = Table2Setup()
+QUICK_TABLE2 = Table2Setup(n_samples=20)
 
 
 def random_command_flight(duration: float, seed) -> Recording:
@@ -180,8 +217,73 @@ def _predict_one_by_one(predict, starts, inputs, update=None):
     return np.stack(paths), seconds / len(starts)
 
 
+def _wrap(angle):
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _end_point_spread(ends: np.ndarray, reference: np.ndarray) -> dict:
+    """Spread of end states (R, 12) and their offset from the stand-in's end states (S, 12)."""
+    yaw_centre = np.angle(np.mean(np.exp(1j * reference[:, 5])))  # circular mean of the stand-in
+    yaw = _wrap(ends[:, 5] - yaw_centre)
+    position = ends[:, :3]
+    centre = position.mean(axis=0)
+    return {"x_std_m": float(position[:, 0].std()), "y_std_m": float(position[:, 1].std()),
+            "z_std_m": float(position[:, 2].std()), "yaw_std_deg": float(np.degrees(yaw.std())),
+            "position_spread_m": float(np.linalg.norm(position - centre, axis=1).mean()),
+            "offset_from_stand_in_m": float(np.linalg.norm(centre - reference[:, :3].mean(axis=0))),
+            "yaw_offset_from_stand_in_deg": float(np.degrees(_wrap(np.angle(np.mean(np.exp(1j * yaw))))))}
+
+
+def _table2(held_out_flight: Recording, model: GreyBoxGP, rk, setup: Table2Setup, seed: int,
+            progress: bool):
+    """Table II: end-point spread of repeated stand-in runs, sampled and mean-only RKGP.
+
+    Returns the ``table2`` entry of ``results.json`` and the paths (stand-in runs, sampled,
+    mean-only), shapes (R, H+1, 12), (N, H+1, 12), (H+1, 12). Stand-in run i is seeded from
+    ``SeedSequence([seed, 3, i])``; the samples use ``seed``.
+    """
+    frames = setup.horizon_frames
+    if frames + 1 > len(held_out_flight.time):
+        raise ValueError(f"Table II needs {frames + 1} frames; the held-out flight has "
+                         f"{len(held_out_flight.time)}")
+    commands = held_out_flight.inputs[:frames + 1]
+    nominal_time = np.arange(frames + 1) * _SAMPLE_TIME
+    runs = []
+    with progress_bar("Table II stand-in runs", enabled=progress, total=setup.stand_in_runs,
+                      unit="run") as update:
+        for i in range(setup.stand_in_runs):
+            run_seed = int(np.random.SeedSequence([seed, 3, i]).generate_state(1)[0])
+            runs.append(recording_arrays(BlimpFlightTest().simulate(nominal_time, commands, seed=run_seed))[0])
+            if update:
+                update(1)
+    runs = np.stack(runs)
+    start = recording_arrays(held_out_flight)[0][0]
+    step_inputs = np.column_stack([commands[:frames], np.full(frames, _SAMPLE_TIME)])
+    began = clock.perf_counter()
+    sampled = model.sample_rollouts(start, step_inputs, rk, n_samples=setup.n_samples, seed=seed)
+    sampling_s = clock.perf_counter() - began
+    mean_path = model.rollout(start, step_inputs, rk)
+    reference = runs[:, -1]
+    table = {"stand_in": _end_point_spread(reference, reference),
+             "rkgp_sampled": {**_end_point_spread(sampled[:, -1], reference), "seconds": sampling_s},
+             "rkgp_mean": _end_point_spread(mean_path[None, -1], reference),
+             "setup": {**asdict(setup), "horizon_s": frames * _SAMPLE_TIME,
+                       "commands": "the first horizon_frames commands of held-out flight 0",
+                       "stand_in_start": "at rest at the origin in its static attitude (every run)",
+                       "rkgp_start": "held-out flight 0's recorded first frame; nominal dt "
+                                     f"{_SAMPLE_TIME} s every step",
+                       "stand_in_seeds": "run i: SeedSequence([seed, 3, i])",
+                       "sampling": "latent GP residual conditioned on the residuals already drawn "
+                                   "along the rollout (Ko et al. sec. IV-C); no observation noise",
+                       "spread": "std (ddof 0) of end x, y, z, yaw (wrapped about the stand-in's "
+                                 "circular mean); position_spread_m: mean distance of end "
+                                 "positions from their mean; offset: distance of the mean end "
+                                 "position from the stand-in runs' mean end position"}}
+    return table, (runs, sampled, mean_path)
+
+
 def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: bool = False) -> dict:
-    """Run Table I, write ``results.json`` and ``predictions.png`` to ``out_dir``.
+    """Run Tables I and II, write ``results.json``, ``predictions.png`` and ``table2.png`` to ``out_dir``.
 
     Parameters
     ----------
@@ -189,12 +291,13 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
     seed : int, default 0
         Training flight i uses ``SeedSequence([seed, 0, i])``, held-out flight i
         ``SeedSequence([seed, 1, i])`` (commands and stand-in); the start states are drawn
-        with ``default_rng([seed, 2])``; GP restarts use ``seed``.
+        with ``default_rng([seed, 2])``; GP restarts and the Table II samples use ``seed``,
+        Table II stand-in run i ``SeedSequence([seed, 3, i])``.
     progress : bool
         Progress bars on stderr.
     quick : bool
-        :data:`QUICK_SETUP` (for tests: shorter flights, 20 start states) instead of
-        :data:`DEFAULT_SETUP`.
+        :data:`QUICK_SETUP` and :data:`QUICK_TABLE2` (for tests: shorter flights, 20 start
+        states, 20 samples) instead of :data:`DEFAULT_SETUP` and :data:`DEFAULT_TABLE2`.
 
     Returns
     -------
@@ -203,6 +306,7 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
     """
     out_dir = Path(out_dir)
     setup = QUICK_SETUP if quick else DEFAULT_SETUP
+    table2_setup = QUICK_TABLE2 if quick else DEFAULT_TABLE2
     started = clock.perf_counter()
     with progress_bar("blimp flights", enabled=progress,
                       total=setup.training_flights + setup.held_out_flights, unit="flight") as update:
@@ -257,6 +361,8 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
     one_step = {m: {g: float(v) for g, v in zip(GROUPS, np.sqrt(np.mean(
         _group_errors(p, held_next) ** 2, axis=0)))} for m, p in one_step.items()}
 
+    table2, table2_paths = _table2(held_out[0], models["RKGP"], rk, table2_setup, seed, progress)
+
     results = {
         "case": "Ko et al. (ICRA 2007) Table I on the blimp-flight stand-in: one-second prediction "
                 "from random start states on held-out random-command flights",
@@ -275,6 +381,7 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
                         "type-II maximum likelihood"},
         "table1": table,
         "one_step_rmse": one_step,
+        "table2": table2,
         "identification": {
             "parameters": {name: {**entry, "stand_in_value": float(
                 FLIGHT_TEST_PARAMETERS.to_vector()[FLIGHT_TEST_PARAMETERS.vector_names().index(name)])}
@@ -288,6 +395,7 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
     results["notes"] = _notes(results)
     figure = prediction_figure(paths, truth, n_shown=3)
     write_atomically(out_dir / "predictions.png", png_bytes(figure))
+    write_atomically(out_dir / "table2.png", png_bytes(table2_figure(*table2_paths)))
     results["total_seconds"] = clock.perf_counter() - started
     write_json(out_dir / "results.json", results)
     return results
@@ -332,7 +440,64 @@ def _notes(results: dict) -> list[str]:
         "Truth is the recorded (noisy, differentiated) mocap state, as in the paper: about "
         "0.055 rad/s per rate axis and 6 mm/s per velocity axis of noise are a floor under every "
         "method's error.")
+    notes.append(_table2_note(results["table2"]))
     return notes
+
+
+def _table2_note(table2: dict) -> str:
+    """What Table II shows, with its numbers, and what the two spreads are made of."""
+    stand_in, sampled, mean = (table2[k] for k in ("stand_in", "rkgp_sampled", "rkgp_mean"))
+    ratio = sampled["position_spread_m"] / stand_in["position_spread_m"]
+    if sampled["position_spread_m"] <= mean["position_spread_m"]:
+        verdict = "GP sampling does not widen the end-point spread beyond the mean-only rollout's"
+    elif ratio < 1:
+        verdict = f"GP sampling widens the end-point spread from zero toward the stand-in's ({ratio:.2f} of it)"
+    else:
+        verdict = f"GP sampling widens the end-point spread from zero beyond the stand-in's ({ratio:.2f} times it)"
+    return (
+        f"Table II ({table2['setup']['horizon_s']:g} s): {verdict}: mean end-point distance "
+        f"from the mean {sampled['position_spread_m']:.4f} m sampled vs {stand_in['position_spread_m']:.4f} m "
+        f"over {table2['setup']['stand_in_runs']} stand-in runs, yaw std {sampled['yaw_std_deg']:.2f} vs "
+        f"{stand_in['yaw_std_deg']:.2f} deg. The two spreads measure different things: the "
+        "stand-in's is run-to-run variability (buoyancy drift, 4 ms frame jitter, 1 mm / 0.5 deg "
+        "marker noise on the end frame), the sampled RKGP's is the residual GP's posterior "
+        "uncertainty about the model error along this command sequence (no observation noise "
+        "added). The mean-only and sampled mean end points are "
+        f"{mean['offset_from_stand_in_m']:.3f} and {sampled['offset_from_stand_in_m']:.3f} m from the "
+        "stand-in runs' mean end point: the spread does not cover a systematic model error.")
+
+
+def table2_figure(runs: np.ndarray, sampled: np.ndarray, mean_path: np.ndarray) -> Figure:
+    """End points of Table II (x-y) and the yaw tracks: stand-in runs, sampled RKGP, mean-only.
+
+    ``runs`` (R, H+1, 12), ``sampled`` (N, H+1, 12), ``mean_path`` (H+1, 12).
+    """
+    figure = Figure(figsize=(11, 5), layout="constrained")
+    FigureCanvasAgg(figure)
+    track, yaw = figure.subplots(1, 2)
+    t = np.arange(runs.shape[1]) * _SAMPLE_TIME
+    for paths, color, label in ((sampled, "tab:blue", "RKGP, GP sampled"),
+                                (runs, "k", "stand-in runs")):
+        for i, path in enumerate(paths):
+            track.plot(path[:, 1], path[:, 0], color=color, lw=0.5, alpha=0.25)
+            yaw.plot(t, np.degrees(path[:, 5]), color=color, lw=0.5, alpha=0.25,
+                     label=label if i == 0 else None)
+        track.plot(paths[:, -1, 1], paths[:, -1, 0], "o", color=color, ms=4, alpha=0.7,
+                   label=f"{label} ({len(paths)}), end points")
+    track.plot(mean_path[:, 1], mean_path[:, 0], color="tab:red", lw=1.5)
+    track.plot(mean_path[-1, 1], mean_path[-1, 0], "*", color="tab:red", ms=14, label="RKGP mean-only, end point")
+    yaw.plot(t, np.degrees(mean_path[:, 5]), color="tab:red", lw=1.5, label="RKGP mean-only")
+    track.set_xlabel("y (east) [m]")
+    track.set_ylabel("x (north) [m]")
+    track.set_aspect("equal", adjustable="datalim")
+    yaw.set_xlabel("time from start [s]")
+    yaw.set_ylabel("yaw psi [deg]")
+    for panel in (track, yaw):
+        panel.grid(True, alpha=0.3)
+        panel.legend(fontsize="small")
+    figure.suptitle(f"Blimp Table II: end points after {t[-1]:g} s from one start with one command "
+                    "sequence (Ko et al. 2007, sec. IV-C)")
+    return figure
 
 
 def prediction_figure(paths: dict, truth: np.ndarray, *, n_shown: int = 3) -> Figure:
@@ -367,7 +532,7 @@ def prediction_figure(paths: dict, truth: np.ndarray, *, n_shown: int = 3) -> Fi
 
 
 def format_results(results: dict) -> str:
-    """Table I: RMSE per state group and compute time per one-second prediction."""
+    """Table I (RMSE per state group, compute time per one-second prediction) and Table II."""
     lines = [results["case"], results["units"], "",
              f"{'':8}{'position':>11}{'orient.':>11}{'velocity':>11}{'ang.vel.':>11}{'time':>11}",
              f"{'':8}{'[m]':>11}{'[rad]':>11}{'[m/s]':>11}{'[rad/s]':>11}{'[s]':>11}"]
@@ -377,6 +542,18 @@ def format_results(results: dict) -> str:
     lines.append("one-frame RMSE on all held-out transitions:")
     for method, row in results["one_step_rmse"].items():
         lines.append(f"{method:8}" + "".join(f"{row[g]:11.4f}" for g in GROUPS))
+    table2 = results["table2"]
+    lines += ["", f"Table II: end-point spread after {table2['setup']['horizon_s']:g} s from one start "
+                  "with one command sequence (std ddof 0; spread: mean distance from the mean end point; "
+                  "offset: mean end point from the stand-in's)",
+              f"{'':16}{'x std':>9}{'y std':>9}{'z std':>9}{'yaw std':>9}{'spread':>9}{'offset':>9}",
+              f"{'':16}{'[m]':>9}{'[m]':>9}{'[m]':>9}{'[deg]':>9}{'[m]':>9}{'[m]':>9}"]
+    for key, label in (("stand_in", f"stand-in x{table2['setup']['stand_in_runs']}"),
+                       ("rkgp_sampled", f"RKGP sampled x{table2['setup']['n_samples']}"),
+                       ("rkgp_mean", "RKGP mean-only")):
+        row = table2[key]
+        lines.append(f"{label:16}" + "".join(f"{row[k]:9.4f}" for k in (
+            "x_std_m", "y_std_m", "z_std_m", "yaw_std_deg", "position_spread_m", "offset_from_stand_in_m")))
     lines.append("")
     lines.append("identified parameters (value +- cluster-robust standard error; stand-in's true value):")
     for name, entry in results["identification"]["parameters"].items():
