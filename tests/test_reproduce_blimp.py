@@ -1,4 +1,4 @@
-"""Tests of the blimp RKGP Tables I and II reproduction (validation/reproduce_blimp.py) and its command.
+"""Tests of the blimp RKGP Tables I, II and III reproduction (validation/reproduce_blimp.py) and its command.
 
 The quick reproduction (one 30 s training flight, 20 start states, about 10 s) runs end to end;
 the assertions are the properties that hold by construction or by physics, not the paper's
@@ -157,3 +157,23 @@ def test_cli_reproduce_blimp_prints_table1(tmp_path, capsys):
     assert all(method in printed for method in METHODS)
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["setup"]["n_starts"] == 100 and not results["setup"]["quick"]
+
+
+def test_quick_reproduction_writes_table3_with_finite_values(quick):
+    out, results = quick
+    table3 = json.loads((out / "results.json").read_text())["table3"]
+    assert (out / "table3.png").stat().st_size > 0
+    assert set(table3) == {"RK", "RKGP", "setup"}
+    for name in ("RK", "RKGP"):
+        row = table3[name]
+        for key in ("yaw_error_deg", "yaw_error_std_deg", "yaw_rate_error_deg_s",
+                    "yaw_rate_error_std_deg_s", "final_yaw_error_deg", "pegasus_cost"):
+            assert math.isfinite(row[key]), (name, key, row[key])
+        assert row["yaw_error_deg"] > 0 and row["yaw_error_std_deg"] >= 0
+        # Nelder-Mead keeps the best vertex, which starts at the initial parameters.
+        assert row["pegasus_cost"] <= row["initial_cost"]
+        assert set(row["parameters"]) == {"b_plus", "b_minus", "damping", "tanh_slope"}
+        assert all(v > 0 for v in row["parameters"].values())
+    assert table3["setup"]["stand_in_runs"] == 2
+    assert "Table III" in format_results(results)
+    assert any(note.startswith("Table III") for note in results["notes"])
