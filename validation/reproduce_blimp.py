@@ -52,7 +52,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from scipy.integrate import solve_ivp
 
-from gp_model import GreyBoxGP
+from fmu_src.builder import blimp_physics_description, build_blimp_rkgp_fmu
+from gp_model import GreyBoxGP, save_model
 
 from . import blimp_control
 from .blimp import (_ADAPTIVE_ATOL, _ADAPTIVE_RTOL, _SAMPLE_TIME, FLIGHT_TEST_PARAMETERS,
@@ -505,6 +506,11 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
         "total_seconds": None,
     }
     results["notes"] = _notes(results)
+    # The RKGP model as a portable file and as an FMU (issue 5's blimp RKGP FMU, built from it).
+    model_path = save_model(out_dir / "blimp_rkgp.npz", models["RKGP"], physics=blimp_physics_description(
+        identified.params, max_step=RK_MAX_STEP))
+    results["fmu"] = {"model": model_path.name,
+                      "fmu": build_blimp_rkgp_fmu(model_path, out_dir, name="blimp_rkgp").name}
     figure = prediction_figure(paths, truth, n_shown=3)
     write_atomically(out_dir / "predictions.png", png_bytes(figure))
     write_atomically(out_dir / "table2.png", png_bytes(table2_figure(*table2_paths)))
