@@ -69,6 +69,7 @@ import math
 import sys
 import traceback
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Slave, Integer, Real
@@ -86,6 +87,10 @@ UNITS = {
 
 #: Relative tolerance on the communication point and step, as a fraction of the step.
 TIME_TOLERANCE = 1e-6
+
+#: Models loaded once per process and FMU package (this module is copied into each FMU's own
+#: package), keyed by model-file path; read-only, so every instance shares them.
+_SHARED_MODELS: dict = {}
 
 _STATE_FORMAT = "flightgp-fmu-state-1"
 _NO_STATE_FORMAT = "flightgp-fmu-no-state"
@@ -455,6 +460,28 @@ class FlightgpSlave(Fmi2Slave):
 
     def terminate(self):
         self._mode = "terminated" if self._mode != "failed" else "failed"
+
+    # -- helpers for subclasses ---------------------------------------------------------------
+    def shared_model(self, load, path, what: str):
+        """The model file at ``path``, loaded by ``load(path)`` once per process and logged;
+        the loaded object must be read-only (every instance of the FMU shares it) and have a
+        ``describe()`` line."""
+        key = str(path)
+        if key not in _SHARED_MODELS:
+            model = load(path)
+            self.log_info(f"loaded {what} {Path(path).name}: {model.describe()}")
+            _SHARED_MODELS[key] = model
+        return _SHARED_MODELS[key]
+
+    def report_envelope(self, outside: list, was_outside: bool, t: float, consequence: str) -> bool:
+        """Log leaving (warning, once, with the offending inputs and ``consequence``) and
+        re-entering (info) the training envelope at time ``t``; returns whether outside now."""
+        if outside and not was_outside:
+            self.log_warning(f"t = {t:.16g} s: input outside the training envelope: "
+                             + "; ".join(outside) + f". The GP extrapolates; {consequence}.")
+        elif was_outside and not outside:
+            self.log_info(f"t = {t:.16g} s: back inside the training envelope")
+        return bool(outside)
 
     # -- model (subclasses) -------------------------------------------------------------------
     def load_constants(self) -> None:

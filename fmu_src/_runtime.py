@@ -55,6 +55,52 @@ class ModelFormatError(ValueError):
     """The model file is not a flightgp FMU model of this version, or is inconsistent."""
 
 
+def kernel_rows(xs: np.ndarray, basis: np.ndarray, kernel_weights: np.ndarray,
+                log_signal_variance: np.ndarray) -> np.ndarray:
+    """``k_r(x, b) = sigma_f,r^2 exp(-sum_i w_r,i (x_i - b_i)^2)`` for each hyperparameter row r.
+
+    Parameters
+    ----------
+    xs : ndarray, shape (d,)
+        Standardised input.
+    basis : ndarray, shape (m, d)
+    kernel_weights : ndarray, shape (R, d)
+    log_signal_variance : ndarray, shape (R,)
+
+    Returns
+    -------
+    ndarray, shape (R, m)
+    """
+    squared = (xs - basis) ** 2  # (m, d)
+    return np.exp(log_signal_variance[:, None] - kernel_weights @ squared.T)
+
+
+class Envelope:
+    """The training range of a model's inputs, widened by :data:`ENVELOPE_MARGIN` of the range
+    on each side; an FMU warns when an input leaves it.
+
+    Parameters
+    ----------
+    low, high : ndarray, shape (d,)
+        Training range of each input, physical units.
+    names : sequence of str
+        Input names, for messages.
+    """
+
+    def __init__(self, low, high, names) -> None:
+        self.low, self.high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
+        self.names = tuple(names)
+        margin = ENVELOPE_MARGIN * (self.high - self.low)
+        self.lower, self.upper = self.low - margin, self.high + margin
+        for value in (self.low, self.high, self.lower, self.upper):
+            value.flags.writeable = False  # shared by every instance of the FMU in a process
+
+    def outside(self, x: np.ndarray) -> list[str]:
+        """One phrase per input of ``x`` outside the envelope (empty if inside)."""
+        return [f"{self.names[i]} = {x[i]:.6g} (trained on {self.low[i]:.6g} .. {self.high[i]:.6g})"
+                for i in np.flatnonzero((x < self.lower) | (x > self.upper))]
+
+
 def pack_model(*, step: float, input_names, output_names, input_lags, output_lags,
                envelope_low, envelope_high, outputs) -> dict:
     """Arrays for ``numpy.savez`` (see the module docstring).
@@ -126,9 +172,7 @@ class _Block:
         """Mean and variance (noise included) of the block's outputs at regressor ``x`` (d,), in
         output units: for each output, the mixture over its hyperparameter samples."""
         xs = (x - self.input_mean) / self.input_scale
-        squared = (xs - self.basis) ** 2  # (m, d)
-        # k_r = sigma_f,r^2 exp(-sum_i w_r,i (x_i - b_i)^2) for every sample row r: (R, m)
-        k = np.exp(self.log_signal_variance[:, None] - self.kernel_weights @ squared.T)
+        k = kernel_rows(xs, self.basis, self.kernel_weights, self.log_signal_variance)  # (R, m)
         means = np.einsum("rm,rm->r", k, self.weights)
         v = np.matmul(self.variance_factor, k[:, :, None])[:, :, 0]  # (R, m)
         latent = np.maximum(self.signal_variance - np.einsum("rm,rm->r", v, v), 0.0)
@@ -152,7 +196,7 @@ class NarxPredictor:
         Lags in NARX steps; input lags >= 1 (no direct feedthrough), output lags >= 1.
     max_lag : int
     regressor_names : tuple of str
-    envelope_low, envelope_high : ndarray, shape (d,)
+    envelope : Envelope
         Training range of each regressor.
     n_samples : int
         Hyperparameter samples of the mixture (of the first output).
@@ -182,16 +226,12 @@ class NarxPredictor:
                 [f"{n}(k-{i})" for n in self.input_names for i in self.input_lags]
                 + [f"{n}(k-{j})" for n in self.output_names for j in self.output_lags])
             d = len(self.regressor_names)
-            self.envelope_low = np.asarray(arrays["envelope_low"], dtype=float)
-            self.envelope_high = np.asarray(arrays["envelope_high"], dtype=float)
-            if self.envelope_low.shape != (d,) or self.envelope_high.shape != (d,):
+            self.envelope = Envelope(arrays["envelope_low"], arrays["envelope_high"], self.regressor_names)
+            if self.envelope.low.shape != (d,) or self.envelope.high.shape != (d,):
                 raise ModelFormatError(f"training envelope must have {d} entries")
             parts = [_read_part(arrays, f"{j}/", d) for j in range(len(self.output_names))]
         except KeyError as error:
             raise ModelFormatError(f"model file lacks the array {error}") from None
-        margin = ENVELOPE_MARGIN * (self.envelope_high - self.envelope_low)
-        self._lower_limit = self.envelope_low - margin
-        self._upper_limit = self.envelope_high + margin
         self.n_samples = len(parts[0]["weights"])
         # Outputs sharing basis and input scaling form one block; order[j] = (block, row).
         self._order, members = [], []
@@ -238,12 +278,6 @@ class NarxPredictor:
         mean = np.array([results[b][0][i] for b, i in self._order])
         var = np.array([results[b][1][i] for b, i in self._order])
         return mean, var
-
-    def outside_envelope(self, x: np.ndarray) -> list[str]:
-        """One phrase per regressor of ``x`` outside the training envelope (empty if inside)."""
-        outside = np.flatnonzero((x < self._lower_limit) | (x > self._upper_limit))
-        return [f"{self.regressor_names[i]} = {x[i]:.6g} (trained on {self.envelope_low[i]:.6g} .. "
-                f"{self.envelope_high[i]:.6g})" for i in outside]
 
     def describe(self) -> str:
         """One line for the log."""

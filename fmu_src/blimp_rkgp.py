@@ -63,7 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from ._base import TIME_TOLERANCE, FlightgpSlave, Variable
-from ._runtime import ENVELOPE_MARGIN
+from ._runtime import Envelope, kernel_rows
 
 FORMAT = "flightgp-fmu-blimp-rkgp"
 VERSION = 1
@@ -76,9 +76,6 @@ STANDARD_GRAVITY = 9.80665  # as validation.blimp
 PER_PART = {"basis": 2, "weights": 2, "variance_factor": 2, "kernel_weights": 1,
             "log_signal_variance": 0, "input_mean": 1, "input_scale": 1, "output_mean": 1,
             "output_scale": 1}
-
-#: Loaded models by path: shared, read-only, by every instance of this FMU in the process.
-_MODELS: dict = {}
 
 
 def pack_model(*, parameter_names, parameters, max_step: float, state_columns, envelope_low,
@@ -231,8 +228,7 @@ class RKGPModel:
             self.params = BlimpParameterSet(arrays["parameter_names"], arrays["parameters"])
             self.max_step = float(arrays["max_step"])
             self.state_columns = np.asarray(arrays["state_columns"], dtype=int)
-            self.envelope_low = np.asarray(arrays["envelope_low"], dtype=float)
-            self.envelope_high = np.asarray(arrays["envelope_high"], dtype=float)
+            envelope_low, envelope_high = arrays["envelope_low"], arrays["envelope_high"]
             self.parts, p = [], 0
             while f"{p}/basis" in arrays:
                 part = {n: np.array(arrays[f"{p}/{n}"], dtype=float, order="C") for n in PER_PART}
@@ -247,16 +243,13 @@ class RKGPModel:
             raise ValueError(f"model file lacks the array {error}") from None
         d = len(self.state_columns) + len(INPUT_NAMES) + 1
         outputs = sum(part["weights"].shape[1] for part in self.parts)
-        if (outputs != len(STATE_NAMES) or self.envelope_low.shape != (d,)
+        if (outputs != len(STATE_NAMES) or np.shape(envelope_low) != (d,) or np.shape(envelope_high) != (d,)
                 or any(part["basis"].shape[1] != d for part in self.parts)):
             raise ValueError(f"the GP parts must map {d} inputs to {len(STATE_NAMES)} residuals")
         if not self.max_step > 0:
             raise ValueError(f"max_step must be positive, got {self.max_step}")
         self.input_names = tuple(STATE_NAMES[c] for c in self.state_columns) + INPUT_NAMES + ("dt",)
-        margin = ENVELOPE_MARGIN * (self.envelope_high - self.envelope_low)
-        self._lower_limit, self._upper_limit = self.envelope_low - margin, self.envelope_high + margin
-        for value in (self._lower_limit, self._upper_limit):
-            value.flags.writeable = False
+        self.envelope = Envelope(envelope_low, envelope_high, self.input_names)
 
     @classmethod
     def load(cls, path) -> "RKGPModel":
@@ -267,8 +260,8 @@ class RKGPModel:
         """Communication steps (s) the model accepts: the training range of ``dt`` plus the
         envelope margin and the base's time tolerance (evenly sampled training data has one
         ``dt``, up to rounding)."""
-        slack = TIME_TOLERANCE * float(self.envelope_high[-1])
-        return float(self._lower_limit[-1]) - slack, float(self._upper_limit[-1]) + slack
+        slack = TIME_TOLERANCE * float(self.envelope.high[-1])
+        return float(self.envelope.lower[-1]) - slack, float(self.envelope.upper[-1]) + slack
 
     def gp_input(self, state: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
         return np.concatenate([state[self.state_columns], commands, [dt]])
@@ -279,7 +272,7 @@ class RKGPModel:
         means, variances = [], []
         for part in self.parts:
             xs = (x - part["input_mean"]) / part["input_scale"]
-            k = np.exp(part["log_signal_variance"] - ((xs - part["basis"]) ** 2) @ part["kernel_weights"])
+            k = kernel_rows(xs, part["basis"], part["kernel_weights"][None], part["log_signal_variance"][None])[0]
             mean = k @ part["weights"]  # (q,)
             v = part["variance_factor"] @ k
             latent = max(float(part["signal_variance"] - v @ v), 0.0)
@@ -295,12 +288,6 @@ class RKGPModel:
         mean, var = self.residual(x)
         return physics_step(state, commands, dt, self.params, self.max_step) + mean, var, x
 
-    def outside_envelope(self, x: np.ndarray) -> list[str]:
-        """One phrase per GP input of ``x`` outside the training envelope (empty if inside)."""
-        outside = np.flatnonzero((x < self._lower_limit) | (x > self._upper_limit))
-        return [f"{self.input_names[i]} = {x[i]:.6g} (trained on {self.envelope_low[i]:.6g} .. "
-                f"{self.envelope_high[i]:.6g})" for i in outside]
-
     def describe(self) -> str:
         return json.dumps({"gp_inputs": list(self.input_names), "gp_parts": len(self.parts),
                            "basis_points": int(self.parts[0]["basis"].shape[0]),
@@ -315,13 +302,8 @@ class BlimpRKGP(FlightgpSlave):
     CONSTANT_ATTRIBUTES = ("_model",)
 
     def load_constants(self) -> None:
-        path = Path(self.resources) / self.PACKAGE / MODEL_FILE
-        key = str(path)
-        if key not in _MODELS:
-            model = RKGPModel.load(path)
-            self.log_info(f"loaded blimp RKGP model {path.name}: {model.describe()}")
-            _MODELS[key] = model
-        self._model = _MODELS[key]
+        self._model = self.shared_model(RKGPModel.load, Path(self.resources) / self.PACKAGE / MODEL_FILE,
+                                        "blimp RKGP model")
 
     def step_problem(self, h: float) -> str | None:
         low, high = self._model.step_range()
@@ -341,15 +323,10 @@ class BlimpRKGP(FlightgpSlave):
         state, var, x = self._model.step(self._state, commands, h)
         if not (np.isfinite(state).all() and np.isfinite(var).all()):
             raise FloatingPointError(f"non-finite state {state.tolist()} at t = {t + h:.16g} s")
-        outside = self._model.outside_envelope(x)
-        if outside and not self._outside_envelope:
-            self.log_warning(f"t = {t:.16g} s: GP input outside the training envelope: "
-                             + "; ".join(outside)
-                             + ". The GP extrapolates; its standard deviations grow.")
-        elif self._outside_envelope and not outside:
-            self.log_info(f"t = {t:.16g} s: back inside the training envelope")
+        outside = self.report_envelope(self._model.envelope.outside(x), self._outside_envelope, t + h,
+                                       "its standard deviations grow")
         # Commit only after everything that can fail (a refused step leaves the state as it was).
-        self._state, self._outside_envelope = state, bool(outside)
+        self._state, self._outside_envelope = state, outside
         self._set_outputs(state, var)
 
     def _set_outputs(self, state: np.ndarray, var: np.ndarray) -> None:

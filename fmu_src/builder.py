@@ -355,7 +355,6 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
     validation.errors.BadInputError
         Other physics than ``blimp_rk4``; hyperparameter samples; a bad ``name`` or ``out_dir``.
     """
-    from scipy import linalg
 
     from gp_model import GreyBoxGP, ModelFileError, load_model, read_header
     from validation.blimp import INPUT_NAMES, STATE_NAMES, _hanging_state
@@ -382,16 +381,13 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
         if gp.theta_samples_ is not None:
             raise BadInputError("the blimp RKGP FMU evaluates point hyperparameters; this model mixes "
                                 f"{len(gp.theta_samples_)} samples. Train it by maximum likelihood")
-        posterior = gp._posterior
-        parts.append({"basis": gp.X_train_, "weights": posterior.alpha,
-                      "variance_factor": linalg.solve_triangular(posterior.L, np.eye(len(posterior.L)),
-                                                                 lower=True, check_finite=False),
-                      "kernel_weights": gp.kernel.weights(gp.theta_[:-1]),
-                      "log_signal_variance": gp.theta_[0],
+        form = gp.predictive_forms(use_samples=False)[0]
+        parts.append({"basis": form.basis, "weights": form.weights.reshape(len(form.basis), -1),
+                      "variance_factor": form.variance_factor,
+                      "kernel_weights": gp.kernel.weights(form.theta[:-1]),
+                      "log_signal_variance": form.theta[0],
                       "input_mean": gp.input_scaler_.mean_, "input_scale": gp.input_scaler_.scale_,
                       "output_mean": gp.output_scaler_.mean_, "output_scale": gp.output_scaler_.scale_})
-    if not all(type(gp.kernel).__name__ == "SquaredExponentialARD" for gp in gps):
-        raise BadInputError("the blimp RKGP FMU evaluates the squared-exponential ARD kernel only")
     X = gps[0].input_scaler_.inverse_transform(gps[0].X_train_)
     arrays = blimp_rkgp.pack_model(
         parameter_names=physics["parameter_names"], parameters=physics["parameters"],

@@ -50,10 +50,6 @@ from ._runtime import NarxPredictor
 #: The model file inside the FMU's package folder.
 MODEL_FILE = "model.npz"
 
-#: Loaded models by path: shared, read-only, by every instance of this FMU in the process (the
-#: module, and so this cache, is unique to one FMU).
-_PREDICTORS: dict = {}
-
 
 def rate_predictor_variables(*, inputs, outputs) -> tuple:
     """The variable table of a GP-NARX rate predictor.
@@ -135,27 +131,17 @@ class RatePredictor(FlightgpSlave):
         if not (np.isfinite(mean).all() and np.isfinite(var).all()):
             raise FloatingPointError(f"non-finite prediction {mean.tolist()} (variance {var.tolist()}) "
                                      f"at regressor {x.tolist()}")
-        outside = predictor.outside_envelope(x)
-        if outside and not self._outside_envelope:
-            self.log_warning(f"t = {t + h:.16g} s: regressor outside the training envelope: "
-                             + "; ".join(outside)
-                             + ". The GP extrapolates; its variance, and so the bounds, widen.")
-        elif self._outside_envelope and not outside:
-            self.log_info(f"t = {t + h:.16g} s: back inside the training envelope")
+        outside = self.report_envelope(predictor.envelope.outside(x), self._outside_envelope, t + h,
+                                       "its variance, and so the bounds, widen")
         # Commit only after everything that can fail (a refused step leaves the state as it was).
         self._input_history, self._output_history = input_history, output_history
-        self._outside_envelope = bool(outside)
+        self._outside_envelope = outside
         self._set_outputs(mean, var)
 
     # -- helpers ------------------------------------------------------------------------------
     def _load_predictor(self) -> NarxPredictor:
-        path = Path(self.resources) / self.PACKAGE / MODEL_FILE
-        key = str(path)
-        if key not in _PREDICTORS:
-            predictor = NarxPredictor.load(path)
-            self.log_info(f"loaded GP-NARX model {path.name}: {predictor.describe()}")
-            _PREDICTORS[key] = predictor
-        predictor = _PREDICTORS[key]
+        predictor = self.shared_model(NarxPredictor.load, Path(self.resources) / self.PACKAGE / MODEL_FILE,
+                                      "GP-NARX model")
         declared = {v.name for v in self.VARIABLES}
         missing = [n for n in predictor.input_names + predictor.output_names if n not in declared]
         if missing:

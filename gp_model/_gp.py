@@ -45,7 +45,7 @@ class PredictiveForm:
         Hyperparameters ``[kernel.theta..., ln sigma_n^2]``.
     basis : ndarray, shape (m, d)
         Standardised basis inputs.
-    weights : ndarray, shape (m,)
+    weights : ndarray, shape (m,), or (m, q) for a GP with q outputs sharing hyperparameters
     variance_factor : ndarray, shape (m, m)
     """
 
@@ -311,13 +311,14 @@ class GaussianProcess:
     def predictive_forms(self, *, use_samples: bool = True) -> list[PredictiveForm]:
         """One :class:`PredictiveForm` per hyperparameter sample (or for ``theta_`` alone).
 
-        Requires a single-output GP (``y`` of shape (n,) or (n, 1)).
+        Weights have shape (m,) for a single-output GP and (m, q) for q outputs, which share the
+        variance factor (one set of hyperparameters); means and variances are in standardised
+        output units.
         """
-        if self.Y_train_.shape[1] != 1:
-            raise ValueError("predictive forms need a single-output GP; use PerOutputGP")
         posteriors = self._posteriors() if use_samples else [self._posterior]
         eye = np.eye(len(self.X_train_))
-        return [PredictiveForm(p.theta, self.X_train_, p.alpha[:, 0],
+        single = self.Y_train_.shape[1] == 1
+        return [PredictiveForm(p.theta, self.X_train_, p.alpha[:, 0] if single else p.alpha,
                                linalg.solve_triangular(p.L, eye, lower=True, check_finite=False))
                 for p in posteriors]
 

@@ -380,15 +380,13 @@ class SparseGaussianProcess:
 
     def predictive_forms(self, *, use_samples: bool = True) -> list[PredictiveForm]:
         """One :class:`~gp_model.PredictiveForm` per hyperparameter sample (or for ``theta_``):
-        basis ``Z``, weights ``w`` and variance factor ``R`` of eqs. (3)-(4).
-
-        Requires a single-output GP (``y`` of shape (n,) or (n, 1)).
+        basis ``Z``, weights ``w`` and variance factor ``R`` of eqs. (3)-(4); weights of shape
+        (m,) for one output, (m, q) for q outputs (as :meth:`GaussianProcess.predictive_forms`).
         """
-        if self.Y_train_.shape[1] != 1:
-            raise ValueError("predictive forms need a single-output GP; use PerOutputGP")
         posteriors = self._posteriors() if use_samples else [self._posterior]
-        return [PredictiveForm(p.theta, self.inducing_inputs_, p.weights[:, 0], p.variance_factor)
-                for p in posteriors]
+        single = self.Y_train_.shape[1] == 1
+        return [PredictiveForm(p.theta, self.inducing_inputs_, p.weights[:, 0] if single else p.weights,
+                               p.variance_factor) for p in posteriors]
 
     def _posteriors(self) -> list[_SparsePosterior]:
         if self.theta_samples_ is None:

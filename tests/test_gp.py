@@ -182,3 +182,17 @@ def test_predictive_forms_reproduce_predict():
         latent = single.kernel.diag(Xs) - ((k @ form.variance_factor.T) ** 2).sum(1)
         np.testing.assert_allclose(latent * scale**2, var, rtol=1e-8, atol=1e-14)
     assert len(gp.predictive_forms(use_samples=False)) == 1
+
+
+def test_predictive_forms_of_a_multi_output_gp_share_the_variance_factor():
+    X, y = make_data()
+    Y = np.column_stack([y, np.cos(X[:, 1])])
+    gp = GaussianProcess(SquaredExponentialARD(1.0, [0.9, 1.1]), noise_variance=0.01).fit(X, Y)
+    (form,) = gp.predictive_forms()
+    assert form.weights.shape == (len(X), 2)
+    Xs = make_data(n=5, seed=6)[0]
+    k = gp.kernel(gp.input_scaler_.transform(Xs), form.basis)
+    mean, var = gp.predict(Xs, return_var=True)
+    np.testing.assert_allclose(gp.output_scaler_.inverse_transform(k @ form.weights), mean, rtol=1e-10)
+    latent = gp.kernel.diag(Xs) - ((k @ form.variance_factor.T) ** 2).sum(1)
+    np.testing.assert_allclose(latent[:, None] * gp.output_scaler_.scale_**2, var, rtol=1e-8, atol=1e-14)
