@@ -276,58 +276,6 @@ def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path
     return write_atomically(target, fmu_bytes)
 
 
-#: The ``kind`` of the physics description of a blimp grey-box model (its model file's header).
-BLIMP_PHYSICS = "blimp_rk4"
-
-
-def blimp_physics_description(params, *, max_step: float | None = None) -> dict:
-    """The JSON description of :func:`validation.blimp_identification.physics_step` for a
-    blimp grey-box model file (``save_model(..., physics=...)``).
-
-    Parameters
-    ----------
-    params : validation.blimp.BlimpParameters
-        The (identified) parameters of the ODE.
-    max_step : float, optional
-        Longest RK4 substep, s; default the reference's (0.01 s).
-    """
-    from validation.blimp import _MAX_STEP, INPUT_NAMES, STATE_NAMES, BlimpParameters
-
-    return {"kind": BLIMP_PHYSICS, "parameter_names": list(BlimpParameters.vector_names()),
-            "parameters": [float(v) for v in params.to_vector()],
-            "max_step": float(_MAX_STEP if max_step is None else max_step),
-            "state_names": list(STATE_NAMES), "input_names": [*INPUT_NAMES, "dt"]}
-
-
-def blimp_physics_from_description(description: dict):
-    """``(params, physics_step)`` rebuilt from :func:`blimp_physics_description`'s dict.
-
-    Raises
-    ------
-    validation.errors.BadInputError
-        Not a ``blimp_rk4`` description, or its parameters do not match ``BlimpParameters``.
-    """
-    from validation.blimp import INPUT_NAMES, STATE_NAMES, BlimpParameters
-    from validation.blimp_identification import physics_step
-    from validation.errors import BadInputError
-
-    if not isinstance(description, dict) or description.get("kind") != BLIMP_PHYSICS:
-        kind = description.get("kind") if isinstance(description, dict) else None
-        raise BadInputError(f"the model's physics is {kind!r}; the blimp RKGP FMU needs {BLIMP_PHYSICS!r} "
-                            "(a GreyBoxGP trained with validation.blimp_identification.physics_step)")
-    try:
-        if (list(description["parameter_names"]) != list(BlimpParameters.vector_names())
-                or list(description["state_names"]) != list(STATE_NAMES)
-                or list(description["input_names"]) != [*INPUT_NAMES, "dt"]):
-            raise ValueError("its parameter, state or input names differ from this flightgp's blimp")
-        params = BlimpParameters.from_vector(np.asarray(description["parameters"], dtype=float))
-        max_step = float(description["max_step"])
-        if not max_step > 0:
-            raise ValueError(f"max_step must be positive, got {max_step}")
-    except (KeyError, TypeError, ValueError) as error:
-        raise BadInputError(f"the model's {BLIMP_PHYSICS} physics description is unusable: {error}") from None
-    return params, physics_step(params, max_step=max_step)
-
 
 def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
     """Build the blimp RKGP FMU (:mod:`fmu_src.blimp_rkgp`) of a trained grey-box model file.
@@ -358,6 +306,7 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
 
     from gp_model import GreyBoxGP, ModelFileError, load_model, read_header
     from validation.blimp import INPUT_NAMES, STATE_NAMES, _hanging_state
+    from validation.blimp_identification import blimp_physics_from_description
     from validation.errors import BadInputError
     from validation.files import write_atomically
 

@@ -34,13 +34,13 @@ from fmpy.validation import validate_fmu
 from pythonfmu.enums import Fmi2Status
 
 from fmu_src._base import FlightgpSlave, ModelFailure, Variable
-from fmu_src.builder import (blimp_physics_description, build_blimp_rkgp_fmu, build_bo105_reference_fmu,
+from fmu_src.builder import (build_blimp_rkgp_fmu, build_bo105_reference_fmu,
                               build_jsbsim_fmu, build_rate_predictor_fmu)
 from gp_model import GreyBoxGP, save_model
 from validation.blimp import INPUT_NAMES as BLIMP_INPUTS
 from validation.blimp import STATE_NAMES as BLIMP_STATES
 from validation.blimp import BlimpFlightTest, BlimpParameters
-from validation.blimp_identification import physics_step, recording_arrays
+from validation.blimp_identification import blimp_physics_description, physics_step, recording_arrays
 from validation.bo105 import INPUT_NAMES as BO105_INPUTS
 from validation.bo105 import STATE_NAMES as BO105_STATES
 from validation.bo105 import Bo105Reference

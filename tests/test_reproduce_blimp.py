@@ -185,7 +185,7 @@ def test_reproduction_builds_the_blimp_rkgp_fmu_from_its_model(quick):
     import fmpy
     from fmpy.validation import validate_fmu
 
-    from fmu_src.builder import blimp_physics_from_description
+    from validation.blimp_identification import blimp_physics_from_description
     from gp_model import load_model, read_header
 
     out, results = quick

@@ -52,14 +52,14 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from scipy.integrate import solve_ivp
 
-from fmu_src.builder import blimp_physics_description, build_blimp_rkgp_fmu
+from fmu_src.builder import build_blimp_rkgp_fmu
 from gp_model import GreyBoxGP, save_model
 
 from . import blimp_control
 from .blimp import (_ADAPTIVE_ATOL, _ADAPTIVE_RTOL, _SAMPLE_TIME, FLIGHT_TEST_PARAMETERS,
                     INPUT_NAMES, STATE_NAMES, BlimpFlightTest, _hanging_state, blimp_dynamics)
-from .blimp_identification import (identify_parameters, physics_step, recording_arrays,
-                                   simulate_segments)
+from .blimp_identification import (blimp_physics_description, identify_parameters, physics_step,
+                                   recording_arrays, simulate_segments)
 from .files import write_atomically, write_json
 from .plots import png_bytes
 from .progress import progress_bar
