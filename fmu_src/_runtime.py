@@ -1,8 +1,10 @@
 """GP-NARX prediction inside an FMU: numpy and the standard library only.
 
 This file is copied into every GP-NARX FMU (``resources/<package>/_runtime.py``, the package
-name unique to the FMU; DESIGN.md, "Layout and layers"), so it must never import flightgp,
-gp_model or validation: a simulator host has none of them.
+name unique to the FMU; DESIGN.md, "Layout and layers"), so it must never import flightgp or
+validation: a simulator host has none of them. Its one import from gp_model is the numpy-only
+moment-matching module, which the builder copies into the package next to this file and points
+the import at.
 
 Model file (``model.npz``, written by :func:`pack_model`, read without pickle)
 ------------------------------------------------------------------------------
@@ -24,7 +26,8 @@ point hyperparameters), every array in the GP's standardised units:
 ============================  ===========  =================================================
 
 These are :class:`gp_model.PredictiveForm` s (one per sample) plus the kernel and noise
-hyperparameters and the scalers. :meth:`NarxPredictor.predict` reproduces
+hyperparameters and the scalers. The free run (:meth:`NarxPredictor.free_run_step`) matches
+the moments of the same mixture (sample ``s`` of every output forms model ``s``). :meth:`NarxPredictor.predict` reproduces
 ``GaussianProcess.predict(X, return_var=True, include_noise=True)`` exactly (same mixture over
 samples: mean ``E_s[mu_s]``, variance ``E_s[var_s + mu_s^2] - mean^2``, law of total variance),
 up to rounding.
@@ -37,6 +40,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
+
+# The builder rewrites this import to the copy of gp_model/_uncertain_input.py in the FMU's package.
+from gp_model._uncertain_input import MomentMatcher, frame_gp, narx_belief_start, narx_belief_step
 
 FORMAT = "flightgp-fmu-narx"
 VERSION = 1
@@ -111,6 +117,7 @@ def pack_model(*, step: float, input_names, output_names, input_lags, output_lag
         One dict per output with the arrays of :data:`PER_OUTPUT`.
     """
     arrays = {"format": np.array(FORMAT), "version": np.array(VERSION), "step": np.array(float(step)),
+
               "input_names": np.array(list(input_names), dtype=str),
               "output_names": np.array(list(output_names), dtype=str),
               "input_lags": np.array(list(input_lags), dtype=np.int64),
@@ -184,6 +191,23 @@ class _Block:
         return mean * self.output_scale + self.output_mean, spread * self.output_scale**2
 
 
+def _moment_matcher(parts: list) -> MomentMatcher:
+    """The free run's moment matcher over every output's hyperparameter samples, in the first
+    output's input frame (read-only: shared by every instance of the FMU in a process)."""
+    frame_mean, frame_scale = parts[0]["input_mean"], parts[0]["input_scale"]
+    frames = [frame_gp(basis=p["basis"], weights=p["weights"], variance_factor=p["variance_factor"],
+                       kernel_weights=p["kernel_weights"], log_signal_variance=p["log_signal_variance"],
+                       noise_variance=p["noise_variance"], input_mean=p["input_mean"],
+                       input_scale=p["input_scale"], output_mean=p["output_mean"],
+                       output_scale=p["output_scale"], frame_mean=frame_mean, frame_scale=frame_scale)
+              for p in parts]
+    for frame in frames:
+        for value in vars(frame).values():
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+    return MomentMatcher(frames, input_mean=frame_mean, input_scale=frame_scale)
+
+
 class NarxPredictor:
     """A GP-NARX model loaded from an FMU model file.
 
@@ -232,6 +256,9 @@ class NarxPredictor:
             parts = [_read_part(arrays, f"{j}/", d) for j in range(len(self.output_names))]
         except KeyError as error:
             raise ModelFormatError(f"model file lacks the array {error}") from None
+        if len({len(part["weights"]) for part in parts}) != 1:
+            raise ModelFormatError("every output must have the same number of hyperparameter samples")
+        self._matcher = _moment_matcher(parts)
         self.n_samples = len(parts[0]["weights"])
         # Outputs sharing basis and input scaling form one block; order[j] = (block, row).
         self._order, members = [], []
@@ -253,6 +280,22 @@ class NarxPredictor:
         with np.load(path, allow_pickle=False) as npz:
             return cls({name: npz[name] for name in npz.files})
 
+    def known_regressors(self, input_history: np.ndarray) -> np.ndarray:
+        """The input part of the next sample's regressor (every input at every input lag).
+
+        Parameters
+        ----------
+        input_history : ndarray, shape (max_lag, n_inputs)
+            Row ``i`` holds the inputs ``i`` NARX steps before the current sample (row 0: current).
+
+        Returns
+        -------
+        ndarray, shape (n_inputs * len(input_lags),)
+            For the sample one step after the current one, so lag ``L`` is row ``L - 1``.
+        """
+        return np.array([input_history[i - 1, c] for c in range(len(self.input_names))
+                         for i in self.input_lags], dtype=float)
+
     def regressor(self, input_history: np.ndarray, output_history: np.ndarray) -> np.ndarray:
         """Regressor of the next sample.
 
@@ -267,9 +310,36 @@ class NarxPredictor:
         ndarray, shape (d,)
             For the sample one step after the current one, so lag ``L`` is row ``L - 1``.
         """
-        parts = [input_history[i - 1, c] for c in range(len(self.input_names)) for i in self.input_lags]
-        parts += [output_history[j - 1, c] for c in range(len(self.output_names)) for j in self.output_lags]
-        return np.array(parts, dtype=float)
+        outputs = [output_history[j - 1, c] for c in range(len(self.output_names)) for j in self.output_lags]
+        return np.concatenate([self.known_regressors(input_history), outputs])
+
+    def free_run_start(self, outputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The free-run belief (mean, covariance over the lagged outputs) of a vehicle steady at
+        ``outputs`` (n_outputs,) before the first predicted sample."""
+        return narx_belief_start(np.tile(outputs, (max(self.output_lags), 1)))
+
+    def free_run_step(self, input_history: np.ndarray, belief) -> tuple:
+        """Predict the next sample of a free run by moment matching over the hyperparameter
+        samples (``GPNarx.free_run(method="moment_matching")``, noisy outputs fed back).
+
+        Parameters
+        ----------
+        input_history : ndarray, shape (max_lag, n_inputs)
+            As :meth:`known_regressors`.
+        belief : tuple of ndarray
+            From :meth:`free_run_start` or the previous step.
+
+        Returns
+        -------
+        mean, var : ndarray, shape (n_outputs,)
+            Prediction of the next sample; variance with measurement noise, grown over the run.
+        belief : tuple of ndarray
+            For the next step.
+        """
+        y_mean, y_cov, *belief = narx_belief_step(self._matcher, self.known_regressors(input_history),
+                                                  *belief, output_lags=self.output_lags,
+                                                  include_noise=True)
+        return y_mean, np.diag(y_cov).copy(), tuple(belief)
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean and variance (measurement noise included) of every output, each shape

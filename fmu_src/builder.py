@@ -490,6 +490,7 @@ def _build(name: str, *, slave_module: str, slave_class: str, variables_call: st
 
     ``attributes`` (class attribute name -> value with an exact ``repr``) are set on the generated
     class; ``support_modules`` are the fmu_src modules the slave module imports besides ``_base``.
+    The numpy-only gp_model modules they import are copied too (:func:`_vendor_gp_model_imports`).
     Whether the FMU claims ``canGetAndSetFMUstate`` (and ``canSerializeFMUstate``) is the slave
     class's ``CAN_GET_AND_SET_FMU_STATE``.
     """
@@ -497,6 +498,7 @@ def _build(name: str, *, slave_module: str, slave_class: str, variables_call: st
     sources = {"__init__.py": f'"""Runtime of the {name} FMU (copies of flightgp\'s fmu_src)."""\n'}
     for module in ("_base", *support_modules, slave_module):
         sources[f"{module}.py"] = (HERE / f"{module}.py").read_text(encoding="utf-8")
+    _vendor_gp_model_imports(sources)
     digest = hashlib.sha256()
     for key in sorted(arrays):
         value = np.ascontiguousarray(arrays[key])
@@ -532,3 +534,33 @@ def _build(name: str, *, slave_module: str, slave_class: str, variables_call: st
             raise RuntimeError(f"pythonfmu failed to build {name}.fmu (exit {result.returncode}): "
                                f"{(result.stderr or result.stdout).strip()[-2000:]}")
         return fmu.read_bytes()
+
+
+_GP_MODEL_IMPORT = re.compile(r"^from gp_model\.(\w+) import ", re.MULTILINE)
+
+
+def _vendor_gp_model_imports(sources: dict) -> None:
+    """Copy into ``sources`` every gp_model module that a source imports (``from gp_model.<m>
+    import ...``) and point those imports at the copy (``from .<m> import ...``).
+
+    Only self-contained gp_model modules qualify (numpy and the standard library, no relative
+    imports), such as :mod:`gp_model._uncertain_input`: a host has no gp_model, and one copy of
+    the maths serves flightgp and its FMUs alike.
+    """
+    import gp_model
+
+    pending = [name for name in sources]
+    while pending:
+        text = sources[pending.pop()]
+        for module in _GP_MODEL_IMPORT.findall(text):
+            file_name = f"{module}.py"
+            if file_name in sources:
+                continue
+            copied = (Path(gp_model.__file__).parent / file_name).read_text(encoding="utf-8")
+            if re.search(r"^\s*from \.", copied, re.MULTILINE):
+                raise ValueError(f"gp_model.{module} imports other gp_model modules; an FMU cannot "
+                                 "carry it")
+            sources[file_name] = copied
+            pending.append(file_name)
+    for file_name, text in sources.items():
+        sources[file_name] = _GP_MODEL_IMPORT.sub(r"from .\1 import ", text)

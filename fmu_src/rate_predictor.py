@@ -22,14 +22,19 @@ on). Before ``t0`` the vehicle is taken to be steady: every lag before ``t0`` ho
 at initialisation (recordings of perturbation models start at trim). At ``t0`` the outputs equal
 the ``*_prev`` inputs (the given initial rates) with zero-width bounds.
 
-Free-run mode (``free_run = true``): the FMU feeds back its own predicted means instead of the
-``*_prev`` inputs, which are then read only once, at initialisation, as the initial rates. Its
-bounds are the one-step bounds at the fed-back mean (``GPNarx.free_run(method="mean")``); they do
-not grow with the horizon as a Monte Carlo free run's would.
+Free-run mode (``free_run = true``): the FMU predicts from its own earlier predictions instead of
+the ``*_prev`` inputs, which are then read only once, at initialisation, as the initial rates. It
+propagates a Gaussian over the lagged rates by exact moment matching (Girard et al. 2003;
+Deisenroth & Rasmussen 2011; :mod:`gp_model._uncertain_input`), so its bounds grow with the
+horizon as the free run's uncertainty does: outputs equal
+``GPNarx.free_run(method="moment_matching")`` from a vehicle steady at the initial rates. It
+matches the moments of the mixture over the hyperparameter samples, so a free-run step costs
+about S times a point-hyperparameter one (S samples).
 
-Bounds: ``mean -/+ z sd`` with ``z`` the two-sided normal quantile of ``confidence_level`` and
-``sd`` the square root of the mixture variance over the hyperparameter samples, measurement noise
-included (as ``flightgp predict``).
+Bounds: ``mean -/+ z sd`` with ``z`` the two-sided normal quantile of ``confidence_level``; ``sd``
+is, one step ahead, the square root of the mixture variance over the hyperparameter samples and,
+in free-run mode, the propagated standard deviation; measurement noise included (as
+``flightgp predict``).
 
 Envelope: when a regressor leaves the training range (by more than 10 % of the range), the FMU
 logs a Warning once per excursion; the GP variance then grows toward the prior's, so the bounds
@@ -91,7 +96,8 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
                  "probability of the two-sided band between the lower and upper bounds", 0.95,
                  0.5, 0.9999),
         Variable("free_run", "parameter", "fixed", "exact", None,
-                 "feed back the predicted means instead of the *_prev inputs", False),
+                 "predict from the FMU's own earlier predictions instead of the *_prev inputs "
+                 "(moment matching: the bounds grow with the horizon)", False),
     ]
     return tuple(table)
 
@@ -101,7 +107,7 @@ class RatePredictor(FlightgpSlave):
 
     #: The FMU's package folder under ``resources/`` (holds this code and the model file).
     PACKAGE = ""
-    STATE_ATTRIBUTES = ("_input_history", "_output_history", "_outside_envelope")
+    STATE_ATTRIBUTES = ("_input_history", "_output_history", "_outside_envelope", "_belief")
     CONSTANT_ATTRIBUTES = ("_predictor", "_input_names", "_output_names")
 
     def load_constants(self) -> None:
@@ -116,6 +122,7 @@ class RatePredictor(FlightgpSlave):
         self._input_history = np.tile(u0, (predictor.max_lag, 1))  # row i: i steps ago
         self._output_history = np.tile(y0, (predictor.max_lag, 1))
         self._outside_envelope = False
+        self._belief = list(predictor.free_run_start(y0)) if self.values["free_run"] else None
         self._set_outputs(y0, np.zeros_like(y0))
 
     def advance_model(self, k: int, t: float, h: float) -> None:
@@ -127,7 +134,11 @@ class RatePredictor(FlightgpSlave):
         input_history = _push(self._input_history, self._controls())
         output_history = _push(self._output_history, y)
         x = predictor.regressor(input_history, output_history)
-        mean, var = predictor.predict(x)
+        belief = self._belief
+        if self.values["free_run"]:
+            mean, var, belief = predictor.free_run_step(input_history, belief)
+        else:
+            mean, var = predictor.predict(x)
         if not (np.isfinite(mean).all() and np.isfinite(var).all()):
             raise FloatingPointError(f"non-finite prediction {mean.tolist()} (variance {var.tolist()}) "
                                      f"at regressor {x.tolist()}")
@@ -136,6 +147,7 @@ class RatePredictor(FlightgpSlave):
         # Commit only after everything that can fail (a refused step leaves the state as it was).
         self._input_history, self._output_history = input_history, output_history
         self._outside_envelope = outside
+        self._belief = None if belief is None else list(belief)
         self._set_outputs(mean, var)
 
     # -- helpers ------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ from ._inference import (AnnealingResult, MaximumLikelihoodResult, MCMCResult,
 from ._kernels import (HigdonKernel, SquaredExponentialARD, alpha_from_length_scale,
                        length_scale_from_alpha)
 from ._model_file import load_model, read_header, save_model
-from ._moment_matching import predict_uncertain_input
+from ._moment_matching import moment_matcher, predict_uncertain_input
 from ._narx import FreeRunResult, GPNarx, NarxStructure
 from ._priors import IndependentPrior
 from ._sparse_gp import SparseGaussianProcess
@@ -22,5 +22,5 @@ __all__ = [
     "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP", "PredictiveForm",
     "SparseGaussianProcess", "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
-    "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",
+    "moment_matcher", "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",
 ]

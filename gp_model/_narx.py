@@ -250,8 +250,9 @@ class GPNarx:
             noise as pure measurement noise. Moment matching propagates the same choice.
         use_samples : bool, default True
             Draw each Monte Carlo run's hyperparameters from the GP's samples (the paper's
-            method) and average the mean rollout over them; False uses the point
-            hyperparameters ``theta_``, as moment matching always does.
+            method), average the mean rollout over them, or match the mixture's moments (sample
+            s of every output's GP forms model s); False uses the point hyperparameters
+            ``theta_``.
         keep_runs : bool
             Keep the individual Monte Carlo runs in the result.
         n_threads : int, default 2
@@ -278,7 +279,7 @@ class GPNarx:
                                        use_samples=use_samples)
         if method == "moment_matching":
             return self._free_run_moment_matching(inputs, initial, include_noise=include_noise,
-                                                  feedback_noise=feedback_noise)
+                                                  feedback_noise=feedback_noise, use_samples=use_samples)
         raise ValueError(f"unknown free-run method {method!r}; use monte_carlo, moment_matching or mean")
 
     def _regressor_rows(self, inputs, history, k):
@@ -349,41 +350,25 @@ class GPNarx:
         var[:start] = 0.0
         return FreeRunResult(history.mean(axis=0), var, history if keep_runs else None, "monte_carlo")
 
-    def _free_run_moment_matching(self, inputs, initial, *, include_noise, feedback_noise):
-        from ._moment_matching import _MomentMatcher
+    def _free_run_moment_matching(self, inputs, initial, *, include_noise, feedback_noise, use_samples):
+        from ._moment_matching import moment_matcher
+        from ._uncertain_input import narx_belief_start, narx_belief_step
 
-        predict_uncertain_input = _MomentMatcher(self.model.gps)
+        matcher = moment_matcher(self.model.gps, use_samples=use_samples)
         s = self.structure
         n, n_out, start = len(inputs), len(s.output_names), s.max_lag
-        # Joint Gaussian over the lagged outputs y(k-1), ..., y(k-L), L = max output lag,
-        # ordered lag-major: index (lag-1) * n_out + output.
         n_lags = max(s.output_lags)
-        z_mean = np.concatenate([initial[start - lag] for lag in range(1, n_lags + 1)])
-        z_cov = np.zeros((n_lags * n_out, n_lags * n_out))
-        # Rows of z that form the output part of the regressor (output-major, lag order).
-        z_rows = [(j - 1) * n_out + c for c in range(n_out) for j in s.output_lags]
-        n_u = len(s.input_names) * len(s.input_lags)
+        belief = narx_belief_start(initial[start - n_lags:][::-1])
         mean_out, var_out = np.zeros((n, n_out)), np.zeros((n, n_out))
         mean_out[:start] = initial
         for k in range(start, n):
-            u_part = np.array([inputs[k - i, c] for c in range(inputs.shape[1]) for i in s.input_lags])
-            x_mean = np.concatenate([u_part, z_mean[z_rows]])
-            x_cov = np.zeros((len(x_mean), len(x_mean)))
-            x_cov[n_u:, n_u:] = z_cov[np.ix_(z_rows, z_rows)]
-            y_mean, y_cov, cross = predict_uncertain_input(x_mean, x_cov, include_noise=feedback_noise)
+            known = np.array([inputs[k - i, c] for c in range(inputs.shape[1]) for i in s.input_lags])
+            y_mean, y_cov, *belief = narx_belief_step(matcher, known, *belief, output_lags=s.output_lags,
+                                                      include_noise=feedback_noise)
             mean_out[k] = y_mean
             var_out[k] = np.diag(y_cov)
             if include_noise and not feedback_noise:
-                var_out[k] += [gp.noise_variance * gp.output_scaler_.scale_[0] ** 2 for gp in self.model.gps]
-            cov_z_y = _cross_covariance_of_lagged_outputs(z_cov, z_rows, cross[n_u:])
-            shifted_mean = np.concatenate([y_mean, z_mean[: (n_lags - 1) * n_out]])
-            new_cov = np.zeros_like(z_cov)
-            new_cov[:n_out, :n_out] = y_cov
-            keep = (n_lags - 1) * n_out
-            new_cov[n_out:, n_out:] = z_cov[:keep, :keep]
-            new_cov[n_out:, :n_out] = cov_z_y[:keep]
-            new_cov[:n_out, n_out:] = cov_z_y[:keep].T
-            z_mean, z_cov = shifted_mean, 0.5 * (new_cov + new_cov.T)
+                var_out[k] += [np.mean(frame.noise_variance) * frame.output_scale**2 for frame in matcher.frames]
         return FreeRunResult(mean_out, var_out, None, "moment_matching")
 
     # -- interpretation ---------------------------------------------------------------------
@@ -400,20 +385,6 @@ class GPNarx:
             weights = gp.kernel.weights()
             result[name] = dict(zip(names, (weights / weights.sum()).tolist()))
         return result
-
-
-def _cross_covariance_of_lagged_outputs(z_cov, z_rows, cross_x_y):
-    """``Cov(z, y)`` for all lagged outputs ``z`` given ``Cov(x_z, y)`` for the rows ``z_rows``
-    of ``z`` that are regressors.
-
-    Rows of ``z`` that are regressors take the exact cross-covariance; any other row (a lag the
-    structure skips) gets its linear-Gaussian projection ``Cov(z, x_z) Cov(x_z)^+ Cov(x_z, y)``
-    (Deisenroth 2010, sec. 2.3.2, uses the same approximation for non-Gaussian joints).
-    """
-    x_cov = z_cov[np.ix_(z_rows, z_rows)]
-    cov_z_y = z_cov[:, z_rows] @ np.linalg.pinv(x_cov, rcond=1e-10, hermitian=True) @ cross_x_y
-    cov_z_y[z_rows] = cross_x_y
-    return cov_z_y
 
 
 def _n_samples(gp, use_samples: bool) -> int:

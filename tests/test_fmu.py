@@ -689,25 +689,42 @@ def test_rate_predictor_starts_at_the_given_rates(rate_predictor, tmp_path):
         assert outputs[axis] == outputs[f"{axis}_lower"] == outputs[f"{axis}_upper"] == value
 
 
-def test_free_run_mode_equals_the_python_mean_free_run(rate_predictor, bo105_trained, bo105_flights,
-                                                       tmp_path):
+def test_free_run_mode_equals_the_python_moment_matching_free_run(rate_predictor, bo105_trained,
+                                                                   bo105_flights, tmp_path):
     u = bo105_flights["unseen"].input("theta_1s")[::10, None]  # partly outside the envelope
     assert len(u) == rate_predictor.n_steps + 1
     unzipped = extract(str(rate_predictor.path), unzipdir=str(tmp_path / "u"))
     host = Host(unzipped)
     free = lambda k: {"theta_1s": u[k, 0]}  # noqa: E731 - the rates are not driven
+    half = rate_predictor.n_steps // 2
     try:
         host.set({"free_run": True})
         outputs = np.vstack([host.start(rate_predictor, free(0)), host.run(rate_predictor, inputs=free)])
+        # The propagated belief is state: saved mid-run and restored, the run repeats exactly.
+        host.fmu.reset()
+        host.set({"free_run": True})
+        host.start(rate_predictor, free(0))
+        host.run(rate_predictor, 0, half, inputs=free)
+        state = host.fmu.getFMUstate()
+        host.run(rate_predictor, half, inputs=free)
+        host.fmu.setFMUstate(state)
+        np.testing.assert_array_equal(host.run(rate_predictor, half, inputs=free), outputs[half + 1:])
+        host.fmu.freeFMUstate(state)
     finally:
         host.close()
-    means = outputs[:, [host.outputs.index(a) for a in "pqr"]]
-    # The FMU starts from rest (every lag before t0 at the t0 values) and predicts row 1 itself;
-    # from there on, it is GPNarx's "mean" free run from the same first rows.
-    python = bo105_trained.model.free_run(u, means[:2], method="mean")
-    np.testing.assert_allclose(means[2:], python.mean[2:], rtol=0, atol=1e-9)
-    sd = (outputs[:, host.outputs.index("q_upper")] - means[:, 1]) / NormalDist().inv_cdf(0.975)
-    np.testing.assert_allclose(sd[2:], np.sqrt(python.var[2:, 1]), rtol=0, atol=1e-9)
+    columns = lambda suffix: [host.outputs.index(f"{a}{suffix}") for a in "pqr"]  # noqa: E731
+    means, upper = outputs[:, columns("")], outputs[:, columns("_upper")]
+    # The FMU starts from rest: every lag before t0 holds the t0 values. GPNarx's moment-matching
+    # free run from the same rest (inputs held at u(t0) over the first max_lag - 1 samples) predicts
+    # the same rows from its sample max_lag on.
+    lag = bo105_trained.model.structure.max_lag
+    padded = np.vstack([np.repeat(u[:1], lag - 1, axis=0), u])
+    python = bo105_trained.model.free_run(padded, np.tile(means[0], (lag, 1)), method="moment_matching")
+    np.testing.assert_allclose(means[1:], python.mean[lag:], rtol=0, atol=1e-9)
+    sd = (upper - means) / NormalDist().inv_cdf(0.975)
+    np.testing.assert_allclose(sd[1:], np.sqrt(python.var[lag:]), rtol=0, atol=1e-9)
+    # Propagated, not one-step: the band at the end of the run is wider than one step ahead.
+    assert np.all(sd[-1] > 1.5 * sd[1])
 
 
 def test_confidence_level_sets_the_band(rate_predictor, tmp_path):
