@@ -243,11 +243,11 @@ def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path
     # Reaching the starting condition here raises BadInputError for an aircraft JSBSim cannot trim.
     steady = vehicle.simulate(np.array([0.0, vehicle.sample_time]), np.zeros((2, len(vehicle.input_names))))
     # The recipe of JSBSimVehicle._start, as data (tests/test_fmu.py proves the FMU flies the same).
-    hover = jsbsim_vehicles._HOVER_SCRIPTS.get(aircraft)
-    properties = (jsbsim_vehicles._HELICOPTER_CONTROLS if hover else jsbsim_vehicles._FIXED_WING_CONTROLS)
+    hover = jsbsim_vehicles.HOVER_SCRIPTS.get(aircraft)
+    properties = (jsbsim_vehicles.HELICOPTER_CONTROLS if hover else jsbsim_vehicles.FIXED_WING_CONTROLS)
     controls = [(n, properties[n], *_COMMAND_TRAVEL.get(properties[n], (-1.0, 1.0)))
                 for n in vehicle.input_names]
-    states = [(n, *jsbsim_vehicles._STATES[n]) for n in vehicle.state_names]
+    states = [(n, *jsbsim_vehicles.STATE_PROPERTIES[n]) for n in vehicle.state_names]
     if hover:
         recipe = {"start": "script", "script": hover[0], "script_time": hover[1],
                   "after_start": [("simulation/test-variant", 0.0)]}

@@ -62,12 +62,13 @@ CRUISE_ALTITUDE_FT = 4000.0
 AH1S_HOVER_TIME_S = 100.0
 
 _FEET = 0.3048  # m per ft, exact
-_FIXED_WING_CONTROLS = {
+#: Control input name -> JSBSim command property, for fixed-wing aircraft and helicopters.
+FIXED_WING_CONTROLS = {
     "elevator": "fcs/elevator-cmd-norm",
     "aileron": "fcs/aileron-cmd-norm",
     "rudder": "fcs/rudder-cmd-norm",
 }
-_HELICOPTER_CONTROLS = {
+HELICOPTER_CONTROLS = {
     "collective": "fcs/collective-cmd-norm",
     "longitudinal_cyclic": "fcs/elevator-cmd-norm",
     "lateral_cyclic": "fcs/aileron-cmd-norm",
@@ -75,9 +76,9 @@ _HELICOPTER_CONTROLS = {
 }
 #: Aircraft flown to hover by their own flight-test script instead of being trimmed:
 #: script (relative to the JSBSim root) and the script time at which the recording starts, s.
-_HOVER_SCRIPTS = {"ah1s": ("scripts/ah1s_flight_test.xml", AH1S_HOVER_TIME_S)}
-# State name -> (JSBSim property, factor to SI).
-_STATES = {
+HOVER_SCRIPTS = {"ah1s": ("scripts/ah1s_flight_test.xml", AH1S_HOVER_TIME_S)}
+#: State name -> (JSBSim property, factor to SI).
+STATE_PROPERTIES = {
     "u": ("velocities/u-fps", _FEET),
     "v": ("velocities/v-fps", _FEET),
     "w": ("velocities/w-fps", _FEET),
@@ -111,7 +112,7 @@ class JSBSimVehicle:
     """
 
     sample_time = 0.01
-    state_names = tuple(_STATES)
+    state_names = tuple(STATE_PROPERTIES)
 
     def __init__(self, aircraft: str):
         available = available_aircraft()
@@ -124,7 +125,7 @@ class JSBSimVehicle:
             )
         self.aircraft = aircraft
         self.name = f"jsbsim:{aircraft}"
-        self._controls = _HELICOPTER_CONTROLS if aircraft in _HOVER_SCRIPTS else _FIXED_WING_CONTROLS
+        self._controls = HELICOPTER_CONTROLS if aircraft in HOVER_SCRIPTS else FIXED_WING_CONTROLS
         self.input_names = tuple(self._controls)
 
     def simulate(self, time: np.ndarray, inputs: np.ndarray, *, seed: int = 0) -> Recording:
@@ -185,9 +186,9 @@ class JSBSimVehicle:
             "altitude_ft": fdm["position/h-sl-ft"],
             "altitude_agl_ft": fdm["position/h-agl-ft"],
         }
-        states = np.empty((len(inputs), len(_STATES)))
+        states = np.empty((len(inputs), len(STATE_PROPERTIES)))
         for k, perturbation in enumerate(inputs):
-            states[k] = [fdm[name] * factor for name, factor in _STATES.values()]
+            states[k] = [fdm[name] * factor for name, factor in STATE_PROPERTIES.values()]
             for name, value in zip(properties, trim + perturbation):
                 fdm[name] = value
             fdm.run()
@@ -199,8 +200,8 @@ class JSBSimVehicle:
         fdm = jsbsim.FGFDMExec(_root_dir())
         fdm.set_debug_level(0)
         fdm.set_output_path(output_dir)
-        if self.aircraft in _HOVER_SCRIPTS:
-            script, hover_time = _HOVER_SCRIPTS[self.aircraft]
+        if self.aircraft in HOVER_SCRIPTS:
+            script, hover_time = HOVER_SCRIPTS[self.aircraft]
             fdm.load_script(script)
             fdm.disable_output()
             fdm.set_dt(step)  # overrides the script's own step (0.0075 s)
