@@ -28,6 +28,9 @@ def register(subparsers) -> None:
     parser.add_argument("--reference", metavar="NAME",
                         help="build a reference FMU instead: bo105-<V>kt or jsbsim:<aircraft>")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for the FMU")
+    parser.add_argument("--native", action="store_true",
+                        help="build the GP-NARX rate predictor as a native FMU: C compiled with the "
+                             "system gcc, no Python at run time (fmu_src/native.py)")
     parser.add_argument("--name", help="FMU name and model identifier (letters, digits, underscores; "
                                        "default: the model file's name, bo105_<V>kt_reference or "
                                        "jsbsim_<aircraft>)")
@@ -40,9 +43,26 @@ def run(args: argparse.Namespace) -> int:
     if (args.model is None) == (args.reference is None):
         raise BadInputError("give either MODEL_FILE (a trained GP-NARX model) or --reference NAME "
                             "(bo105-<V>kt or jsbsim:<aircraft>), not both or neither")
-    if args.reference is not None:
+    if args.native:
+        path = _build_native(args)
+    elif args.reference is not None:
         path = build_reference_fmu(args.reference, args.out, name=args.name)
     else:
         path = build_model_fmu(args.model, args.out, name=args.name)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0
+
+
+def _build_native(args: argparse.Namespace) -> Path:
+    """``--native``: the native rate predictor of a GP-NARX model file."""
+    from fmu_src.native import build_native_rate_predictor_fmu
+    from gp_model import read_header
+
+    if args.reference is not None:
+        raise BadInputError("--native builds the GP-NARX rate predictor of MODEL_FILE; reference FMUs "
+                            "have no native build (drop --native)")
+    if read_header(args.model).get("type") == "GreyBoxGP":
+        raise BadInputError(f"{args.model}: --native builds GP-NARX rate predictors only; the blimp RKGP "
+                            "has no native FMU yet (drop --native for the pythonfmu one)")
+    return build_native_rate_predictor_fmu(args.model, args.out, name=args.name)
+

@@ -402,20 +402,106 @@ def bench_fmu(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> d
         step = trained.step
         bare = _time_fmu_steps(scratch / "bench_bare_fmu.fmu", inputs, outputs, n_steps=n_steps, step=step)
         gp = _time_fmu_steps(gp_fmu, inputs, outputs, n_steps=n_steps, step=step)
+        native = _native_rows(scratch, scratch / "gp.npz", gp, inputs, outputs, n_steps=n_steps, step=step,
+                              seed=seed, progress=progress)
     samples = [len(g.theta_samples_) for g in trained.model.model.gps]
     return {"steps": n_steps, "gp_us_per_step": gp * 1e6, "bare_us_per_step": bare * 1e6,
             "gp_over_bare": gp / bare, "goal_ratio": FMU_GOAL_RATIO, "goal_met": gp / bare <= FMU_GOAL_RATIO,
             "training_points": int(len(trained.model.model.gps[0].X_train_)),
             "hyperparameter_samples": samples,
-            "real_time_factor_at_narx_step": step / gp}
+            "real_time_factor_at_narx_step": step / gp,
+            "native_us_per_step": native[0]["native_us_per_step"], "native_over_bare":
+                native[0]["native_us_per_step"] / (bare * 1e6),
+            "gp_over_native": gp * 1e6 / native[0]["native_us_per_step"], "native": native,
+            "native_goal_ratio": NATIVE_GOAL_RATIO, "native_goal_us_at_500": NATIVE_GOAL_US}
 
 
 #: Goal of ``bench fmu`` (issue 5): the GP adds at most this factor to the bare FMU's step cost.
 FMU_GOAL_RATIO = 3.0
 
 
+#: ``bench fmu``'s native comparison besides the paper's model: label, changes to
+#: ``PAPER_CONFIG``, training rows (None: the paper's 3-2-1-1 at stride 25, 32 points).
+NATIVE_MODELS = (
+    ("32 points, 1 sample (max. likelihood)", {"hyperparameters": "maximum_likelihood"}, None),
+    ("500 points, 1 sample (max. likelihood)", {"hyperparameters": "maximum_likelihood", "stride": 1}, 500),
+    ("500 points, 50 inducing (sparse)", {"hyperparameters": "maximum_likelihood", "stride": 1,
+                                          "n_inducing": 50}, 500),
+)
+#: Goals of the native FMU (issue 8): a step, variance included, at least this many times
+#: cheaper than the pythonfmu FMU's, and under this many microseconds at 500 training points.
+NATIVE_GOAL_RATIO, NATIVE_GOAL_US = 10.0, 10.0
+
+
+def _native_rows(scratch, paper_model, paper_gp_s: float, inputs, outputs, *, n_steps: int, step: float,
+                 seed: int, progress: bool) -> list:
+    """Per-step cost of native rate-predictor FMUs (:mod:`fmu_src.native`) next to the pythonfmu
+    FMU of the same model: the paper's model (``paper_model``, whose pythonfmu FMU took
+    ``paper_gp_s`` per step) and :data:`NATIVE_MODELS`. The native FMU is timed in fmpy (the same
+    ``setReal`` + ``doStep`` + ``getReal`` through ctypes as the pythonfmu FMUs) and in the plain C
+    host (:func:`validation.hosts.simulate_in_c_host`: the same three calls without Python).
+
+    Returns
+    -------
+    list of dict
+        ``{"model", "training_points", "basis_points", "hyperparameter_samples",
+        "pythonfmu_us_per_step", "native_us_per_step", "native_c_host_us_per_step",
+        "pythonfmu_over_native", "pythonfmu_over_native_c_host"}`` per model, the paper's first.
+    """
+    from dataclasses import replace
+
+    from fmu_src.builder import build_rate_predictor_fmu
+    from fmu_src.native import build_native_rate_predictor_fmu
+
+    from .hosts import simulate_in_c_host
+    from .narx import load_trained, save_trained, train_narx
+    from .reproduce_bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+    values = 0.01 * np.sin(np.arange(n_steps + 1)[:, None] + np.arange(len(inputs)))
+    signals = dict(zip(inputs, values.T))
+    models = [("paper: 32 points, 400 samples (annealing)", paper_model, paper_gp_s)]
+    for label, changes, rows in NATIVE_MODELS:
+        config = replace(PAPER_CONFIG, **changes)
+        # rows regressor rows at stride 1: a recording of rows + max_lag NARX steps of samples
+        duration = (8.0 if rows is None else
+                    (rows + config.structure().max_lag * config.decimation - 1) * 0.01)
+        recording = fly_3211("bo105-80kt-flight", input_name="theta_1s",
+                             amplitude=np.radians(TRAINING_MANOEUVRE["amplitude_deg"]),
+                             step_time=TRAINING_MANOEUVRE["step_time"], start=1.0, duration=duration, seed=seed)
+        trained = train_narx([recording], config, seed=seed, progress=progress, n_restarts=0)
+        path = save_trained(scratch / f"native_{len(models)}.npz", trained)
+        python_fmu = build_rate_predictor_fmu(path, scratch, name=f"bench_python_{len(models)}")
+        models.append((label, path, _time_fmu_steps(python_fmu, inputs, outputs, n_steps=n_steps, step=step)))
+    result = []
+    for index, (label, path, python_s) in enumerate(models):
+        fmu = build_native_rate_predictor_fmu(path, scratch, name=f"bench_native_{index}")
+        native_s = _time_fmu_steps(fmu, inputs, outputs, n_steps=n_steps, step=step)
+        c_host_us = simulate_in_c_host(fmu, step_size=step, n_steps=n_steps, inputs=signals, outputs=outputs,
+                                       repeats=3)["us_per_step"]
+        gps = load_trained(path).model.model.gps
+        forms = gps[0].predictive_forms(use_samples=True)
+        result.append({"model": label, "training_points": int(len(gps[0].X_train_)),
+                       "basis_points": int(len(forms[0].basis)), "hyperparameter_samples": len(forms),
+                       "pythonfmu_us_per_step": python_s * 1e6, "native_us_per_step": native_s * 1e6,
+                       "native_c_host_us_per_step": c_host_us, "pythonfmu_over_native": python_s / native_s,
+                       "pythonfmu_over_native_c_host": python_s * 1e6 / c_host_us})
+    return result
+
+
 def format_fmu_table(report: dict) -> str:
     """The ``bench fmu`` report as a table."""
+    native = [
+        "",
+        f"Native (C) rate-predictor FMU vs the pythonfmu one of the same model, us per step (fmpy: the "
+        f"same calls through ctypes; C host: the same calls from C, no Python); goals: >= "
+        f"{report['native_goal_ratio']:g}x cheaper, < {report['native_goal_us_at_500']:g} us at 500 points",
+        f"{'model':<42} {'basis':>5} {'S':>4} {'pythonfmu':>10} {'native':>8} {'C host':>8} {'ratio':>7} "
+        f"{'ratio C':>8}",
+        *(f"{r['model']:<42} {r['basis_points']:>5} {r['hyperparameter_samples']:>4} "
+          f"{r['pythonfmu_us_per_step']:>10.1f} {r['native_us_per_step']:>8.1f} "
+          f"{r['native_c_host_us_per_step']:>8.2f} {r['pythonfmu_over_native']:>6.1f}x "
+          f"{r['pythonfmu_over_native_c_host']:>7.1f}x" for r in report.get("native", [])),
+    ] if report.get("native") else []
     return "\n".join([
         f"Rate-predictor FMU step cost in fmpy (setReal + doStep + getReal, best of 3 x "
         f"{report['steps']} steps) vs a bare pythonfmu FMU with the same variables; "
@@ -425,6 +511,7 @@ def format_fmu_table(report: dict) -> str:
         f"{report['gp_us_per_step']:15.1f} {report['bare_us_per_step']:13.1f} "
         f"{report['gp_over_bare']:7.1f}x {'<=' + format(report['goal_ratio'], 'g') + 'x':>7} "
         f"{'yes' if report['goal_met'] else 'no':>4} {report['real_time_factor_at_narx_step']:12.0f}",
+        *native,
     ])
 
 

@@ -1,0 +1,308 @@
+"""The native (C, Python-free) GP-NARX rate predictor FMU (fmu_src/native.py).
+
+It passes the FMU contract of tests/test_fmu.py: the contract's test functions are imported
+here and run with this module's ``case`` fixture, the native FMU of the same model the
+pythonfmu rate predictor there is built from (GPyTorch-style shared contract tests, STYLE.md).
+The contract's check that the Python code inside an FMU is self-contained is replaced by its
+native counterpart: no Python code at all, and a binary that links only libc and libm.
+
+Then what is particular to the native FMU: the same modelDescription as the pythonfmu FMU, the
+same outputs (non-free-run: every output; free run: the means, since the pythonfmu FMU's free-run
+bounds may become propagated bounds), a plain C host with no Python in the process, the FMI
+call-sequence state machine, ``fmpy compile`` from the shipped sources, and ``flightgp
+build-fmu --native``.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from dataclasses import replace
+from pathlib import Path
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import fmi2Error
+from test_fmu import (FMI_FATAL, Host, bo105_flights, bo105_model_file, bo105_trained,  # noqa: F401
+                      host, rate_predictor_case, rate_predictor_fmu, standard_run,
+                      test_bad_input_is_a_discard_even_without_logging,
+                      test_bad_input_is_a_logged_discard_and_the_step_can_be_retried,
+                      test_confidence_level_sets_the_band, test_illegal_calls_are_logged_discards,
+                      test_outputs_equal_the_python_model,
+                      test_outside_the_training_envelope_warns_and_widens_the_bounds,
+                      test_rate_predictor_starts_at_the_given_rates, test_reset_reproduces_a_run,
+                      test_runs_where_flightgp_is_not_importable_and_prints_nothing,
+                      test_second_host_libcosim_agrees_with_fmpy, test_simulate_fmu_runs_with_finite_outputs,
+                      test_state_capability_is_declared_honestly,
+                      test_state_save_step_restore_step_is_identical,
+                      test_two_instances_in_one_process_stay_independent, test_validates_without_problems,
+                      unzipdir)
+
+from fmu_src.native import (C_HEADERS, C_SOURCES, CONFIG_HEADER, FREE_RUN_DESCRIPTION,
+                            build_native_rate_predictor_fmu, compile_shared_library)
+from validation.cli import main
+from validation.hosts import simulate_in_c_host
+
+OUTPUTS = [f"{axis}{suffix}" for axis in "pqr" for suffix in ("", "_lower", "_upper")]
+
+
+@pytest.fixture(scope="module")
+def native_fmu(bo105_model_file, tmp_path_factory):
+    return build_native_rate_predictor_fmu(bo105_model_file, tmp_path_factory.mktemp("native"),
+                                           name="bo105_native_rate_predictor")
+
+
+@pytest.fixture(scope="module")
+def case(request, native_fmu):
+    """The contract's case of the pythonfmu rate predictor, with the native FMU in its place:
+    same inputs, same Python reference, same tolerance (1e-9 rad/s: the C code evaluates the
+    formulas of _runtime.NarxPredictor in another summation order; measured 1e-13)."""
+    return replace(rate_predictor_case(request), path=native_fmu)
+
+
+@pytest.fixture(scope="module")
+def rate_predictor(case):
+    return case
+
+
+# -- the contract's check of self-containment, for a binary ------------------------------------
+def test_runtime_is_self_contained(case):
+    """No Python code in the FMU, and the binary needs only the C library and libm (no
+    libpython): a C or C++ host loads it as it is."""
+    with zipfile.ZipFile(case.path) as archive:
+        names = archive.namelist()
+    assert not [n for n in names if n.endswith(".py")]
+    identifier = read_model_description(str(case.path)).coSimulation.modelIdentifier
+    assert f"binaries/linux64/{identifier}.so" in names
+    with zipfile.ZipFile(case.path) as archive:
+        binary = archive.read(f"binaries/linux64/{identifier}.so")
+    library = case.path.parent / f"{identifier}_check.so"
+    library.write_bytes(binary)
+    dynamic = subprocess.run(["readelf", "-d", str(library)], capture_output=True, text=True, check=True).stdout
+    needed = {line.split("[", 1)[1].split("]", 1)[0] for line in dynamic.splitlines() if "(NEEDED)" in line}
+    assert needed <= {"libc.so.6", "libm.so.6"}, needed
+    symbols = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True,
+                             check=True).stdout
+    exported = {line.split()[-1] for line in symbols.splitlines() if " T " in line}
+    assert exported and all(name.startswith("fmi2") for name in exported), exported  # nothing else leaks
+    library.unlink()
+
+
+# -- the same interface and numbers as the pythonfmu FMU -----------------------------------------
+def test_model_description_declares_the_pythonfmu_interface(native_fmu, rate_predictor_fmu):
+    native, python = (read_model_description(str(p)) for p in (native_fmu, rate_predictor_fmu))
+    fields = ("name", "valueReference", "causality", "variability", "initial", "type", "unit",
+              "description", "start", "min", "max")
+    rows = lambda d: [tuple(getattr(v, f) for f in fields) for v in d.modelVariables]  # noqa: E731
+    differ = [(a, b) for a, b in zip(rows(native), rows(python)) if a != b]
+    # Only free_run's description: the native FMU feeds back means, the pythonfmu FMU may propagate.
+    assert [(a[0], a[1:7], a[8:]) for a, _ in differ] == [("free_run", b[1:7], b[8:]) for _, b in differ]
+    assert len(differ) <= 1 and len(rows(native)) == len(rows(python))
+    assert [v.description for v in native.modelVariables if v.name == "free_run"] == [FREE_RUN_DESCRIPTION]
+    assert native.defaultExperiment.stepSize == python.defaultExperiment.stepSize
+    assert [(u.index, u.dependencies) for u in native.outputs] == [(u.index, u.dependencies) for u in python.outputs]
+    co_simulation = native.coSimulation
+    assert not co_simulation.needsExecutionTool and not co_simulation.canHandleVariableCommunicationStepSize
+    assert co_simulation.canGetAndSetFMUstate and co_simulation.canSerializeFMUstate
+    assert native.buildConfigurations[0].sourceFileSets[0].sourceFiles == list(C_SOURCES)
+    with zipfile.ZipFile(native_fmu) as archive:
+        shipped = {n.split("/", 1)[1] for n in archive.namelist() if n.startswith("sources/")}
+    assert shipped == {*C_SOURCES, *C_HEADERS, CONFIG_HEADER}
+
+
+def _run_fmpy(path, recording_inputs, *, free_run: bool):
+    n = len(next(iter(recording_inputs.values())))
+    signal = np.zeros(n, dtype=[("time", float)] + [(name, float) for name in recording_inputs])
+    signal["time"] = np.arange(n) * 0.1
+    for name, values in recording_inputs.items():
+        signal[name] = values
+    result = simulate_fmu(str(path), input=signal, start_values={"free_run": free_run}, stop_time=(n - 1) * 0.1,
+                          step_size=0.1, output_interval=0.1)
+    return np.column_stack([result[name] for name in OUTPUTS])
+
+
+@pytest.mark.parametrize("flight", ["training", "unseen"])
+def test_outputs_equal_the_pythonfmu_fmu_and_the_python_model(native_fmu, rate_predictor_fmu, bo105_trained,
+                                                              bo105_flights, flight):
+    """Over a whole 3-2-1-1 (the training one, and an unseen one that leaves the envelope):
+    one-step mode, every output equals the pythonfmu FMU's; free run, the means equal GPNarx's
+    mean free run (tolerance 1e-9 rad/s as the contract; measured 1e-14). The pythonfmu FMU's
+    free run propagates by moment matching, so its free-run outputs are not the native FMU's."""
+    recording = bo105_flights[flight]
+    u = recording.input("theta_1s")[::10]
+    inputs = {"theta_1s": u, **{f"{a}_prev": recording.output(a)[::10] for a in "pqr"}}
+    one_step = [_run_fmpy(p, inputs, free_run=False) for p in (native_fmu, rate_predictor_fmu)]
+    np.testing.assert_allclose(one_step[0], one_step[1], rtol=0, atol=1e-9)
+    free = _run_fmpy(native_fmu, inputs, free_run=True)
+    means = [OUTPUTS.index(a) for a in "pqr"]
+    # The FMU starts from rest (every lag before t0 at the t0 values) and predicts row 1 itself;
+    # from there on, it is GPNarx's "mean" free run from the same first rows.
+    python = bo105_trained.model.free_run(u[:, None], free[:2, means], method="mean")
+    np.testing.assert_allclose(free[2:, means], python.mean[2:], rtol=0, atol=1e-9)
+    assert np.abs(free[:, means] - one_step[0][:, means]).max() > 1e-3  # the modes differ
+
+
+def test_a_sparse_model_with_a_full_variance_factor_equals_the_python_model(bo105_flights, tmp_path):
+    """A sparse GP's variance factor is not triangular: the native FMU then multiplies the full
+    matrix (narx_model.c, full_product). One-step outputs equal GPNarx's to 1e-9 rad/s."""
+    from validation.narx import NarxConfig, one_step, save_trained, train_narx
+
+    recording = bo105_flights["training"]
+    trained = train_narx([recording], NarxConfig(hyperparameters="maximum_likelihood", stride=5, n_inducing=20),
+                         seed=0, n_restarts=0)
+    path = build_native_rate_predictor_fmu(save_trained(tmp_path / "sparse.npz", trained), tmp_path)
+    with zipfile.ZipFile(path) as archive:
+        assert "LOWER_TRIANGULAR[3] = {0, 0, 0}" in archive.read("sources/model_config.h").decode()
+    inputs = {"theta_1s": recording.input("theta_1s")[::10], **{f"{a}_prev": recording.output(a)[::10] for a in "pqr"}}
+    outputs = _run_fmpy(path, inputs, free_run=False)
+    prediction = one_step(trained, recording)
+    first = prediction.first
+    np.testing.assert_allclose(outputs[first:, [OUTPUTS.index(a) for a in "pqr"]], prediction.mean[first:],
+                               rtol=0, atol=1e-9)
+    z = NormalDist().inv_cdf(0.975)
+    np.testing.assert_allclose(outputs[first:, [OUTPUTS.index(f"{a}_upper") for a in "pqr"]],
+                               prediction.mean[first:] + z * np.sqrt(prediction.var[first:]), rtol=0, atol=1e-9)
+
+
+def test_free_run_bounds_are_the_one_step_bounds_at_the_mean(native_fmu, bo105_trained, bo105_flights):
+    u = bo105_flights["unseen"].input("theta_1s")[::10]
+    outputs = _run_fmpy(native_fmu, {"theta_1s": u}, free_run=True)
+    means = outputs[:, [OUTPUTS.index(a) for a in "pqr"]]
+    python = bo105_trained.model.free_run(u[:, None], means[:2], method="mean")
+    z = NormalDist().inv_cdf(0.975)
+    for j, axis in enumerate("pqr"):
+        sd = (outputs[:, OUTPUTS.index(f"{axis}_upper")] - means[:, j]) / z
+        np.testing.assert_allclose(sd[2:], np.sqrt(python.var[2:, j]), rtol=0, atol=1e-9)
+
+
+# -- no Python in the process -------------------------------------------------------------------
+def test_runs_in_a_plain_c_host_without_python(case, host):
+    """validation/native_host.c: dlopen, fmi2Instantiate, fmi2SetupExperiment, fmi2Enter/Exit-
+    InitializationMode, then fmi2SetReal + fmi2DoStep + fmi2GetReal per step, in a subprocess
+    with no Python; outputs identical to fmpy's (the same binary and inputs: bit for bit)."""
+    rows = [case.inputs(k) for k in range(case.n_steps + 1)]
+    inputs = {name: np.array([row[name] for row in rows]) for name in rows[0]}
+    result = simulate_in_c_host(case.path, step_size=case.step, n_steps=case.n_steps, inputs=inputs,
+                                outputs=host.outputs)
+    assert not result["python_in_process"]
+    np.testing.assert_array_equal(np.column_stack([result[n] for n in host.outputs]), standard_run(case, host))
+
+
+# -- the FMI 2.0 call sequence ----------------------------------------------------------------
+@pytest.mark.parametrize("call", ["doStep before exitInitializationMode", "doStep before initialisation",
+                                  "setupExperiment after initialisation", "getReal before initialisation",
+                                  "doStep after terminate"])
+def test_illegal_call_order_is_a_logged_error_and_changes_nothing(case, unzipdir, call):
+    host = Host(unzipdir, name="order")
+    try:
+        fmu = host.fmu
+        with pytest.raises(FMICallException) as refused:
+            if call == "doStep before initialisation":
+                fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=case.step)
+            elif call == "getReal before initialisation":
+                host.get()
+            else:
+                fmu.setupExperiment(startTime=0.0)
+                fmu.enterInitializationMode()
+                if call == "doStep before exitInitializationMode":
+                    fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=case.step)
+                fmu.exitInitializationMode()
+                if call == "setupExperiment after initialisation":
+                    fmu.setupExperiment(startTime=0.0)
+                fmu.terminate()
+                fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=case.step)
+        assert refused.value.status == fmi2Error
+        errors = [message for status, _, message in host.messages if status == fmi2Error]
+        assert len(errors) == 1 and "illegal call" in errors[0], errors
+        assert call.split()[0].lower() in errors[0].lower(), errors  # names the function
+        # The instance is still usable: reset, then the standard run gives the standard outputs.
+        fmu.reset()
+        expected, first = case.reference()
+        np.testing.assert_allclose(standard_run(case, host)[first:], expected[first:], rtol=0, atol=case.tolerance)
+    finally:
+        host.fmu.freeInstance()
+    assert FMI_FATAL not in host.statuses()
+
+
+def test_bad_start_value_fails_initialisation_with_an_error_until_reset(case, unzipdir):
+    host = Host(unzipdir, name="bad_start")
+    try:
+        with pytest.raises(FMICallException) as refused:
+            host.start(case, {**case.inputs(0), "q_prev": float("nan")})
+        assert refused.value.status == fmi2Error
+        assert "initialisation refused" in host.messages[-1][2] and "q_prev" in host.messages[-1][2]
+        with pytest.raises(FMICallException):  # in the error state only reset helps
+            host.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=case.step)
+        host.fmu.reset()
+        host.start(case)
+        host.run(case, 0, 3)
+    finally:
+        host.close()
+    assert FMI_FATAL not in host.statuses()
+
+
+def test_wrong_guid_or_resources_refuse_instantiation_with_a_message(unzipdir, tmp_path):
+    from ctypes import byref
+
+    description = read_model_description(unzipdir)
+    resources = (Path(unzipdir) / "resources").as_uri()
+    for guid, location, phrase in (("not-the-guid", resources, "GUID"),
+                                   (description.guid, tmp_path.as_uri(), "model.bin")):
+        probe = Host(unzipdir, name="probe")  # its callbacks collect the log
+        try:
+            component = probe.fmu.fmi2Instantiate(b"refused", 1, guid.encode(), location.encode(),
+                                                  byref(probe.callbacks), 0, 0)  # 1: fmi2CoSimulation
+            assert not component
+            assert probe.messages[-1][0] == fmi2Error and phrase in probe.messages[-1][2], probe.messages
+        finally:
+            probe.close()
+
+
+# -- building --------------------------------------------------------------------------------------
+def test_sources_compile_without_warnings_under_pedantic_c99(native_fmu):
+    with zipfile.ZipFile(native_fmu) as archive:
+        sources = {n.split("/", 1)[1]: archive.read(n) for n in archive.namelist() if n.startswith("sources/")}
+    assert compile_shared_library(sources, "pedantic", extra_flags=("-pedantic", "-Werror"))
+
+
+def test_fmpy_compile_rebuilds_the_binary_from_the_shipped_sources(case, host, tmp_path, monkeypatch):
+    """`fmpy compile` (CMake) builds the binary from sources/ alone; the rebuilt FMU gives the
+    same outputs (same compiler and sources, CMake's Release flags: to 1e-12)."""
+    from fmpy.build import build_platform_binary
+
+    monkeypatch.setenv("PATH", f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")  # venv cmake
+    if shutil.which("cmake") is None:
+        pytest.skip("fmpy compile needs cmake")
+    (tmp_path / "build").mkdir()
+    unzipped = extract(str(case.path), unzipdir=str(tmp_path / "u"))
+    binary = next((tmp_path / "u" / "binaries" / "linux64").iterdir())
+    binary.unlink()
+    build_platform_binary(unzipped, build_dir=str(tmp_path / "build"))
+    assert binary.is_file()
+    rebuilt = Host(unzipped, name="rebuilt")
+    try:
+        np.testing.assert_allclose(standard_run(case, rebuilt), standard_run(case, host), rtol=0, atol=1e-12)
+    finally:
+        rebuilt.close()
+
+
+def test_build_fmu_command_native(bo105_model_file, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["build-fmu", str(bo105_model_file), "--native", "--out", str(out), "--name", "rates"]) == 0
+    assert [p.name for p in out.iterdir()] == ["rates.fmu"]
+    assert "rates.fmu" in capsys.readouterr().out
+    assert read_model_description(str(out / "rates.fmu")).coSimulation.needsExecutionTool is False
+
+
+@pytest.mark.parametrize("arguments", [["--reference", "bo105-80kt"], ["missing.npz"]])
+def test_build_fmu_native_bad_input_exits_2(arguments, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["build-fmu", *arguments, "--native", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("flightgp build-fmu: error:") and "Traceback" not in err
+    assert not out.exists() or not any(out.iterdir())
