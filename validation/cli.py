@@ -27,6 +27,8 @@ COMMAND_MODULES = (
     "validation._cmd_cosim",
     "validation._cmd_bench",
     "validation._cmd_fmu",
+    "validation._cmd_diagnose",
+    "validation._cmd_diagnose_bench",
 )
 
 

@@ -1,0 +1,57 @@
+"""``flightgp diagnose-bench [--cases NAME...] [--reference bo105-<V>kt] [--out DIR]``: the
+concealed-effect benchmark of ``flightgp diagnose`` (:mod:`validation.diagnose_bench`)."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from .cli import seed
+from .errors import BadInputError
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "diagnose-bench", help="score flightgp diagnose on recordings with concealed effects",
+        description="Fly the Bo105 reference with effects diagnose is not told about (named effects "
+                    "on several channels and magnitudes, pairs, none, and physics outside the named "
+                    "list), with sensor noise; diagnose each and print a scorecard: effect named, "
+                    "true value inside the interval, held-out RMSE cut of the affected output, false "
+                    "findings, seconds per case. Writes DIR/scorecard.json and DIR/scorecard.txt.")
+    parser.add_argument("--cases", nargs="+", metavar="NAME",
+                        help="run only these cases (default: all; --list shows them)")
+    parser.add_argument("--list", action="store_true", help="list the cases and exit")
+    parser.add_argument("--reference", default="bo105-80kt", metavar="NAME",
+                        help="bo105-<V>kt reference to conceal the effects in (default bo105-80kt)")
+    parser.add_argument("--seed", type=seed, default=0, help="sensor-noise and diagnosis seed (default 0)")
+    parser.add_argument("--out", type=Path, default=Path("build/diagnose-bench"), metavar="DIR",
+                        help="where scorecard.json and scorecard.txt go (default build/diagnose-bench)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .diagnose_bench import concealed_cases, format_scorecard, run_bench
+    from .files import write_files_atomically
+    from .progress import progress_bar
+
+    cases = concealed_cases(args.reference)
+    if args.list:
+        for case in cases:
+            print(f"{case.name:<28} {case.kind:<8} {case.description}")
+        return 0
+    if args.cases:
+        unknown = [name for name in args.cases if name not in {case.name for case in cases}]
+        if unknown:
+            raise BadInputError(f"unknown case(s) {', '.join(unknown)}; see flightgp diagnose-bench --list")
+        cases = [case for case in cases if case.name in args.cases]
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInputError(f"{args.out} exists and is not a folder")
+    with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases), unit="case") as update:
+        report = run_bench(cases, reference=args.reference, seed=args.seed, progress=update)
+    table = format_scorecard(report)
+    print(table)
+    written = write_files_atomically({args.out / "scorecard.json": json.dumps(report, indent=2) + "\n",
+                                      args.out / "scorecard.txt": table + "\n"})
+    print(f"written {', '.join(str(path) for path in written)}")
+    return 0

@@ -1,0 +1,346 @@
+"""Named physical effects added to a reference model: ground truth for diagnosis, and its output.
+
+An *effect* is a dict in the shape of a ``flightgp diagnose`` finding (DESIGN.md,
+"diagnosis.json")::
+
+    {"effect": "time_delay", "input": "theta_1s", "value": 0.08}        # s
+    {"effect": "input_lag", "input": "theta_1c", "value": 0.07}         # s, first-order time constant
+    {"effect": "control_derivative", "term": "M_theta_1s", "value": -20.0}
+    {"effect": "stability_derivative", "term": "L_q", "value": -3.35}   # new value, not a change
+    {"effect": "sensor_bias", "output": "q", "value": 0.01}             # output units
+
+Other keys (``unit``, ``interval``, ``statement`` ...) are ignored, so the findings of a
+diagnosis can be fed back in unchanged. :class:`EffectVehicle` is a reference with a list of
+effects applied (plus optional white sensor noise); it is both the concealed "real aircraft" of
+tests and benchmarks and the corrected model that ``flightgp diagnose`` saves
+(:meth:`EffectVehicle.save`, :meth:`EffectVehicle.load`: a small versioned JSON file).
+
+How each effect enters the linear Bo105 (``x_dot = A x + B u``, :mod:`validation.bo105`):
+
+- derivatives replace entries of ``A`` (stability) or ``B`` (control) through
+  :meth:`~validation.bo105.Bo105Reference.with_derivatives`;
+- ``input_lag`` on input ``j``: ``T z_dot = -z + u_j`` and column ``j`` of ``B`` acts on ``z``
+  (an augmented state starting at trim, 0), discretised exactly with the rest;
+- ``time_delay`` on input ``j``: ``u_j(t - tau)``. With the zero-order hold of the recordings and
+  ``tau = (m + f) h`` (integer ``m``, ``0 <= f < 1``) the delayed input switches inside each
+  interval, and ``x[k+1] = Phi x[k] + Gamma_a u_j[k-m-1] + Gamma_b u_j[k-m]`` with
+  ``Gamma_b = int_0^{(1-f)h} e^{As} ds b_j`` and ``Gamma_a = e^{A(1-f)h} int_0^{fh} e^{As} ds b_j``
+  (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
+  The result is exact and continuous in ``tau``, which a fit needs;
+- ``sensor_bias`` adds a constant to a recorded output.
+
+Only the Bo105 references (``bo105-<V>kt``) take effects so far; the blimp's (quadratic drag,
+force offsets) are named in :data:`EFFECT_KINDS` but not implemented.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy import linalg
+
+from .bo105 import INPUT_NAMES, ROW_LETTERS, STATE_NAMES, Bo105Reference, _propagate
+from .errors import BadInputError
+from .files import write_json
+from .recordings import Recording, column_unit
+from .vehicles import check_history, get_vehicle
+
+#: Every effect name of the diagnosis.json contract (DESIGN.md).
+EFFECT_KINDS = ("time_delay", "input_lag", "control_derivative", "stability_derivative",
+                "sensor_bias", "quadratic_drag", "force_offset", "unexplained")
+#: Effects :class:`EffectVehicle` can apply to a Bo105 reference, and the key naming their target.
+TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative": "term",
+               "stability_derivative": "term", "sensor_bias": "output"}
+#: Largest delay and lag accepted, s: far beyond any actuator or rotor (Bo105 flap time constant
+#: 0.07 s, DESIGN.md), small enough to keep the augmented system well conditioned.
+MAX_DELAY = 1.0
+MAX_LAG = 2.0
+_FILE_FORMAT = "flightgp-effect-vehicle"
+_FILE_VERSION = 1
+_ACCELERATION_UNITS = {"m/s": "m/s^2", "rad/s": "rad/s^2"}
+
+
+def effect_target(effect: dict) -> str:
+    """The input, term or output an effect acts on (``effect[TARGET_KEYS[effect['effect']]]``)."""
+    return effect[TARGET_KEYS[effect["effect"]]]
+
+
+def effect_unit(effect: dict) -> str:
+    """Unit of ``effect["value"]``: s for delays and lags, the output's unit for a bias, and
+    (row acceleration)/(column unit) for derivatives (``1/s`` when they cancel, e.g. ``M_q``)."""
+    kind = effect["effect"]
+    if kind in ("time_delay", "input_lag"):
+        return "s"
+    if kind == "sensor_bias":
+        return column_unit(effect["output"])
+    letter, _, column = effect["term"].partition("_")
+    row_unit, column_unit_ = column_unit(ROW_LETTERS[letter]), column_unit(column)
+    return "1/s" if row_unit == column_unit_ else f"({_ACCELERATION_UNITS[row_unit]})/({column_unit_})"
+
+
+def check_effects(effects, reference: Bo105Reference) -> list[dict]:
+    """Validate effect dicts against ``reference``; returns clean copies (``effect``, target, ``value``).
+
+    Raises
+    ------
+    BadInputError
+        Unknown effect or target, a derivative of the wrong kind (``M_q`` is a stability
+        derivative, ``M_theta_1s`` a control derivative), a non-finite value, a delay or lag
+        outside ``[0, MAX_DELAY]`` / ``[0, MAX_LAG]`` s, or two effects of the same kind on the
+        same target.
+    """
+    checked, seen = [], set()
+    for index, effect in enumerate(effects):
+        where = f"effect {index + 1}"
+        if not isinstance(effect, dict) or effect.get("effect") not in TARGET_KEYS:
+            kind = effect.get("effect") if isinstance(effect, dict) else effect
+            raise BadInputError(f"{where}: unknown effect {kind!r} for {reference.name}; "
+                                f"known: {', '.join(TARGET_KEYS)}")
+        kind = effect["effect"]
+        key = TARGET_KEYS[kind]
+        target = effect.get(key)
+        allowed = {"input": INPUT_NAMES, "output": STATE_NAMES}.get(key)
+        if key == "term":
+            columns = STATE_NAMES if kind == "stability_derivative" else INPUT_NAMES
+            allowed = [f"{letter}_{column}" for letter in ROW_LETTERS for column in columns]
+        if target not in allowed:
+            raise BadInputError(f"{where} ({kind}): {key} {target!r} is not one of {', '.join(allowed)}")
+        try:
+            value = float(effect.get("value"))
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value):
+            raise BadInputError(f"{where} ({kind} on {target}): value must be a finite number, "
+                                f"got {effect.get('value')!r}")
+        limit = {"time_delay": MAX_DELAY, "input_lag": MAX_LAG}.get(kind)
+        if limit is not None and not 0.0 <= value <= limit:
+            raise BadInputError(f"{where} ({kind} on {target}): {value} s is outside 0 .. {limit} s")
+        if (kind, target) in seen:
+            raise BadInputError(f"{where}: a second {kind} on {target}; give each effect once")
+        seen.add((kind, target))
+        checked.append({"effect": kind, key: target, "value": value})
+    return checked
+
+
+def _van_loan(F: np.ndarray, G: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ZOH ``(Phi, Gamma)`` of ``x_dot = F x + G u`` over ``step`` s (Van Loan, IEEE TAC
+    23(3), 1978): ``expm([[F, G], [0, 0]] step) = [[Phi, Gamma], [0, I]]``."""
+    n, m = G.shape
+    augmented = np.zeros((n + m, n + m))
+    augmented[:n, :n], augmented[:n, n:] = F, G
+    transition = linalg.expm(augmented * step)
+    return transition[:n, :n], transition[:n, n:]
+
+
+def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
+    """``signal[k - samples]`` (trim, 0, before the start), shape like ``signal``."""
+    if samples <= 0:
+        return signal
+    shifted = np.zeros_like(signal)
+    shifted[samples:] = signal[:len(signal) - samples]
+    return shifted
+
+
+def simulate_with_effects(reference: Bo105Reference, effects: list[dict], time: np.ndarray,
+                          inputs: np.ndarray) -> np.ndarray:
+    """States (plus sensor biases) of ``reference`` with ``effects`` applied, from trim.
+
+    Parameters
+    ----------
+    reference : Bo105Reference
+    effects : list of dict
+        Already checked (:func:`check_effects`).
+    time : ndarray, shape (n,)
+        Evenly spaced sample times, s.
+    inputs : ndarray, shape (n, 4)
+        Commanded inputs, rad, zero-order hold (row k acts from ``time[k]`` to ``time[k+1]``).
+
+    Returns
+    -------
+    ndarray, shape (n, 8)
+        ``u, w, q, theta, v, p, phi, r`` as recorded (biases added), SI units.
+    """
+    time, inputs, step = check_history(time, inputs, INPUT_NAMES)
+    derivatives = {e["term"]: e["value"] for e in effects if "term" in e}
+    model = reference.with_derivatives(derivatives) if derivatives else reference
+    A, B = model.A, model.B
+    n_states, n_inputs = B.shape
+    lags = {INPUT_NAMES.index(e["input"]): e["value"] for e in effects
+            if e["effect"] == "input_lag" and e["value"] > 0}
+    delays = {INPUT_NAMES.index(e["input"]): e["value"] for e in effects
+              if e["effect"] == "time_delay" and e["value"] > 0}
+    # Augmented system: rigid body, then one lag state per lagged input.
+    size = n_states + len(lags)
+    F, G = np.zeros((size, size)), np.zeros((size, n_inputs))
+    F[:n_states, :n_states] = A
+    G[:n_states] = B
+    for extra, (column, time_constant) in enumerate(sorted(lags.items()), start=n_states):
+        G[:n_states, column] = 0.0
+        F[:n_states, extra] = B[:, column]
+        F[extra, extra] = -1.0 / time_constant
+        G[extra, column] = 1.0 / time_constant
+    Phi, Gamma = _van_loan(F, G, step)
+    held = inputs[:-1]
+    undelayed = [column for column in range(n_inputs) if column not in delays]
+    forcing = held[:, undelayed] @ Gamma[:, undelayed].T
+    for column, delay in delays.items():
+        whole = int(math.floor(delay / step + 1e-9))
+        fraction = delay / step - whole
+        late_Phi, late_Gamma = _van_loan(F, G[:, [column]], (1.0 - fraction) * step)
+        gamma_late = late_Gamma[:, 0]
+        gamma_early = (late_Phi @ _van_loan(F, G[:, [column]], fraction * step)[1])[:, 0] \
+            if fraction > 1e-12 else np.zeros(size)
+        forcing += np.outer(_delayed(held[:, column], whole), gamma_late)
+        forcing += np.outer(_delayed(held[:, column], whole + 1), gamma_early)
+    states = _propagate(Phi, forcing, np.zeros(size))[:, :n_states]
+    for effect in effects:
+        if effect["effect"] == "sensor_bias":
+            states[:, STATE_NAMES.index(effect["output"])] += effect["value"]
+    return states
+
+
+class EffectVehicle:
+    """A reference vehicle with named effects applied (the module docstring lists them).
+
+    Parameters
+    ----------
+    reference_name : str
+        ``bo105-<V>kt``.
+    effects : sequence of dict
+        ``{"effect", "input" | "term" | "output", "value"}`` each; extra keys are ignored.
+    noise_sd : dict of str to float, optional
+        White Gaussian sensor noise, standard deviation per state (state units), e.g.
+        :data:`validation.bo105.SENSOR_NOISE_STD`; states not named are noise-free.
+
+    Attributes
+    ----------
+    name : str
+        ``"<reference>+effects"``.
+    reference_name : str
+    effects : list of dict
+        The checked effects (copies).
+    input_names, state_names : tuple of str
+    sample_time : float
+        The reference's default recording interval, s.
+    """
+
+    def __init__(self, reference_name: str, effects=(), *, noise_sd: dict | None = None):
+        reference = get_vehicle(reference_name)
+        if not isinstance(reference, Bo105Reference):
+            raise BadInputError(f"effects can be applied to the bo105-<V>kt references only, not "
+                                f"{reference_name!r}")
+        self._reference = reference
+        self.reference_name = reference.name
+        self.name = f"{reference.name}+effects"
+        self.input_names, self.state_names = reference.input_names, reference.state_names
+        self.sample_time = reference.sample_time
+        self._effects = check_effects(list(effects), reference)
+        self._noise_sd = {}
+        for name, value in (noise_sd or {}).items():
+            if name not in self.state_names or not (math.isfinite(float(value)) and float(value) >= 0):
+                raise BadInputError(f"noise_sd: {name!r}: {value!r} must be a state of "
+                                    f"{reference.name} with a standard deviation >= 0")
+            self._noise_sd[name] = float(value)
+
+    @property
+    def effects(self) -> list[dict]:
+        """The applied effects (copies)."""
+        return [dict(effect) for effect in self._effects]
+
+    @property
+    def noise_sd(self) -> dict:
+        return dict(self._noise_sd)
+
+    def simulate_states(self, time, inputs) -> np.ndarray:
+        """Noise-free recorded states (biases included), shape (n, 8); see :func:`simulate_with_effects`."""
+        return simulate_with_effects(self._reference, self._effects, time, inputs)
+
+    def simulate(self, time, inputs, *, seed: int = 0) -> Recording:
+        """Fly ``inputs`` from trim; returns every state as recorded, with sensor noise drawn
+        from ``np.random.default_rng(seed)``."""
+        time, inputs, step = check_history(time, inputs, self.input_names)
+        outputs = self.simulate_states(time, inputs)
+        rng = np.random.default_rng(seed)
+        noise = np.array([self._noise_sd.get(name, 0.0) for name in self.state_names])
+        outputs = outputs + rng.standard_normal(outputs.shape) * noise
+        # "vehicle" is the reference, so the columns read back as its recording (the sidecar
+        # still names the effects; diagnose never reads them).
+        metadata = {"vehicle": self.reference_name, "simulator": self.name, "sample_time": step,
+                    "seed": seed, "effects": self.effects, "sensor_noise_std": self.noise_sd}
+        return Recording(time, inputs, self.input_names, outputs, self.state_names, metadata)
+
+    def as_dict(self) -> dict:
+        """The model file's content (see :meth:`save`)."""
+        return {"format": _FILE_FORMAT, "version": _FILE_VERSION, "reference": self.reference_name,
+                "effects": self.effects, "noise_sd": self.noise_sd}
+
+    def save(self, path) -> Path:
+        """Write the model as versioned JSON (atomically); :meth:`load` reads it back."""
+        return write_json(path, self.as_dict())
+
+    @classmethod
+    def from_dict(cls, content: dict, *, source: str = "model") -> "EffectVehicle":
+        """The model :meth:`as_dict` describes; BadInputError naming ``source`` otherwise."""
+        if not isinstance(content, dict) or content.get("format") != _FILE_FORMAT:
+            raise BadInputError(f"{source}: not a flightgp effect-vehicle model "
+                                f"(expected \"format\": \"{_FILE_FORMAT}\")")
+        if content.get("version") != _FILE_VERSION:
+            raise BadInputError(f"{source}: model file version {content.get('version')!r}; this "
+                                f"flightgp reads version {_FILE_VERSION}")
+        return cls(content.get("reference", ""), content.get("effects", []),
+                   noise_sd=content.get("noise_sd") or None)
+
+    @classmethod
+    def load(cls, path) -> "EffectVehicle":
+        """Read a model written by :meth:`save`."""
+        path = Path(path)
+        try:
+            content = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise BadInputError(f"{path}: no such model file") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise BadInputError(f"{path}: not a JSON model file ({error})") from None
+        return cls.from_dict(content, source=str(path))
+
+
+def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = 0.01,
+                             variant: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A multi-axis Bo105 identification input: a 3-2-1-1 on each cyclic, then doublets on
+    pedals and collective, one after the other, so that every control derivative and delay is
+    identifiable (Tischler & Remple, *Aircraft and Rotorcraft System Identification*, 2012,
+    ch. 5: one axis at a time, multisteps for broad-band excitation).
+
+    Parameters
+    ----------
+    duration, sample_time : float
+        s; manoeuvres that do not fit in ``duration`` are cut off.
+    variant : int
+        0: 1 deg, 0.4/0.3 s steps (for fitting); 1: 1.5 deg, 0.3/0.5 s steps, signs reversed,
+        pedal before lateral cyclic (a different manoeuvre, for held-out data).
+
+    Returns
+    -------
+    time : ndarray, shape (n,)
+    inputs : ndarray, shape (n, 4)
+        ``theta_0, theta_1s, theta_1c, theta_0T``, rad.
+    """
+    from .manoeuvres import doublet, three_two_one_one, time_grid
+
+    time = time_grid(duration=duration, sample_time=sample_time)
+    inputs = np.zeros((len(time), len(INPUT_NAMES)))
+    degree = math.radians(1.0)
+    column = {name: INPUT_NAMES.index(name) for name in INPUT_NAMES}
+    if variant == 0:
+        inputs[:, column["theta_1s"]] = three_two_one_one(time, amplitude=degree, step_time=0.4, start=1.0)
+        inputs[:, column["theta_1c"]] = three_two_one_one(time, amplitude=degree, step_time=0.3, start=6.0)
+        inputs[:, column["theta_0T"]] = doublet(time, amplitude=degree, step_time=0.5, start=10.0)
+        inputs[:, column["theta_0"]] = doublet(time, amplitude=degree, step_time=0.5, start=14.0)
+    else:
+        amplitude = -1.5 * degree
+        inputs[:, column["theta_1s"]] = three_two_one_one(time, amplitude=amplitude, step_time=0.3, start=1.0)
+        inputs[:, column["theta_0T"]] = doublet(time, amplitude=amplitude, step_time=0.4, start=5.0)
+        inputs[:, column["theta_1c"]] = three_two_one_one(time, amplitude=amplitude / 1.5, step_time=0.5, start=8.0)
+        inputs[:, column["theta_0"]] = doublet(time, amplitude=amplitude, step_time=0.6, start=14.0)
+    return time, inputs
