@@ -9,8 +9,16 @@ from validation.cli import main
 
 
 def test_bench_gp_writes_report_with_ratios(tmp_path, capsys):
-    assert main(["bench", "gp", "--sizes", "30", "60", "--restarts", "0", "--out-dir", str(tmp_path)]) == 0
+    assert main(["bench", "gp", "--sizes", "30", "60", "--restarts", "0", "--out-dir", str(tmp_path),
+                 "--summary", str(tmp_path / "bench.json")]) == 0
     report = json.loads((tmp_path / "gp.json").read_text())
+    combined = json.loads((tmp_path / "bench.json").read_text())
+    assert combined["reports"]["gp"] == report
+    # The summary: one headline row per size, the fit speedup against the >= 3x goal.
+    assert [row["measure"] for row in combined["summary"]] == [
+        "GP fit vs scikit-learn, n = 30", "GP fit vs scikit-learn, n = 60"]
+    for row, size in zip(combined["summary"], report["rows"]):
+        assert row["met"] == (size["fit_speedup"] >= 3.0) and row["goal"] == ">= 3x"
     assert [row["n"] for row in report["rows"]] == [30, 60]
     for row in report["rows"]:
         for key in ("fit_s", "fit_s_sklearn", "lml", "lml_sklearn", "predict_s", "predict_s_sklearn"):
@@ -23,7 +31,7 @@ def test_bench_gp_writes_report_with_ratios(tmp_path, capsys):
 
 
 def test_bench_unknown_name_exits_2(tmp_path, capsys):
-    assert main(["bench", "nope", "--out-dir", str(tmp_path)]) == 2
+    assert main(["bench", "nope", "--out-dir", str(tmp_path), "--summary", str(tmp_path / "b.json")]) == 2
     err = capsys.readouterr().err
     assert "unknown benchmark nope" in err and "Traceback" not in err
     assert not any(tmp_path.iterdir())
@@ -60,7 +68,8 @@ def test_demo_onto_a_file_exits_2(tmp_path, capsys):
 
 
 def test_bench_narx_checks_agreement_and_beats_the_loop(tmp_path, capsys):
-    assert main(["bench", "narx", "--runs", "50", "--steps", "40", "--out-dir", str(tmp_path)]) == 0
+    assert main(["bench", "narx", "--runs", "50", "--steps", "40", "--out-dir", str(tmp_path),
+                 "--summary", str(tmp_path / "bench.json")]) == 0
     report = json.loads((tmp_path / "narx.json").read_text())
     assert {"runs", "steps", "vectorised_s", "loop_s_estimated", "loop_runs_timed", "speedup",
             "goal_speedup", "goal_seconds"} <= set(report)
@@ -76,15 +85,40 @@ def test_bench_narx_checks_agreement_and_beats_the_loop(tmp_path, capsys):
 
 
 def test_bench_option_of_a_benchmark_not_run_exits_2(tmp_path, capsys):
-    assert main(["bench", "gp", "--runs", "50", "--out-dir", str(tmp_path)]) == 2
+    assert main(["bench", "gp", "--runs", "50", "--out-dir", str(tmp_path), "--summary",
+                 str(tmp_path / "b.json")]) == 2
     assert "--runs applies to `bench narx` only" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
 
 
 def test_bench_fmu_times_both_fmus(tmp_path, capsys):
-    assert main(["bench", "fmu", "--fmu-steps", "50", "--out-dir", str(tmp_path)]) == 0
+    assert main(["bench", "fmu", "--fmu-steps", "50", "--out-dir", str(tmp_path), "--summary",
+                 str(tmp_path / "bench.json")]) == 0
     report = json.loads((tmp_path / "fmu.json").read_text())
     assert report["steps"] == 50 and report["training_points"] == 32
     assert 0 < report["bare_us_per_step"] < report["gp_us_per_step"]
     assert report["gp_over_bare"] == pytest.approx(report["gp_us_per_step"] / report["bare_us_per_step"])
     assert "bare us/step" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_bench_cosim_and_diagnose_report_real_time_factors_and_goals(tmp_path, capsys):
+    assert main(["bench", "cosim", "diagnose", "--out-dir", str(tmp_path), "--summary",
+                 str(tmp_path / "bench.json")]) == 0
+    cosim = json.loads((tmp_path / "cosim.json").read_text())
+    assert cosim["simulated_s"] == pytest.approx(8.0)
+    assert {(r["model"].split(":")[0], r["fmu"]) for r in cosim["rows"]} == {
+        ("paper", "pythonfmu"), ("paper", "native"),
+        ("32 points, 1 sample (max. likelihood)", "pythonfmu"),
+        ("32 points, 1 sample (max. likelihood)", "native")}
+    for row in cosim["rows"]:
+        assert row["real_time_factor"] == pytest.approx(8.0 / row["seconds"])
+        assert row["goal_met"] == (row["real_time_factor"] >= 200)
+        assert row["over_reference_alone"] > 1  # the GP FMU and the reference cost more than the reference
+    diagnose = json.loads((tmp_path / "diagnose.json").read_text())
+    assert [r["case"] for r in diagnose["cases"]] == [
+        "delay-theta_1s-60ms", "M_q-40%", "pair-delay+bias", "none", "outside-quadratic-damping"]
+    assert diagnose["max_seconds"] == max(r["seconds"] for r in diagnose["cases"])
+    summary = json.loads((tmp_path / "bench.json").read_text())["summary"]
+    assert {row["benchmark"] for row in summary} == {"cosim", "diagnose"}
+    assert "met" in capsys.readouterr().out

@@ -1,10 +1,11 @@
-"""``flightgp bench [NAME ...]``: run benchmarks, print tables, write ``build/bench/<name>.json``."""
+"""``flightgp bench [NAME ...]``: run benchmarks, print their tables and one summary table of
+every headline ratio and goal; write ``build/bench/<name>.json`` and ``build/bench.json``."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from .benchmarks import BENCHMARKS
+from .benchmarks import BENCHMARKS, format_summary
 from .errors import BadInputError
 from .files import write_json
 
@@ -37,7 +38,9 @@ def register(subparsers) -> None:
                         help="BLAS threads for flightgp and its peer alike (default 1: on a 2-core "
                              "machine a second BLAS thread spins between calls and slows both)")
     parser.add_argument("--out-dir", type=Path, default=Path("build/bench"),
-                        help="where the JSON reports go (default build/bench)")
+                        help="where each benchmark's JSON report goes (default build/bench)")
+    parser.add_argument("--summary", type=Path, default=Path("build/bench.json"),
+                        help="the combined report of the benchmarks run (default build/bench.json)")
     parser.set_defaults(func=run)
 
 
@@ -60,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         raise BadInputError(f"--threads must be 1 or more, got {args.threads}")
     from threadpoolctl import threadpool_limits
 
+    reports = {}
     for name in names:
         bench = BENCHMARKS[name]
         options = {keyword: getattr(args, dest) for dest, keyword in bench.options.items()
@@ -69,5 +73,12 @@ def run(args: argparse.Namespace) -> int:
         report["blas_threads"] = args.threads
         print(bench.format_table(report))
         path = write_json(args.out_dir / f"{name}.json", report)
-        print(f"written {path}")
+        print(f"written {path}\n")
+        reports[name] = report
+    summary = format_summary(reports)
+    print(summary)
+    rows = [{"benchmark": name, "measure": measure, "measured": value, "goal": goal, "met": met}
+            for name, report in reports.items() for measure, value, goal, met in BENCHMARKS[name].summary(report)]
+    path = write_json(args.summary, {"summary": rows, "reports": reports})
+    print(f"written {path}")
     return 0

@@ -515,6 +515,128 @@ def format_fmu_table(report: dict) -> str:
     ])
 
 
+#: Goal of ``bench cosim`` (issue 8): the 8 s 3-2-1-1 co-simulation at least this many times
+#: faster than real time.
+COSIM_GOAL_REAL_TIME = 200.0
+
+
+def bench_cosim(*, seed: int = 0, progress: bool = True) -> dict:
+    """Wall-clock time of the 8 s 80 kt 3-2-1-1 co-simulation in fmpy (``flightgp cosim``: the GP
+    rate-predictor FMU in free-run mode, moment matching, next to the Bo105 reference FMU) against
+    the same co-simulation's simulated time (real time) and against the reference FMU alone in
+    the same loop (the peer), for the pythonfmu and the native GP FMU of two models: the paper's
+    (32 points, 400 annealing samples) and one with a single (maximum-likelihood) hyperparameter
+    set.
+
+    Returns
+    -------
+    dict
+        ``{"simulated_s", "goal_real_time", "rows": [{"model", "fmu", "seconds",
+        "real_time_factor", "over_reference_alone", "goal_met"}], "reference_alone_s"}``.
+    """
+    import tempfile
+    from dataclasses import replace
+    from pathlib import Path
+
+    from fmu_src.builder import build_bo105_reference_fmu, build_rate_predictor_fmu
+    from fmu_src.native import build_native_rate_predictor_fmu
+
+    from .cosim import cosimulate, simulate
+    from .narx import save_trained, train_narx
+    from .reproduce_bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+    recording = fly_3211("bo105-80kt-flight", input_name="theta_1s",
+                         amplitude=np.radians(TRAINING_MANOEUVRE["amplitude_deg"]),
+                         step_time=TRAINING_MANOEUVRE["step_time"], start=1.0, duration=8.0, seed=seed)
+    simulated = float(recording.time[-1] - recording.time[0])
+    models = (("paper: 32 points, 400 samples", PAPER_CONFIG, {}),
+              ("32 points, 1 sample (max. likelihood)",
+               replace(PAPER_CONFIG, hyperparameters="maximum_likelihood"), {"n_restarts": 0}))
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="flightgp-bench-cosim-") as scratch:
+        scratch = Path(scratch)
+        reference = build_bo105_reference_fmu(80, scratch, name="bench_reference")
+        rows_01 = slice(None, None, 10)  # the recording (100 Hz) on the 0.1 s NARX grid
+        reference_alone = _best_time(lambda: simulate(
+            reference, time=recording.time[rows_01] - recording.time[0],
+            inputs={c: recording.input(c)[rows_01] for c in recording.input_names}, outputs=["p", "q", "r"]))
+        for index, (label, config, options) in enumerate(models):
+            trained = train_narx([recording], config, seed=seed, progress=progress, **options)
+            path = save_trained(scratch / f"model_{index}.npz", trained)
+            for kind, build in (("pythonfmu", build_rate_predictor_fmu),
+                                ("native", build_native_rate_predictor_fmu)):
+                fmu = build(path, scratch, name=f"bench_{kind}_{index}")
+                seconds = _best_time(lambda: cosimulate(fmu, recording, reference_fmu=reference))
+                rows.append({"model": label, "fmu": kind, "seconds": seconds,
+                             "real_time_factor": simulated / seconds,
+                             "over_reference_alone": seconds / reference_alone,
+                             "goal_met": simulated / seconds >= COSIM_GOAL_REAL_TIME})
+    return {"simulated_s": simulated, "goal_real_time": COSIM_GOAL_REAL_TIME,
+            "reference_alone_s": reference_alone, "rows": rows}
+
+
+def _best_time(run, *, repeats: int = 3) -> float:
+    """Best wall-clock seconds of ``run()`` over ``repeats`` calls."""
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def format_cosim_table(report: dict) -> str:
+    """The ``bench cosim`` report as a table."""
+    return "\n".join([
+        f"Co-simulation of the {report['simulated_s']:g} s 80 kt 3-2-1-1 in fmpy (GP FMU free run + "
+        f"Bo105 reference FMU), best of 3; reference FMU alone {report['reference_alone_s'] * 1e3:.0f} ms; "
+        f"goal >= {report['goal_real_time']:g}x real time",
+        f"{'model':<40} {'GP FMU':<10} {'s':>7} {'x real time':>12} {'x ref. alone':>13} {'met':>4}",
+        *(f"{r['model']:<40} {r['fmu']:<10} {r['seconds']:7.3f} {r['real_time_factor']:12.1f} "
+          f"{r['over_reference_alone']:13.1f} {'yes' if r['goal_met'] else 'no':>4}" for r in report["rows"]),
+    ])
+
+
+#: ``bench diagnose``: the diagnose-bench cases timed (one per kind of search outcome).
+DIAGNOSE_CASES = ("none", "delay-theta_1s-60ms", "M_q-40%", "pair-delay+bias", "outside-quadratic-damping")
+#: Goal of ``bench diagnose`` (issue 7): seconds per case for a 20 s recording at 100 Hz.
+DIAGNOSE_GOAL_S = 60.0
+
+
+def bench_diagnose(*, seed: int = 0, progress: bool = True) -> dict:
+    """Wall-clock time of ``flightgp diagnose`` on concealed-effect cases
+    (:mod:`validation.diagnose_bench`; 20 s at 100 Hz plus a 20 s held-out recording) against
+    the recording's duration (real time) and the goal of :data:`DIAGNOSE_GOAL_S` per case.
+
+    Returns
+    -------
+    dict
+        ``{"cases": [{"case", "seconds", "over_recording", "passed"}], "goal_s", "max_seconds",
+        "goal_met", "recording_s"}``.
+    """
+    from .diagnose_bench import DURATION, concealed_cases, run_bench
+
+    cases = [case for case in concealed_cases() if case.name in DIAGNOSE_CASES]
+    with progress_bar("bench diagnose", enabled=progress, total=len(cases), unit="case") as update:
+        report = run_bench(cases, seed=seed, progress=update)
+    rows = [{"case": row["case"], "seconds": row["seconds"], "over_recording": row["seconds"] / DURATION,
+             "passed": row["passed"]} for row in report["cases"]]
+    worst = max(row["seconds"] for row in rows)
+    return {"cases": rows, "goal_s": DIAGNOSE_GOAL_S, "max_seconds": worst,
+            "goal_met": worst <= DIAGNOSE_GOAL_S, "recording_s": DURATION}
+
+
+def format_diagnose_table(report: dict) -> str:
+    """The ``bench diagnose`` report as a table."""
+    return "\n".join([
+        f"flightgp diagnose per case ({report['recording_s']:g} s at 100 Hz + a held-out recording); "
+        f"goal <= {report['goal_s']:g} s per case",
+        f"{'case':<28} {'s':>6} {'x recording':>12} {'scored':>7}",
+        *(f"{r['case']:<28} {r['seconds']:6.1f} {r['over_recording']:12.2f} "
+          f"{'pass' if r['passed'] else 'fail':>7}" for r in report["cases"]),
+    ])
+
+
 @dataclass(frozen=True)
 class Benchmark:
     """One entry of :data:`BENCHMARKS`.
@@ -527,16 +649,71 @@ class Benchmark:
         ``format_table(report) -> str``.
     options : dict
         Command-line option of ``flightgp bench`` (argparse dest) -> keyword of ``run``.
+    summary : callable
+        ``summary(report) -> [(measure, value, goal, met)]``: the headline rows of the combined
+        ``flightgp bench`` table (``value`` and ``goal`` as text, ``met`` True/False/None).
     """
 
     run: Callable[..., dict]
     format_table: Callable[[dict], str]
     options: dict
+    summary: Callable[[dict], list]
+
+
+def _gp_summary(report: dict) -> list:
+    rows = []
+    for row in report["rows"]:
+        rows.append((f"GP fit vs scikit-learn, n = {row['n']}", f"{row['fit_speedup']:.1f}x faster",
+                     ">= 3x", row["fit_speedup"] >= 3.0))
+    return rows
+
+
+def _narx_summary(report: dict) -> list:
+    return [("Monte Carlo free run vs run-by-run loop", f"{report['speedup']:.0f}x faster, "
+             f"{report['vectorised_s']:.2f} s", f">= {report['goal_speedup']:g}x, "
+             f"<= {report['goal_seconds']:g} s", report["goal_met"])]
+
+
+def _fmu_summary(report: dict) -> list:
+    rows = [("pythonfmu GP FMU step vs bare pythonfmu FMU", f"{report['gp_over_bare']:.1f}x the cost",
+             f"<= {report['goal_ratio']:g}x", report["goal_met"])]
+    for row in report.get("native", []):
+        rows.append((f"native vs pythonfmu FMU step, {row['model']}",
+                     f"{row['pythonfmu_over_native_c_host']:.1f}x cheaper, "
+                     f"{row['native_c_host_us_per_step']:.1f} us (C host)",
+                     f">= {report['native_goal_ratio']:g}x" + (
+                         f", < {report['native_goal_us_at_500']:g} us" if row["training_points"] >= 500 else ""),
+                     row["pythonfmu_over_native_c_host"] >= report["native_goal_ratio"]
+                     and (row["training_points"] < 500
+                          or row["native_c_host_us_per_step"] < report["native_goal_us_at_500"])))
+    return rows
+
+
+def _cosim_summary(report: dict) -> list:
+    return [(f"co-simulation, {r['fmu']} GP FMU, {r['model']}", f"{r['real_time_factor']:.0f}x real time",
+             f">= {report['goal_real_time']:g}x", r["goal_met"]) for r in report["rows"]]
+
+
+def _diagnose_summary(report: dict) -> list:
+    return [("diagnose per 20 s case (worst of the timed cases)", f"{report['max_seconds']:.1f} s",
+             f"<= {report['goal_s']:g} s", report["goal_met"])]
 
 
 #: Benchmarks by name. ``flightgp bench`` runs them all.
 BENCHMARKS = {
-    "gp": Benchmark(bench_gp, format_gp_table, {"sizes": "sizes", "restarts": "n_restarts"}),
-    "narx": Benchmark(bench_narx, format_narx_table, {"runs": "n_runs", "steps": "n_steps"}),
-    "fmu": Benchmark(bench_fmu, format_fmu_table, {"fmu_steps": "n_steps"}),
+    "gp": Benchmark(bench_gp, format_gp_table, {"sizes": "sizes", "restarts": "n_restarts"}, _gp_summary),
+    "narx": Benchmark(bench_narx, format_narx_table, {"runs": "n_runs", "steps": "n_steps"}, _narx_summary),
+    "fmu": Benchmark(bench_fmu, format_fmu_table, {"fmu_steps": "n_steps"}, _fmu_summary),
+    "cosim": Benchmark(bench_cosim, format_cosim_table, {}, _cosim_summary),
+    "diagnose": Benchmark(bench_diagnose, format_diagnose_table, {}, _diagnose_summary),
 }
+
+
+def format_summary(reports: dict) -> str:
+    """One table of every benchmark's headline rows (``flightgp bench``)."""
+    rows = [row for name, report in reports.items() for row in BENCHMARKS[name].summary(report)]
+    width = max(len(row[0]) for row in rows)
+    lines = [f"{'measure':<{width}}  {'measured':<34} {'goal':<16} met"]
+    for measure, value, goal, met in rows:
+        lines.append(f"{measure:<{width}}  {value:<34} {goal:<16} {'-' if met is None else 'yes' if met else 'no'}")
+    return "\n".join(lines)
