@@ -45,6 +45,31 @@ def fit_pair(kind="se_ard", *, input_scale=1.0, input_offset=0.0, output_scale=(
     return gps
 
 
+def refit_at(gp, theta):
+    """A GP on ``gp``'s training data with hyperparameters ``theta`` only."""
+    return GaussianProcess(gp.kernel, noise_variance=gp.noise_variance).fit(
+        gp.input_scaler_.inverse_transform(gp.X_train_),
+        gp.output_scaler_.inverse_transform(gp.Y_train_)[:, 0], theta=theta)
+
+
+def assert_moments_match_monte_carlo(x, mu, var, out_mean, out_cov, cross_cov):
+    """Analytic moments against Monte Carlo: inputs ``x`` (N, d) and the GP predictions at them,
+    ``mu``, ``var`` (N, m). Each moment is the sample mean of a per-sample quantity g with
+    standard error std(g) / sqrt(N) (law of total variance: Cov[f] = Cov[mu(x)] + E[var(x)]);
+    5 standard errors, so with ~15 compared numbers a false alarm has probability ~1e-5."""
+    m = mu.shape[1]
+    d_mu, d_x = mu - mu.mean(axis=0), x - x.mean(axis=0)
+    per_sample = {
+        "mean": (mu, out_mean),
+        "cov": (d_mu[:, :, None] * d_mu[:, None, :] + var[:, :, None] * np.eye(m), out_cov),
+        "cross_cov": (d_x[:, :, None] * d_mu[:, None, :], cross_cov),
+    }
+    for name, (g, analytic) in per_sample.items():
+        estimate, standard_error = g.mean(axis=0), g.std(axis=0) / np.sqrt(len(g))
+        assert np.all(np.abs(analytic - estimate) < 5 * standard_error), (
+            name, analytic, estimate, standard_error)
+
+
 MEAN = np.array([0.3, 0.5, 0.2])
 COV = np.array([[0.30, 0.10, -0.05],
                 [0.10, 0.45, 0.12],
@@ -96,20 +121,8 @@ def test_agrees_with_monte_carlo(n_inducing):
     x = np.random.default_rng(42).multivariate_normal(MEAN, COV, size=n_samples)  # (N, 3)
     mu, var = (np.column_stack(columns) for columns in zip(
         *(gp.predict(x, return_var=True, include_noise=True) for gp in gps)))  # (N, 2) each
-    d_mu, d_x = mu - mu.mean(axis=0), x - x.mean(axis=0)
-    # Each moment is the sample mean of a per-sample quantity g; its standard error is
-    # std(g) / sqrt(N) (law of total variance: Cov[f] = Cov[mu(x)] + E[var(x)]).
-    per_sample = {
-        "mean": (mu, out_mean),
-        "cov": (d_mu[:, :, None] * d_mu[:, None, :] + var[:, :, None] * np.eye(2), out_cov),
-        "cross_cov": (d_x[:, :, None] * d_mu[:, None, :], cross_cov),
-    }
-    for name, (g, analytic) in per_sample.items():
-        estimate = g.mean(axis=0)
-        standard_error = g.std(axis=0) / np.sqrt(n_samples)
-        # 5 standard errors: with 15 compared numbers a false alarm has probability ~1e-5.
-        assert np.all(np.abs(analytic - estimate) < 5 * standard_error), (
-            name, analytic, estimate, standard_error)
+    assert_moments_match_monte_carlo(x, mu, var, out_mean, out_cov, cross_cov)
+    d_mu = mu - mu.mean(axis=0)
 
     # The test has power: the plug-in variance at the input mean, which ignores the input
     # uncertainty, is many standard errors away from the Monte Carlo variance.
@@ -210,26 +223,13 @@ def test_mixture_over_hyperparameter_samples_agrees_with_monte_carlo():
     mu, var = np.empty((len(shifts), n_per_model, 2)), np.empty((len(shifts), n_per_model, 2))
     for s in range(len(shifts)):
         for j, gp in enumerate(gps):
-            point = GaussianProcess(gp.kernel, noise_variance=gp.noise_variance).fit(
-                gp.input_scaler_.inverse_transform(gp.X_train_),
-                gp.output_scaler_.inverse_transform(gp.Y_train_)[:, 0], theta=gp.theta_samples_[s])
-            mu[s, :, j], var[s, :, j] = point.predict(x[s], return_var=True, include_noise=True)
+            mu[s, :, j], var[s, :, j] = refit_at(gp, gp.theta_samples_[s]).predict(
+                x[s], return_var=True, include_noise=True)
     mu, var, x = mu.reshape(-1, 2), var.reshape(-1, 2), x.reshape(-1, 3)
-    d_mu, d_x = mu - mu.mean(axis=0), x - x.mean(axis=0)
-    per_sample = {
-        "mean": (mu, out_mean),
-        "cov": (d_mu[:, :, None] * d_mu[:, None, :] + var[:, :, None] * np.eye(2), out_cov),
-        "cross_cov": (d_x[:, :, None] * d_mu[:, None, :], cross_cov),
-    }
-    for name, (g, analytic) in per_sample.items():
-        estimate, standard_error = g.mean(axis=0), g.std(axis=0) / np.sqrt(len(g))
-        assert np.all(np.abs(analytic - estimate) < 5 * standard_error), (name, analytic, estimate)
+    assert_moments_match_monte_carlo(x, mu, var, out_mean, out_cov, cross_cov)
+    d_mu = mu - mu.mean(axis=0)
     # Power: the mixture's moments differ from the first model's alone by many standard errors.
-    alone = predict_uncertain_input(
-        [GaussianProcess(gp.kernel, noise_variance=gp.noise_variance).fit(
-            gp.input_scaler_.inverse_transform(gp.X_train_),
-            gp.output_scaler_.inverse_transform(gp.Y_train_)[:, 0], theta=gp.theta_samples_[0])
-         for gp in gps], MEAN, COV)
+    alone = predict_uncertain_input([refit_at(gp, gp.theta_samples_[0]) for gp in gps], MEAN, COV)
     g = d_mu**2 + var
     assert np.any(np.abs(np.diag(alone[1]) - g.mean(axis=0)) > 20 * g.std(axis=0) / np.sqrt(len(g)))
 
