@@ -7,10 +7,11 @@ FMI 2.0 co-simulation FMU with the same interface as the pythonfmu rate predicto
 (:mod:`fmu_src.rate_predictor`: the same variable table, value references, units, descriptions,
 parameters, start values, default experiment and sampling convention, since its
 ``modelDescription.xml`` is written by the same code) and the same one-step numbers (the
-formulas of :class:`fmu_src._runtime.NarxPredictor`), but whose binary needs only the C library
-and libm. Free-run mode differs: the native FMU feeds back its predicted means and reports the
-one-step bounds at them (``GPNarx.free_run(method="mean")``; :data:`FREE_RUN_DESCRIPTION`),
-where the pythonfmu FMU propagates the uncertainty by moment matching.
+formulas of :class:`fmu_src._runtime.NarxPredictor`, free-run mode included: the belief over
+the lagged outputs propagated by moment matching over the hyperparameter mixture, eqs. (1)-(6)
+of :mod:`gp_model._uncertain_input`), but whose binary needs only the C library and libm. The
+native free run needs every output lag from 1 to the largest (the usual structure): a structure
+that skips output lags is refused at build time (the pythonfmu FMU handles it).
 
 What the FMU holds
 ------------------
@@ -22,7 +23,8 @@ What the FMU holds
 - ``sources/``: ``fmi2_slave.c`` (the FMI 2.0 layer: call-sequence state machine, variables,
   logging, status policy, FMU state), ``narx_model.c`` (the GP-NARX prediction), ``model.h``
   (their interface) and the generated ``model_config.h`` (the FMU's GUID, variable table, NARX
-  structure, training envelope and array sizes).
+  structure, training envelope and array sizes). The FMU state holds the lag histories and the
+  free-run belief (mean vector and covariance matrix).
 - ``resources/model.bin``: the GP arrays (every output's basis points, and per hyperparameter
   sample its mean weights, kernel weights, signal and noise variance and variance factor), read
   by each instance at ``fmi2Instantiate`` (layout in ``narx_model.c``). Read at run time rather
@@ -39,7 +41,6 @@ import struct
 import subprocess
 import tempfile
 import zipfile
-from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -59,11 +60,6 @@ CONFIG_HEADER, DATA_FILE = "model_config.h", "model.bin"
 COMPILE_FLAGS = ("-O2", "-std=c99", "-Wall", "-Wextra", "-fPIC", "-shared", "-fvisibility=hidden")
 #: fmpy's folder name for the binaries of this platform (FMI 2.0, 2.2.1).
 PLATFORM_FOLDER = "linux64"
-
-#: What ``free_run`` does in a native FMU: feed back the means, report one-step bounds at them
-#: (``GPNarx.free_run(method="mean")``); the pythonfmu FMU may propagate its bounds instead.
-FREE_RUN_DESCRIPTION = ("feed back the predicted means instead of the *_prev inputs (bounds: the one-step "
-                        "bounds at the fed-back mean, not propagated through the free run)")
 
 _NATIVE_C = Path(__file__).parent / "native_c"
 _DATA_MAGIC = b"FGPNARX1"
@@ -93,8 +89,9 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     gp_model.ModelFileError
         The model file is missing, corrupt or not a GP-NARX model.
     validation.errors.BadInputError
-        As :func:`fmu_src.builder.build_rate_predictor_fmu`; also no ``gcc`` on the path or a
-        platform other than Linux x86-64.
+        As :func:`fmu_src.builder.build_rate_predictor_fmu`; also no ``gcc`` on the path, a
+        platform other than Linux x86-64, or output lags that skip a lag (the native free run
+        needs lags 1 .. L).
     RuntimeError
         gcc failed to compile the generated sources (a bug: the message holds its output).
     """
@@ -113,8 +110,14 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     trained = load_trained(model_path)
     arrays = export_narx_arrays(trained)
     predictor = _runtime.NarxPredictor(arrays)  # checks shapes and finiteness
-    variables = tuple(replace(v, description=FREE_RUN_DESCRIPTION) if v.name == "free_run" else v
-                      for v in rate_predictor_variables(**_interface(trained.config)))
+    lags = predictor.output_lags
+    if sorted(lags) != list(range(1, max(lags) + 1)):
+        raise BadInputError(
+            f"{model_path.name}: output lags {list(lags)} skip lags of 1 .. {max(lags)}; the native FMU's free "
+            "run propagates the belief over every lagged output as a regressor and does not implement the "
+            "projection for skipped lags. Train with output lags 1 .. L, or build the pythonfmu FMU "
+            "(drop --native)")
+    variables = rate_predictor_variables(**_interface(trained.config))
     samples = len(arrays["0/weights"])
     description = (f"GP-NARX predictor of {', '.join(predictor.output_names)} with confidence bounds from "
                    f"{', '.join(predictor.input_names)} and the previous outputs; NARX step "
@@ -261,7 +264,10 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor, arrays: dict
         f"#define N_OUTPUT_LAGS {len(predictor.output_lags)}",
         f"#define MAX_LAG {predictor.max_lag}",
         f"#define N_REGRESSORS {len(predictor.regressor_names)}",
-        f"#define MODEL_STATE_SIZE (MAX_LAG * (N_INPUTS + N_OUTPUTS) + 1)",
+        f"#define MAX_OUTPUT_LAG {max(predictor.output_lags)}",
+        "/* Hidden state: lag histories, envelope flag, free-run belief mean and covariance (narx_model.c) */",
+        "#define BELIEF_SIZE (MAX_OUTPUT_LAG * N_OUTPUTS)",
+        "#define MODEL_STATE_SIZE (MAX_LAG * (N_INPUTS + N_OUTPUTS) + 1 + BELIEF_SIZE * (BELIEF_SIZE + 1))",
         _c_array("int", "INPUT_LAGS", predictor.input_lags).rstrip(),
         _c_array("int", "OUTPUT_LAGS", predictor.output_lags).rstrip(),
         "/* Value references: controls, *_prev inputs, means, lower and upper bounds, parameters */",

@@ -16,7 +16,9 @@
  *                variance factor V_s by columns: if LOWER_TRIANGULAR[j], column c holds rows
  *                c .. m - 1 only (m (m + 1) / 2 doubles in all), else rows 0 .. m - 1 (m x m).
  *
- * Each instance reads its own copy (no memory shared between instances).
+ * Each instance reads its own copy (no memory shared between instances) and computes its own
+ * free-run constants from it (prepare_free_run; A_s is S m^2 doubles per output, 10 MB for the
+ * paper's 400-sample model).
  *
  * Prediction of output j at regressor x (all GP arrays in standardised units):
  *   xs = (x - input_mean) / input_scale
@@ -28,6 +30,15 @@
  * multiplied without the zeros above the diagonal (adding 0 k_c changes nothing). The step's
  * cost is dominated by streaming the S variance factors from memory (the paper's model: 1200
  * factors of 32 x 32, 5 MB packed), so halving them halves the time.
+ *
+ * Free run (free_run = true): a Gaussian belief over the lagged outputs, propagated by exact
+ * moment matching over the hyperparameter mixture, as NarxPredictor.free_run_step: eqs. (1)-(6)
+ * of gp_model/_uncertain_input.py (MomentMatcher, _woodbury_terms) and its belief shift
+ * (narx_belief_start, narx_belief_step). Every output's GP is expressed in output 0's input
+ * frame (frame_gp), with the per-sample A_s = K_inv[s] = V_s^T V_s precomputed at load. The
+ * structure has no skipped output lags (fmu_src/native.py refuses them), so every lagged
+ * output is a regressor and its covariance with the prediction is eq. (2) itself (the pinv
+ * projection of _cross_covariance_of_lagged_outputs is never needed).
  */
 #include <math.h>
 #include <stdint.h>
@@ -45,6 +56,12 @@
 #define INPUT_HISTORY 0                                /* MAX_LAG x N_INPUTS, row i: i steps ago */
 #define OUTPUT_HISTORY (MAX_LAG * N_INPUTS)            /* MAX_LAG x N_OUTPUTS */
 #define OUTSIDE_ENVELOPE (MAX_LAG * SIGNALS)           /* 1.0 while outside the envelope */
+/* The free-run belief over y(k-1), ..., y(k-L), L = MAX_OUTPUT_LAG, lag-major: entry
+   (lag - 1) * N_OUTPUTS + output (gp_model/_uncertain_input.py, narx_belief_start). */
+#define BELIEF_MEAN (OUTSIDE_ENVELOPE + 1)             /* BELIEF_SIZE */
+#define BELIEF_COV (BELIEF_MEAN + BELIEF_SIZE)         /* BELIEF_SIZE x BELIEF_SIZE, row-major */
+#define D N_REGRESSORS
+#define KNOWN_REGRESSORS (N_INPUTS * N_INPUT_LAGS)     /* the exact part of the regressor */
 
 /* One output's GP (pointers into Model.data). */
 typedef struct {
@@ -55,8 +72,21 @@ typedef struct {
     const double *basis;                     /* (m, d) */
     const double *samples;                   /* S blocks of sample_size doubles */
     double *signal_variance;                 /* (S,) exp(log_signal_variance) */
+    /* The GP in the common frame (output 0's input standardisation; frame_gp): */
+    double *frame_basis;                     /* (m, d) X_a */
+    double *precision;                       /* (S, d) diagonal of Lambda_a^-1 = 2 w / ratio^2 */
+    double *K_inv;                           /* (S, m, m) A_s = V_s^T V_s */
+    /* moment-matching scratch for the current sample s (eq. numbers of _uncertain_input.py): */
+    double *u;                               /* (m, d) u_ai = Lambda_a^-1 nu_ai */
+    double *q;                               /* (m,) q_ai, eq. 1 */
+    double *weighted;                        /* (m,) beta_ai q_ai */
+    double M[D * D], log_det;                /* M_a and ln|I + T_a| (eq. 6) */
 } OutputGP;
 
+/* Scratch of _woodbury_terms (d x d each). */
+typedef struct {
+    double root[D], T[D * D], L[D * D], Y[D * D];
+} WoodburyScratch;
 
 struct Model {
     double *data;
@@ -64,15 +94,36 @@ struct Model {
     double lower[N_REGRESSORS], upper[N_REGRESSORS];  /* the envelope with its margin */
     double *squared;                                  /* scratch (m_max, d) */
     double *k, *v;                                    /* scratch (m_max,) */
+    /* free-run scratch */
+    double *sample_means;                             /* (S, N_OUTPUTS) mixture components */
+    double *u_M;                                      /* (m_max, d) */
+    double *half_a, *half_b;                          /* (m_max,) */
+    double frame_mean[D], frame_scale[D];             /* output 0's input standardisation */
+    double M_ab[D * D], M_diff[D * D];
+    WoodburyScratch woodbury;
+    double next_state[MODEL_STATE_SIZE];              /* a step's result before its commit */
 };
 
 void model_free(Model *model) {
     if (model == NULL) return;
-    for (int j = 0; j < N_OUTPUTS; j++) free(model->gp[j].signal_variance);
+    for (int j = 0; j < N_OUTPUTS; j++) {
+        OutputGP *gp = &model->gp[j];
+        free(gp->signal_variance);
+        free(gp->frame_basis);
+        free(gp->precision);
+        free(gp->K_inv);
+        free(gp->u);
+        free(gp->q);
+        free(gp->weighted);
+    }
     free(model->data);
     free(model->squared);
     free(model->k);
     free(model->v);
+    free(model->sample_means);
+    free(model->u_M);
+    free(model->half_a);
+    free(model->half_b);
     free(model);
 }
 
@@ -80,6 +131,66 @@ static Model *fail(Model *model, char **error, char *message) {
     *error = message;
     model_free(model);
     return NULL;
+}
+
+/* The free run's constants and scratch (fmu_src/_runtime.py, _moment_matcher): every output's
+ * GP in output 0's input frame, z_0 = (s_a z_a + mu_a - mu_0) / s_0 (frame_gp: basis * ratio +
+ * offset, precision 2 w / ratio^2), and A_s = V_s^T V_s from the stored variance factors (by
+ * columns, packed if lower triangular). Returns 0 if out of memory. */
+static int prepare_free_run(Model *model, int m_max) {
+    const OutputGP *lead = &model->gp[0];
+    for (int c = 0; c < D; c++) {
+        model->frame_mean[c] = lead->input_mean[c];
+        model->frame_scale[c] = lead->input_scale[c];
+    }
+    double *dense = malloc(sizeof(double) * (size_t)m_max * (size_t)m_max); /* V_s, row-major */
+    model->sample_means = malloc(sizeof(double) * (size_t)lead->S * N_OUTPUTS);
+    model->u_M = malloc(sizeof(double) * (size_t)m_max * D);
+    model->half_a = malloc(sizeof(double) * (size_t)m_max);
+    model->half_b = malloc(sizeof(double) * (size_t)m_max);
+    int ok = dense != NULL && model->sample_means != NULL && model->u_M != NULL && model->half_a != NULL
+             && model->half_b != NULL;
+    for (int j = 0; j < N_OUTPUTS && ok; j++) {
+        OutputGP *gp = &model->gp[j];
+        const size_t m = (size_t)gp->m, S = (size_t)gp->S;
+        gp->frame_basis = malloc(sizeof(double) * m * D);
+        gp->precision = malloc(sizeof(double) * S * D);
+        gp->K_inv = malloc(sizeof(double) * S * m * m);
+        gp->u = malloc(sizeof(double) * m * D);
+        gp->q = malloc(sizeof(double) * m);
+        gp->weighted = malloc(sizeof(double) * m);
+        ok = gp->frame_basis != NULL && gp->precision != NULL && gp->K_inv != NULL && gp->u != NULL
+             && gp->q != NULL && gp->weighted != NULL;
+        if (!ok) break;
+        double ratio[D], offset[D];
+        for (int c = 0; c < D; c++) {
+            ratio[c] = gp->input_scale[c] / model->frame_scale[c]; /* exactly 1 for output 0 */
+            offset[c] = (gp->input_mean[c] - model->frame_mean[c]) / model->frame_scale[c];
+        }
+        for (size_t i = 0; i < m; i++)
+            for (int c = 0; c < D; c++) gp->frame_basis[i * D + c] = gp->basis[i * D + c] * ratio[c] + offset[c];
+        for (size_t s = 0; s < S; s++) {
+            const double *sample = gp->samples + s * gp->sample_size;
+            const double *kernel_weights = sample + m, *factor = sample + m + D + 2;
+            for (int c = 0; c < D; c++) gp->precision[s * D + c] = 2.0 * kernel_weights[c] / (ratio[c] * ratio[c]);
+            /* unpack V_s (stored by columns) into dense[row * m + column] */
+            for (size_t column = 0; column < m; column++)
+                for (size_t row = 0; row < m; row++) {
+                    int stored = !gp->lower_triangular || row >= column;
+                    dense[row * m + column] = stored ? *factor++ : 0.0;
+                }
+            /* A_s[i][k] = sum_r V_s[r][i] V_s[r][k] (frame_gp: einsum "sji,sjk->sik") */
+            double *A = gp->K_inv + s * m * m;
+            for (size_t i = 0; i < m; i++)
+                for (size_t k = i; k < m; k++) {
+                    double sum = 0.0;
+                    for (size_t r = 0; r < m; r++) sum += dense[r * m + i] * dense[r * m + k];
+                    A[i * m + k] = A[k * m + i] = sum;
+                }
+        }
+    }
+    free(dense);
+    return ok;
 }
 
 Model *model_load(const char *resources_dir, char **error) {
@@ -140,6 +251,7 @@ Model *model_load(const char *resources_dir, char **error) {
     model->k = malloc(sizeof(double) * (size_t)m_max);
     model->v = malloc(sizeof(double) * (size_t)m_max);
     if (model->squared == NULL || model->k == NULL || model->v == NULL) return fail(model, error, NULL);
+    if (!prepare_free_run(model, m_max)) return fail(model, error, NULL);
     return model;
 }
 
@@ -222,6 +334,232 @@ static void predict_output(const Model *model, const OutputGP *gp, const double 
     *var_out = spread * gp->output_scale * gp->output_scale;
 }
 
+/* -- free run: moment matching (gp_model/_uncertain_input.py) ----------------------------- */
+
+/* _woodbury_terms: M(P) = (P + S^-1)^-1 = P^-1/2 (I + T)^-1 T P^-1/2 with T = P^1/2 S P^1/2,
+ * and ln|I + T| (eq. 6), for a positive diagonal precision P (d,) and the standardised input
+ * covariance S (d x d, symmetric positive semi-definite, may be singular). I + T has all
+ * eigenvalues >= 1, so its Cholesky factor exists; returns 0 if it does not (S is then far from
+ * positive semi-definite: a bug, refused as a step). M is symmetrised as there. */
+static int woodbury_terms(WoodburyScratch *w, const double precision[D], const double S[D * D],
+                          double M[D * D], double *log_det) {
+    double *root = w->root, *T = w->T, *L = w->L, *Y = w->Y;
+    for (int i = 0; i < D; i++) root[i] = sqrt(precision[i]);
+    for (int i = 0; i < D; i++)
+        for (int j = 0; j < D; j++) T[i * D + j] = S[i * D + j] * (root[i] * root[j]);
+    /* L L^T = I + T (Cholesky, lower) */
+    double sum_log = 0.0;
+    for (int j = 0; j < D; j++) {
+        double pivot = 1.0 + T[j * D + j];
+        for (int k = 0; k < j; k++) pivot -= L[j * D + k] * L[j * D + k];
+        if (!(pivot > 0.0)) return 0;
+        L[j * D + j] = sqrt(pivot);
+        sum_log += log(L[j * D + j]);
+        for (int i = j + 1; i < D; i++) {
+            double value = T[i * D + j];
+            for (int k = 0; k < j; k++) value -= L[i * D + k] * L[j * D + k];
+            L[i * D + j] = value / L[j * D + j];
+        }
+        for (int i = 0; i < j; i++) L[i * D + j] = 0.0;
+    }
+    /* Y = L^-1 T (forward substitution), then M P^1/2..P^1/2 = L^-T Y (back substitution), in M */
+    for (int c = 0; c < D; c++) {
+        for (int i = 0; i < D; i++) {
+            double value = T[i * D + c];
+            for (int k = 0; k < i; k++) value -= L[i * D + k] * Y[k * D + c];
+            Y[i * D + c] = value / L[i * D + i];
+        }
+        for (int i = D - 1; i >= 0; i--) {
+            double value = Y[i * D + c];
+            for (int k = i + 1; k < D; k++) value -= L[k * D + i] * M[k * D + c];
+            M[i * D + c] = value / L[i * D + i];
+        }
+    }
+    for (int i = 0; i < D; i++)
+        for (int j = 0; j < D; j++) M[i * D + j] /= root[i] * root[j];
+    for (int i = 0; i < D; i++)
+        for (int j = i + 1; j < D; j++) M[i * D + j] = M[j * D + i] = 0.5 * (M[i * D + j] + M[j * D + i]);
+    *log_det = 2.0 * sum_log;
+    return 1;
+}
+
+/* u^T M u for u (d,) and a symmetric M (d x d). */
+static double quadratic_form(const double u[D], const double M[D * D]) {
+    double total = 0.0;
+    for (int i = 0; i < D; i++) {
+        double row = 0.0;
+        for (int j = 0; j < D; j++) row += M[i * D + j] * u[j];
+        total += row * u[i];
+    }
+    return total;
+}
+
+/* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance
+ * (N_OUTPUTS x N_OUTPUTS, row-major) and input-output cross-covariance (d x N_OUTPUTS) of the
+ * mixture over the S hyperparameter samples (sample s of every output forms model s) at a
+ * regressor x ~ N(x_mean, x_cov) (raw units). Returns 0 if a Cholesky factor of eq. 6 fails. */
+static int moment_match(Model *model, const double x_mean[D], const double x_cov[D * D], double out_mean[N_OUTPUTS],
+                        double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS]) {
+    double m[D], S[D * D];
+    /* MomentMatcher._standardise: into the common frame, S symmetrised */
+    for (int i = 0; i < D; i++) m[i] = (x_mean[i] - model->frame_mean[i]) / model->frame_scale[i];
+    for (int i = 0; i < D; i++)
+        for (int j = 0; j < D; j++)
+            S[i * D + j] = 0.5 * (x_cov[i * D + j] + x_cov[j * D + i])
+                           / (model->frame_scale[i] * model->frame_scale[j]);
+    const int n_samples = model->gp[0].S;
+    double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
+    for (int s = 0; s < n_samples; s++) {
+        /* Per output: u_ai, M_a, ln|I + T_a| and q_a (eq. 1 in the Woodbury form
+           -1/2 nu^T (S + Lambda)^-1 nu = -1/2 nu^T u + 1/2 u^T M_a u); E[f_a] = beta_a^T q_a (eq. 1);
+           Cov[x, f_a] = M_a sum_i u_ai beta_ai q_ai (eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i). */
+        for (int a = 0; a < N_OUTPUTS; a++) {
+            OutputGP *gp = &model->gp[a];
+            const double *sample = gp->samples + (size_t)s * gp->sample_size;
+            const double *precision = gp->precision + (size_t)s * D;
+            const double *beta = sample, log_signal_variance = sample[gp->m + D];
+            if (!woodbury_terms(&model->woodbury, precision, S, gp->M, &gp->log_det)) return 0;
+            double mean = 0.0, sum_u[D] = {0.0};
+            for (int i = 0; i < gp->m; i++) {
+                double *u = gp->u + (size_t)i * D, nu_u = 0.0;
+                for (int c = 0; c < D; c++) {
+                    double nu = gp->frame_basis[(size_t)i * D + c] - m[c];
+                    u[c] = nu * precision[c];
+                    nu_u += nu * u[c];
+                }
+                gp->q[i] = exp(log_signal_variance - 0.5 * gp->log_det - 0.5 * nu_u + 0.5 * quadratic_form(u, gp->M));
+                gp->weighted[i] = beta[i] * gp->q[i];
+                mean += gp->weighted[i];
+                for (int c = 0; c < D; c++) sum_u[c] += u[c] * gp->weighted[i];
+            }
+            model->sample_means[(size_t)s * N_OUTPUTS + a] = gp->output_mean + gp->output_scale * mean;
+            for (int c = 0; c < D; c++) {
+                double value = 0.0;
+                for (int e = 0; e < D; e++) value += gp->M[c * D + e] * sum_u[e];
+                cross_sum[c * N_OUTPUTS + a] += value;
+            }
+        }
+        /* Cov[f_a, f_b] (eqs. 3-6): beta_a^T (Q^ab - q_a q_b^T) beta_b with
+           Q^ab_ij - q_ai q_bj = q_ai q_bj expm1(D_ij) (eq. 6), z^T M_ab z expanded over z_ij = u_ai + u_bj. */
+        for (int a = 0; a < N_OUTPUTS; a++) {
+            const OutputGP *ga = &model->gp[a];
+            const double *precision_a = ga->precision + (size_t)s * D;
+            for (int b = a; b < N_OUTPUTS; b++) {
+                const OutputGP *gb = &model->gp[b];
+                const double *precision_b = gb->precision + (size_t)s * D;
+                double precision_ab[D], log_det_ab;
+                for (int c = 0; c < D; c++) precision_ab[c] = precision_a[c] + precision_b[c];
+                if (!woodbury_terms(&model->woodbury, precision_ab, S, model->M_ab, &log_det_ab)) return 0;
+                const double constant = -0.5 * (log_det_ab - ga->log_det - gb->log_det);
+                /* half_a_i = 1/2 u_ai^T (M_ab - M_a) u_ai + the constant; half_b_j likewise; u_M = u_a M_ab */
+                for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - ga->M[c];
+                for (int i = 0; i < ga->m; i++) {
+                    const double *u = ga->u + (size_t)i * D;
+                    model->half_a[i] = 0.5 * quadratic_form(u, model->M_diff) + constant;
+                    for (int c = 0; c < D; c++) {
+                        double value = 0.0;
+                        for (int e = 0; e < D; e++) value += u[e] * model->M_ab[e * D + c];
+                        model->u_M[(size_t)i * D + c] = value;
+                    }
+                }
+                for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - gb->M[c];
+                for (int j = 0; j < gb->m; j++)
+                    model->half_b[j] = 0.5 * quadratic_form(gb->u + (size_t)j * D, model->M_diff);
+                const double *K_inv = ga->K_inv + (size_t)s * ga->m * ga->m;
+                double covariance = 0.0, trace = 0.0; /* trace: tr(K_inv Q^aa) (eq. 4), a == b only */
+                for (int i = 0; i < ga->m; i++) {
+                    const double *u_M = model->u_M + (size_t)i * D;
+                    double row = 0.0, row_trace = 0.0;
+                    for (int j = 0; j < gb->m; j++) {
+                        const double *u_b = gb->u + (size_t)j * D;
+                        double exponent = model->half_a[i] + model->half_b[j];
+                        for (int c = 0; c < D; c++) exponent += u_M[c] * u_b[c];
+                        double excess = expm1(exponent);
+                        row += excess * gb->weighted[j];
+                        if (a == b) row_trace += K_inv[(size_t)i * ga->m + j] * (ga->q[j] * (1.0 + excess));
+                    }
+                    covariance += ga->weighted[i] * row;
+                    trace += ga->q[i] * row_trace;
+                }
+                if (a == b) {
+                    /* Eq. 4, clipped at zero as GaussianProcess.predict; eq. 5 adds it and the noise. */
+                    const double *sample = ga->samples + (size_t)s * ga->sample_size;
+                    double expected_var = ga->signal_variance[s] - trace;
+                    covariance += (expected_var > 0.0 ? expected_var : 0.0) + sample[ga->m + D + 1];
+                }
+                cov_sum[a * N_OUTPUTS + b] += covariance;
+                if (b != a) cov_sum[b * N_OUTPUTS + a] += covariance;
+            }
+        }
+    }
+    /* The mixture (MomentMatcher class docstring), centred so that S = 1 adds exact zeros:
+       E[f] = E_s[m_s], Cov[f] = E_s[C_s] + Cov_s[m_s], Cov[x, f] = E_s[Cov_s[x, f]], in raw units. */
+    for (int a = 0; a < N_OUTPUTS; a++) {
+        double total = 0.0;
+        for (int s = 0; s < n_samples; s++) total += model->sample_means[(size_t)s * N_OUTPUTS + a];
+        out_mean[a] = total / n_samples;
+    }
+    for (int a = 0; a < N_OUTPUTS; a++)
+        for (int b = 0; b < N_OUTPUTS; b++) {
+            double spread = 0.0;
+            for (int s = 0; s < n_samples; s++)
+                spread += (model->sample_means[(size_t)s * N_OUTPUTS + a] - out_mean[a])
+                          * (model->sample_means[(size_t)s * N_OUTPUTS + b] - out_mean[b]);
+            out_cov[a * N_OUTPUTS + b] = cov_sum[a * N_OUTPUTS + b] / n_samples
+                                         * (model->gp[a].output_scale * model->gp[b].output_scale)
+                                         + spread / n_samples;
+        }
+    for (int c = 0; c < D; c++)
+        for (int a = 0; a < N_OUTPUTS; a++)
+            cross_cov[c * N_OUTPUTS + a] = cross_sum[c * N_OUTPUTS + a] / n_samples * model->frame_scale[c]
+                                           * model->gp[a].output_scale;
+    return 1;
+}
+
+/* narx_belief_step (include_noise = True): predict y(k) from the belief over y(k-1), ..., y(k-L)
+ * in state (BELIEF_MEAN, BELIEF_COV) and the exact known regressors x_known, and write the
+ * shifted belief over y(k), ..., y(k-L+1) into next. Returns 0 if moment_match fails. */
+static int belief_step(Model *model, const double *state, const double *x_known,
+                       double y_mean[N_OUTPUTS], double y_var[N_OUTPUTS], double *next) {
+    const double *mean = state + BELIEF_MEAN, *cov = state + BELIEF_COV;
+    int z_rows[N_OUTPUTS * N_OUTPUT_LAGS]; /* regressor n_u + r is belief entry z_rows[r] */
+    double x_mean[D], x_cov[D * D] = {0.0}, y_cov[N_OUTPUTS * N_OUTPUTS], cross[D * N_OUTPUTS];
+    int r = 0;
+    for (int c = 0; c < N_OUTPUTS; c++)
+        for (int i = 0; i < N_OUTPUT_LAGS; i++) z_rows[r++] = (OUTPUT_LAGS[i] - 1) * N_OUTPUTS + c;
+    for (int i = 0; i < KNOWN_REGRESSORS; i++) x_mean[i] = x_known[i];
+    for (int i = 0; i < r; i++) {
+        x_mean[KNOWN_REGRESSORS + i] = mean[z_rows[i]];
+        for (int j = 0; j < r; j++)
+            x_cov[(KNOWN_REGRESSORS + i) * D + KNOWN_REGRESSORS + j] = cov[z_rows[i] * BELIEF_SIZE + z_rows[j]];
+    }
+    if (!moment_match(model, x_mean, x_cov, y_mean, y_cov, cross)) return 0;
+    /* Cov(z, y): every belief row is a regressor (no skipped lags), so eq. 2 gives all of it. */
+    double cov_z_y[BELIEF_SIZE * N_OUTPUTS];
+    for (int i = 0; i < r; i++)
+        for (int a = 0; a < N_OUTPUTS; a++)
+            cov_z_y[z_rows[i] * N_OUTPUTS + a] = cross[(KNOWN_REGRESSORS + i) * N_OUTPUTS + a];
+    /* The shifted belief: [y(k); the first (L - 1) n outputs of the old], joint covariance, symmetrised. */
+    const int keep = BELIEF_SIZE - N_OUTPUTS;
+    double *new_mean = next + BELIEF_MEAN, *new_cov = next + BELIEF_COV;
+    for (int a = 0; a < N_OUTPUTS; a++) new_mean[a] = y_mean[a], y_var[a] = y_cov[a * N_OUTPUTS + a];
+    for (int i = 0; i < keep; i++) new_mean[N_OUTPUTS + i] = mean[i];
+    for (int i = 0; i < BELIEF_SIZE; i++)
+        for (int j = 0; j < BELIEF_SIZE; j++) {
+            double value;
+            if (i < N_OUTPUTS && j < N_OUTPUTS) value = y_cov[i * N_OUTPUTS + j];
+            else if (i < N_OUTPUTS) value = cov_z_y[(j - N_OUTPUTS) * N_OUTPUTS + i];
+            else if (j < N_OUTPUTS) value = cov_z_y[(i - N_OUTPUTS) * N_OUTPUTS + j];
+            else value = cov[(i - N_OUTPUTS) * BELIEF_SIZE + (j - N_OUTPUTS)];
+            new_cov[i * BELIEF_SIZE + j] = value;
+        }
+    for (int i = 0; i < BELIEF_SIZE; i++)
+        for (int j = i + 1; j < BELIEF_SIZE; j++)
+            new_cov[i * BELIEF_SIZE + j] = new_cov[j * BELIEF_SIZE + i]
+                = 0.5 * (new_cov[i * BELIEF_SIZE + j] + new_cov[j * BELIEF_SIZE + i]);
+    return 1;
+}
+
 /* z with P(|N(0, 1)| <= z) = level: the normal quantile of 0.5 + level / 2 by Wichura's
  * algorithm AS241 (Applied Statistics 37, 1988, 477-484), as Python's statistics.NormalDist. */
 static double two_sided_quantile(double level) {
@@ -280,6 +618,10 @@ void model_start(Model *model, double *values, double *state) {
     }
     state[OUTSIDE_ENVELOPE] = 0.0;
     for (int j = 0; j < N_OUTPUTS; j++) y0[j] = values[PREVIOUS_VR[j]], zero[j] = 0.0;
+    /* The free-run belief (narx_belief_start, NarxPredictor.free_run_start): the given outputs
+       at every lag, known exactly (zero covariance); unused in one-step mode. */
+    for (int i = 0; i < BELIEF_SIZE; i++) state[BELIEF_MEAN + i] = y0[i % N_OUTPUTS];
+    for (int i = 0; i < BELIEF_SIZE * BELIEF_SIZE; i++) state[BELIEF_COV + i] = 0.0;
     set_outputs(values, y0, zero);
 }
 
@@ -297,8 +639,8 @@ static char *number_list(const double *numbers, int n) {
 }
 
 char *model_advance(Model *model, const Slave *slave, double *values, double *state, double t, double h) {
-    double history[MAX_LAG * SIGNALS + 1]; /* the pushed input and output histories */
-    double *inputs = history + INPUT_HISTORY, *outputs = history + OUTPUT_HISTORY;
+    double *next = model->next_state; /* the new state, committed at the end */
+    double *inputs = next + INPUT_HISTORY, *outputs = next + OUTPUT_HISTORY;
     const int free_run = values[FREE_RUN_VR] != 0.0;
     /* Push the current sample (row 0) into both histories; free run feeds back the means. */
     for (int lag = MAX_LAG - 1; lag > 0; lag--) {
@@ -317,10 +659,16 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
         for (int i = 0; i < N_OUTPUT_LAGS; i++) x[n++] = outputs[(OUTPUT_LAGS[i] - 1) * N_OUTPUTS + c];
     double mean[N_OUTPUTS], var[N_OUTPUTS];
     int finite = 1;
-    for (int j = 0; j < N_OUTPUTS; j++) {
-        predict_output(model, &model->gp[j], x, &mean[j], &var[j]);
-        finite = finite && isfinite(mean[j]) && isfinite(var[j]);
+    if (free_run) {
+        /* NarxPredictor.free_run_step: moment matching from the belief (x[0 .. n_u): the known regressors). */
+        if (!belief_step(model, state, x, mean, var, next))
+            return format_message("the free-run input covariance is not positive semi-definite (a Cholesky "
+                                  "factor of I + T, eq. 6 of gp_model/_uncertain_input.py, failed); please report");
+    } else {
+        for (int j = 0; j < N_OUTPUTS; j++) predict_output(model, &model->gp[j], x, &mean[j], &var[j]);
+        memcpy(next + BELIEF_MEAN, state + BELIEF_MEAN, sizeof(double) * BELIEF_SIZE * (BELIEF_SIZE + 1));
     }
+    for (int j = 0; j < N_OUTPUTS; j++) finite = finite && isfinite(mean[j]) && isfinite(var[j]);
     if (!finite) {
         char *m = number_list(mean, N_OUTPUTS), *v = number_list(var, N_OUTPUTS), *r = number_list(x, N_REGRESSORS);
         char *message = format_message("non-finite prediction %s (variance %s) at regressor %s", m ? m : "?",
@@ -346,8 +694,8 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
     else if (outside == NULL && was_outside)
         slave_log(slave, fmi2OK, "t = %.16g s: back inside the training envelope", t + h);
     /* Commit only after everything that can fail. */
-    memcpy(state, history, sizeof(double) * MAX_LAG * SIGNALS);
-    state[OUTSIDE_ENVELOPE] = outside != NULL ? 1.0 : 0.0;
+    next[OUTSIDE_ENVELOPE] = outside != NULL ? 1.0 : 0.0;
+    memcpy(state, next, sizeof(double) * MODEL_STATE_SIZE);
     free(outside);
     set_outputs(values, mean, var);
     return NULL;
