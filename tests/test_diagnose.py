@@ -206,7 +206,7 @@ def test_unsupported_reference_and_flight_stand_in_are_refused():
     with pytest.raises(BadInputError, match="flight-test stand-in"):
         diagnose([fit], reference="bo105-80kt-flight")
     with pytest.raises(BadInputError, match="not implemented"):
-        diagnose([fit], reference="blimp")
+        diagnose([fit], reference="jsbsim:c172x")
 
 
 def test_recording_objects_with_nan_are_refused():

@@ -138,7 +138,7 @@ def test_cli_runs_chosen_cases_and_writes_the_scorecard(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["--cases", "no-such-case"], "unknown case(s) no-such-case"),
-    (["--reference", "blimp"], "bo105-<V>kt references"),
+    (["--reference", "blimp-flight"], "bo105-<V>kt and blimp references"),
     (["--reference", "bo105-85kt"], "no Bo105 model at 85 kt"),
 ])
 def test_cli_bad_input_exits_2(argv, message, tmp_path, capsys):

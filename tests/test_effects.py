@@ -106,6 +106,10 @@ def test_bad_effects_are_refused(effect, message):
         check_effects([effect], Bo105Reference(80))
 
 
-def test_blimp_is_refused_for_now():
-    with pytest.raises(BadInputError, match="bo105"):
-        EffectVehicle("blimp", [])
+def test_other_references_and_bo105_effects_on_the_blimp_are_refused():
+    with pytest.raises(BadInputError, match="bo105-<V>kt and blimp"):
+        EffectVehicle("blimp-flight", [])
+    with pytest.raises(BadInputError, match="is not one of"):
+        EffectVehicle("blimp", [{"effect": "stability_derivative", "term": "M_q", "value": -1.0}])
+    with pytest.raises(BadInputError, match="unknown effect 'quadratic_drag'"):
+        EffectVehicle("bo105-80kt", [{"effect": "quadratic_drag", "term": "X_UU", "value": -1.0}])

@@ -13,12 +13,13 @@ def register(subparsers) -> None:
         "diagnose", help="locate a simulation/recording mismatch, name the missing physics, model it",
         description="Replay the reference on the recorded inputs, locate where the residual exceeds "
                     "the sensor noise, test named effects (time delay, input lag, control and "
-                    "stability derivatives, sensor bias) by likelihood ratio, build the corrected "
+                    "stability derivatives, sensor bias; on the blimp also quadratic drag and force "
+                    "offsets) by likelihood ratio, build the corrected "
                     "model plus a residual GP, and score all three on held-out data. Writes "
                     "DIR/diagnosis.json, DIR/report.md with PNGs, and DIR/corrected_model.json.")
     parser.add_argument("recordings", nargs="+", type=Path, metavar="RECORDING",
                         help="recording CSV files (DESIGN.md, Recording files), starting at trim")
-    parser.add_argument("--reference", required=True, metavar="NAME", help="physics reference, e.g. bo105-80kt")
+    parser.add_argument("--reference", required=True, metavar="NAME", help="physics reference: bo105-<V>kt or blimp")
     parser.add_argument("--holdout", nargs="+", type=Path, metavar="RECORDING",
                         help="recordings used only to score the models (default: the last recording, "
                              "or the last 30 %% of a single one)")

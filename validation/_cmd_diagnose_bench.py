@@ -1,4 +1,4 @@
-"""``flightgp diagnose-bench [--cases NAME...] [--reference bo105-<V>kt] [--out DIR]``: the
+"""``flightgp diagnose-bench [--cases NAME...] [--reference bo105-<V>kt | blimp] [--out DIR]``: the
 concealed-effect benchmark of ``flightgp diagnose`` (:mod:`validation.diagnose_bench`)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from .errors import BadInputError
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "diagnose-bench", help="score flightgp diagnose on recordings with concealed effects",
-        description="Fly the Bo105 reference with effects diagnose is not told about (named effects "
+        description="Fly a Bo105 or the blimp reference with effects diagnose is not told about (named effects "
                     "on several channels and magnitudes, pairs, none, and physics outside the named "
                     "list), with sensor noise; diagnose each and print a scorecard: effect named, "
                     "true value inside the interval, held-out RMSE cut of the affected output, false "
@@ -22,7 +22,7 @@ def register(subparsers) -> None:
                         help="run only these cases (default: all; --list shows them)")
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
     parser.add_argument("--reference", default="bo105-80kt", metavar="NAME",
-                        help="bo105-<V>kt reference to conceal the effects in (default bo105-80kt)")
+                        help="bo105-<V>kt or blimp reference to conceal the effects in (default bo105-80kt)")
     parser.add_argument("--seed", type=seed, default=0, help="sensor-noise and diagnosis seed (default 0)")
     parser.add_argument("--out", type=Path, default=Path("build/diagnose-bench"), metavar="DIR",
                         help="where scorecard.json and scorecard.txt go (default build/diagnose-bench)")

@@ -21,7 +21,9 @@ Held-out data: the ``holdout`` recordings if given; otherwise the last recording
 several; otherwise the last :data:`HOLDOUT_FRACTION` of the single recording (the model is then
 still replayed from trim over the whole recording, but only earlier samples enter any fit).
 
-Only the Bo105 references (``bo105-<V>kt``) are diagnosed so far; the blimp is not implemented.
+References: every ``bo105-<V>kt`` and the ``blimp`` (its named effects and their terms are in
+:mod:`validation.blimp_effects`; replays integrate its nonlinear ODE by RK4 at the recording
+interval).
 """
 from __future__ import annotations
 
@@ -32,9 +34,10 @@ from pathlib import Path
 import numpy as np
 from scipy import signal, stats
 
-from .bo105 import INPUT_NAMES, STATE_NAMES, Bo105Reference
+from .blimp import BlimpReference
+from .bo105 import Bo105Reference
 from .diagnose_hypotheses import FitData, hypotheses_for, select_effects
-from .effects import TARGET_KEYS, EffectVehicle, effect_unit, simulate_with_effects
+from .effects import TARGET_KEYS, EffectVehicle, effect_unit, model_value, simulate_many
 from .errors import BadInputError
 from .recordings import Recording, read_recording
 from .vehicles import get_vehicle
@@ -52,7 +55,7 @@ LOCATE_ALPHA = 1e-4
 UNEXPLAINED_RATIO = 1.2
 #: Most GP training points per output (every k-th fit sample).
 MAX_GP_POINTS = 300
-#: An input "moves" when its peak-to-peak exceeds this, rad.
+#: An input "moves" when its peak-to-peak exceeds this (rad, or normalised command).
 EXCITATION_THRESHOLD = 1e-6
 #: Fraction of a named effect a residual GP must absorb to be flagged.
 SOAK_FLAG = 0.5
@@ -274,9 +277,9 @@ def _coherent_inputs(sources, residual_of, output, excited, fs) -> list:
 
 
 def _gp_features(states: np.ndarray, inputs: np.ndarray, step: float, excited_columns) -> np.ndarray:
-    """GP inputs per sample: the model's 8 states, their rates of change (central differences)
-    and the excited inputs, shape (n, 16 + n_excited). A lag or an unmodelled mode shows up
-    as an error proportional to state rates and inputs; states carry the rest."""
+    """GP inputs per sample: the model's states, their rates of change (central differences)
+    and the excited inputs, shape (n, 2 n_states + n_excited). A lag or an unmodelled mode shows
+    up as an error proportional to state rates and inputs; states carry the rest."""
     return np.hstack([states, np.gradient(states, step, axis=0), inputs[:, excited_columns]])
 
 
@@ -296,8 +299,8 @@ def _check_reference(name: str):
     if name.endswith("-flight"):
         raise BadInputError(f"--reference {name} is a flight-test stand-in; diagnose a physics "
                             f"reference ({name.removesuffix('-flight')})")
-    if not isinstance(reference, Bo105Reference):
-        raise BadInputError(f"diagnose supports the bo105-<V>kt references so far; {name!r} is not "
+    if not isinstance(reference, (Bo105Reference, BlimpReference)):
+        raise BadInputError(f"diagnose supports the bo105-<V>kt and blimp references; {name!r} is not "
                             "implemented yet")
     return reference
 
@@ -311,7 +314,7 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
         Recordings of the vehicle ``reference`` describes, starting at trim (DESIGN.md,
         "Recording files"). Paths are read with :func:`validation.recordings.read_recording`.
     reference : str
-        ``bo105-<V>kt``.
+        ``bo105-<V>kt`` or ``blimp``.
     holdout : sequence of path-like or Recording, optional
         Recordings used only to score the models. Default: see the module docstring.
     seed : int
@@ -369,17 +372,17 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
         raise BadInputError(f"too short to identify anything: {fit_duration:.2f} s of data to fit "
                             f"after holding out {holdout_description}; need at least "
                             f"{MIN_FIT_DURATION:g} s")
-    output_names = tuple(n for n in STATE_NAMES if all(n in s.recording.output_names for s in sources))
+    output_names = tuple(n for n in model.state_names if all(n in s.recording.output_names for s in sources))
     if not output_names:
         raise BadInputError("the recordings share no measured output; diagnose needs the same "
                             "outputs in every recording (including --holdout)")
     fit_inputs = np.vstack([s.recording.inputs[m] for s, m in zip(sources, fit_masks) if m.any()])
-    excited = [name for j, name in enumerate(INPUT_NAMES) if np.ptp(fit_inputs[:, j]) > EXCITATION_THRESHOLD]
+    excited = [name for j, name in enumerate(model.input_names) if np.ptp(fit_inputs[:, j]) > EXCITATION_THRESHOLD]
     if not excited:
         raise BadInputError("no input moves in the data to fit: nothing to identify (fly a 3-2-1-1 or "
                             "doublet on at least one control)")
     untestable = [f"{name}: never moves in the fitted data, so delays, lags and control derivatives "
-                  "on it cannot be tested" for name in INPUT_NAMES if name not in excited]
+                  "on it cannot be tested" for name in model.input_names if name not in excited]
 
     measured = [np.column_stack([s.recording.output(n) for n in output_names]) for s in sources]
     noise_sd = [np.array([estimate_noise_sd(column) for column in m.T]) for m in measured]
@@ -417,9 +420,9 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
 
     # 3. Model: what is still above the noise, and a residual GP on it.
     corrected_replay = data.simulate(model, named_effects)
-    corrected_states = [simulate_with_effects(model, named_effects, t, u) for t, u in zip(data.time, data.inputs)]
-    reference_states = [simulate_with_effects(model, [], t, u) for t, u in zip(data.time, data.inputs)]
-    excited_columns = [INPUT_NAMES.index(n) for n in excited]
+    corrected_states, reference_states = zip(*(simulate_many(model, [named_effects, []], t, u)
+                                               for t, u in zip(data.time, data.inputs)))
+    excited_columns = [model.input_names.index(n) for n in excited]
     corrected_features = [_gp_features(x, u, step, excited_columns) for x, u in zip(corrected_states, data.inputs)]
     reference_features = [_gp_features(x, u, step, excited_columns) for x, u in zip(reference_states, data.inputs)]
     n_fit = int(sum(m.sum() for m in fit_masks))
@@ -508,7 +511,7 @@ def _findings(selection, model, data, reference_replay, measured, noise_sd, fit_
         lower, upper = fitted.interval(index)
         finding = {**effect, "unit": effect_unit(effect), "interval": [float(lower), float(upper)]}
         if "term" in effect:
-            finding["model_value"] = model.derivative(h.target)
+            finding["model_value"] = model_value(model, h.target)
         step = steps[h.key]
         lr = selection.drop_lr[h.key]
         finding.update({"confidence": step["confidence"], "likelihood_ratio": lr,

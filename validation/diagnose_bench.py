@@ -17,6 +17,12 @@ sensor noise, :data:`validation.bo105.SENSOR_NOISE_STD`): the diagnosed one flie
 identification manoeuvre of :func:`validation.effects.identification_manoeuvre` (variant 0), the
 held-out one its variant 1 (other amplitudes, step times and order), with its own noise seed.
 
+The ``blimp`` suite (:func:`blimp_cases`, ``concealed_cases("blimp")``) does the same on the blimp
+ODE: 20 s at 20 Hz (the mocap rate), all 12 states with the white noise of
+:data:`validation.blimp_effects.SENSOR_NOISE_STD`, the manoeuvres of
+:func:`validation.blimp_effects.identification_manoeuvre`; single effects of every kind the blimp
+takes, a pair and no effect.
+
 Scorecard columns, per case: every true effect named with the right effect kind and target
 (``named``); the true value inside the reported interval (``in_interval``); the held-out RMSE of
 the *affected output* (the one the true effects move most, relative to its noise, in the
@@ -34,8 +40,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import blimp_effects
+from .blimp import BlimpReference
 from .bo105 import INPUT_NAMES, SENSOR_NOISE_STD, STATE_NAMES, Bo105Reference
-from .effects import TARGET_KEYS, EffectVehicle, identification_manoeuvre
+from .effects import TARGET_KEYS, EffectVehicle, identification_manoeuvre, model_value, simulate_with_effects
 from .errors import BadInputError
 from .recordings import Recording
 from .vehicles import get_vehicle
@@ -45,6 +53,22 @@ REQUIRED_CUT = 0.6
 #: Recording length and interval of every case, s (issue 7's runtime goal is per 20 s at 100 Hz).
 DURATION = 20.0
 SAMPLE_TIME = 0.01
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What a suite needs of its reference: noise per state, the manoeuvre and its rate."""
+
+    noise_sd: dict
+    manoeuvre: object
+    sample_time: float
+
+
+def _setup(reference) -> _Setup:
+    if isinstance(reference, BlimpReference):
+        return _Setup(blimp_effects.SENSOR_NOISE_STD, blimp_effects.identification_manoeuvre,
+                      blimp_effects.SAMPLE_TIME)
+    return _Setup(SENSOR_NOISE_STD, identification_manoeuvre, SAMPLE_TIME)
 
 
 @dataclass(frozen=True)
@@ -73,14 +97,60 @@ class ConcealedCase:
     description: str = ""
 
 
+def blimp_cases() -> list[ConcealedCase]:
+    """The blimp suite (module docstring): every effect kind the blimp takes at sizes a real
+    indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
+    errors, a buoyancy imbalance of 0.3 g), a pair and no effect."""
+    reference = BlimpReference()
+
+    def scaled(kind, term, factor, description):
+        value = model_value(reference, term) * factor
+        return ConcealedCase(f"{term}{round((factor - 1) * 100):+d}%", "single",
+                             ({"effect": kind, "term": term, "value": value},),
+                             description=f"{description}: {model_value(reference, term):.4g} -> {value:.4g}")
+
+    def single(effect, name, description):
+        return ConcealedCase(name, "single", (effect,), description=description)
+
+    return [
+        single({"effect": "time_delay", "input": "u_gondola", "value": 0.15}, "delay-u_gondola-150ms",
+               "transport delay 150 ms on the gondola thrust command"),
+        single({"effect": "time_delay", "input": "u_tail", "value": 0.1}, "delay-u_tail-100ms",
+               "transport delay 100 ms on the tail-fan command"),
+        single({"effect": "input_lag", "input": "u_tail", "value": 0.3}, "lag-u_tail-300ms",
+               "fan spin-up lag 300 ms on the tail fan"),
+        single({"effect": "input_lag", "input": "u_gondola", "value": 0.2}, "lag-u_gondola-200ms",
+               "fan spin-up lag 200 ms on the gondola fans"),
+        scaled("quadratic_drag", "X_UU", 1.3, "quadratic surge drag +30 %"),
+        scaled("quadratic_drag", "Y_VV", 1.5, "quadratic sway drag +50 %"),
+        scaled("control_derivative", "gondola_thrust_backward", 0.7, "gondola thrust backward -30 %"),
+        scaled("control_derivative", "tail_thrust_negative", 0.6, "tail thrust pushing right -40 %"),
+        scaled("stability_derivative", "N_R", 1.5, "yaw damping +50 %"),
+        single({"effect": "force_offset", "term": "Z_0", "value": 0.003}, "Z_0-3mN",
+               "buoyancy imbalance: 3 mN (0.3 g) heavy"),
+        single({"effect": "force_offset", "term": "N_0", "value": 0.002}, "N_0-2mNm",
+               "constant yaw moment 2 mN m (a bent fin)"),
+        single({"effect": "sensor_bias", "output": "psi", "value": 5 * blimp_effects.SENSOR_NOISE_STD["psi"]},
+               "bias-psi-5sd", "heading sensor bias 5x noise"),
+        ConcealedCase("pair-delay+Z_0", "pair",
+                      ({"effect": "time_delay", "input": "u_gondola", "value": 0.1},
+                       {"effect": "force_offset", "term": "Z_0", "value": -0.002}),
+                      description="100 ms delay on u_gondola and 2 mN excess buoyancy"),
+        ConcealedCase("none", "none", description="the reference itself, with sensor noise"),
+    ]
+
+
 def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
-    """The benchmark suite for one Bo105 reference (module docstring).
+    """The benchmark suite for one reference: :func:`blimp_cases` for ``blimp``, else the Bo105
+    suite (module docstring).
 
     Derivative changes are relative to the reference's own values, so the suite works at every
     tabulated speed; the off-axis ``L_q``/``M_p`` values are the wake-distortion changes that the
     flight-test stand-in applies at 80 kt (Keller, JAHS 1996; :mod:`validation.bo105`).
     """
     model = _reference_model(reference)
+    if isinstance(model, BlimpReference):
+        return blimp_cases()
 
     def scaled(kind, term, factor):
         value = model.derivative(term) * factor
@@ -144,23 +214,25 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
     Returns
     -------
     fit, holdout : Recording
-    truth_states : ndarray, shape (n, 8)
+    truth_states : ndarray, shape (n, n_states)
         Noise-free states of the held-out flight with the concealed physics (for scoring).
     """
-    vehicle = EffectVehicle(reference, case.effects, noise_sd=SENSOR_NOISE_STD)
+    setup = _setup(_reference_model(reference))
+    vehicle = EffectVehicle(reference, case.effects, noise_sd=setup.noise_sd)
     recordings = []
     for variant in (0, 1):
-        time, inputs = identification_manoeuvre(duration=DURATION, sample_time=SAMPLE_TIME, variant=variant)
+        time, inputs = setup.manoeuvre(duration=DURATION, sample_time=setup.sample_time, variant=variant)
         if case.outside is None:
             states = vehicle.simulate_states(time, inputs)
         else:
             states = _outside_states(case.outside, vehicle, time, inputs)
         rng = np.random.default_rng([seed, variant])
-        noise = np.array([SENSOR_NOISE_STD[name] for name in STATE_NAMES])
+        noise = np.array([setup.noise_sd[name] for name in vehicle.state_names])
         measured = states + rng.standard_normal(states.shape) * noise
         metadata = {"vehicle": reference, "simulator": f"diagnose-bench case {case.name}",
-                    "sample_time": SAMPLE_TIME, "seed": seed, "sensor_noise_std": dict(SENSOR_NOISE_STD)}
-        recordings.append((Recording(time, inputs, INPUT_NAMES, measured, STATE_NAMES, metadata), states))
+                    "sample_time": setup.sample_time, "seed": seed, "sensor_noise_std": dict(setup.noise_sd)}
+        recordings.append((Recording(time, inputs, vehicle.input_names, measured, vehicle.state_names, metadata),
+                           states))
     (fit, _), (holdout, truth_states) = recordings
     return fit, holdout, truth_states
 
@@ -278,11 +350,13 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
             f.get("interval") is not None and f["interval"][0] <= truth[key]["value"] <= f["interval"][1]
             for key, f in matched.items())
     # The affected output: the one the concealed physics moves most, relative to its noise.
-    replay = _reference_model(reference).simulate_states(holdout.time, holdout.inputs)
+    model = _reference_model(reference)
+    replay = simulate_with_effects(model, [], holdout.time, holdout.inputs)
+    noise_sd, names = _setup(model).noise_sd, model.state_names
     outputs = diagnosis["fit"]["outputs"]
     if case.kind != "none":
-        energy = [np.sum(((truth_states[:, STATE_NAMES.index(n)] - replay[:, STATE_NAMES.index(n)])
-                          / SENSOR_NOISE_STD[n]) ** 2) for n in outputs]
+        energy = [np.sum(((truth_states[:, names.index(n)] - replay[:, names.index(n)])
+                          / noise_sd[n]) ** 2) for n in outputs]
         name = outputs[int(np.argmax(energy))]
         score.affected_output = name
         fit = diagnosis["fit"]
@@ -299,7 +373,7 @@ def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=N
     ----------
     cases : sequence of ConcealedCase
     reference : str
-        ``bo105-<V>kt``.
+        ``bo105-<V>kt`` or ``blimp``.
     seed : int
         Sensor-noise seed (the held-out recording uses its own stream) and the diagnosis seed.
     progress : callable, optional
@@ -317,7 +391,8 @@ def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=N
                                reference=reference, seconds=seconds))
         if progress:
             progress(1, case=case.name)
-    return {"reference": reference, "seed": seed, "duration_s": DURATION, "sample_time_s": SAMPLE_TIME,
+    return {"reference": reference, "seed": seed, "duration_s": DURATION,
+            "sample_time_s": _setup(_reference_model(reference)).sample_time,
             "required_cut": REQUIRED_CUT, "cases": [row.as_dict() for row in rows],
             "passed": sum(row.passed for row in rows), "total": len(rows),
             "max_seconds": max((row.seconds for row in rows), default=0.0)}
@@ -345,9 +420,9 @@ def format_scorecard(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _reference_model(reference: str) -> Bo105Reference:
-    """The ``bo105-<V>kt`` reference (BadInputError for anything else)."""
+def _reference_model(reference: str):
+    """The ``bo105-<V>kt`` or ``blimp`` reference (BadInputError for anything else)."""
     model = get_vehicle(reference)
-    if not isinstance(model, Bo105Reference):
-        raise BadInputError(f"diagnose-bench runs on the bo105-<V>kt references, not {reference!r}")
+    if not isinstance(model, (Bo105Reference, BlimpReference)):
+        raise BadInputError(f"diagnose-bench runs on the bo105-<V>kt and blimp references, not {reference!r}")
     return model

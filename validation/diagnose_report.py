@@ -12,9 +12,14 @@ from .plots import png_bytes
 from .recordings import column_unit
 
 INPUT_WORDS = {"theta_0": "main-rotor collective", "theta_1s": "longitudinal cyclic",
-               "theta_1c": "lateral cyclic", "theta_0T": "tail-rotor collective (pedals)"}
+               "theta_1c": "lateral cyclic", "theta_0T": "tail-rotor collective (pedals)",
+               "u_gondola": "gondola thrust command", "mu": "gondola thrust angle",
+               "u_tail": "tail-fan command"}
 OUTPUT_WORDS = {"u": "forward speed", "w": "vertical speed", "q": "pitch-rate", "theta": "pitch-attitude",
-                "v": "lateral speed", "p": "roll-rate", "phi": "roll-attitude", "r": "yaw-rate"}
+                "v": "lateral speed", "p": "roll-rate", "phi": "roll-attitude", "r": "yaw-rate",
+                "x": "north position", "y": "east position", "z": "height (down)", "psi": "heading",
+                "U": "surge speed", "V": "sway speed", "W": "heave speed", "P": "roll-rate",
+                "Q": "pitch-rate", "R": "yaw-rate"}
 #: Common names of derivatives (Padfield 2007, ch. 4 and 7).
 TERM_WORDS = {"M_q": "pitch damping", "L_p": "roll damping", "N_r": "yaw damping",
               "L_q": "roll moment due to pitch rate (off-axis coupling)",
@@ -23,7 +28,18 @@ TERM_WORDS = {"M_q": "pitch damping", "L_p": "roll damping", "N_r": "yaw damping
               "M_u": "speed stability", "N_v": "weathercock stability", "L_v": "dihedral effect",
               "X_u": "drag damping", "Z_w": "heave damping", "Y_v": "side-force damping",
               "M_theta_1s": "pitch control power", "L_theta_1c": "roll control power",
-              "N_theta_0T": "yaw control power", "Z_theta_0": "heave control power"}
+              "N_theta_0T": "yaw control power", "Z_theta_0": "heave control power",
+              # The blimp's terms (validation.blimp_effects).
+              "gondola_thrust_forward": "gondola thrust per unit forward command",
+              "gondola_thrust_backward": "gondola thrust per unit backward command",
+              "tail_thrust_positive": "tail-fan thrust per unit positive command",
+              "tail_thrust_negative": "tail-fan thrust per unit negative command",
+              "L_P": "roll damping", "M_Q": "pitch damping", "N_R": "yaw damping",
+              "X_UU": "quadratic surge drag", "Y_VV": "quadratic sway drag", "Z_WW": "quadratic heave drag",
+              "X_0": "constant surge force", "Y_0": "constant side force",
+              "Z_0": "buoyancy imbalance (net downward force)", "N_0": "constant yaw moment"}
+_KIND_WORDS = {"control_derivative": "control derivative", "stability_derivative": "stability derivative",
+               "quadratic_drag": "quadratic drag derivative", "force_offset": "force offset"}
 _MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_gp": "corrected + GP"}
 
 
@@ -79,8 +95,7 @@ def statement(finding: dict, fit: dict) -> str:
         term, model_value = finding["term"], finding["model_value"]
         words = TERM_WORDS.get(term, "the derivative")
         change = (f"{(value - model_value) / abs(model_value):+.0%}" if model_value != 0 else "missing in the model")
-        kind_words = "control derivative" if kind == "control_derivative" else "stability derivative"
-        text = (f"The {kind_words} {term} ({words}) is {_number(value)} {unit} {interval}, not the "
+        text = (f"The {_KIND_WORDS[kind]} {term} ({words}) is {_number(value)} {unit} {interval}, not the "
                 f"model's {_number(model_value)} ({change}).")
     alternatives = finding.get("alternatives") or []
     if alternatives:
@@ -155,7 +170,7 @@ def report_markdown(diagnosis, plot_names: dict) -> str:
     search = result["search"]
     lines += ["", "## What was tested", "",
               f"{search['hypotheses_tested']} hypotheses (delay and lag per excited input, every control "
-              "and stability derivative, a bias per output), forward stepwise by likelihood ratio; "
+              "and stability term of the reference, a bias per output), forward stepwise by likelihood ratio; "
               f"weighted RSS {search['null_rss']:.1f} (reference) -> {search['final_rss']:.1f} "
               f"for {search['n_residuals']} residuals."]
     if search["rejected"]:

@@ -29,8 +29,10 @@ How each effect enters the linear Bo105 (``x_dot = A x + B u``, :mod:`validation
   The result is exact and continuous in ``tau``, which a fit needs;
 - ``sensor_bias`` adds a constant to a recorded output.
 
-Only the Bo105 references (``bo105-<V>kt``) take effects so far; the blimp's (quadratic drag,
-force offsets) are named in :data:`EFFECT_KINDS` but not implemented.
+The ``blimp`` reference takes delays, lags, fan thrust gains (``control_derivative``),
+rotational damping (``stability_derivative``), ``quadratic_drag``, ``force_offset`` and sensor
+biases; :mod:`validation.blimp_effects` says how each enters its nonlinear ODE and names the
+terms.
 """
 from __future__ import annotations
 
@@ -41,6 +43,8 @@ from pathlib import Path
 import numpy as np
 from scipy import linalg
 
+from . import blimp_effects
+from .blimp import BlimpReference
 from .bo105 import INPUT_NAMES, ROW_LETTERS, STATE_NAMES, Bo105Reference, _propagate
 from .errors import BadInputError
 from .files import write_json
@@ -50,9 +54,13 @@ from .vehicles import check_history, get_vehicle
 #: Every effect name of the diagnosis.json contract (DESIGN.md).
 EFFECT_KINDS = ("time_delay", "input_lag", "control_derivative", "stability_derivative",
                 "sensor_bias", "quadratic_drag", "force_offset", "unexplained")
-#: Effects :class:`EffectVehicle` can apply to a Bo105 reference, and the key naming their target.
+#: Every named effect kind (all but ``unexplained``) and the key naming its target.
 TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative": "term",
-               "stability_derivative": "term", "sensor_bias": "output"}
+               "stability_derivative": "term", "sensor_bias": "output", "quadratic_drag": "term",
+               "force_offset": "term"}
+#: The kinds each reference family takes (:func:`effect_kinds`).
+_BO105_KINDS = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias")
+_BLIMP_KINDS = tuple(TARGET_KEYS)
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (Bo105 flap time constant
 #: 0.07 s, DESIGN.md), small enough to keep the augmented system well conditioned.
 MAX_DELAY = 1.0
@@ -67,44 +75,67 @@ def effect_target(effect: dict) -> str:
     return effect[TARGET_KEYS[effect["effect"]]]
 
 
+def effect_kinds(reference) -> tuple:
+    """The effect kinds ``reference`` (a Bo105 or blimp reference) takes."""
+    return _BLIMP_KINDS if isinstance(reference, BlimpReference) else _BO105_KINDS
+
+
+def model_value(reference, term: str) -> float:
+    """The reference's own value of a derivative or term (``M_q`` of a Bo105, ``X_UU`` of the blimp)."""
+    if isinstance(reference, BlimpReference):
+        return blimp_effects.model_value(reference, term)
+    return reference.derivative(term)
+
+
 def effect_unit(effect: dict) -> str:
-    """Unit of ``effect["value"]``: s for delays and lags, the output's unit for a bias, and
-    (row acceleration)/(column unit) for derivatives (``1/s`` when they cancel, e.g. ``M_q``)."""
+    """Unit of ``effect["value"]``: s for delays and lags, the output's unit for a bias,
+    (row acceleration)/(column unit) for Bo105 derivatives (``1/s`` when they cancel, e.g.
+    ``M_q``), and the units of :data:`validation.blimp_effects.TERM_UNITS` for blimp terms."""
     kind = effect["effect"]
     if kind in ("time_delay", "input_lag"):
         return "s"
     if kind == "sensor_bias":
         return column_unit(effect["output"])
+    if effect["term"] in blimp_effects.TERM_UNITS:
+        return blimp_effects.TERM_UNITS[effect["term"]]
     letter, _, column = effect["term"].partition("_")
     row_unit, column_unit_ = column_unit(ROW_LETTERS[letter]), column_unit(column)
     return "1/s" if row_unit == column_unit_ else f"({_ACCELERATION_UNITS[row_unit]})/({column_unit_})"
 
 
-def check_effects(effects, reference: Bo105Reference) -> list[dict]:
-    """Validate effect dicts against ``reference``; returns clean copies (``effect``, target, ``value``).
+def _allowed_terms(reference, kind: str) -> list:
+    if isinstance(reference, BlimpReference):
+        return list(blimp_effects.TERMS[kind])
+    columns = STATE_NAMES if kind == "stability_derivative" else INPUT_NAMES
+    return [f"{letter}_{column}" for letter in ROW_LETTERS for column in columns]
+
+
+def check_effects(effects, reference) -> list[dict]:
+    """Validate effect dicts against ``reference`` (a Bo105 or the blimp reference); returns
+    clean copies (``effect``, target, ``value``).
 
     Raises
     ------
     BadInputError
         Unknown effect or target, a derivative of the wrong kind (``M_q`` is a stability
         derivative, ``M_theta_1s`` a control derivative), a non-finite value, a delay or lag
-        outside ``[0, MAX_DELAY]`` / ``[0, MAX_LAG]`` s, or two effects of the same kind on the
-        same target.
+        outside ``[0, MAX_DELAY]`` / ``[0, MAX_LAG]`` s, a blimp thrust term that is not
+        positive, or two effects of the same kind on the same target.
     """
     checked, seen = [], set()
+    kinds = effect_kinds(reference)
     for index, effect in enumerate(effects):
         where = f"effect {index + 1}"
-        if not isinstance(effect, dict) or effect.get("effect") not in TARGET_KEYS:
+        if not isinstance(effect, dict) or effect.get("effect") not in kinds:
             kind = effect.get("effect") if isinstance(effect, dict) else effect
             raise BadInputError(f"{where}: unknown effect {kind!r} for {reference.name}; "
-                                f"known: {', '.join(TARGET_KEYS)}")
+                                f"known: {', '.join(kinds)}")
         kind = effect["effect"]
         key = TARGET_KEYS[kind]
         target = effect.get(key)
-        allowed = {"input": INPUT_NAMES, "output": STATE_NAMES}.get(key)
+        allowed = {"input": reference.input_names, "output": reference.state_names}.get(key)
         if key == "term":
-            columns = STATE_NAMES if kind == "stability_derivative" else INPUT_NAMES
-            allowed = [f"{letter}_{column}" for letter in ROW_LETTERS for column in columns]
+            allowed = _allowed_terms(reference, kind)
         if target not in allowed:
             raise BadInputError(f"{where} ({kind}): {key} {target!r} is not one of {', '.join(allowed)}")
         try:
@@ -117,6 +148,9 @@ def check_effects(effects, reference: Bo105Reference) -> list[dict]:
         limit = {"time_delay": MAX_DELAY, "input_lag": MAX_LAG}.get(kind)
         if limit is not None and not 0.0 <= value <= limit:
             raise BadInputError(f"{where} ({kind} on {target}): {value} s is outside 0 .. {limit} s")
+        if target in blimp_effects.CONTROL_TERMS and not value > 0:
+            raise BadInputError(f"{where} ({kind} on {target}): thrust per unit command must be "
+                                f"positive, got {value} N")
         if (kind, target) in seen:
             raise BadInputError(f"{where}: a second {kind} on {target}; give each effect once")
         seen.add((kind, target))
@@ -143,25 +177,47 @@ def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
     return shifted
 
 
-def simulate_with_effects(reference: Bo105Reference, effects: list[dict], time: np.ndarray,
-                          inputs: np.ndarray) -> np.ndarray:
+def batches_simulations(reference) -> bool:
+    """Whether :func:`simulate_many` integrates its members together (the blimp) rather than
+    one after the other (the Bo105's exact discretisation is fast enough alone)."""
+    return isinstance(reference, BlimpReference)
+
+
+def simulate_many(reference, effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """:func:`simulate_with_effects` for each of B lists of checked effects, shape (B, n, n_states)."""
+    if isinstance(reference, BlimpReference):
+        return blimp_effects.simulate_batch(reference, effect_lists, time, inputs)
+    return np.stack([_bo105_with_effects(reference, effects, time, inputs) for effects in effect_lists])
+
+
+def simulate_with_effects(reference, effects: list[dict], time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
     """States (plus sensor biases) of ``reference`` with ``effects`` applied, from trim.
 
     Parameters
     ----------
-    reference : Bo105Reference
+    reference : Bo105Reference or BlimpReference
     effects : list of dict
         Already checked (:func:`check_effects`).
     time : ndarray, shape (n,)
         Evenly spaced sample times, s.
-    inputs : ndarray, shape (n, 4)
-        Commanded inputs, rad, zero-order hold (row k acts from ``time[k]`` to ``time[k+1]``).
+    inputs : ndarray, shape (n, n_inputs)
+        Commanded inputs (reference units), zero-order hold (row k acts from ``time[k]`` to
+        ``time[k+1]``).
 
     Returns
     -------
-    ndarray, shape (n, 8)
-        ``u, w, q, theta, v, p, phi, r`` as recorded (biases added), SI units.
+    ndarray, shape (n, n_states)
+        The reference's states as recorded (biases added), SI units: Bo105 ``u, w, q, theta, v,
+        p, phi, r``; blimp ``x, y, z, phi, theta, psi, U, V, W, P, Q, R``
+        (:func:`validation.blimp_effects.simulate_batch`).
     """
+    if isinstance(reference, BlimpReference):
+        return blimp_effects.simulate_batch(reference, [effects], time, inputs)[0]
+    return _bo105_with_effects(reference, effects, time, inputs)
+
+
+def _bo105_with_effects(reference: Bo105Reference, effects, time, inputs) -> np.ndarray:
+    """The Bo105 case of :func:`simulate_with_effects` (module docstring), shape (n, 8)."""
     time, inputs, step = check_history(time, inputs, INPUT_NAMES)
     derivatives = {e["term"]: e["value"] for e in effects if "term" in e}
     model = reference.with_derivatives(derivatives) if derivatives else reference
@@ -207,12 +263,13 @@ class EffectVehicle:
     Parameters
     ----------
     reference_name : str
-        ``bo105-<V>kt``.
+        ``bo105-<V>kt`` or ``blimp``.
     effects : sequence of dict
         ``{"effect", "input" | "term" | "output", "value"}`` each; extra keys are ignored.
     noise_sd : dict of str to float, optional
         White Gaussian sensor noise, standard deviation per state (state units), e.g.
-        :data:`validation.bo105.SENSOR_NOISE_STD`; states not named are noise-free.
+        :data:`validation.bo105.SENSOR_NOISE_STD` or
+        :data:`validation.blimp_effects.SENSOR_NOISE_STD`; states not named are noise-free.
 
     Attributes
     ----------
@@ -228,9 +285,9 @@ class EffectVehicle:
 
     def __init__(self, reference_name: str, effects=(), *, noise_sd: dict | None = None):
         reference = get_vehicle(reference_name)
-        if not isinstance(reference, Bo105Reference):
-            raise BadInputError(f"effects can be applied to the bo105-<V>kt references only, not "
-                                f"{reference_name!r}")
+        if not isinstance(reference, (Bo105Reference, BlimpReference)):
+            raise BadInputError(f"effects can be applied to the bo105-<V>kt and blimp references only, "
+                                f"not {reference_name!r}")
         self._reference = reference
         self.reference_name = reference.name
         self.name = f"{reference.name}+effects"
@@ -254,7 +311,8 @@ class EffectVehicle:
         return dict(self._noise_sd)
 
     def simulate_states(self, time, inputs) -> np.ndarray:
-        """Noise-free recorded states (biases included), shape (n, 8); see :func:`simulate_with_effects`."""
+        """Noise-free recorded states (biases included), shape (n, n_states); see
+        :func:`simulate_with_effects`."""
         return simulate_with_effects(self._reference, self._effects, time, inputs)
 
     def simulate(self, time, inputs, *, seed: int = 0) -> Recording:

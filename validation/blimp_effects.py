@@ -1,0 +1,241 @@
+"""Named effects on the blimp reference (:mod:`validation.blimp`), simulated in batches.
+
+The effect dicts are those of :mod:`validation.effects` (the ``flightgp diagnose`` finding shape).
+On the blimp they act on the ODE of :func:`validation.blimp.blimp_dynamics` as follows (body axes,
+SI units; ``M`` is the blimp's system inertia matrix, so an extra generalised force ``tau``
+adds ``M^-1 tau`` to ``nu_dot``):
+
+- ``time_delay`` on ``u_gondola``, ``mu`` or ``u_tail``: the input ``u_j(t - tau)``. With the
+  zero-order hold of a recording of interval ``h`` and ``tau = (m + f) h`` the delayed input
+  switches at fraction ``f`` inside each interval; the simulation holds its *interval mean*
+  ``(1 - f) u_j[k-m] + f u_j[k-m-1]`` over the interval (exact in the input's integral over each
+  interval, continuous and piecewise linear in ``tau``, which an output-error fit needs);
+- ``input_lag`` on an input: ``T z_dot = -z + u_j`` and the ODE sees ``z``. With the input
+  ``u_k`` held, ``z`` is exact at the samples, ``z[k+1] = a z[k] + (1 - a) u_k`` with
+  ``a = exp(-h/T)``, and the simulation holds its exact interval mean
+  ``u_k + (z[k] - u_k) (T/h) (1 - a)`` over the interval: stable for any ``T``, continuous at
+  ``T = 0`` (the mean tends to ``u_k``) with a non-zero slope there, as a fit needs (a lag after
+  a delay acts on the delayed interval means);
+- ``control_derivative``, terms ``gondola_thrust_forward``, ``gondola_thrust_backward``,
+  ``tail_thrust_positive``, ``tail_thrust_negative``: the fan thrust per unit command, N, for
+  positive / negative commands (the :class:`~validation.blimp.BlimpParameters` of the same
+  names); applied as a gain ``value / model value`` on the command after delay and lag;
+- ``stability_derivative``, terms ``L_P``, ``M_Q``, ``N_R``: the linear rotational damping
+  derivatives ``dL/dP`` etc., N m s/rad (the model's are ``-rotational_damping``); the change
+  adds a moment ``(value - model) P``;
+- ``quadratic_drag``, terms ``X_UU``, ``Y_VV``, ``Z_WW``: the quadratic translational damping
+  derivatives ``dX/d(U|U|)`` etc., N s^2/m^2 (the model's are ``-quadratic_drag``, Zufferey et
+  al. 2006); the change adds a force ``(value - model) U|U|``;
+- ``force_offset``, terms ``X_0``, ``Y_0`` (body-axis forces, N), ``N_0`` (yaw moment, N m) and
+  ``Z_0`` (net downward force, weight minus buoyancy, N, along the earth vertical and acting at
+  the centre of buoyancy: a buoyancy imbalance; the model's is ``-net_lift``);
+- ``sensor_bias`` on any of the 12 states: a constant added to the recorded output.
+
+Integration: classical RK4 with one step per recording interval from the reference's hanging
+state (:class:`~validation.blimp.BlimpReference` uses substeps of at most 0.01 s; at 20 Hz the two
+agree to far below the sensor noise, see ``tests/test_diagnose_blimp.py``). All members of a
+batch are integrated together, one vectorised :func:`~validation.blimp.blimp_dynamics` call per
+RK4 stage, which is what makes output-error fitting of many hypotheses affordable.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from scipy import signal
+
+from .blimp import (_ATTITUDE_NOISE_STD, _POSITION_NOISE_STD, INPUT_NAMES, STATE_NAMES,
+                    BlimpReference, _check_history, _hanging_state, _mass_matrix, blimp_dynamics)
+
+#: Control-derivative terms: fan, command column, sign of the commands it applies to.
+CONTROL_TERMS = {"gondola_thrust_forward": ("u_gondola", 1.0), "gondola_thrust_backward": ("u_gondola", -1.0),
+                 "tail_thrust_positive": ("u_tail", 1.0), "tail_thrust_negative": ("u_tail", -1.0)}
+#: Stability-derivative terms: the rotational-rate column (0 P, 1 Q, 2 R).
+STABILITY_TERMS = {"L_P": 0, "M_Q": 1, "N_R": 2}
+#: Quadratic-drag terms: the body-velocity column (0 U, 1 V, 2 W).
+DRAG_TERMS = {"X_UU": 0, "Y_VV": 1, "Z_WW": 2}
+#: Force-offset terms: the generalised-force column (0-2 forces, 5 yaw moment; Z_0 earth-vertical).
+OFFSET_TERMS = {"X_0": 0, "Y_0": 1, "Z_0": 2, "N_0": 5}
+TERMS = {"control_derivative": tuple(CONTROL_TERMS), "stability_derivative": tuple(STABILITY_TERMS),
+         "quadratic_drag": tuple(DRAG_TERMS), "force_offset": tuple(OFFSET_TERMS)}
+TERM_UNITS = {**dict.fromkeys(CONTROL_TERMS, "N"), **dict.fromkeys(STABILITY_TERMS, "N m s/rad"),
+              **dict.fromkeys(DRAG_TERMS, "N s^2/m^2"), "X_0": "N", "Y_0": "N", "Z_0": "N", "N_0": "N m"}
+
+#: Recording interval of the blimp diagnosis, s: the 20 Hz motion capture of Ko et al. (DESIGN.md).
+SAMPLE_TIME = 0.05
+#: White sensor noise per state of the blimp recordings (the ``blimp-flight`` stand-in's marker
+#: noise, 1 mm and 0.5 deg; velocities and rates at the noise of its 5-sample quadratic-fit
+#: differentiator at 20 Hz, ``sd / (sqrt(10) h)``, but white here).
+SENSOR_NOISE_STD = {
+    **dict.fromkeys(("x", "y", "z"), _POSITION_NOISE_STD),
+    **dict.fromkeys(("phi", "theta", "psi"), _ATTITUDE_NOISE_STD),
+    **dict.fromkeys(("U", "V", "W"), _POSITION_NOISE_STD / (math.sqrt(10.0) * SAMPLE_TIME)),
+    **dict.fromkeys(("P", "Q", "R"), _ATTITUDE_NOISE_STD / (math.sqrt(10.0) * SAMPLE_TIME)),
+}
+
+
+def model_value(reference: BlimpReference, term: str) -> float:
+    """The reference's value of ``term`` (module docstring for units and signs)."""
+    params = reference.params
+    if term in CONTROL_TERMS:
+        return float(getattr(params, term))
+    if term in STABILITY_TERMS:
+        return -float(params.rotational_damping[STABILITY_TERMS[term]])
+    if term in DRAG_TERMS:
+        return -float(params.quadratic_drag[DRAG_TERMS[term]])
+    if term == "Z_0":
+        return -float(params.net_lift)
+    if term in OFFSET_TERMS:
+        return 0.0
+    raise KeyError(term)
+
+
+def _delayed_mean(signal: np.ndarray, delay: float, step: float) -> np.ndarray:
+    """Interval means of the zero-order-held ``signal`` delayed by ``delay`` s (module docstring),
+    trim (0) before the start; shape like ``signal``."""
+    whole = int(math.floor(delay / step + 1e-9))
+    fraction = delay / step - whole
+    padded = np.concatenate([np.zeros(whole + 1), signal])
+    n = len(signal)
+    late, early = padded[1:n + 1], padded[:n]  # u[k - whole], u[k - whole - 1]
+    return (1.0 - fraction) * late + fraction * early
+
+
+def _lagged_mean(signal_: np.ndarray, time_constant: float, step: float) -> np.ndarray:
+    """Interval means of a first-order lag's output for the zero-order-held ``signal_``
+    (module docstring), starting at trim (0); shape like ``signal_``."""
+    decay = math.exp(-step / time_constant)
+    # z[k+1] = a z[k] + (1 - a) u[k], z[0] = 0  ->  z[k] for k = 0 .. n-1
+    lag_state = signal.lfilter([0.0, 1.0 - decay], [1.0, -decay], signal_)
+    return signal_ + (lag_state - signal_) * time_constant / step * (1.0 - decay)
+
+
+def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.ndarray:
+    """Recorded outputs of the blimp with each list of effects, all integrated together.
+
+    Parameters
+    ----------
+    reference : BlimpReference
+    effect_lists : sequence of list of dict
+        B lists of checked effects (:func:`validation.effects.check_effects`).
+    time : ndarray, shape (n,)
+        Evenly spaced sample times, s.
+    inputs : ndarray, shape (n, 3)
+        ``u_gondola, mu, u_tail``, zero-order hold (row k acts from ``time[k]`` to ``time[k+1]``).
+
+    Returns
+    -------
+    ndarray, shape (B, n, 12)
+        ``x, y, z, phi, theta, psi, U, V, W, P, Q, R`` as recorded (biases added), SI units,
+        from the reference's hanging state at rest.
+    """
+    time, inputs = _check_history(time, inputs)
+    step = float(np.mean(np.diff(time)))
+    params = reference.params
+    n, batch = len(time), len(effect_lists)
+    delayed = np.repeat(inputs[None], batch, axis=0)  # (B, n, 3)
+    gain_positive, gain_negative = np.ones((batch, 3)), np.ones((batch, 3))
+    extra_damping, extra_drag = np.zeros((batch, 3)), np.zeros((batch, 3))
+    constant, extra_down, bias = np.zeros((batch, 6)), np.zeros(batch), np.zeros((batch, 12))
+    for b, effects in enumerate(effect_lists):
+        for effect in effects:  # delays first: a lag acts on the delayed input
+            if effect["effect"] == "time_delay" and effect["value"] > 0:
+                j = INPUT_NAMES.index(effect["input"])
+                delayed[b, :, j] = _delayed_mean(inputs[:, j], effect["value"], step)
+        for effect in effects:
+            kind, value = effect["effect"], effect["value"]
+            if kind == "input_lag" and value > 0:
+                j = INPUT_NAMES.index(effect["input"])
+                delayed[b, :, j] = _lagged_mean(delayed[b, :, j], value, step)
+            elif kind == "sensor_bias":
+                bias[b, STATE_NAMES.index(effect["output"])] += value
+            elif kind in ("control_derivative", "stability_derivative", "quadratic_drag", "force_offset"):
+                term = effect["term"]
+                change = value - model_value(reference, term)
+                if term in CONTROL_TERMS:
+                    column, sign = CONTROL_TERMS[term]
+                    gains = gain_positive if sign > 0 else gain_negative
+                    gains[b, INPUT_NAMES.index(column)] = value / model_value(reference, term)
+                elif term in STABILITY_TERMS:
+                    extra_damping[b, STABILITY_TERMS[term]] = change
+                elif term in DRAG_TERMS:
+                    extra_drag[b, DRAG_TERMS[term]] = change
+                elif term == "Z_0":
+                    extra_down[b] = change
+                else:
+                    constant[b, OFFSET_TERMS[term]] = change
+    _, inverse = _mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
+                              params.cg_position)
+
+    def derivative(state, command):
+        effective = command * np.where(command >= 0, gain_positive, gain_negative)
+        v, w, angles = state[:, 6:9], state[:, 9:12], state[:, 3:6]
+        down = np.stack([-np.sin(angles[:, 1]), np.cos(angles[:, 1]) * np.sin(angles[:, 0]),
+                         np.cos(angles[:, 1]) * np.cos(angles[:, 0])], axis=-1)
+        force = constant.copy()
+        force[:, :3] += extra_drag * np.abs(v) * v + extra_down[:, None] * down
+        force[:, 3:] += extra_damping * w
+        rates = blimp_dynamics(state, effective, params)
+        rates[:, 6:] += force @ inverse.T
+        return rates
+
+    states = np.empty((batch, n, 12))
+    state = np.repeat(_hanging_state(params)[None], batch, axis=0)
+    states[:, 0] = state
+    for k in range(n - 1):
+        held = delayed[:, k]
+        k1 = derivative(state, held)
+        k2 = derivative(state + 0.5 * step * k1, held)
+        k3 = derivative(state + 0.5 * step * k2, held)
+        k4 = derivative(state + step * k3, held)
+        state = state + step / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        states[:, k + 1] = state
+    return states + bias[:, None, :]
+
+
+def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = SAMPLE_TIME,
+                             variant: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A blimp identification input: gondola thrust steps forward and back (speed builds up
+    against quadratic drag, so thrust and drag separate: acceleration at the step measures the
+    thrust, the speed it settles to the drag), gondola-angle steps while thrusting (``mu`` only
+    acts with thrust on), then a tail-fan doublet (yaw) with the gondola idle, all one after the
+    other (Tischler & Remple 2012, ch. 5: one axis at a time).
+
+    Parameters
+    ----------
+    duration, sample_time : float
+        s; 20 s at 20 Hz by default (the mocap rate).
+    variant : int
+        0: for fitting; 1: other amplitudes, timing and signs (held-out data).
+
+    Returns
+    -------
+    time : ndarray, shape (n,)
+    inputs : ndarray, shape (n, 3)
+        ``u_gondola`` (-1..1), ``mu`` (rad), ``u_tail`` (-1..1).
+    """
+    from .manoeuvres import doublet, time_grid
+
+    time = time_grid(duration=duration, sample_time=sample_time)
+    inputs = np.zeros((len(time), 3))
+
+    def span(start, stop):
+        return (time >= start - 1e-9) & (time < stop - 1e-9)
+
+    if variant == 0:
+        inputs[span(1.0, 6.0), 0] = 0.8
+        inputs[span(6.0, 9.0), 0] = -0.6
+        inputs[span(2.5, 4.0), 1] = 0.5
+        inputs[span(4.0, 5.5), 1] = -0.5
+        inputs[:, 2] = doublet(time, amplitude=0.8, step_time=1.5, start=10.0)
+        inputs[span(14.0, 17.0), 0] = 0.5
+        inputs[span(15.0, 16.5), 1] = 0.4
+    else:
+        inputs[:, 2] = -doublet(time, amplitude=0.6, step_time=2.0, start=1.0)
+        inputs[span(6.0, 10.0), 0] = 0.6
+        inputs[span(7.0, 8.5), 1] = -0.6
+        inputs[span(10.0, 12.0), 0] = -0.8
+        inputs[span(13.0, 17.0), 0] = 1.0
+        inputs[span(14.0, 16.0), 1] = 0.3
+    return time, inputs
