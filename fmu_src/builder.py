@@ -90,23 +90,42 @@ def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) ->
         ``out_dir`` is a file.
     """
     from validation.files import write_atomically
-    from validation.narx import load_trained
 
-    model_path = Path(model_path)
-    target = _target(out_dir, _default_name(model_path.stem) if name is None else name)
-    trained = load_trained(model_path)
-    arrays = export_narx_arrays(trained)
-    interface = _interface(trained.config)
-    description = (f"GP-NARX predictor of {', '.join(trained.config.outputs)} with confidence bounds "
-                   f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
-                   f"{trained.step:g} s; {len(arrays['0/basis'])} basis points, "
-                   f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}")
+    target, trained, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
     fmu_bytes = _build(target.stem, slave_module="rate_predictor", slave_class="RatePredictor",
                        variables_call=f"rate_predictor_variables(\n        inputs={interface['inputs']!r},"
                                       f"\n        outputs={interface['outputs']!r},\n    )",
                        attributes={"STEP_SIZE": float(trained.step)}, description=description,
                        arrays=arrays, support_modules=("_runtime",))
     return write_atomically(target, fmu_bytes)
+
+
+def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
+    """What every rate-predictor FMU (pythonfmu or native) is built from.
+
+    Returns
+    -------
+    target : Path
+        ``out_dir/<name>.fmu`` (name checked; default the model file's stem made into a name).
+    trained : validation.narx.TrainedNarx
+    arrays : dict
+        :func:`export_narx_arrays` of the model.
+    interface : dict
+        ``inputs`` and ``outputs`` for :func:`fmu_src.rate_predictor.rate_predictor_variables`.
+    description : str
+        The FMU's one-line description.
+    """
+    from validation.narx import load_trained
+
+    model_path = Path(model_path)
+    target = _target(out_dir, _default_name(model_path.stem) if name is None else name)
+    trained = load_trained(model_path)
+    arrays = export_narx_arrays(trained)
+    description = (f"GP-NARX predictor of {', '.join(trained.config.outputs)} with confidence bounds "
+                   f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
+                   f"{trained.step:g} s; {len(arrays['0/basis'])} basis points, "
+                   f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}")
+    return target, trained, arrays, _interface(trained.config), description
 
 
 def export_narx_arrays(trained) -> dict:
@@ -449,13 +468,13 @@ def _default_name(text: str) -> str:
 def _target(out_dir, name: str) -> Path:
     """``out_dir/<name>.fmu`` after checking ``name`` and ``out_dir`` (BadInputError)."""
     from validation.errors import BadInputError
+    from validation.files import check_output_folder
 
     out_dir = Path(out_dir)
     if not _NAME.match(name):
         raise BadInputError(f"FMU name {name!r} must start with a letter and hold only letters, "
                             "digits and underscores (at most 64); it becomes the FMI model identifier")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadInputError(f"{out_dir} exists and is not a folder")
+    check_output_folder(out_dir)
     return out_dir / f"{name}.fmu"
 
 

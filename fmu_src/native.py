@@ -97,18 +97,15 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     """
     from validation.errors import BadInputError
     from validation.files import write_atomically
-    from validation.narx import load_trained
 
-    from .builder import _default_name, _interface, _target, export_narx_arrays
+    from .builder import rate_predictor_parts
 
     if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
         raise BadInputError(f"native FMUs are built for Linux x86-64 ({PLATFORM_FOLDER}); this is "
                             f"{platform.system()} {platform.machine()}. Build on Linux, or run `fmpy compile` "
                             "on the FMU's sources on the target")
     model_path = Path(model_path)
-    target = _target(out_dir, _default_name(model_path.stem) if name is None else name)
-    trained = load_trained(model_path)
-    arrays = export_narx_arrays(trained)
+    target, _, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
     predictor = _runtime.NarxPredictor(arrays)  # checks shapes and finiteness
     lags = predictor.output_lags
     if sorted(lags) != list(range(1, max(lags) + 1)):
@@ -117,12 +114,8 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
             "run propagates the belief over every lagged output as a regressor and does not implement the "
             "projection for skipped lags. Train with output lags 1 .. L, or build the pythonfmu FMU "
             "(drop --native)")
-    variables = rate_predictor_variables(**_interface(trained.config))
-    samples = len(arrays["0/weights"])
-    description = (f"GP-NARX predictor of {', '.join(predictor.output_names)} with confidence bounds from "
-                   f"{', '.join(predictor.input_names)} and the previous outputs; NARX step "
-                   f"{predictor.step:g} s; {len(arrays['0/basis'])} basis points, {samples} hyperparameter "
-                   f"samples; model {model_path.name}; native C (no Python at run time)")
+    variables = rate_predictor_variables(**interface)
+    description += "; native C (no Python at run time)"
     xml, guid = _model_description(target.stem, variables, predictor.step, description)
     sources = {file: (_NATIVE_C / file).read_bytes() for file in (*C_SOURCES, *C_HEADERS)}
     sources[CONFIG_HEADER] = _narx_config(guid, target.stem, variables, predictor, arrays).encode()

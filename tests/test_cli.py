@@ -84,6 +84,15 @@ def test_bench_narx_checks_agreement_and_beats_the_loop(tmp_path, capsys):
     assert "peer timed on 10 runs, scaled to R" in capsys.readouterr().out
 
 
+def test_bench_summary_or_out_dir_that_cannot_be_written_exits_2_before_running(tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    assert main(["bench", "gp", "--out-dir", str(tmp_path / "file"), "--summary", str(tmp_path / "b.json")]) == 2
+    assert "exists and is not a folder" in capsys.readouterr().err
+    assert main(["bench", "gp", "--out-dir", str(tmp_path / "o"), "--summary", str(tmp_path)]) == 2
+    assert "is a folder" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_bench_option_of_a_benchmark_not_run_exits_2(tmp_path, capsys):
     assert main(["bench", "gp", "--runs", "50", "--out-dir", str(tmp_path), "--summary",
                  str(tmp_path / "b.json")]) == 2

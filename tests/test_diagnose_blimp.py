@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from test_diagnose import _check_named  # the acceptance criteria, shared with the Bo105
+from test_diagnose import _check_named, _write_table  # shared with the Bo105 tests
 
 from validation.blimp import BlimpParameters, BlimpReference
 from validation.blimp_effects import SAMPLE_TIME, SENSOR_NOISE_STD, identification_manoeuvre
@@ -136,11 +136,6 @@ def test_cli_names_a_gondola_delay_and_writes_a_loadable_blimp_model(tmp_path, c
     assert corrected.reference_name == "blimp" and corrected.effects[0]["input"] == "u_gondola"
     assert (out / "holdout_x.png").read_bytes()[:4] == b"\x89PNG"
     assert "gondola thrust command" in capsys.readouterr().out
-
-
-def _write_table(path, header, rows):
-    path.write_text(",".join(header) + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
-    return path
 
 
 @pytest.mark.parametrize("problem, expected", [

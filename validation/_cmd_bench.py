@@ -7,7 +7,7 @@ from pathlib import Path
 
 from .benchmarks import BENCHMARKS, format_summary
 from .errors import BadInputError
-from .files import write_json
+from .files import check_output_folder, write_json
 
 #: Checks of the benchmark-specific options: dest -> (smallest value, what it is).
 _MINIMA = {"sizes": (10, "training-set sizes"), "restarts": (0, "restarts"),
@@ -61,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
             raise BadInputError(f"{option} ({what}) must be at least {minimum}, got {value}")
     if args.threads < 1:
         raise BadInputError(f"--threads must be 1 or more, got {args.threads}")
+    check_output_folder(args.out_dir)
+    if args.summary.is_dir():
+        raise BadInputError(f"--summary {args.summary} is a folder; give a file name such as build/bench.json")
     from threadpoolctl import threadpool_limits
 
     reports = {}

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ._cmd_record import add_flight_arguments, fly
 from .errors import BadInputError
+from .files import check_output_folder
 from .recordings import read_recording
 
 
@@ -33,8 +34,7 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.gp_fmu, args.reference):
         if path is not None and not path.is_file():
             raise BadInputError(f"{path}: no such FMU")
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"{args.out} exists and is not a folder")
+    check_output_folder(args.out)
     if (args.recording is None) == (args.vehicle is None):
         raise BadInputError("give either --recording FILE.csv or a manoeuvre with --vehicle and --input")
     if args.recording is not None:

@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 from .cli import seed
-from .errors import BadInputError
+from .files import check_output_folder
 
 
 def register(subparsers) -> None:
@@ -26,8 +26,7 @@ def run(args: argparse.Namespace) -> int:
     from .demo import format_cosim, run_demo
     from .reproduce_bo105 import format_results
 
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"{args.out} exists and is not a folder")
+    check_output_folder(args.out)
     print(f"flightgp demo: Bo105 80 kt 3-2-1-1 -> {args.out}/")
     demo = run_demo(args.out, seed=args.seed)
     print(format_results(demo["results"]))

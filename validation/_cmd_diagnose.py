@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 from .cli import seed
-from .errors import BadInputError
+from .files import check_output_folder
 
 
 def register(subparsers) -> None:
@@ -33,8 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from .diagnose import diagnose, write_diagnosis
     from .progress import progress_bar
 
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"{args.out} exists and is not a folder")
+    check_output_folder(args.out)
     with progress_bar("diagnose", enabled=not args.no_progress, unit="fit") as update:
         diagnosis = diagnose(args.recordings, reference=args.reference, holdout=args.holdout,
                              seed=args.seed, progress=update)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .cli import seed
 from .errors import BadInputError
+from .files import check_output_folder
 
 
 def register(subparsers) -> None:
@@ -45,8 +46,7 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise BadInputError(f"unknown case(s) {', '.join(unknown)}; see flightgp diagnose-bench --list")
         cases = [case for case in cases if case.name in args.cases]
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"{args.out} exists and is not a folder")
+    check_output_folder(args.out)
     with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases), unit="case") as update:
         report = run_bench(cases, reference=args.reference, seed=args.seed, progress=update)
     table = format_scorecard(report)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from .cli import seed
 from .errors import BadInputError
+from .files import check_output_folder
 
 PAPERS = ("bo105", "blimp")
 
@@ -28,8 +29,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.out.exists() and not args.out.is_dir():
-        raise BadInputError(f"{args.out} exists and is not a folder")
+    check_output_folder(args.out)
     if args.paper == "blimp":
         from .reproduce_blimp import format_results, reproduce_blimp
 

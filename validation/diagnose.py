@@ -558,11 +558,9 @@ def write_diagnosis(diagnosis: Diagnosis, out_dir) -> list[Path]:
     """Write ``diagnosis.json``, ``report.md`` with its PNGs and ``corrected_model.json``
     (load with :meth:`validation.effects.EffectVehicle.load`) to ``out_dir``, all or nothing
     (:func:`validation.files.write_files_atomically`). Returns the paths written."""
-    from .files import write_files_atomically
+    from .files import check_output_folder, write_files_atomically
 
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadInputError(f"{out_dir} exists and is not a folder")
+    out_dir = check_output_folder(out_dir)
     return write_files_atomically(diagnosis_files(diagnosis, out_dir))
 
 

@@ -97,6 +97,20 @@ class ConcealedCase:
     description: str = ""
 
 
+def _single_case(effect: dict, name: str, description: str) -> ConcealedCase:
+    """A case with one named effect."""
+    return ConcealedCase(name, "single", (effect,), description=description)
+
+
+def _scaled_case(reference, kind: str, term: str, factor: float, *, description: str) -> ConcealedCase:
+    """A case scaling ``term`` of ``reference`` by ``factor``, named ``<term><+-percent>%``."""
+    old = model_value(reference, term)
+    value = old * factor
+    return ConcealedCase(f"{term}{round((factor - 1) * 100):+d}%", "single",
+                         ({"effect": kind, "term": term, "value": value},),
+                         description=f"{description}: {old:.4g} -> {value:.4g}")
+
+
 def blimp_cases() -> list[ConcealedCase]:
     """The blimp suite (module docstring): every effect kind the blimp takes at sizes a real
     indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
@@ -104,13 +118,9 @@ def blimp_cases() -> list[ConcealedCase]:
     reference = BlimpReference()
 
     def scaled(kind, term, factor, description):
-        value = model_value(reference, term) * factor
-        return ConcealedCase(f"{term}{round((factor - 1) * 100):+d}%", "single",
-                             ({"effect": kind, "term": term, "value": value},),
-                             description=f"{description}: {model_value(reference, term):.4g} -> {value:.4g}")
+        return _scaled_case(reference, kind, term, factor, description=description)
 
-    def single(effect, name, description):
-        return ConcealedCase(name, "single", (effect,), description=description)
+    single = _single_case
 
     return [
         single({"effect": "time_delay", "input": "u_gondola", "value": 0.15}, "delay-u_gondola-150ms",
@@ -153,14 +163,9 @@ def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
         return blimp_cases()
 
     def scaled(kind, term, factor):
-        value = model.derivative(term) * factor
-        percent = round((factor - 1) * 100)
-        return ConcealedCase(f"{term}{percent:+d}%", "single",
-                             ({"effect": kind, "term": term, "value": value},),
-                             description=f"{term} {model.derivative(term):.4g} -> {value:.4g} ({percent:+d} %)")
+        return _scaled_case(model, kind, term, factor, description=f"{term} ({round((factor - 1) * 100):+d} %)")
 
-    def single(effect, name, description):
-        return ConcealedCase(name, "single", (effect,), description=description)
+    single = _single_case
 
     noise = SENSOR_NOISE_STD
     cases = [
@@ -400,10 +405,11 @@ def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=N
 
 def format_scorecard(report: dict) -> str:
     """The scorecard as a plain-text table."""
+    width = max([26, *(len(row["case"]) for row in report["cases"])])
     lines = [f"diagnose-bench on {report['reference']} ({report['duration_s']:g} s at "
              f"{1 / report['sample_time_s']:g} Hz, seed {report['seed']}): {report['passed']} of "
              f"{report['total']} cases pass",
-             f"{'case':<26} {'named':>5} {'in CI':>5} {'output':>6} {'ref RMSE':>9} {'corr.':>9} "
+             f"{'case':<{width}} {'named':>5} {'in CI':>5} {'output':>6} {'ref RMSE':>9} {'corr.':>9} "
              f"{'cut':>5} {'false':>5} {'s':>5}  verdict / found"]
     for row in report["cases"]:
         cut = "-" if row["cut"] is None else f"{row['cut']:.0%}"
@@ -413,7 +419,7 @@ def format_scorecard(report: dict) -> str:
         named = "-" if not row["truth"] else yes(row["named"])
         in_ci = "-" if not row["truth"] else yes(row["in_interval"])
         number = lambda v: "-" if v is None else f"{v:.4f}"  # noqa: E731
-        lines.append(f"{row['case']:<26} {named:>5} {in_ci:>5} {row['affected_output'] or '-':>6} "
+        lines.append(f"{row['case']:<{width}} {named:>5} {in_ci:>5} {row['affected_output'] or '-':>6} "
                      f"{number(row['rmse_reference']):>9} {number(row['rmse_corrected']):>9} {cut:>5} "
                      f"{len(row['false_findings']):>5} {row['seconds']:>5.1f}  "
                      f"{'PASS' if row['passed'] else 'FAIL'}: {found}")

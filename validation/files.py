@@ -8,6 +8,18 @@ import secrets
 from pathlib import Path
 
 
+def check_output_folder(path) -> Path:
+    """``path`` as a Path, after checking it can be an output folder (missing or a folder);
+    :class:`~validation.errors.BadInputError` when a file stands there. Call it before long
+    work, so the user learns of a bad ``--out`` at once."""
+    from .errors import BadInputError
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise BadInputError(f"{path} exists and is not a folder")
+    return path
+
+
 def write_files_atomically(files: dict) -> list[Path]:
     """Write several files as one step: every file's content goes to a temporary file next to
     it first, and only when all are written are they renamed into place.
