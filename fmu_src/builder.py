@@ -322,12 +322,43 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
     validation.errors.BadInputError
         Other physics than ``blimp_rk4``; hyperparameter samples; a bad ``name`` or ``out_dir``.
     """
+    from validation.files import write_atomically
 
+    target, arrays, interface, description, nominal_step = blimp_rkgp_parts(model_path, out_dir, name=name)
+    fmu_bytes = _build(target.stem, slave_module="blimp_rkgp", slave_class="BlimpRKGP",
+                       variables_call=f"blimp_rkgp_variables(\n        inputs={interface['inputs']!r},"
+                                      f"\n        states={interface['states']!r},\n    )",
+                       attributes={"DEFAULT_STEP_SIZE": nominal_step}, description=description,
+                       arrays=arrays, support_modules=("_runtime",))
+    return write_atomically(target, fmu_bytes)
+
+
+def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
+    """What every blimp RKGP FMU (pythonfmu or native) is built from.
+
+    Returns
+    -------
+    target : Path
+        ``out_dir/<name>.fmu`` (name checked; default the model file's stem made into a name).
+    arrays : dict
+        The FMU model file's arrays (:func:`fmu_src.blimp_rkgp.pack_model`): the physics
+        parameters, the longest RK4 substep, the GP inputs and their training envelope, and per
+        GP part (one shared, or one per state) its point-hyperparameter predictive form.
+    interface : dict
+        ``inputs`` and ``states`` for :func:`fmu_src.blimp_rkgp.blimp_rkgp_variables`.
+    description : str
+        The FMU's one-line description.
+    nominal_step : float
+        The default experiment's step: the median training frame interval, s.
+
+    Raises
+    ------
+    As :func:`build_blimp_rkgp_fmu`.
+    """
     from gp_model import GreyBoxGP, ModelFileError, load_model, read_header
     from validation.blimp import INPUT_NAMES, STATE_NAMES, _hanging_state
     from validation.blimp_identification import blimp_physics_from_description
     from validation.errors import BadInputError
-    from validation.files import write_atomically
 
     from . import blimp_rkgp
 
@@ -372,12 +403,7 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
                    f"{', '.join(gp_inputs)}); commands u_gondola, mu, u_tail in, the 12 states and their "
                    f"one-step standard deviations out; communication step = frame interval dt "
                    f"(trained {X[:, -1].min():.4g} .. {X[:, -1].max():.4g} s); model {model_path.name}")
-    fmu_bytes = _build(target.stem, slave_module="blimp_rkgp", slave_class="BlimpRKGP",
-                       variables_call=f"blimp_rkgp_variables(\n        inputs={inputs!r},"
-                                      f"\n        states={states!r},\n    )",
-                       attributes={"DEFAULT_STEP_SIZE": nominal_step}, description=description,
-                       arrays=arrays, support_modules=("_runtime",))
-    return write_atomically(target, fmu_bytes)
+    return target, arrays, {"inputs": inputs, "states": states}, description, nominal_step
 
 
 #: What the blimp's signals are (validation.blimp, module docstring: NED earth, body axes).

@@ -9,9 +9,9 @@ parameters, start values, default experiment and sampling convention, since its
 ``modelDescription.xml`` is written by the same code) and the same one-step numbers (the
 formulas of :class:`fmu_src._runtime.NarxPredictor`, free-run mode included: the belief over
 the lagged outputs propagated by moment matching over the hyperparameter mixture, eqs. (1)-(6)
-of :mod:`gp_model._uncertain_input`), but whose binary needs only the C library and libm. The
-native free run needs every output lag from 1 to the largest (the usual structure): a structure
-that skips output lags is refused at build time (the pythonfmu FMU handles it).
+of :mod:`gp_model._uncertain_input`), but whose binary needs only the C library and libm.
+The FMI layer (``fmi2_slave.c``), :func:`package_native_fmu` and :func:`compile_shared_library`
+also build the native blimp RKGP (:mod:`fmu_src.native_blimp`).
 
 What the FMU holds
 ------------------
@@ -89,36 +89,65 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     gp_model.ModelFileError
         The model file is missing, corrupt or not a GP-NARX model.
     validation.errors.BadInputError
-        As :func:`fmu_src.builder.build_rate_predictor_fmu`; also no ``gcc`` on the path, a
-        platform other than Linux x86-64, or output lags that skip a lag (the native free run
-        needs lags 1 .. L).
+        As :func:`fmu_src.builder.build_rate_predictor_fmu`; also no ``gcc`` on the path or a
+        platform other than Linux x86-64.
     RuntimeError
         gcc failed to compile the generated sources (a bug: the message holds its output).
     """
-    from validation.errors import BadInputError
-    from validation.files import write_atomically
-
     from .builder import rate_predictor_parts
+
+    check_platform()
+    model_path = Path(model_path)
+    target, _, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
+    predictor = _runtime.NarxPredictor(arrays)  # checks shapes and finiteness
+    variables = rate_predictor_variables(**interface)
+    slave_class = type(target.stem, (RatePredictor,), {
+        "description": description + "; native C (no Python at run time)", "VARIABLES": variables,
+        "STEP_SIZE": float(predictor.step)})
+    return package_native_fmu(
+        target, slave_class=slave_class, c_sources=C_SOURCES,
+        config=lambda guid: _narx_config(guid, target.stem, variables, predictor, arrays),
+        data=_narx_data(arrays, len(predictor.output_names)))
+
+
+def check_platform() -> None:
+    """Raise :class:`validation.errors.BadInputError` unless this is Linux x86-64 (the only
+    platform whose binary the native builders compile)."""
+    from validation.errors import BadInputError
 
     if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
         raise BadInputError(f"native FMUs are built for Linux x86-64 ({PLATFORM_FOLDER}); this is "
                             f"{platform.system()} {platform.machine()}. Build on Linux, or run `fmpy compile` "
                             "on the FMU's sources on the target")
-    model_path = Path(model_path)
-    target, _, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
-    predictor = _runtime.NarxPredictor(arrays)  # checks shapes and finiteness
-    lags = predictor.output_lags
-    if sorted(lags) != list(range(1, max(lags) + 1)):
-        raise BadInputError(
-            f"{model_path.name}: output lags {list(lags)} skip lags of 1 .. {max(lags)}; the native FMU's free "
-            "run propagates the belief over every lagged output as a regressor and does not implement the "
-            "projection for skipped lags. Train with output lags 1 .. L, or build the pythonfmu FMU "
-            "(drop --native)")
-    variables = rate_predictor_variables(**interface)
-    description += "; native C (no Python at run time)"
-    xml, guid = _model_description(target.stem, variables, predictor.step, description)
-    sources = {file: (_NATIVE_C / file).read_bytes() for file in (*C_SOURCES, *C_HEADERS)}
-    sources[CONFIG_HEADER] = _narx_config(guid, target.stem, variables, predictor, arrays).encode()
+
+
+def package_native_fmu(target: Path, *, slave_class, c_sources: tuple, config, data: bytes) -> Path:
+    """Compile and package one native FMU (what every native builder ends with).
+
+    Parameters
+    ----------
+    target : Path
+        ``<out_dir>/<name>.fmu``, already checked; ``name`` is the model identifier.
+    slave_class : type
+        The pythonfmu slave class of the same FMU (variable table, description, step), whose
+        ``modelDescription.xml`` the native FMU declares (:func:`_model_description`).
+    c_sources : tuple of str
+        The C files in ``fmu_src/native_c`` to compile: ``fmi2_slave.c`` and the model's.
+    config : callable
+        ``config(guid) -> str``: the FMU's ``model_config.h``.
+    data : bytes
+        ``resources/model.bin``, the model constants read at ``fmi2Instantiate``.
+
+    Returns
+    -------
+    Path
+        ``target``, written atomically.
+    """
+    from validation.files import write_atomically
+
+    xml, guid = _model_description(slave_class, c_sources)
+    sources = {file: (_NATIVE_C / file).read_bytes() for file in (*c_sources, *C_HEADERS)}
+    sources[CONFIG_HEADER] = config(guid).encode()
     binary = compile_shared_library(sources, target.stem)
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -126,7 +155,7 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
         archive.writestr(f"binaries/{PLATFORM_FOLDER}/{target.stem}.so", binary)
         for file, text in sources.items():
             archive.writestr(f"sources/{file}", text)
-        archive.writestr(f"resources/{DATA_FILE}", _narx_data(arrays, len(predictor.output_names)))
+        archive.writestr(f"resources/{DATA_FILE}", data)
     return write_atomically(target, buffer.getvalue())
 
 
@@ -185,19 +214,16 @@ def compile_shared_library(sources: dict, name: str, *, extra_flags=()) -> bytes
         return output.read_bytes()
 
 
-def _model_description(name: str, variables: tuple, step: float, description: str) -> tuple[bytes, str]:
-    """The pythonfmu rate predictor's ``modelDescription.xml`` for these variables (the same
-    class writes it), made native: no execution tool, the C sources listed. Returns the XML and
-    its GUID."""
-    slave_class = type(name, (RatePredictor,), {"description": description, "VARIABLES": variables,
-                                                "STEP_SIZE": float(step)})
+def _model_description(slave_class, c_sources: tuple) -> tuple[bytes, str]:
+    """The pythonfmu FMU's ``modelDescription.xml`` (its slave class writes it), made native: no
+    execution tool, the C sources listed. Returns the XML and its GUID."""
     root = slave_class(instance_name="build").to_xml({
         "needsExecutionTool": False, "canHandleVariableCommunicationStepSize": False,
         "canGetAndSetFMUstate": True, "canSerializeFMUstate": True})
     root.set("generationTool", "flightgp native C exporter (fmu_src/native.py)")
     co_simulation = root.find("CoSimulation")
     files = ElementTree.SubElement(co_simulation, "SourceFiles")
-    for file in C_SOURCES:
+    for file in c_sources:
         ElementTree.SubElement(files, "File", {"name": file})
     ElementTree.indent(root, space="  ")
     return ElementTree.tostring(root, encoding="UTF-8", xml_declaration=True), root.get("guid")
@@ -226,13 +252,6 @@ def _c_array(c_type: str, name: str, values, form=str) -> str:
 def _narx_config(guid: str, name: str, variables: tuple, predictor, arrays: dict) -> str:
     """``model_config.h``: identity, variable table and NARX structure of one FMU."""
     reference = {v.name: vr for vr, v in enumerate(variables)}
-    rows = []
-    for v in variables:
-        minimum = "-DBL_MAX" if v.minimum is None else _c_number(v.minimum)
-        maximum = "DBL_MAX" if v.maximum is None else _c_number(v.maximum)
-        rows.append(f"    {{{_c_string(v.name)}, {_KINDS[v.kind]}, CAUSALITY_{v.causality.upper()}, "
-                    f"VARIABILITY_{v.variability.upper()}, {_c_string(v.unit or '')}, "
-                    f"{_c_number(float(v.start))}, {minimum}, {maximum}}},")
     outputs = predictor.output_names
     n_out = len(outputs)
     parts = [_part(arrays, j) for j in range(n_out)]
@@ -246,9 +265,7 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor, arrays: dict
         "/* Communication step = NARX step, s; relative time tolerance (fmu_src/_base.py) */",
         f"#define STEP_SIZE {_c_number(predictor.step)}",
         f"#define TIME_TOLERANCE {_c_number(_base.TIME_TOLERANCE)}", "",
-        "/* Variable table (fmu_src/rate_predictor.py, rate_predictor_variables): row = value reference */",
-        f"#define N_VARIABLES {len(variables)}",
-        "static const VariableInfo VARIABLES[N_VARIABLES] = {", *rows, "};", "",
+        *_variable_table(variables, "fmu_src/rate_predictor.py, rate_predictor_variables"),
         "/* NARX structure (fmu_src/_runtime.py): regressors = every input at every input lag, then",
         "   every output at every output lag */",
         f"#define N_INPUTS {len(predictor.input_names)}",
@@ -284,6 +301,19 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor, arrays: dict
         _c_array("int", "LOWER_TRIANGULAR", [int(_lower_triangular(p["variance_factor"])) for p in parts]).rstrip(),
         "", "#endif", ""]
     return "\n".join(lines)
+
+
+def _variable_table(variables: tuple, source: str) -> list:
+    """Lines of ``model_config.h`` declaring the variable table (model.h, VariableInfo)."""
+    rows = []
+    for v in variables:
+        minimum = "-DBL_MAX" if v.minimum is None else _c_number(v.minimum)
+        maximum = "DBL_MAX" if v.maximum is None else _c_number(v.maximum)
+        rows.append(f"    {{{_c_string(v.name)}, {_KINDS[v.kind]}, CAUSALITY_{v.causality.upper()}, "
+                    f"VARIABILITY_{v.variability.upper()}, {_c_string(v.unit or '')}, "
+                    f"{_c_number(float(v.start))}, {minimum}, {maximum}}},")
+    return [f"/* Variable table ({source}): row = value reference */", f"#define N_VARIABLES {len(variables)}",
+            "static const VariableInfo VARIABLES[N_VARIABLES] = {", *rows, "};", ""]
 
 
 def _part(arrays: dict, j: int) -> dict:

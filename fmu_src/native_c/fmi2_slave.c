@@ -72,12 +72,24 @@ typedef enum {
 
 #define STATE_SLOTS (MODEL_STATE_SIZE > 0 ? MODEL_STATE_SIZE : 1)
 
+/* The communication step (fmu_src/_base.py, "Sampling convention"): STEP_SIZE if positive (the
+ * model's own step, e.g. the NARX step); if STEP_SIZE is 0, the step of the first fmi2DoStep
+ * after initialisation, which must lie in MIN_STEP_SIZE .. MAX_STEP_SIZE (STEP_RANGE_REASON says
+ * why; FlightgpSlave.step_problem) and is then kept until fmi2Reset. A model_config.h with a
+ * fixed step need not define the range. */
+#ifndef MIN_STEP_SIZE
+#define MIN_STEP_SIZE STEP_SIZE
+#define MAX_STEP_SIZE STEP_SIZE
+#define STEP_RANGE_REASON "the model step"
+#endif
+
 /* Everything that changes while an instance runs: what fmi2GetFMUstate saves (with the
  * refused-setter message, kept beside it because it is a string). Plain data, no pointers. */
 typedef struct {
     int mode;
     double start_time;                 /* t0, s */
     long long step_count;              /* k: the next communication point is t0 + k h */
+    double step_size;                  /* h, s; 0 until the first fmi2DoStep fixes it */
     double values[N_VARIABLES];        /* by value reference; Booleans as 0.0 / 1.0 */
     double model_state[STATE_SLOTS];   /* the model's hidden state (model.h) */
 } SlaveState;
@@ -362,6 +374,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
         return fmi2Error;
     }
     slave->state.step_count = 0;
+    slave->state.step_size = STEP_SIZE;
     free(slave->refused);
     slave->refused = NULL;
     model_start(slave->model, slave->state.values, slave->state.model_state);
@@ -495,8 +508,9 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 }
 
 /* -- computation (FMI 2.0.4, 4.2.2) ---------------------------------------------------------- */
-/* Why fmi2DoStep(t, h) cannot be taken now, or NULL (the order of fmu_src/_base.py). */
-static char *step_refusal(Slave *slave, double t, double h) {
+/* Why fmi2DoStep(t, h) cannot be taken now, or NULL (the order and the messages of
+ * fmu_src/_base.py, FlightgpSlave._step_refusal); *step is set to the step to take. */
+static char *step_refusal(Slave *slave, double t, double h, double *step) {
     if (slave->refused != NULL) {
         char *message = format_message("a value was refused since the last step: %s", slave->refused);
         free(slave->refused);
@@ -505,11 +519,20 @@ static char *step_refusal(Slave *slave, double t, double h) {
     }
     char *problems = input_problems(slave);
     if (problems != NULL) return problems;
-    if (!(fabs(h - STEP_SIZE) <= TIME_TOLERANCE * STEP_SIZE))
+    *step = slave->state.step_size;
+    if (*step == 0.0) { /* the first step fixes the step */
+        if (!(h > 0.0)) return format_message("communicationStepSize must be positive, got %.16g", h);
+        if (!(MIN_STEP_SIZE <= h && h <= MAX_STEP_SIZE))
+            return format_message("communicationStepSize %.16g s is outside %.6g .. %.6g s, %s", h, MIN_STEP_SIZE,
+                                  MAX_STEP_SIZE, STEP_RANGE_REASON);
+        *step = h;
+    } else if (!(fabs(h - *step) <= TIME_TOLERANCE * *step)) {
         return format_message("expected communicationStepSize = %.16g s but was %.16g s (this FMU advances in "
-                              "steps of exactly its model step)", STEP_SIZE, h);
-    double expected = slave->state.start_time + (double)slave->state.step_count * STEP_SIZE;
-    if (!(fabs(t - expected) <= TIME_TOLERANCE * STEP_SIZE))
+                              "steps of exactly %s)", *step, h,
+                              STEP_SIZE > 0.0 ? "its model step" : "the step of its first fmi2DoStep, until reset");
+    }
+    double expected = slave->state.start_time + (double)slave->state.step_count * *step;
+    if (!(fabs(t - expected) <= TIME_TOLERANCE * *step))
         return format_message("expected currentCommunicationPoint = %.16g s but was %.16g s", expected, t);
     return NULL;
 }
@@ -519,16 +542,18 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
     Slave *slave = c;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!legal(slave, "fmi2DoStep", MASK_DO_STEP)) return fmi2Error;
-    char *refusal = step_refusal(slave, currentCommunicationPoint, communicationStepSize);
+    double step = 0.0;
+    char *refusal = step_refusal(slave, currentCommunicationPoint, communicationStepSize, &step);
     if (refusal == NULL)
         refusal = model_advance(slave->model, slave, slave->state.values, slave->state.model_state,
-                                currentCommunicationPoint, STEP_SIZE);
+                                currentCommunicationPoint, step);
     if (refusal != NULL) {
         slave_log(slave, fmi2Error, "fmi2DoStep at t = %.16g s refused (fmi2Discard): %s",
                   currentCommunicationPoint, refusal);
         free(refusal);
         return fmi2Discard;
     }
+    slave->state.step_size = step;
     slave->state.step_count++;
     return fmi2OK;
 }
@@ -552,7 +577,7 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
         slave_log(slave, fmi2Error, "fmi2GetRealStatus: status kind %d is not provided", (int)s);
         return fmi2Discard;
     }
-    *value = slave->state.start_time + (double)slave->state.step_count * STEP_SIZE;
+    *value = slave->state.start_time + (double)slave->state.step_count * slave->state.step_size;
     return fmi2OK;
 }
 

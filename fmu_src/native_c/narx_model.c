@@ -35,11 +35,16 @@
  * moment matching over the hyperparameter mixture, as NarxPredictor.free_run_step: eqs. (1)-(6)
  * of gp_model/_uncertain_input.py (MomentMatcher, _woodbury_terms) and its belief shift
  * (narx_belief_start, narx_belief_step). Every output's GP is expressed in output 0's input
- * frame (frame_gp), with the per-sample A_s = K_inv[s] = V_s^T V_s precomputed at load. The
- * structure has no skipped output lags (fmu_src/native.py refuses them), so every lagged
- * output is a regressor and its covariance with the prediction is eq. (2) itself (the pinv
- * projection of _cross_covariance_of_lagged_outputs is never needed).
+ * frame (frame_gp), with the per-sample A_s = K_inv[s] = V_s^T V_s precomputed at load. A
+ * lagged output that is a regressor takes its covariance with the prediction from eq. (2); one
+ * that is not (output lags that skip a lag, e.g. (2,) or (1, 3)) takes the linear-Gaussian
+ * projection of _cross_covariance_of_lagged_outputs, with numpy's hermitian pseudo-inverse
+ * (pseudo_inverse). As MomentMatcher._standardise, every step first checks the regressor
+ * covariance (covariance_problem): finite, symmetric and positive semi-definite to
+ * COVARIANCE_TOLERANCE, or the step is refused. Both use one symmetric eigen-solver
+ * (symmetric_eigen, cyclic Jacobi).
  */
+#include <float.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -62,6 +67,7 @@
 #define BELIEF_COV (BELIEF_MEAN + BELIEF_SIZE)         /* BELIEF_SIZE x BELIEF_SIZE, row-major */
 #define D N_REGRESSORS
 #define KNOWN_REGRESSORS (N_INPUTS * N_INPUT_LAGS)     /* the exact part of the regressor */
+#define N_Z (N_OUTPUTS * N_OUTPUT_LAGS)                /* lagged outputs that are regressors */
 
 /* One output's GP (pointers into Model.data). */
 typedef struct {
@@ -394,19 +400,152 @@ static double quadratic_form(const double u[D], const double M[D * D]) {
     return total;
 }
 
+/* -- symmetric eigen-decomposition, for the covariance check and the pseudo-inverse --------- */
+
+/* gp_model/_uncertain_input.py: COVARIANCE_TOLERANCE (relative asymmetry and negative
+ * eigenvalues tolerated in the standardised input covariance) and the rcond of the pinv in
+ * _cross_covariance_of_lagged_outputs. */
+#define COVARIANCE_TOLERANCE 1e-10
+#define PINV_RCOND 1e-10
+/* Jacobi stops when off(A) <= JACOBI_TOLERANCE ||A||_F (Golub & Van Loan's tol; the eigenvalues
+ * are then exact to about eps ||A||_F, as LAPACK's); quadratic convergence takes a handful of
+ * sweeps, the cap only guards against a pathological input. */
+#define JACOBI_TOLERANCE DBL_EPSILON
+#define JACOBI_MAX_SWEEPS 100
+
+/* Eigenvalues (values, n) and, if vectors is not NULL, orthonormal eigenvectors (the columns of
+ * vectors, n x n row-major) of the symmetric n x n matrix A (row-major, n <= D; overwritten: it
+ * ends diagonal) by the cyclic Jacobi method (Golub & Van Loan, Matrix Computations, 4th ed.,
+ * sec. 8.5: symSchur2 and the cyclic-by-row algorithm). Each rotation J(p, q, theta), with
+ * J_pp = J_qq = c, J_pq = s, J_qp = -s, is chosen so that (J^T A J)_pq = 0:
+ *   tau = (a_qq - a_pp) / (2 a_pq),  t = sign(tau) / (|tau| + sqrt(1 + tau^2)) (the smaller
+ *   root of t^2 + 2 tau t - 1 = 0, so |theta| <= pi/4),  c = 1 / sqrt(1 + t^2),  s = t c;
+ * A <- J^T A J and V <- V J, sweeping the pairs (p, q) row by row until off(A) is negligible. */
+static void symmetric_eigen(int n, double *A, double *values, double *vectors) {
+    double norm2 = 0.0; /* ||A||_F^2, invariant under the rotations */
+    for (int i = 0; i < n * n; i++) norm2 += A[i] * A[i];
+    if (vectors != NULL)
+        for (int i = 0; i < n; i++)
+            for (int j = 0; j < n; j++) vectors[i * n + j] = i == j ? 1.0 : 0.0;
+    for (int sweep = 0; sweep < JACOBI_MAX_SWEEPS; sweep++) {
+        double off2 = 0.0; /* off(A)^2 */
+        for (int p = 0; p < n; p++)
+            for (int q = p + 1; q < n; q++) off2 += 2.0 * A[p * n + q] * A[p * n + q];
+        if (!(off2 > JACOBI_TOLERANCE * JACOBI_TOLERANCE * norm2)) break; /* NaN stops too */
+        for (int p = 0; p < n - 1; p++)
+            for (int q = p + 1; q < n; q++) {
+                const double a_pq = A[p * n + q];
+                if (a_pq == 0.0) continue;
+                const double tau = (A[q * n + q] - A[p * n + p]) / (2.0 * a_pq);
+                const double t = (tau >= 0.0 ? 1.0 : -1.0) / (fabs(tau) + hypot(1.0, tau));
+                const double c = 1.0 / sqrt(1.0 + t * t), s = t * c;
+                for (int k = 0; k < n; k++) { /* A J: columns p and q */
+                    const double a_kp = A[k * n + p], a_kq = A[k * n + q];
+                    A[k * n + p] = c * a_kp - s * a_kq;
+                    A[k * n + q] = s * a_kp + c * a_kq;
+                }
+                for (int k = 0; k < n; k++) { /* J^T (A J): rows p and q */
+                    const double a_pk = A[p * n + k], a_qk = A[q * n + k];
+                    A[p * n + k] = c * a_pk - s * a_qk;
+                    A[q * n + k] = s * a_pk + c * a_qk;
+                }
+                A[p * n + q] = A[q * n + p] = 0.0; /* zero in exact arithmetic: drop the rounding */
+                if (vectors != NULL)
+                    for (int k = 0; k < n; k++) {
+                        const double v_kp = vectors[k * n + p], v_kq = vectors[k * n + q];
+                        vectors[k * n + p] = c * v_kp - s * v_kq;
+                        vectors[k * n + q] = s * v_kp + c * v_kq;
+                    }
+            }
+    }
+    for (int i = 0; i < n; i++) values[i] = A[i * n + i];
+}
+
+/* numpy.linalg.pinv(A, rcond, hermitian=True) of a symmetric n x n A (row-major, n <= D) into
+ * P: A = V diag(lambda) V^T (symmetric_eigen), P = sum over the eigenpairs with
+ * |lambda_k| > rcond max_k |lambda_k| of v_k v_k^T / lambda_k (the others, and all of a zero A,
+ * are dropped, as numpy's cutoff does). */
+static void pseudo_inverse(int n, const double *A, double rcond, double *P) {
+    double work[D * D], vectors[D * D], values[D], largest = 0.0;
+    for (int i = 0; i < n * n; i++) work[i] = A[i];
+    symmetric_eigen(n, work, values, vectors);
+    for (int k = 0; k < n; k++)
+        if (fabs(values[k]) > largest) largest = fabs(values[k]);
+    for (int i = 0; i < n * n; i++) P[i] = 0.0;
+    for (int k = 0; k < n; k++) {
+        if (!(fabs(values[k]) > rcond * largest)) continue;
+        for (int i = 0; i < n; i++) {
+            const double scaled = vectors[i * n + k] / values[k];
+            for (int j = 0; j < n; j++) P[i * n + j] += scaled * vectors[j * n + k];
+        }
+    }
+}
+
+/* MomentMatcher._standardise: S = x_cov standardised by the frame's scales (frame 0) and
+ * symmetrised, after the checks there: x_mean and x_cov finite; max |S - S^T| <=
+ * COVARIANCE_TOLERANCE max |S|; smallest eigenvalue of S >= -COVARIANCE_TOLERANCE max(largest,
+ * 0). Judged in the standardised frame, so that regressors in different units weigh alike.
+ * Returns NULL, or a malloc'd message saying what is wrong (also NULL if out of memory, with
+ * *failed set: the caller must not go on). */
+static char *covariance_problem(const Model *model, const double x_mean[D], const double x_cov[D * D],
+                                double S[D * D], int *failed) {
+    *failed = 1;
+    for (int i = 0; i < D; i++) {
+        if (!isfinite(x_mean[i])) return format_message("the free-run regressor mean contains NaN or inf");
+        for (int j = 0; j < D; j++)
+            if (!isfinite(x_cov[i * D + j]))
+                return format_message("the free-run regressor covariance contains NaN or inf");
+    }
+    double size = 0.0, asymmetry = 0.0;
+    for (int i = 0; i < D; i++)
+        for (int j = 0; j < D; j++) S[i * D + j] = x_cov[i * D + j] / (model->frame_scale[i] * model->frame_scale[j]);
+    for (int i = 0; i < D; i++)
+        for (int j = 0; j < D; j++) {
+            size = fmax(size, fabs(S[i * D + j]));
+            asymmetry = fmax(asymmetry, fabs(S[i * D + j] - S[j * D + i]));
+        }
+    if (asymmetry > COVARIANCE_TOLERANCE * size)
+        return format_message("the free-run regressor covariance is not symmetric: max |S - S^T| = %.3g against "
+                              "max |S| = %.3g (S = the covariance standardised by the GP input scales; tolerance "
+                              "%.3g relative, COVARIANCE_TOLERANCE of gp_model/_uncertain_input.py)",
+                              asymmetry, size, COVARIANCE_TOLERANCE);
+    double work[D * D], values[D];
+    for (int i = 0; i < D; i++)
+        for (int j = i + 1; j < D; j++) S[i * D + j] = S[j * D + i] = 0.5 * (S[i * D + j] + S[j * D + i]);
+    for (int i = 0; i < D * D; i++) work[i] = S[i];
+    symmetric_eigen(D, work, values, NULL);
+    double smallest = values[0], largest = values[0];
+    for (int i = 1; i < D; i++) smallest = fmin(smallest, values[i]), largest = fmax(largest, values[i]);
+    if (smallest < -COVARIANCE_TOLERANCE * fmax(largest, 0.0))
+        return format_message("the free-run regressor covariance is not positive semi-definite: the standardised "
+                              "covariance has eigenvalue %.3g (largest %.3g; tolerance %.3g relative, "
+                              "COVARIANCE_TOLERANCE of gp_model/_uncertain_input.py)",
+                              smallest, largest, COVARIANCE_TOLERANCE);
+    *failed = 0;
+    return NULL;
+}
+
+/* The message of a failed Cholesky factor of I + T (eq. 6): not expected once S passed
+ * covariance_problem, so a bug. */
+static char *cholesky_failure(void) {
+    return format_message("the free-run input covariance is not positive semi-definite (a Cholesky factor of "
+                          "I + T, eq. 6 of gp_model/_uncertain_input.py, failed); please report");
+}
+
 /* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance
  * (N_OUTPUTS x N_OUTPUTS, row-major) and input-output cross-covariance (d x N_OUTPUTS) of the
  * mixture over the S hyperparameter samples (sample s of every output forms model s) at a
- * regressor x ~ N(x_mean, x_cov) (raw units). Returns 0 if a Cholesky factor of eq. 6 fails. */
+ * regressor x ~ N(x_mean, x_cov) (raw units). Returns 0 and sets *problem (a malloc'd message;
+ * NULL if out of memory) if x_cov fails the checks of covariance_problem or a Cholesky factor of
+ * eq. 6 fails. */
 static int moment_match(Model *model, const double x_mean[D], const double x_cov[D * D], double out_mean[N_OUTPUTS],
-                        double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS]) {
+                        double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS], char **problem) {
     double m[D], S[D * D];
-    /* MomentMatcher._standardise: into the common frame, S symmetrised */
+    int failed;
+    /* MomentMatcher._standardise: into the common frame, checked, S symmetrised */
+    *problem = covariance_problem(model, x_mean, x_cov, S, &failed);
+    if (failed) return 0;
     for (int i = 0; i < D; i++) m[i] = (x_mean[i] - model->frame_mean[i]) / model->frame_scale[i];
-    for (int i = 0; i < D; i++)
-        for (int j = 0; j < D; j++)
-            S[i * D + j] = 0.5 * (x_cov[i * D + j] + x_cov[j * D + i])
-                           / (model->frame_scale[i] * model->frame_scale[j]);
     const int n_samples = model->gp[0].S;
     double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
     for (int s = 0; s < n_samples; s++) {
@@ -418,7 +557,10 @@ static int moment_match(Model *model, const double x_mean[D], const double x_cov
             const double *sample = gp->samples + (size_t)s * gp->sample_size;
             const double *precision = gp->precision + (size_t)s * D;
             const double *beta = sample, log_signal_variance = sample[gp->m + D];
-            if (!woodbury_terms(&model->woodbury, precision, S, gp->M, &gp->log_det)) return 0;
+            if (!woodbury_terms(&model->woodbury, precision, S, gp->M, &gp->log_det)) {
+                *problem = cholesky_failure();
+                return 0;
+            }
             double mean = 0.0, sum_u[D] = {0.0};
             for (int i = 0; i < gp->m; i++) {
                 double *u = gp->u + (size_t)i * D, nu_u = 0.0;
@@ -449,7 +591,10 @@ static int moment_match(Model *model, const double x_mean[D], const double x_cov
                 const double *precision_b = gb->precision + (size_t)s * D;
                 double precision_ab[D], log_det_ab;
                 for (int c = 0; c < D; c++) precision_ab[c] = precision_a[c] + precision_b[c];
-                if (!woodbury_terms(&model->woodbury, precision_ab, S, model->M_ab, &log_det_ab)) return 0;
+                if (!woodbury_terms(&model->woodbury, precision_ab, S, model->M_ab, &log_det_ab)) {
+                    *problem = cholesky_failure();
+                    return 0;
+                }
                 const double constant = -0.5 * (log_det_ab - ga->log_det - gb->log_det);
                 /* half_a_i = 1/2 u_ai^T (M_ab - M_a) u_ai + the constant; half_b_j likewise; u_M = u_a M_ab */
                 for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - ga->M[c];
@@ -518,25 +663,48 @@ static int moment_match(Model *model, const double x_mean[D], const double x_cov
 
 /* narx_belief_step (include_noise = True): predict y(k) from the belief over y(k-1), ..., y(k-L)
  * in state (BELIEF_MEAN, BELIEF_COV) and the exact known regressors x_known, and write the
- * shifted belief over y(k), ..., y(k-L+1) into next. Returns 0 if moment_match fails. */
+ * shifted belief over y(k), ..., y(k-L+1) into next. Returns 0 and sets *problem (as
+ * moment_match) if moment_match fails. */
 static int belief_step(Model *model, const double *state, const double *x_known,
-                       double y_mean[N_OUTPUTS], double y_var[N_OUTPUTS], double *next) {
+                       double y_mean[N_OUTPUTS], double y_var[N_OUTPUTS], double *next, char **problem) {
     const double *mean = state + BELIEF_MEAN, *cov = state + BELIEF_COV;
-    int z_rows[N_OUTPUTS * N_OUTPUT_LAGS]; /* regressor n_u + r is belief entry z_rows[r] */
+    int z_rows[N_Z]; /* regressor n_u + i is belief entry z_rows[i] */
     double x_mean[D], x_cov[D * D] = {0.0}, y_cov[N_OUTPUTS * N_OUTPUTS], cross[D * N_OUTPUTS];
-    int r = 0;
     for (int c = 0; c < N_OUTPUTS; c++)
-        for (int i = 0; i < N_OUTPUT_LAGS; i++) z_rows[r++] = (OUTPUT_LAGS[i] - 1) * N_OUTPUTS + c;
+        for (int i = 0; i < N_OUTPUT_LAGS; i++) z_rows[c * N_OUTPUT_LAGS + i] = (OUTPUT_LAGS[i] - 1) * N_OUTPUTS + c;
     for (int i = 0; i < KNOWN_REGRESSORS; i++) x_mean[i] = x_known[i];
-    for (int i = 0; i < r; i++) {
+    for (int i = 0; i < N_Z; i++) {
         x_mean[KNOWN_REGRESSORS + i] = mean[z_rows[i]];
-        for (int j = 0; j < r; j++)
+        for (int j = 0; j < N_Z; j++)
             x_cov[(KNOWN_REGRESSORS + i) * D + KNOWN_REGRESSORS + j] = cov[z_rows[i] * BELIEF_SIZE + z_rows[j]];
     }
-    if (!moment_match(model, x_mean, x_cov, y_mean, y_cov, cross)) return 0;
-    /* Cov(z, y): every belief row is a regressor (no skipped lags), so eq. 2 gives all of it. */
+    if (!moment_match(model, x_mean, x_cov, y_mean, y_cov, cross, problem)) return 0;
+    /* Cov(z, y) (_cross_covariance_of_lagged_outputs): a belief row z_rows[i] is regressor
+       n_u + i, whose cross-covariance eq. 2 gives exactly; the other rows (lags the structure
+       skips: N_Z < BELIEF_SIZE) get the linear-Gaussian projection Cov(z, x_z) Cov(x_z)^+ Cov(x_z, y)
+       (Deisenroth 2010, sec. 2.3.2), Cov(x_z)^+ as numpy.linalg.pinv(rcond = 1e-10, hermitian)
+       and the products in numpy's order, (Cov(z, x_z) Cov(x_z)^+) Cov(x_z, y). */
     double cov_z_y[BELIEF_SIZE * N_OUTPUTS];
-    for (int i = 0; i < r; i++)
+    if (N_Z < BELIEF_SIZE) { /* a constant: compiled away without skipped lags */
+        double x_z_cov[D * D], pinv[D * D]; /* N_Z x N_Z */
+        for (int i = 0; i < N_Z; i++)
+            for (int j = 0; j < N_Z; j++) x_z_cov[i * N_Z + j] = cov[z_rows[i] * BELIEF_SIZE + z_rows[j]];
+        pseudo_inverse(N_Z, x_z_cov, PINV_RCOND, pinv);
+        for (int row = 0; row < BELIEF_SIZE; row++) {
+            double left[D]; /* row of Cov(z, x_z) Cov(x_z)^+ */
+            for (int j = 0; j < N_Z; j++) {
+                double value = 0.0;
+                for (int i = 0; i < N_Z; i++) value += cov[row * BELIEF_SIZE + z_rows[i]] * pinv[i * N_Z + j];
+                left[j] = value;
+            }
+            for (int a = 0; a < N_OUTPUTS; a++) {
+                double value = 0.0;
+                for (int j = 0; j < N_Z; j++) value += left[j] * cross[(KNOWN_REGRESSORS + j) * N_OUTPUTS + a];
+                cov_z_y[row * N_OUTPUTS + a] = value;
+            }
+        }
+    }
+    for (int i = 0; i < N_Z; i++)
         for (int a = 0; a < N_OUTPUTS; a++)
             cov_z_y[z_rows[i] * N_OUTPUTS + a] = cross[(KNOWN_REGRESSORS + i) * N_OUTPUTS + a];
     /* The shifted belief: [y(k); the first (L - 1) n outputs of the old], joint covariance, symmetrised. */
@@ -661,9 +829,9 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
     int finite = 1;
     if (free_run) {
         /* NarxPredictor.free_run_step: moment matching from the belief (x[0 .. n_u): the known regressors). */
-        if (!belief_step(model, state, x, mean, var, next))
-            return format_message("the free-run input covariance is not positive semi-definite (a Cholesky "
-                                  "factor of I + T, eq. 6 of gp_model/_uncertain_input.py, failed); please report");
+        char *problem = NULL;
+        if (!belief_step(model, state, x, mean, var, next, &problem))
+            return problem != NULL ? problem : format_message("the free-run step failed (out of memory)");
     } else {
         for (int j = 0; j < N_OUTPUTS; j++) predict_output(model, &model->gp[j], x, &mean[j], &var[j]);
         memcpy(next + BELIEF_MEAN, state + BELIEF_MEAN, sizeof(double) * BELIEF_SIZE * (BELIEF_SIZE + 1));

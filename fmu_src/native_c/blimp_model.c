@@ -1,0 +1,345 @@
+/* Blimp RKGP (Ko, Klein, Fox and Haehnel, ICRA 2007, sec. IV-B) for a native FMU: the blimp ODE
+ * integrated by RK4 plus the mean of a GP on its one-step residual, and the GP's one-step
+ * standard deviation. The same formulas, in the same order, as fmu_src/blimp_rkgp.py
+ * (blimp_dynamics, physics_step, RKGPModel.residual, BlimpRKGP), whose module docstring defines
+ * the timing, the GP inputs, the standard deviations and the envelope; the ODE's equations and
+ * their sources are those of validation/blimp.py (blimp_dynamics: Fossen's rigid body with added
+ * mass about the centre of buoyancy, gravity, buoyancy, drag, gondola and tail thrust, fin lift).
+ *
+ * Model constants. The physics (parameters, the mass matrix M = M_RB + M_A and its inverse,
+ * computed by fmu_src/blimp_rkgp.py, BlimpParameterSet, so that both FMUs use the same doubles),
+ * the GP structure, value references and training envelope are compiled in from model_config.h;
+ * the GP arrays are read at fmi2Instantiate from resources/DATA_FILE, written by
+ * fmu_src/native_blimp.py:
+ *
+ *   8 bytes  "FGPBLMP1"
+ *   8 bytes  number of doubles that follow (uint64, native byte order)
+ *   doubles  per GP part p (d = N_GP_INPUTS, m = BASIS_POINTS[p], q = PART_OUTPUTS[p]; all in
+ *            standardised units): input_mean (d), input_scale (d), output_mean (q),
+ *            output_scale (q), kernel_weights (d), log_signal_variance, basis (m x d, by rows),
+ *            weights (m x q, by rows), variance factor V = L^-1 by rows: if LOWER_TRIANGULAR[p],
+ *            row i holds columns 0 .. i only (m (m + 1) / 2 doubles in all), else 0 .. m - 1.
+ *
+ * A shared GP is one part with q = 12; one GP per state is twelve parts with q = 1, in state
+ * order. Each instance reads its own copy (no memory shared between instances).
+ *
+ * Residual of part p at GP input x = [s[STATE_COLUMNS], u_gondola, mu, u_tail, h]
+ * (R&W 2006, Alg. 2.1, lines 4-6, in standardised units):
+ *   xs = (x - input_mean) / input_scale,  k_i = sigma_f^2 exp(-sum_c w_c (xs_c - basis_i,c)^2)
+ *   mean_j = k . weights_j,  latent = max(sigma_f^2 - |V k|^2, 0),
+ *   var_j = max((latent + mean_j^2) - mean_j^2, 0)   (GaussianProcess.predict's one-component
+ *   mixture, rounding included); in physical units mean_j output_scale_j + output_mean_j and
+ *   var_j output_scale_j^2.
+ *
+ * Hidden state (MODEL_STATE_SIZE doubles, saved with the FMU state): the 12 states, then 1.0
+ * while a GP input is outside the training envelope (a warning is logged once per excursion).
+ */
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "model.h"
+#include "model_config.h"
+
+#define DATA_MAGIC "FGPBLMP1"
+#define OUTSIDE_ENVELOPE N_STATES /* index in the hidden state */
+#define D N_GP_INPUTS
+
+/* One GP part (pointers into Model.data). */
+typedef struct {
+    int m, q, lower_triangular;
+    const double *input_mean, *input_scale;  /* (d,) */
+    const double *output_mean, *output_scale; /* (q,) */
+    const double *kernel_weights;            /* (d,) */
+    double log_signal_variance, signal_variance;
+    const double *basis;                     /* (m, d) */
+    const double *weights;                   /* (m, q) */
+    const double *variance_factor;           /* rows, packed if lower triangular */
+} GPPart;
+
+struct Model {
+    double *data;
+    GPPart part[N_PARTS];
+    double lower[D], upper[D];  /* the envelope with its margin */
+    double *k, *v;              /* scratch (m_max,) */
+};
+
+void model_free(Model *model) {
+    if (model == NULL) return;
+    free(model->data);
+    free(model->k);
+    free(model->v);
+    free(model);
+}
+
+static Model *fail(Model *model, char **error, char *message) {
+    *error = message;
+    model_free(model);
+    return NULL;
+}
+
+Model *model_load(const char *resources_dir, char **error) {
+    Model *model = calloc(1, sizeof(Model));
+    if (model == NULL) return fail(NULL, error, NULL);
+    size_t length = strlen(resources_dir);
+    const char *separator = length > 0 && resources_dir[length - 1] == '/' ? "" : "/";
+    char *path = format_message("%s%s%s", resources_dir, separator, DATA_FILE);
+    if (path == NULL) return fail(model, error, NULL);
+    FILE *file = fopen(path, "rb");
+    char magic[8];
+    uint64_t count = 0;
+    int ok = file != NULL && fread(magic, 1, 8, file) == 8 && memcmp(magic, DATA_MAGIC, 8) == 0
+             && fread(&count, sizeof(count), 1, file) == 1 && count == (uint64_t)DATA_DOUBLES;
+    if (ok) {
+        model->data = malloc(sizeof(double) * (size_t)DATA_DOUBLES);
+        ok = model->data != NULL && fread(model->data, sizeof(double), DATA_DOUBLES, file) == DATA_DOUBLES
+             && fgetc(file) == EOF;
+    }
+    if (file != NULL) fclose(file);
+    if (!ok) {
+        char *message = format_message("cannot read the model constants %s: missing, truncated or not the "
+                                       "%lu doubles this binary was built for (rebuild the FMU)", path,
+                                       (unsigned long)DATA_DOUBLES);
+        free(path);
+        return fail(model, error, message);
+    }
+    free(path);
+    /* Point every part into the data (layout above). */
+    const double *p = model->data;
+    int m_max = 1;
+    for (int j = 0; j < N_PARTS; j++) {
+        GPPart *part = &model->part[j];
+        part->m = BASIS_POINTS[j];
+        part->q = PART_OUTPUTS[j];
+        part->lower_triangular = LOWER_TRIANGULAR[j];
+        const size_t m = (size_t)part->m, q = (size_t)part->q;
+        part->input_mean = p, p += D;
+        part->input_scale = p, p += D;
+        part->output_mean = p, p += q;
+        part->output_scale = p, p += q;
+        part->kernel_weights = p, p += D;
+        part->log_signal_variance = *p++;
+        part->signal_variance = exp(part->log_signal_variance);
+        part->basis = p, p += m * D;
+        part->weights = p, p += m * q;
+        part->variance_factor = p, p += part->lower_triangular ? m * (m + 1) / 2 : m * m;
+        if (part->m > m_max) m_max = part->m;
+    }
+    /* Envelope: the training range widened by ENVELOPE_MARGIN of it on each side (_runtime.Envelope). */
+    for (int i = 0; i < D; i++) {
+        double margin = ENVELOPE_MARGIN * (ENVELOPE_HIGH[i] - ENVELOPE_LOW[i]);
+        model->lower[i] = ENVELOPE_LOW[i] - margin;
+        model->upper[i] = ENVELOPE_HIGH[i] + margin;
+    }
+    model->k = malloc(sizeof(double) * (size_t)m_max);
+    model->v = malloc(sizeof(double) * (size_t)m_max);
+    if (model->k == NULL || model->v == NULL) return fail(model, error, NULL);
+    return model;
+}
+
+/* Latent mean and variance of the 12 residuals at GP input x (RKGPModel.residual). */
+static void residual(const Model *model, const double x[D], double mean[N_STATES], double var[N_STATES]) {
+    int out = 0;
+    for (int j = 0; j < N_PARTS; j++) {
+        const GPPart *part = &model->part[j];
+        const int m = part->m, q = part->q;
+        double xs[D];
+        for (int c = 0; c < D; c++) xs[c] = (x[c] - part->input_mean[c]) / part->input_scale[c];
+        /* k_i = exp(log sigma_f^2 - sum_c w_c (xs_c - b_ic)^2) (_runtime.kernel_rows) */
+        for (int i = 0; i < m; i++) {
+            const double *b = part->basis + (size_t)i * D;
+            double sum = 0.0;
+            for (int c = 0; c < D; c++) {
+                double difference = xs[c] - b[c];
+                sum += part->kernel_weights[c] * (difference * difference);
+            }
+            model->k[i] = exp(part->log_signal_variance - sum);
+        }
+        /* v = V k, V by rows (packed: row i has columns 0 .. i) */
+        const double *row = part->variance_factor;
+        double vv = 0.0;
+        for (int i = 0; i < m; i++) {
+            const int columns = part->lower_triangular ? i + 1 : m;
+            double value = 0.0;
+            for (int c = 0; c < columns; c++) value += row[c] * model->k[c];
+            row += columns;
+            vv += value * value;
+        }
+        double latent = part->signal_variance - vv;
+        if (!(latent > 0.0)) latent = 0.0;
+        for (int o = 0; o < q; o++) {
+            double mu = 0.0;
+            for (int i = 0; i < m; i++) mu += model->k[i] * part->weights[(size_t)i * q + o];
+            double spread = (latent + mu * mu) - mu * mu;
+            if (!(spread > 0.0)) spread = 0.0;
+            mean[out] = mu * part->output_scale[o] + part->output_mean[o];
+            var[out] = spread * (part->output_scale[o] * part->output_scale[o]);
+            out++;
+        }
+    }
+}
+
+static void cross(const double a[3], const double b[3], double out[3]) {
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+/* d state / dt (blimp_rkgp.py, blimp_dynamics; validation/blimp.py, blimp_dynamics, Ko et al.
+ * 2007 sec. III in Fossen's form). state: x, y, z, phi, theta, psi, U, V, W, P, Q, R;
+ * commands: u_gondola, mu, u_tail. */
+static void dynamics(const double state[N_STATES], const double commands[3], double out[N_STATES]) {
+    const double *angles = state + 3, *nu = state + 6, *v = nu, *w = nu + 3;
+    const double sf = sin(angles[0]), cf = cos(angles[0]);
+    const double st = sin(angles[1]), ct = cos(angles[1]);
+    const double sp = sin(angles[2]), cp = cos(angles[2]);
+    /* body-to-earth rotation (ZYX Euler angles) */
+    const double rotation[9] = {cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st,
+                                sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf,
+                                -st, ct * sf, ct * cf};
+    for (int i = 0; i < 3; i++)
+        out[i] = rotation[3 * i] * v[0] + rotation[3 * i + 1] * v[1] + rotation[3 * i + 2] * v[2];
+    const double tt = tan(angles[1]);
+    const double p = w[0], q = w[1], r = w[2];
+    out[3] = p + sf * tt * q + cf * tt * r;
+    out[4] = cf * q - sf * r;
+    out[5] = (sf * q + cf * r) / ct;
+
+    double momentum[6]; /* M nu: linear, then angular momentum */
+    for (int i = 0; i < 6; i++) {
+        double sum = 0.0;
+        for (int j = 0; j < 6; j++) sum += nu[j] * MASS_MATRIX[6 * i + j];
+        momentum[i] = sum;
+    }
+    const double down[3] = {-sin(angles[1]), cos(angles[1]) * sin(angles[0]), cos(angles[1]) * cos(angles[0])};
+    const double weight = MASS * STANDARD_GRAVITY;
+
+    const double u_gondola = commands[0], mu = commands[1], u_tail = commands[2];
+    const double gondola = u_gondola * (u_gondola >= 0 ? GONDOLA_THRUST_FORWARD : GONDOLA_THRUST_BACKWARD);
+    const double tail = u_tail * (u_tail >= 0 ? TAIL_THRUST_POSITIVE : TAIL_THRUST_NEGATIVE);
+    const double thrust_force[3] = {gondola * cos(mu), -tail, -gondola * sin(mu)};
+    const double thrust_moment[3] = {0.0, GONDOLA_ARM * gondola * cos(mu), TAIL_ARM * tail};
+    const double fin_gain = FIN_LIFT * fabs(v[0]);
+    const double fin_side = -fin_gain * (v[1] - TAIL_ARM * w[2]);
+    const double fin_normal = -fin_gain * (v[2] + TAIL_ARM * w[1]);
+    const double fin_force[3] = {0.0, fin_side, fin_normal};
+    const double fin_moment[3] = {0.0, TAIL_ARM * fin_normal, -TAIL_ARM * fin_side};
+
+    double weight_down[3], gravity_moment[3], w_x_momentum[3], v_x_momentum[3], w_x_angular[3];
+    for (int i = 0; i < 3; i++) weight_down[i] = weight * down[i];
+    cross(CG_POSITION, weight_down, gravity_moment);
+    cross(w, momentum, w_x_momentum);
+    cross(v, momentum, v_x_momentum);
+    cross(w, momentum + 3, w_x_angular);
+    double generalised_force[6];
+    for (int i = 0; i < 3; i++) {
+        generalised_force[i] = thrust_force[i] + fin_force[i] - NET_LIFT * down[i] - LINEAR_DRAG[i] * v[i]
+                               - QUADRATIC_DRAG[i] * fabs(v[i]) * v[i] - w_x_momentum[i];
+        generalised_force[3 + i] = thrust_moment[i] + fin_moment[i] + gravity_moment[i]
+                                   - ROTATIONAL_DAMPING[i] * w[i] - v_x_momentum[i] - w_x_angular[i];
+    }
+    for (int i = 0; i < 6; i++) { /* nu_dot = M^-1 tau */
+        double sum = 0.0;
+        for (int j = 0; j < 6; j++) sum += generalised_force[j] * INVERSE_MASS_MATRIX[6 * i + j];
+        out[6 + i] = sum;
+    }
+}
+
+/* RK4 over dt in equal substeps no longer than MAX_STEP, commands held (blimp_rkgp.py,
+ * physics_step). */
+static void physics_step(const double start[N_STATES], const double commands[3], double dt,
+                         double state[N_STATES]) {
+    double n_sub = ceil(dt / MAX_STEP - 1e-9);
+    if (!(n_sub > 1.0)) n_sub = 1.0;
+    const double h = dt / n_sub;
+    double k1[N_STATES], k2[N_STATES], k3[N_STATES], k4[N_STATES], probe[N_STATES];
+    memcpy(state, start, sizeof(double) * N_STATES);
+    for (long step = 0; step < (long)n_sub; step++) {
+        dynamics(state, commands, k1);
+        for (int i = 0; i < N_STATES; i++) probe[i] = state[i] + 0.5 * h * k1[i];
+        dynamics(probe, commands, k2);
+        for (int i = 0; i < N_STATES; i++) probe[i] = state[i] + 0.5 * h * k2[i];
+        dynamics(probe, commands, k3);
+        for (int i = 0; i < N_STATES; i++) probe[i] = state[i] + h * k3[i];
+        dynamics(probe, commands, k4);
+        for (int i = 0; i < N_STATES; i++) state[i] = state[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    }
+}
+
+static void set_outputs(double *values, const double state[N_STATES], const double var[N_STATES]) {
+    for (int i = 0; i < N_STATES; i++) {
+        values[STATE_VR[i]] = state[i];
+        values[SD_VR[i]] = sqrt(var[i]);
+    }
+}
+
+void model_start(Model *model, double *values, double *state) {
+    (void)model;
+    const double zero[N_STATES] = {0.0};
+    /* The start state: the <state>_start parameters (BlimpRKGP.start_model); sd 0. */
+    for (int i = 0; i < N_STATES; i++) state[i] = values[START_VR[i]];
+    state[OUTSIDE_ENVELOPE] = 0.0;
+    set_outputs(values, state, zero);
+}
+
+/* "[a, b, c]" of n numbers, for messages. */
+static char *number_list(const double *numbers, int n) {
+    char *text = format_message("[");
+    for (int i = 0; i < n && text != NULL; i++) {
+        char *longer = format_message("%s%s%.17g", text, i ? ", " : "", numbers[i]);
+        free(text);
+        text = longer;
+    }
+    char *closed = text == NULL ? NULL : format_message("%s]", text);
+    free(text);
+    return closed;
+}
+
+char *model_advance(Model *model, const Slave *slave, double *values, double *state, double t, double h) {
+    double commands[3], x[D], mean[N_STATES], var[N_STATES], next[N_STATES];
+    for (int c = 0; c < 3; c++) commands[c] = values[COMMAND_VR[c]];
+    /* GP input [s[state_columns], u_gondola, mu, u_tail, dt] (RKGPModel.gp_input), dt = h */
+    for (int c = 0; c < N_STATE_COLUMNS; c++) x[c] = state[STATE_COLUMNS[c]];
+    for (int c = 0; c < 3; c++) x[N_STATE_COLUMNS + c] = commands[c];
+    x[N_STATE_COLUMNS + 3] = h;
+    /* s(t + h) = RK4(s(t), u(t), h) + E[residual] (RKGPModel.step) */
+    residual(model, x, mean, var);
+    physics_step(state, commands, h, next);
+    int finite = 1;
+    for (int i = 0; i < N_STATES; i++) {
+        next[i] = next[i] + mean[i];
+        finite = finite && isfinite(next[i]) && isfinite(var[i]);
+    }
+    if (!finite) {
+        char *s = number_list(next, N_STATES), *v = number_list(var, N_STATES);
+        char *message = format_message("non-finite state %s (residual variance %s) at t = %.16g s", s ? s : "?",
+                                       v ? v : "?", t + h);
+        free(s), free(v);
+        return message != NULL ? message : format_message("non-finite state");
+    }
+    /* Envelope (BlimpRKGP.advance_model, FlightgpSlave.report_envelope): warn once per excursion. */
+    char *outside = NULL;
+    for (int i = 0; i < D; i++)
+        if (x[i] < model->lower[i] || x[i] > model->upper[i]) {
+            char *phrase = format_message("%s = %.6g (trained on %.6g .. %.6g)", GP_INPUT_NAMES[i], x[i],
+                                          ENVELOPE_LOW[i], ENVELOPE_HIGH[i]);
+            char *joined = outside == NULL ? phrase : format_message("%s; %s", outside, phrase ? phrase : "?");
+            if (joined != phrase) free(phrase);
+            free(outside);
+            outside = joined != NULL ? joined : format_message("(out of memory)");
+        }
+    const int was_outside = state[OUTSIDE_ENVELOPE] != 0.0;
+    if (outside != NULL && !was_outside)
+        slave_log(slave, fmi2Warning, "t = %.16g s: input outside the training envelope: %s. The GP extrapolates; "
+                  "its standard deviations grow.", t + h, outside);
+    else if (outside == NULL && was_outside)
+        slave_log(slave, fmi2OK, "t = %.16g s: back inside the training envelope", t + h);
+    /* Commit only after everything that can fail. */
+    memcpy(state, next, sizeof(double) * N_STATES);
+    state[OUTSIDE_ENVELOPE] = outside != NULL ? 1.0 : 0.0;
+    free(outside);
+    set_outputs(values, next, var);
+    return NULL;
+}
