@@ -8,7 +8,8 @@ import pytest
 from validation.bo105 import SENSOR_NOISE_STD, STATE_NAMES, Bo105Reference
 from validation.cli import main
 from validation.diagnose_bench import (REQUIRED_CUT, ConcealedCase, _quadratic_pitch_damping_states,
-                                       case_recordings, concealed_cases, score_case)
+                                       case_recordings, concealed_cases, format_seed_summary, score_case,
+                                       summarise_seeds)
 from validation.effects import EffectVehicle, identification_manoeuvre
 
 
@@ -134,6 +135,38 @@ def test_cli_runs_chosen_cases_and_writes_the_scorecard(tmp_path, capsys):
     delay = report["cases"][0]
     assert delay["named"] and delay["in_interval"] and delay["cut"] >= REQUIRED_CUT
     assert report["cases"][1]["found"] == []
+
+
+def _report(seed, rows):
+    return {"reference": "bo105-80kt", "seed": seed, "cases": [
+        {"case": name, "kind": kind, "passed": passed, "named": named, "in_interval": in_ci,
+         "false_findings": false, "says_unexplained": False, "cut": cut, "seconds": 1.0 + seed}
+        for name, kind, passed, named, in_ci, false, cut in rows]}
+
+
+def test_seed_summary_counts_rates_over_runs():
+    reports = [_report(0, [("d", "single", True, True, True, [], 0.9), ("none", "none", True, False, False, [], None)]),
+               _report(1, [("d", "single", False, True, False, [], 0.8),
+                           ("none", "none", False, False, False, ["sensor_bias q"], None)])]
+    summary = summarise_seeds(reports)
+    d, none = summary["cases"]
+    assert (d["runs"], d["passed"], d["named"], d["in_interval"]) == (2, 1, 2, 1)
+    assert d["median_cut"] == pytest.approx(0.85) and d["max_seconds"] == 2.0
+    assert none["with_false_findings"] == 1 and none["median_cut"] is None
+    assert (summary["passed"], summary["total"], summary["seeds"]) == (2, 4, [0, 1])
+    assert summary["interval_coverage"] == 0.5
+    table = format_seed_summary(summary)
+    assert "2 of 4 runs pass" in table and "50%" in table
+
+
+def test_cli_with_several_seeds_writes_the_runs_and_their_summary(tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert main(["diagnose-bench", "--cases", "none", "--seed", "0", "1", "--out", str(out),
+                 "--no-progress"]) == 0
+    report = json.loads((out / "scorecard.json").read_text())
+    assert [run["seed"] for run in report["runs"]] == [0, 1]
+    assert report["summary"]["cases"][0]["runs"] == 2
+    assert "over seeds 0, 1" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -1,4 +1,4 @@
-"""``flightgp diagnose-bench [--cases NAME...] [--reference bo105-<V>kt | blimp] [--out DIR]``: the
+"""``flightgp diagnose-bench [--cases NAME...] [--reference bo105-<V>kt | blimp] [--seed N...] [--out DIR]``: the
 concealed-effect benchmark of ``flightgp diagnose`` (:mod:`validation.diagnose_bench`)."""
 from __future__ import annotations
 
@@ -18,13 +18,16 @@ def register(subparsers) -> None:
                     "on several channels and magnitudes, pairs, none, and physics outside the named "
                     "list), with sensor noise; diagnose each and print a scorecard: effect named, "
                     "true value inside the interval, held-out RMSE cut of the affected output, false "
-                    "findings, seconds per case. Writes DIR/scorecard.json and DIR/scorecard.txt.")
+                    "findings, seconds per case (with several --seed values, also the rates over "
+                    "seeds). Writes DIR/scorecard.json and DIR/scorecard.txt.")
     parser.add_argument("--cases", nargs="+", metavar="NAME",
                         help="run only these cases (default: all; --list shows them)")
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
     parser.add_argument("--reference", default="bo105-80kt", metavar="NAME",
                         help="bo105-<V>kt or blimp reference to conceal the effects in (default bo105-80kt)")
-    parser.add_argument("--seed", type=seed, default=0, help="sensor-noise and diagnosis seed (default 0)")
+    parser.add_argument("--seed", type=seed, nargs="+", default=[0], metavar="N",
+                        help="sensor-noise and diagnosis seed(s) (default 0); with several, every case "
+                             "runs once per seed and a summary gives the rates over seeds")
     parser.add_argument("--out", type=Path, default=Path("build/diagnose-bench"), metavar="DIR",
                         help="where scorecard.json and scorecard.txt go (default build/diagnose-bench)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -32,7 +35,8 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .diagnose_bench import concealed_cases, format_scorecard, run_bench
+    from .diagnose_bench import (concealed_cases, format_scorecard, format_seed_summary, run_bench,
+                                 summarise_seeds)
     from .files import write_files_atomically
     from .progress import progress_bar
 
@@ -47,11 +51,19 @@ def run(args: argparse.Namespace) -> int:
             raise BadInputError(f"unknown case(s) {', '.join(unknown)}; see flightgp diagnose-bench --list")
         cases = [case for case in cases if case.name in args.cases]
     check_output_folder(args.out)
-    with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases), unit="case") as update:
-        report = run_bench(cases, reference=args.reference, seed=args.seed, progress=update)
-    table = format_scorecard(report)
+    seeds = list(dict.fromkeys(args.seed))
+    with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases) * len(seeds),
+                      unit="case") as update:
+        reports = [run_bench(cases, reference=args.reference, seed=s, progress=update) for s in seeds]
+    tables = [format_scorecard(report) for report in reports]
+    if len(reports) == 1:
+        result = reports[0]
+    else:
+        result = {"summary": summarise_seeds(reports), "runs": reports}
+        tables.append(format_seed_summary(result["summary"]))
+    table = "\n\n".join(tables)
     print(table)
-    written = write_files_atomically({args.out / "scorecard.json": json.dumps(report, indent=2) + "\n",
+    written = write_files_atomically({args.out / "scorecard.json": json.dumps(result, indent=2) + "\n",
                                       args.out / "scorecard.txt": table + "\n"})
     print(f"written {', '.join(str(path) for path in written)}")
     return 0

@@ -434,15 +434,16 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
                             if m.any()])[::stride]
         return X, y
 
+    def noise_ratio(i, replay, masks):
+        """RMS of output ``i``'s noise-weighted residual over ``masks``, and whether it exceeds
+        the noise (chi-squared test and :data:`UNEXPLAINED_RATIO`)."""
+        return _noise_excess(np.concatenate([(me[:, i] - r[:, i])[m] / sd[i]
+                                             for me, r, m, sd in zip(measured, replay, masks, noise_sd)]))
+
     unexplained, gp_prediction = [], {}
     for i, name in enumerate(output_names):
-        residual = np.concatenate([(me[:, i] - r[:, i])[m] / sd[i]
-                                   for me, r, m, sd in zip(measured, corrected_replay, fit_masks, noise_sd)])
-        n = len(residual)
-        rss = float(residual @ residual)
-        z = (rss - n) / math.sqrt(2 * n)  # chi2(n) ~ N(n, 2n)
-        ratio = math.sqrt(rss / n)
-        if z > stats.norm.isf(LOCATE_ALPHA) and ratio > UNEXPLAINED_RATIO:
+        ratio, exceeds = noise_ratio(i, corrected_replay, fit_masks)
+        if exceeds:
             X, y = training_rows(corrected_features, corrected_replay, i)
             gp = _fit_residual_gp(X, y, seed=seed)
             gp_prediction[name] = [gp.predict(f) for f in corrected_features]
@@ -450,7 +451,7 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
                 [(me[:, i] - r[:, i])[m] for me, r, m in zip(measured, corrected_replay, fit_masks)]) ** 2)))
             unexplained.append({"effect": "unexplained", "output": name, "value": rms,
                                 "unit": effect_unit({"effect": "sensor_bias", "output": name}),
-                                "noise_ratio": ratio})
+                                "noise_ratio": ratio, "data": "fit"})
             if progress:
                 progress(1, fitted=f"gp:{name}")
 
@@ -479,6 +480,28 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
     findings = _findings(selection, model, data, reference_replay, measured, noise_sd, fit_masks,
                          holdout_masks, reference_features, excited, seed, progress, training_rows, traces)
     findings += unexplained
+
+    # Validation: named effects that fit the diagnosed data to the noise but not the held-out
+    # data stand in for physics outside the named list (e.g. an amplitude-dependent gain
+    # fitted as a derivative change on one manoeuvre).
+    flagged = {f["output"] for f in unexplained}
+    for i, name in enumerate(output_names):
+        if name in flagged:
+            continue
+        held_ratio, exceeds = noise_ratio(i, corrected_replay, holdout_masks)
+        if not exceeds:
+            continue
+        X, y = training_rows(reference_features, reference_replay, i)
+        gp = _fit_residual_gp(X, y, seed=seed)
+        held_gp = np.concatenate([(r[:, i] + gp.predict(f))[m] for r, f, m
+                                  in zip(reference_replay, reference_features, holdout_masks) if m.any()])
+        findings.append({"effect": "unexplained", "output": name, "value": fit["rmse_corrected"][name],
+                         "unit": effect_unit({"effect": "sensor_bias", "output": name}),
+                         "noise_ratio": held_ratio, "data": "holdout",
+                         "fit_noise_ratio": noise_ratio(i, corrected_replay, fit_masks)[0],
+                         "rmse_reference_gp": rmse(traces[name]["measured"], held_gp)})
+        if progress:
+            progress(1, fitted=f"gp:{name}")
     from .diagnose_report import statement
 
     for finding in findings:
@@ -489,6 +512,16 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
     return Diagnosis(reference=model.name, verdict="missing_physics" if findings else "consistent",
                      mismatch=mismatch, findings=findings, fit=fit, locate=locate, untestable=untestable,
                      search=search, corrected=corrected, holdout_traces=traces)
+
+
+def _noise_excess(weighted_residual: np.ndarray) -> tuple[float, bool]:
+    """``(RMS, exceeds)`` of a noise-weighted residual (unit variance under white sensor noise):
+    it exceeds the noise when ``RSS`` is above the ``1 - LOCATE_ALPHA`` quantile of chi2(n)
+    (normal approximation ``N(n, 2n)``) and its RMS above :data:`UNEXPLAINED_RATIO`."""
+    n = len(weighted_residual)
+    rss = float(weighted_residual @ weighted_residual)
+    ratio = math.sqrt(rss / n)
+    return ratio, (rss - n) / math.sqrt(2 * n) > stats.norm.isf(LOCATE_ALPHA) and ratio > UNEXPLAINED_RATIO
 
 
 def _describe_rejected(rejected):

@@ -68,6 +68,15 @@ def statement(finding: dict, fit: dict) -> str:
     if kind == "unexplained":
         name = finding["output"]
         words = OUTPUT_WORDS.get(name, name)
+        if finding.get("data") == "holdout":
+            return (f"The corrected model fits the diagnosed {words} to the noise "
+                    f"({finding['fit_noise_ratio']:.2f}x) but misses the held-out {words} by "
+                    f"{_number(value)} {column_unit(name)} RMS, {finding['noise_ratio']:.1f}x the sensor "
+                    "noise: physics outside the named list that the named effects only mimic on the "
+                    "diagnosed manoeuvre (unexplained; e.g. an amplitude-dependent nonlinearity). A "
+                    "residual GP on the reference's residual gives held-out RMSE "
+                    f"{_number(fit['rmse_reference'][name])} -> {_number(finding['rmse_reference_gp'])} "
+                    f"{column_unit(name)}.")
         gp = fit["rmse_corrected_gp"].get(name)
         corrected = fit["rmse_corrected"].get(name)
         gp_text = (f" A residual GP models it: held-out RMSE {_number(corrected)} -> {_number(gp)} "
@@ -147,7 +156,8 @@ def report_markdown(diagnosis, plot_names: dict) -> str:
     for finding in result["findings"]:
         target = finding.get(TARGET_KEYS.get(finding["effect"], "output"), finding.get("output"))
         if finding["effect"] == "unexplained":
-            lines.append(f"- unexplained on {target}: residual RMS {_number(finding['value'])} "
+            data = "held-out" if finding.get("data") == "holdout" else "diagnosed"
+            lines.append(f"- unexplained on {target} ({data} data): residual RMS {_number(finding['value'])} "
                          f"{finding['unit']}, {finding['noise_ratio']:.2f}x noise")
             continue
         lines.append(f"- {finding['effect']} on {target}: {_number(finding['value'])} {finding['unit']}, "
