@@ -2,15 +2,16 @@
 
 It passes the FMU contract of tests/test_fmu.py with the pythonfmu blimp RKGP's case (the same
 model, inputs, Python reference and tolerance), and the native FMU checks of
-tests/test_native_fmu.py (a binary that links only libc and libm, a plain C host, the FMI call
-sequence, GUID and resources checks, pedantic C99, ``fmpy compile``): the test functions are
-imported here and run with this module's ``case`` and ``native_fmu`` fixtures (GPyTorch-style
+tests/test_native_fmu.py (the pythonfmu FMU's modelDescription, a binary that links only libc
+and libm, a plain C host given the start state, the FMI call sequence, GUID and resources
+checks, pedantic C99, ``fmpy compile``): the test functions are imported here and run with this
+module's ``case``, ``native_fmu``, ``pythonfmu_fmu`` and ``c_sources`` fixtures (GPyTorch-style
 shared contract tests, STYLE.md).
 
-Then what is particular to the blimp: the pythonfmu FMU's modelDescription, its outputs over
-whole command sequences (inside and outside the training envelope), one GP per state, the step
-fixed by the first fmi2DoStep inside the trained frame interval, and ``flightgp build-fmu
---native`` with a grey-box model.
+Then what is particular to the blimp: its outputs over whole command sequences (inside and
+outside the training envelope) against the pythonfmu FMU's, one GP per state, the step fixed by
+the first fmi2DoStep inside the trained frame interval, ``flightgp bench fmu``'s blimp timing,
+and ``flightgp build-fmu --native`` with a grey-box model.
 """
 from __future__ import annotations
 
@@ -40,21 +41,21 @@ from test_fmu import \
     test_blimp_rkgp_declares_the_interface_and_refuses_steps_it_was_not_trained_for as blimp_interface_checks
 from test_native_fmu import (test_fmpy_compile_rebuilds_the_binary_from_the_shipped_sources,  # noqa: F401
                              test_illegal_call_order_is_a_logged_error_and_changes_nothing,
-                             test_runtime_is_self_contained,
+                             test_model_description_declares_the_pythonfmu_interface,
+                             test_runs_in_a_plain_c_host_without_python, test_runtime_is_self_contained,
                              test_sources_compile_without_warnings_under_pedantic_c99,
                              test_wrong_guid_or_resources_refuse_instantiation_with_a_message)
 
 from fmu_src import native_blimp
 from fmu_src.builder import build_blimp_rkgp_fmu
-from fmu_src.native import C_HEADERS, CONFIG_HEADER
 from fmu_src.native_blimp import C_SOURCES, build_native_blimp_rkgp_fmu
 from gp_model import GreyBoxGP, save_model
 from validation.blimp import INPUT_NAMES as BLIMP_INPUTS
 from validation.blimp import STATE_NAMES as BLIMP_STATES
 from validation.blimp import BlimpFlightTest, BlimpParameters
 from validation.blimp_identification import blimp_physics_description, physics_step
+from validation.benchmarks import time_blimp_rkgp_fmus
 from validation.cli import main
-from validation.hosts import simulate_in_c_host
 
 OUTPUTS = [*BLIMP_STATES, *(f"{s}_sd" for s in BLIMP_STATES)]
 STEP = BlimpFlightTest.sample_time
@@ -71,6 +72,18 @@ def case(request, native_fmu):
     commands, start state, Python reference (GreyBoxGP.rollout and predict_one_step) and tolerance
     (1e-9: the same formulas for one state instead of a batch; measured 4.5e-11)."""
     return replace(blimp_rkgp_case(request), path=native_fmu)
+
+
+@pytest.fixture(scope="module")
+def pythonfmu_fmu(blimp_rkgp_fmu):
+    """The pythonfmu FMU of the same model, whose interface the native FMU declares."""
+    return blimp_rkgp_fmu
+
+
+@pytest.fixture(scope="module")
+def c_sources():
+    """The C sources the native FMU lists in its modelDescription and compiles."""
+    return C_SOURCES
 
 
 def _run_fmpy(path, commands: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -94,25 +107,7 @@ def _python_reference(model, params, commands: np.ndarray, start: np.ndarray) ->
     return np.hstack([mean, np.vstack([np.zeros(12), np.sqrt(var)])])
 
 
-# -- the same interface and numbers as the pythonfmu FMU -----------------------------------------
-def test_model_description_declares_the_pythonfmu_interface(native_fmu, blimp_rkgp_fmu):
-    native, python = (read_model_description(str(p)) for p in (native_fmu, blimp_rkgp_fmu))
-    fields = ("name", "valueReference", "causality", "variability", "initial", "type", "unit",
-              "description", "start", "min", "max")
-    rows = lambda d: [tuple(getattr(v, f) for f in fields) for v in d.modelVariables]  # noqa: E731
-    assert rows(native) == rows(python)
-    assert native.defaultExperiment.stepSize == python.defaultExperiment.stepSize
-    assert [(u.index, u.dependencies) for u in native.outputs] == [(u.index, u.dependencies) for u in python.outputs]
-    assert native.description.startswith(python.description) and "native C" in native.description
-    co_simulation = native.coSimulation
-    assert not co_simulation.needsExecutionTool and not co_simulation.canHandleVariableCommunicationStepSize
-    assert co_simulation.canGetAndSetFMUstate and co_simulation.canSerializeFMUstate
-    assert native.buildConfigurations[0].sourceFileSets[0].sourceFiles == list(C_SOURCES)
-    with zipfile.ZipFile(native_fmu) as archive:
-        shipped = {n.split("/", 1)[1] for n in archive.namelist() if n.startswith("sources/")}
-    assert shipped == {*C_SOURCES, *C_HEADERS, CONFIG_HEADER}
-
-
+# -- the same numbers as the pythonfmu FMU ----------------------------------------------------
 @pytest.mark.parametrize("commands", ["training", "unseen"])
 def test_outputs_equal_the_pythonfmu_fmu_and_the_python_rollout(native_fmu, blimp_rkgp_fmu, blimp_trained, commands):
     """Over 10 s (200 steps) of commands, the training ones and unseen ones that leave the
@@ -173,18 +168,6 @@ def test_a_full_variance_factor_gives_the_same_outputs(blimp_model_file, native_
     np.testing.assert_array_equal(_run_fmpy(full, u, start), _run_fmpy(native_fmu, u, start))
 
 
-# -- no Python in the process -------------------------------------------------------------------
-def test_runs_in_a_plain_c_host_without_python(case, host):
-    """validation/native_host.c (dlopen and the FMI calls, no Python in the process), with the
-    start state as parameters: outputs bit for bit fmpy's (the same binary and inputs)."""
-    rows = [case.inputs(k) for k in range(case.n_steps + 1)]
-    inputs = {name: np.array([row[name] for row in rows]) for name in rows[0]}
-    result = simulate_in_c_host(case.path, step_size=case.step, n_steps=case.n_steps, inputs=inputs,
-                                outputs=host.outputs, start_values=case.parameters)
-    assert not result["python_in_process"]
-    np.testing.assert_array_equal(np.column_stack([result[n] for n in host.outputs]), standard_run(case, host))
-
-
 # -- the step: fixed by the first fmi2DoStep, inside the trained frame interval ------------------
 def test_declares_the_interface_and_refuses_steps_it_was_not_trained_for(native_fmu, tmp_path):
     """The pythonfmu blimp RKGP's own check (tests/test_fmu.py), on the native FMU."""
@@ -217,6 +200,22 @@ def test_a_step_outside_the_trained_dt_range_is_a_logged_discard_and_changes_not
     finally:
         host.close()
     assert FMI_FATAL not in host.statuses()
+
+
+# -- flightgp bench fmu ------------------------------------------------------------------------------
+def test_bench_times_both_blimp_fmus(blimp_rkgp_fmu, native_fmu, blimp_trained):
+    """validation.benchmarks.time_blimp_rkgp_fmus (``flightgp bench fmu``'s blimp row): the
+    report's structure, finite positive times and ratios that are their quotients (no speed
+    asserted: speed goals live in the benchmark, README "Benchmarks")."""
+    row = time_blimp_rkgp_fmus(blimp_rkgp_fmu, native_fmu, blimp_trained["commands"], blimp_trained["states"][0],
+                               n_steps=10)
+    assert set(row) == {"steps", "pythonfmu_us_per_step", "native_us_per_step", "native_c_host_us_per_step",
+                        "pythonfmu_over_native", "pythonfmu_over_native_c_host"}
+    assert row["steps"] == 10
+    times = [row[k] for k in ("pythonfmu_us_per_step", "native_us_per_step", "native_c_host_us_per_step")]
+    assert all(np.isfinite(t) and t > 0 for t in times), row
+    assert row["pythonfmu_over_native"] == pytest.approx(times[0] / times[1])
+    assert row["pythonfmu_over_native_c_host"] == pytest.approx(times[0] / times[2])
 
 
 # -- the command line ------------------------------------------------------------------------------

@@ -75,6 +75,18 @@ def rate_predictor(case):
     return case
 
 
+@pytest.fixture(scope="module")
+def pythonfmu_fmu(rate_predictor_fmu):
+    """The pythonfmu FMU of the same model, whose interface the native FMU declares."""
+    return rate_predictor_fmu
+
+
+@pytest.fixture(scope="module")
+def c_sources():
+    """The C sources the native FMU lists in its modelDescription and compiles."""
+    return C_SOURCES
+
+
 # -- the contract's check of self-containment, for a binary ------------------------------------
 def test_runtime_is_self_contained(case):
     """No Python code in the FMU, and the binary needs only the C library and libm (no
@@ -99,21 +111,25 @@ def test_runtime_is_self_contained(case):
 
 
 # -- the same interface and numbers as the pythonfmu FMU -----------------------------------------
-def test_model_description_declares_the_pythonfmu_interface(native_fmu, rate_predictor_fmu):
-    native, python = (read_model_description(str(p)) for p in (native_fmu, rate_predictor_fmu))
+def test_model_description_declares_the_pythonfmu_interface(native_fmu, pythonfmu_fmu, c_sources):
+    """Every variable (e.g. free_run's description) as the pythonfmu FMU of the same model
+    declares it, its default step and output dependencies; its description plus "native C"; no
+    execution tool; the C sources listed and shipped with the headers."""
+    native, python = (read_model_description(str(p)) for p in (native_fmu, pythonfmu_fmu))
     fields = ("name", "valueReference", "causality", "variability", "initial", "type", "unit",
               "description", "start", "min", "max")
     rows = lambda d: [tuple(getattr(v, f) for f in fields) for v in d.modelVariables]  # noqa: E731
-    assert rows(native) == rows(python)  # every variable, free_run's description included
+    assert rows(native) == rows(python)
     assert native.defaultExperiment.stepSize == python.defaultExperiment.stepSize
     assert [(u.index, u.dependencies) for u in native.outputs] == [(u.index, u.dependencies) for u in python.outputs]
+    assert native.description.startswith(python.description) and "native C" in native.description
     co_simulation = native.coSimulation
     assert not co_simulation.needsExecutionTool and not co_simulation.canHandleVariableCommunicationStepSize
     assert co_simulation.canGetAndSetFMUstate and co_simulation.canSerializeFMUstate
-    assert native.buildConfigurations[0].sourceFileSets[0].sourceFiles == list(C_SOURCES)
+    assert native.buildConfigurations[0].sourceFileSets[0].sourceFiles == list(c_sources)
     with zipfile.ZipFile(native_fmu) as archive:
         shipped = {n.split("/", 1)[1] for n in archive.namelist() if n.startswith("sources/")}
-    assert shipped == {*C_SOURCES, *C_HEADERS, CONFIG_HEADER}
+    assert shipped == {*c_sources, *C_HEADERS, CONFIG_HEADER}
 
 
 def _run_fmpy(path, recording_inputs, *, free_run: bool):
@@ -329,13 +345,14 @@ def test_a_corrupt_free_run_belief_is_a_logged_discard_as_in_the_pythonfmu_fmu(
 
 # -- no Python in the process -------------------------------------------------------------------
 def test_runs_in_a_plain_c_host_without_python(case, host):
-    """validation/native_host.c: dlopen, fmi2Instantiate, fmi2SetupExperiment, fmi2Enter/Exit-
-    InitializationMode, then fmi2SetReal + fmi2DoStep + fmi2GetReal per step, in a subprocess
-    with no Python; outputs identical to fmpy's (the same binary and inputs: bit for bit)."""
+    """validation/native_host.c: dlopen, fmi2Instantiate, the case's parameters and start values
+    (e.g. the blimp's start state), fmi2SetupExperiment, fmi2Enter/ExitInitializationMode, then
+    fmi2SetReal + fmi2DoStep + fmi2GetReal per step, in a subprocess with no Python; outputs
+    identical to fmpy's (the same binary, parameters and inputs: bit for bit)."""
     rows = [case.inputs(k) for k in range(case.n_steps + 1)]
     inputs = {name: np.array([row[name] for row in rows]) for name in rows[0]}
     result = simulate_in_c_host(case.path, step_size=case.step, n_steps=case.n_steps, inputs=inputs,
-                                outputs=host.outputs)
+                                outputs=host.outputs, start_values=case.parameters)
     assert not result["python_in_process"]
     np.testing.assert_array_equal(np.column_stack([result[n] for n in host.outputs]), standard_run(case, host))
 

@@ -328,9 +328,12 @@ class {name}(Fmi2Slave):
 """
 
 
-def _time_fmu_steps(fmu_path, inputs, outputs, *, n_steps: int, step: float, repeats: int = 3) -> float:
+def _time_fmu_steps(fmu_path, inputs, outputs, *, n_steps: int, step: float, repeats: int = 3,
+                    values=None, start_values: dict | None = None) -> float:
     """Best-of-``repeats`` wall time per communication step (s) of ``setReal(inputs)``,
-    ``doStep``, ``getReal(outputs)`` in fmpy's FMU2Slave, with varying input values."""
+    ``doStep``, ``getReal(outputs)`` in fmpy's FMU2Slave, with varying input values: ``values``
+    (shape (n_steps, len(inputs)), row ``k`` set before step ``k``), by default small sines.
+    ``start_values`` (Real name -> value) are set before initialisation in every repeat."""
     import shutil
 
     from fmpy import extract, read_model_description
@@ -344,10 +347,14 @@ def _time_fmu_steps(fmu_path, inputs, outputs, *, n_steps: int, step: float, rep
                         modelIdentifier=description.coSimulation.modelIdentifier, instanceName="bench")
         fmu.instantiate()
         in_refs, out_refs = [refs[n] for n in inputs], [refs[n] for n in outputs]
-        values = 0.01 * np.sin(np.arange(n_steps)[:, None] + np.arange(len(inputs)))
+        if values is None:
+            values = 0.01 * np.sin(np.arange(n_steps)[:, None] + np.arange(len(inputs)))
+        starts = start_values or {}
         best = np.inf
         for _ in range(repeats):
             fmu.reset()
+            if starts:
+                fmu.setReal([refs[n] for n in starts], [float(v) for v in starts.values()])
             fmu.setupExperiment(startTime=0.0)
             fmu.enterInitializationMode()
             fmu.exitInitializationMode()
@@ -369,11 +376,18 @@ def bench_fmu(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> d
     training points, Higdon kernel, 400 annealing samples per output) against a bare pythonfmu
     FMU with the same variables, both built and timed in this run.
 
+    Then the native FMUs (issue 8) against the pythonfmu FMU of the same model, timed in fmpy and
+    in the plain C host: the rate predictor of the paper's model and of :data:`NATIVE_MODELS`
+    (:func:`_native_rows`, key ``"native"``), and the blimp RKGP (:func:`blimp_rkgp_row`, key
+    ``"blimp"``).
+
     Returns
     -------
     dict
         ``{"steps", "gp_us_per_step", "bare_us_per_step", "gp_over_bare", "goal_ratio",
-        "goal_met", "training_points", "hyperparameter_samples"}``.
+        "goal_met", "training_points", "hyperparameter_samples", "real_time_factor_at_narx_step",
+        "native_us_per_step", "native_over_bare", "gp_over_native", "native", "native_goal_ratio",
+        "native_goal_us_at_500", "blimp"}``.
     """
     import subprocess
     import sys
@@ -404,6 +418,7 @@ def bench_fmu(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> d
         gp = _time_fmu_steps(gp_fmu, inputs, outputs, n_steps=n_steps, step=step)
         native = _native_rows(scratch, scratch / "gp.npz", gp, inputs, outputs, n_steps=n_steps, step=step,
                               seed=seed, progress=progress)
+        blimp = blimp_rkgp_row(scratch, n_steps=n_steps, seed=seed)
     samples = [len(g.theta_samples_) for g in trained.model.model.gps]
     return {"steps": n_steps, "gp_us_per_step": gp * 1e6, "bare_us_per_step": bare * 1e6,
             "gp_over_bare": gp / bare, "goal_ratio": FMU_GOAL_RATIO, "goal_met": gp / bare <= FMU_GOAL_RATIO,
@@ -413,7 +428,7 @@ def bench_fmu(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> d
             "native_us_per_step": native[0]["native_us_per_step"], "native_over_bare":
                 native[0]["native_us_per_step"] / (bare * 1e6),
             "gp_over_native": gp * 1e6 / native[0]["native_us_per_step"], "native": native,
-            "native_goal_ratio": NATIVE_GOAL_RATIO, "native_goal_us_at_500": NATIVE_GOAL_US}
+            "native_goal_ratio": NATIVE_GOAL_RATIO, "native_goal_us_at_500": NATIVE_GOAL_US, "blimp": blimp}
 
 
 #: Goal of ``bench fmu`` (issue 5): the GP adds at most this factor to the bare FMU's step cost.
@@ -488,12 +503,91 @@ def _native_rows(scratch, paper_model, paper_gp_s: float, inputs, outputs, *, n_
     return result
 
 
+#: ``bench fmu``'s blimp RKGP model: seconds of blimp-flight (20 Hz, true states) under random
+#: piecewise-constant commands held for ``BLIMP_HOLD`` frames, as tests/test_fmu.py trains it.
+BLIMP_SECONDS, BLIMP_HOLD = 10.0, 10
+
+
+def blimp_rkgp_row(scratch, *, n_steps: int, seed: int = 0) -> dict:
+    """Per-step cost of the native blimp RKGP FMU (:func:`fmu_src.native_blimp.build_native_blimp_rkgp_fmu`)
+    against the pythonfmu blimp RKGP FMU (:func:`fmu_src.builder.build_blimp_rkgp_fmu`), both built
+    in ``scratch`` from one small grey-box model trained here as tests/test_fmu.py does:
+    :data:`BLIMP_SECONDS` of ``blimp-flight`` (mocap off, 20 Hz) under random commands, a shared GP
+    on the RK4 physics leaving out position and yaw (200 training pairs, maximum likelihood
+    without restarts: about a second). Timed by :func:`time_blimp_rkgp_fmus` on the training
+    commands from the training start state (inside the envelope).
+
+    Returns
+    -------
+    dict
+        :func:`time_blimp_rkgp_fmus`'s, with ``"model"`` and ``"training_pairs"``.
+    """
+    from pathlib import Path
+
+    from fmu_src.builder import build_blimp_rkgp_fmu
+    from fmu_src.native_blimp import build_native_blimp_rkgp_fmu
+    from gp_model import GreyBoxGP, save_model
+
+    from .blimp import BlimpFlightTest, BlimpParameters
+    from .blimp_identification import blimp_physics_description, physics_step, recording_arrays
+
+    scratch = Path(scratch)
+    time_ = np.arange(int(round(BLIMP_SECONDS / BlimpFlightTest.sample_time)) + 1) * BlimpFlightTest.sample_time
+    rng = np.random.default_rng(seed)
+    levels = lambda low, high: np.repeat(  # noqa: E731
+        rng.uniform(low, high, len(time_) // BLIMP_HOLD + 1), BLIMP_HOLD)[:len(time_)]
+    commands = np.column_stack([levels(0.2, 0.8), levels(-0.2, 0.4), levels(-0.6, 0.6)])
+    states, step_inputs = recording_arrays(BlimpFlightTest(mocap=False).simulate(time_, commands, seed=seed))
+    params = BlimpParameters()
+    model = GreyBoxGP(state_columns=(3, 4, 6, 7, 8, 9, 10, 11), n_restarts=0).fit_trajectories(
+        [(states, step_inputs)], physics_step(params))
+    path = save_model(scratch / "blimp_rkgp.npz", model, physics=blimp_physics_description(params))
+    row = time_blimp_rkgp_fmus(build_blimp_rkgp_fmu(path, scratch, name="bench_blimp_python"),
+                               build_native_blimp_rkgp_fmu(path, scratch, name="bench_blimp_native"),
+                               commands, states[0], n_steps=n_steps)
+    pairs = int(len(states) - 1)
+    return {"model": f"blimp RKGP: {pairs} pairs, shared GP, 1 sample (max. likelihood)",
+            "training_pairs": pairs, **row}
+
+
+def time_blimp_rkgp_fmus(python_fmu, native_fmu, commands, start, *, n_steps: int) -> dict:
+    """Per-step cost of a pythonfmu and a native blimp RKGP FMU of one model flying ``commands``
+    (shape (n + 1, 3), one row per 20 Hz frame) from the state ``start`` (12,), for
+    ``min(n_steps, n)`` steps: ``setReal`` + ``doStep`` + ``getReal`` (3 commands in, 12 states
+    and 12 sds out), best of 3, in fmpy (both FMUs) and in the plain C host
+    (:func:`validation.hosts.simulate_in_c_host`, the native one).
+
+    Returns
+    -------
+    dict
+        ``{"steps", "pythonfmu_us_per_step", "native_us_per_step", "native_c_host_us_per_step",
+        "pythonfmu_over_native", "pythonfmu_over_native_c_host"}``.
+    """
+    from .blimp import INPUT_NAMES, STATE_NAMES, BlimpFlightTest
+    from .hosts import simulate_in_c_host
+
+    h, commands = BlimpFlightTest.sample_time, np.asarray(commands, dtype=float)
+    steps = min(n_steps, len(commands) - 1)
+    outputs = [*STATE_NAMES, *(f"{s}_sd" for s in STATE_NAMES)]
+    starts = {f"{s}_start": float(v) for s, v in zip(STATE_NAMES, start)}
+    python_us, native_us = (_time_fmu_steps(fmu, INPUT_NAMES, outputs, n_steps=steps, step=h,
+                                            values=commands[:steps], start_values=starts) * 1e6
+                            for fmu in (python_fmu, native_fmu))
+    c_host_us = simulate_in_c_host(native_fmu, step_size=h, n_steps=steps, outputs=outputs, start_values=starts,
+                                   inputs=dict(zip(INPUT_NAMES, commands[:steps + 1].T)),
+                                   repeats=3)["us_per_step"]
+    return {"steps": steps, "pythonfmu_us_per_step": python_us, "native_us_per_step": native_us,
+            "native_c_host_us_per_step": c_host_us, "pythonfmu_over_native": python_us / native_us,
+            "pythonfmu_over_native_c_host": python_us / c_host_us}
+
+
 def format_fmu_table(report: dict) -> str:
     """The ``bench fmu`` report as a table."""
+    blimp = report.get("blimp")
     native = [
         "",
-        f"Native (C) rate-predictor FMU vs the pythonfmu one of the same model, us per step (fmpy: the "
-        f"same calls through ctypes; C host: the same calls from C, no Python); goals: >= "
+        f"Native (C) FMUs vs the pythonfmu FMU of the same model, us per step (fmpy: the same calls "
+        f"through ctypes; C host: the same calls from C, no Python); goals: >= "
         f"{report['native_goal_ratio']:g}x cheaper, < {report['native_goal_us_at_500']:g} us at 500 points",
         f"{'model':<42} {'basis':>5} {'S':>4} {'pythonfmu':>10} {'native':>8} {'C host':>8} {'ratio':>7} "
         f"{'ratio C':>8}",
@@ -501,7 +595,13 @@ def format_fmu_table(report: dict) -> str:
           f"{r['pythonfmu_us_per_step']:>10.1f} {r['native_us_per_step']:>8.1f} "
           f"{r['native_c_host_us_per_step']:>8.2f} {r['pythonfmu_over_native']:>6.1f}x "
           f"{r['pythonfmu_over_native_c_host']:>7.1f}x" for r in report.get("native", [])),
-    ] if report.get("native") else []
+        *([f"{'blimp RKGP (shared GP, RK4 physics)':<42} {blimp['training_pairs']:>5} {1:>4} "
+           f"{blimp['pythonfmu_us_per_step']:>10.1f} {blimp['native_us_per_step']:>8.1f} "
+           f"{blimp['native_c_host_us_per_step']:>8.2f} {blimp['pythonfmu_over_native']:>6.1f}x "
+           f"{blimp['pythonfmu_over_native_c_host']:>7.1f}x",
+           f"(blimp RKGP: 3 commands in, 12 states and 12 sds out, {blimp['steps']} steps of its training "
+           "flight at 20 Hz)"] if blimp else []),
+    ] if report.get("native") or blimp else []
     return "\n".join([
         f"Rate-predictor FMU step cost in fmpy (setReal + doStep + getReal, best of 3 x "
         f"{report['steps']} steps) vs a bare pythonfmu FMU with the same variables; "
@@ -686,6 +786,13 @@ def _fmu_summary(report: dict) -> list:
                      row["pythonfmu_over_native_c_host"] >= report["native_goal_ratio"]
                      and (row["training_points"] < 500
                           or row["native_c_host_us_per_step"] < report["native_goal_us_at_500"])))
+    blimp = report.get("blimp")
+    if blimp:
+        rows.append((f"native vs pythonfmu FMU step, blimp RKGP, {blimp['training_pairs']} pairs",
+                     f"{blimp['pythonfmu_over_native_c_host']:.1f}x cheaper, "
+                     f"{blimp['native_c_host_us_per_step']:.1f} us (C host)",
+                     f">= {report['native_goal_ratio']:g}x",
+                     blimp["pythonfmu_over_native_c_host"] >= report["native_goal_ratio"]))
     return rows
 
 
