@@ -3,6 +3,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from validation.cli import main
@@ -107,6 +108,10 @@ def test_bench_fmu_times_both_fmus(tmp_path, capsys):
     assert report["steps"] == 50 and report["training_points"] == 32
     assert 0 < report["bare_us_per_step"] < report["gp_us_per_step"]
     assert report["gp_over_bare"] == pytest.approx(report["gp_us_per_step"] / report["bare_us_per_step"])
+    blimp = report["blimp"]
+    assert blimp["steps"] > 0
+    times = [value for key, value in blimp.items() if key.endswith("us_per_step")]
+    assert len(times) >= 3 and all(np.isfinite(t) and t > 0 for t in times)
     assert "bare us/step" in capsys.readouterr().out
 
 
