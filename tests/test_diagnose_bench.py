@@ -137,6 +137,19 @@ def test_cli_runs_chosen_cases_and_writes_the_scorecard(tmp_path, capsys):
     assert report["cases"][1]["found"] == []
 
 
+@pytest.mark.slow
+def test_blimp_fan_thrust_quadratic_in_its_command_is_unexplained():
+    """Outside the named list on the blimp: per-direction thrust gains fit the tail fan's u|u|
+    thrust at the diagnosed manoeuvre's one amplitude (0.8), not at the held-out one's (0.6)."""
+    from validation.diagnose import diagnose
+
+    case = next(c for c in concealed_cases("blimp") if c.name == "outside-quadratic-thrust-u_tail")
+    fit, holdout, truth = case_recordings(case, reference="blimp", seed=0)
+    result = diagnose([fit], reference="blimp", holdout=[holdout], seed=0).as_dict()
+    assert score_case(case, result, truth_states=truth, holdout=holdout, reference="blimp", seconds=0.0).passed
+    assert any(f["effect"] == "unexplained" and f["output"] in ("y", "psi", "R") for f in result["findings"])
+
+
 def _report(seed, rows):
     return {"reference": "bo105-80kt", "seed": seed, "cases": [
         {"case": name, "kind": kind, "passed": passed, "named": named, "in_interval": in_ci,

@@ -15,13 +15,16 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
 Recordings (both 20 s at 100 Hz from trim, every state measured with the flight-test stand-in's
 sensor noise, :data:`validation.bo105.SENSOR_NOISE_STD`): the diagnosed one flies the multi-axis
 identification manoeuvre of :func:`validation.effects.identification_manoeuvre` (variant 0), the
-held-out one its variant 1 (other amplitudes, step times and order), with its own noise seed.
+held-out one its variant 1 (other amplitudes, step times and order). Noise is seeded by the run's
+seed, the recording and the case's name: each case is an independent trial, and running a case
+alone gives what it gives in the whole suite.
 
 The ``blimp`` suite (:func:`blimp_cases`, ``concealed_cases("blimp")``) does the same on the blimp
 ODE: 20 s at 20 Hz (the mocap rate), all 12 states with the white noise of
 :data:`validation.blimp_effects.SENSOR_NOISE_STD`, the manoeuvres of
 :func:`validation.blimp_effects.identification_manoeuvre`; single effects of every kind the blimp
-takes, a pair and no effect.
+takes, a pair, no effect, and two fan nonlinearities outside the named list (thrust quadratic
+in the command, thrust saturation).
 
 Scorecard columns, per case: every true effect named with the right effect kind and target
 (``named``); the true value inside the reported interval (``in_interval``); the held-out RMSE of
@@ -36,13 +39,14 @@ from __future__ import annotations
 
 import math
 import time as clock
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import blimp_effects
 from .blimp import BlimpReference
-from .bo105 import INPUT_NAMES, SENSOR_NOISE_STD, STATE_NAMES, Bo105Reference
+from .bo105 import SENSOR_NOISE_STD, STATE_NAMES, Bo105Reference
 from .effects import TARGET_KEYS, EffectVehicle, identification_manoeuvre, model_value, simulate_with_effects
 from .errors import BadInputError
 from .recordings import Recording
@@ -84,7 +88,8 @@ class ConcealedCase:
         The named effects applied (the truth), in the shape of diagnosis findings; empty for
         ``none`` and ``outside``.
     outside : tuple, optional
-        A physics change outside the named list: ``("dead_band", input, half_width_rad)`` or
+        A physics change outside the named list: ``(map, input, parameter)`` with a map of
+        :data:`COMMAND_MAPS` (e.g. ``("dead_band", "theta_1s", half_width_rad)``), or
         ``("quadratic_pitch_damping", coefficient_1_per_rad)``.
     description : str
         One line for the scorecard.
@@ -114,7 +119,8 @@ def _scaled_case(reference, kind: str, term: str, factor: float, *, description:
 def blimp_cases() -> list[ConcealedCase]:
     """The blimp suite (module docstring): every effect kind the blimp takes at sizes a real
     indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
-    errors, a buoyancy imbalance of 0.3 g), a pair and no effect."""
+    errors, a buoyancy imbalance of 0.3 g), a pair, no effect, and two fan nonlinearities
+    outside the named list (:data:`COMMAND_MAPS`)."""
     reference = BlimpReference()
 
     def scaled(kind, term, factor, description):
@@ -147,6 +153,10 @@ def blimp_cases() -> list[ConcealedCase]:
                        {"effect": "force_offset", "term": "Z_0", "value": -0.002}),
                       description="100 ms delay on u_gondola and 2 mN excess buoyancy"),
         ConcealedCase("none", "none", description="the reference itself, with sensor noise"),
+        ConcealedCase("outside-quadratic-thrust-u_tail", "outside", outside=("quadratic_thrust", "u_tail", None),
+                      description="tail-fan thrust quadratic in its command, u|u| (not a named effect)"),
+        ConcealedCase("outside-saturation-u_gondola", "outside", outside=("saturation", "u_gondola", 0.6),
+                      description="gondola thrust saturating at 60 % command (not a named effect)"),
     ]
 
 
@@ -231,7 +241,9 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
             states = vehicle.simulate_states(time, inputs)
         else:
             states = _outside_states(case.outside, vehicle, time, inputs)
-        rng = np.random.default_rng([seed, variant])
+        # Each case draws its own noise (seeded by its name), so the cases of one run are
+        # independent trials of diagnose rather than one noise draw seen through many effects.
+        rng = np.random.default_rng([seed, variant, zlib.crc32(case.name.encode())])
         noise = np.array([setup.noise_sd[name] for name in vehicle.state_names])
         measured = states + rng.standard_normal(states.shape) * noise
         metadata = {"vehicle": reference, "simulator": f"diagnose-bench case {case.name}",
@@ -242,14 +254,26 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
     return fit, holdout, truth_states
 
 
+#: Static command nonlinearities outside the named list, ``(command, parameter) -> effective
+#: command``: a dead band of half-width ``w`` (the command loses ``w`` and nothing passes below
+#: it); thrust quadratic in the command, ``u |u|`` (a fixed-pitch fan's thrust goes with its
+#: speed squared when the command sets the speed; the parameter is unused); saturation at
+#: ``+/- limit``.
+COMMAND_MAPS = {
+    "dead_band": lambda u, width: np.sign(u) * np.maximum(np.abs(u) - width, 0.0),
+    "quadratic_thrust": lambda u, _: u * np.abs(u),
+    "saturation": lambda u, limit: np.clip(u, -limit, limit),
+}
+
+
 def _outside_states(outside: tuple, vehicle: EffectVehicle, time, inputs) -> np.ndarray:
     """Noise-free states of the reference with a change outside the named list."""
     kind = outside[0]
-    if kind == "dead_band":
-        _, name, half_width = outside
+    if kind in COMMAND_MAPS:
+        _, name, parameter = outside
         flown = inputs.copy()
-        column = flown[:, INPUT_NAMES.index(name)]
-        flown[:, INPUT_NAMES.index(name)] = np.sign(column) * np.maximum(np.abs(column) - half_width, 0.0)
+        column = vehicle.input_names.index(name)
+        flown[:, column] = COMMAND_MAPS[kind](flown[:, column], parameter)
         return vehicle.simulate_states(time, flown)
     if kind == "quadratic_pitch_damping":
         return _quadratic_pitch_damping_states(vehicle.reference_name, outside[1], time, inputs)
