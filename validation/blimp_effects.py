@@ -5,17 +5,23 @@ On the blimp they act on the ODE of :func:`validation.blimp.blimp_dynamics` as f
 SI units; ``M`` is the blimp's system inertia matrix, so an extra generalised force ``tau``
 adds ``M^-1 tau`` to ``nu_dot``):
 
-- ``time_delay`` on ``u_gondola``, ``mu`` or ``u_tail``: the input ``u_j(t - tau)``. With the
-  zero-order hold of a recording of interval ``h`` and ``tau = (m + f) h`` the delayed input
-  switches at fraction ``f`` inside each interval; the simulation holds its *interval mean*
-  ``(1 - f) u_j[k-m] + f u_j[k-m-1]`` over the interval (exact in the input's integral over each
-  interval, continuous and piecewise linear in ``tau``, which an output-error fit needs);
+- ``time_delay`` on ``u_gondola``, ``mu`` or ``u_tail``: the input ``u_j(t - tau)``. The
+  recorded input is zero-order held, row k over ``[t_k, t_{k+1})`` of length ``h_k`` (trim, 0,
+  before ``t_0``), so its integral ``U(t)`` is piecewise linear with knots at the sample times; the
+  simulation holds the delayed input's *interval mean*
+  ``(U(t_{k+1} - tau) - U(t_k - tau)) / h_k`` over each interval (exact in the input's integral
+  over each interval, continuous and piecewise linear in ``tau``, which an output-error fit
+  needs). On an even grid ``h`` with ``tau = (m + f) h`` this is
+  ``(1 - f) u_j[k-m] + f u_j[k-m-1]``: the delayed input switches at fraction ``f`` inside each
+  interval;
 - ``input_lag`` on an input: ``T z_dot = -z + u_j`` and the ODE sees ``z``. With the input
-  ``u_k`` held, ``z`` is exact at the samples, ``z[k+1] = a z[k] + (1 - a) u_k`` with
-  ``a = exp(-h/T)``, and the simulation holds its exact interval mean
-  ``u_k + (z[k] - u_k) (T/h) (1 - a)`` over the interval: stable for any ``T``, continuous at
-  ``T = 0`` (the mean tends to ``u_k``) with a non-zero slope there, as a fit needs (a lag after
-  a delay acts on the delayed interval means);
+  ``u_k`` held over an interval of length ``h_k``, ``z`` is exact at the samples,
+  ``z[k+1] = a_k z[k] + (1 - a_k) u_k`` with ``a_k = exp(-h_k/T)``, and the simulation holds its
+  exact interval mean ``u_k + (z[k] - u_k) (T/h_k) (1 - a_k)`` over the interval (the exact
+  zero-order-hold discretisation of a first-order system, Franklin, Powell & Workman, *Digital
+  Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3, taken interval by interval): stable for
+  any ``T``, continuous at ``T = 0`` (the mean tends to ``u_k``) with a non-zero slope there, as
+  a fit needs (a lag after a delay acts on the delayed interval means);
 - ``control_derivative``, terms ``gondola_thrust_forward``, ``gondola_thrust_backward``,
   ``tail_thrust_positive``, ``tail_thrust_negative``: the fan thrust per unit command, N, for
   positive / negative commands (the :class:`~validation.blimp.BlimpParameters` of the same
@@ -31,19 +37,19 @@ adds ``M^-1 tau`` to ``nu_dot``):
   the centre of buoyancy: a buoyancy imbalance; the model's is ``-net_lift``);
 - ``sensor_bias`` on any of the 12 states: a constant added to the recorded output.
 
-Integration: classical RK4 with one step per recording interval from the reference's hanging
-state (:class:`~validation.blimp.BlimpReference` uses substeps of at most 0.01 s; at 20 Hz the two
-agree to far below the sensor noise, see ``tests/test_diagnose_blimp.py``). All members of a
-batch are integrated together, one vectorised :func:`~validation.blimp.blimp_dynamics` call per
-RK4 stage, which is what makes output-error fitting of many hypotheses affordable.
+Integration: classical RK4 with one step per recording interval, each of its own length
+``h_k = t_{k+1} - t_k`` (motion-capture frames arrive with timing jitter, so recordings may be
+unevenly sampled), from the reference's hanging state (:class:`~validation.blimp.BlimpReference`
+uses substeps of at most 0.01 s; at 20 Hz the two agree to far below the sensor noise, see
+``tests/test_diagnose_blimp.py``). All members of a batch are integrated together, one
+vectorised :func:`~validation.blimp.blimp_dynamics` call per RK4 stage, and all lags of a batch
+are propagated together, which is what makes output-error fitting of many hypotheses affordable.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-
-from scipy import signal
 
 from .blimp import (_ATTITUDE_NOISE_STD, _POSITION_NOISE_STD, INPUT_NAMES, STATE_NAMES,
                     BlimpReference, _check_history, _hanging_state, _mass_matrix, blimp_dynamics)
@@ -91,24 +97,59 @@ def model_value(reference: BlimpReference, term: str) -> float:
     raise KeyError(term)
 
 
-def _delayed_mean(signal: np.ndarray, delay: float, step: float) -> np.ndarray:
-    """Interval means of the zero-order-held ``signal`` delayed by ``delay`` s (module docstring),
-    trim (0) before the start; shape like ``signal``."""
-    whole = int(math.floor(delay / step + 1e-9))
-    fraction = delay / step - whole
-    padded = np.concatenate([np.zeros(whole + 1), signal])
-    n = len(signal)
-    late, early = padded[1:n + 1], padded[:n]  # u[k - whole], u[k - whole - 1]
-    return (1.0 - fraction) * late + fraction * early
+def _delayed_mean(signal_: np.ndarray, delay: float, time: np.ndarray) -> np.ndarray:
+    """Interval means of the zero-order-held ``signal_`` delayed by ``delay`` s (module docstring).
+
+    Parameters
+    ----------
+    signal_ : ndarray, shape (n,)
+        Row k held over ``[time[k], time[k+1])``; trim (0) before ``time[0]``.
+    delay : float
+        s, >= 0.
+    time : ndarray, shape (n,)
+        Strictly increasing sample times, s (even or not).
+
+    Returns
+    -------
+    ndarray, shape (n - 1,)
+        The delayed input's mean over each interval ``[time[k], time[k+1])``.
+    """
+    steps = np.diff(time)
+    # U(time[k]) = sum_{i<k} u_i h_i; U is linear between the knots, so interpolation is exact.
+    integral = np.concatenate(([0.0], np.cumsum(signal_[:-1] * steps)))
+    shifted = np.interp(time - delay, time, integral, left=0.0)  # U(time[k] - delay)
+    return np.diff(shifted) / steps
 
 
-def _lagged_mean(signal_: np.ndarray, time_constant: float, step: float) -> np.ndarray:
-    """Interval means of a first-order lag's output for the zero-order-held ``signal_``
-    (module docstring), starting at trim (0); shape like ``signal_``."""
-    decay = math.exp(-step / time_constant)
-    # z[k+1] = a z[k] + (1 - a) u[k], z[0] = 0  ->  z[k] for k = 0 .. n-1
-    lag_state = signal.lfilter([0.0, 1.0 - decay], [1.0, -decay], signal_)
-    return signal_ + (lag_state - signal_) * time_constant / step * (1.0 - decay)
+def _lagged_means(signals: np.ndarray, time_constants: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Interval means of first-order lags' outputs for held inputs (module docstring), each lag
+    starting at trim (0).
+
+    Parameters
+    ----------
+    signals : ndarray, shape (m, n - 1)
+        Each lag's input, row ``[:, k]`` held over interval k.
+    time_constants : ndarray, shape (m,)
+        ``T`` of each lag, s, > 0.
+    steps : ndarray, shape (n - 1,)
+        Interval lengths ``h_k``, s.
+
+    Returns
+    -------
+    ndarray, shape (m, n - 1)
+        The mean of each lag's output ``z`` over each interval.
+    """
+    ratio = steps[None, :] / time_constants[:, None]  # h_k / T
+    decay = np.exp(-ratio)  # a_k
+    rise = -np.expm1(-ratio)  # 1 - a_k
+    mean_gain = rise / ratio  # (T / h_k) (1 - a_k)
+    lag_state = np.zeros(len(time_constants))  # z[k]
+    means = np.empty_like(signals)
+    for k in range(signals.shape[1]):
+        held = signals[:, k]
+        means[:, k] = held + (lag_state - held) * mean_gain[:, k]
+        lag_state = decay[:, k] * lag_state + rise[:, k] * held  # z[k+1]
+    return means
 
 
 def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.ndarray:
@@ -120,7 +161,7 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
     effect_lists : sequence of list of dict
         B lists of checked effects (:func:`validation.effects.check_effects`).
     time : ndarray, shape (n,)
-        Evenly spaced sample times, s.
+        Strictly increasing sample times, s; evenly spaced or not (one RK4 step per interval).
     inputs : ndarray, shape (n, 3)
         ``u_gondola, mu, u_tail``, zero-order hold (row k acts from ``time[k]`` to ``time[k+1]``).
 
@@ -131,23 +172,23 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
         from the reference's hanging state at rest.
     """
     time, inputs = _check_history(time, inputs)
-    step = float(np.mean(np.diff(time)))
+    steps = np.diff(time)
     params = reference.params
     n, batch = len(time), len(effect_lists)
-    delayed = np.repeat(inputs[None], batch, axis=0)  # (B, n, 3)
+    held = np.repeat(inputs[None, :-1], batch, axis=0)  # (B, n-1, 3): what acts over each interval
     gain_positive, gain_negative = np.ones((batch, 3)), np.ones((batch, 3))
     extra_damping, extra_drag = np.zeros((batch, 3)), np.zeros((batch, 3))
     constant, extra_down, bias = np.zeros((batch, 6)), np.zeros(batch), np.zeros((batch, 12))
+    lags = []  # (member, input column, time constant)
     for b, effects in enumerate(effect_lists):
         for effect in effects:  # delays first: a lag acts on the delayed input
             if effect["effect"] == "time_delay" and effect["value"] > 0:
                 j = INPUT_NAMES.index(effect["input"])
-                delayed[b, :, j] = _delayed_mean(inputs[:, j], effect["value"], step)
+                held[b, :, j] = _delayed_mean(inputs[:, j], effect["value"], time)
         for effect in effects:
             kind, value = effect["effect"], effect["value"]
             if kind == "input_lag" and value > 0:
-                j = INPUT_NAMES.index(effect["input"])
-                delayed[b, :, j] = _lagged_mean(delayed[b, :, j], value, step)
+                lags.append((b, INPUT_NAMES.index(effect["input"]), value))
             elif kind == "sensor_bias":
                 bias[b, STATE_NAMES.index(effect["output"])] += value
             elif kind in ("control_derivative", "stability_derivative", "quadratic_drag", "force_offset"):
@@ -165,6 +206,9 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
                     extra_down[b] = change
                 else:
                     constant[b, OFFSET_TERMS[term]] = change
+    if lags:
+        members, columns, time_constants = (np.array(values) for values in zip(*lags))
+        held[members, :, columns] = _lagged_means(held[members, :, columns], time_constants, steps)
     _, inverse = _mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
                               params.cg_position)
 
@@ -183,12 +227,12 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
     states = np.empty((batch, n, 12))
     state = np.repeat(_hanging_state(params)[None], batch, axis=0)
     states[:, 0] = state
-    for k in range(n - 1):
-        held = delayed[:, k]
-        k1 = derivative(state, held)
-        k2 = derivative(state + 0.5 * step * k1, held)
-        k3 = derivative(state + 0.5 * step * k2, held)
-        k4 = derivative(state + step * k3, held)
+    for k, step in enumerate(steps):  # classical RK4 over [t_k, t_{k+1}), input row k held
+        command = held[:, k]
+        k1 = derivative(state, command)
+        k2 = derivative(state + 0.5 * step * k1, command)
+        k3 = derivative(state + 0.5 * step * k2, command)
+        k4 = derivative(state + step * k3, command)
         state = state + step / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         states[:, k + 1] = state
     return states + bias[:, None, :]

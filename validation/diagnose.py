@@ -24,6 +24,15 @@ still replayed from trim over the whole recording, but only earlier samples ente
 References: every ``bo105-<V>kt`` and the ``blimp`` (its named effects and their terms are in
 :mod:`validation.blimp_effects`; replays integrate its nonlinear ODE by RK4 at the recording
 interval).
+
+Sampling: Bo105 recordings must be evenly sampled (the reference is discretised exactly with one
+step). Blimp recordings may be unevenly sampled, as motion capture with frame-timing jitter is:
+replays step from frame to frame, the noise estimator uses the uneven-design pseudo-residuals,
+the moving-RMS test counts samples (its law does not depend on their spacing), and only the
+Welch PSD bands and the coherence, which need an even grid, are computed on the residual
+linearly interpolated (inputs held) onto the nominal grid ``t_0 + k h`` (an approximation, see
+:func:`_on_nominal_grid`). All recordings must share one nominal interval ``h``
+(:func:`_nominal_step`, within :data:`RATE_TOLERANCE`).
 """
 from __future__ import annotations
 
@@ -59,14 +68,27 @@ MAX_GP_POINTS = 300
 EXCITATION_THRESHOLD = 1e-6
 #: Fraction of a named effect a residual GP must absorb to be flagged.
 SOAK_FLAG = 0.5
+#: Relative difference of nominal sample intervals above which recordings count as sampled at
+#: different rates. Timing jitter of sd ``s`` moves :func:`_nominal_step` by about
+#: ``sqrt(2) s / (n - 1)`` (0.03 % for 4 ms on 20 s at 20 Hz), while the rates people record at
+#: (20, 25, 50, 100 Hz ...) differ by 20 % or more.
+RATE_TOLERANCE = 0.01
+#: Relative spread of the sample intervals up to which a recording counts as evenly sampled
+#: (far above the rounding of ``t0 + k*h`` grids, far below any real jitter; as
+#: :func:`validation.vehicles.check_history`).
+EVEN_TOLERANCE = 1e-6
 
 
-def estimate_noise_sd(measured: np.ndarray) -> float:
+def estimate_noise_sd(measured: np.ndarray, *, time: np.ndarray | None = None) -> float:
     """White-noise standard deviation of a smooth signal sampled fast, from the signal alone.
 
-    Second-difference pseudo-residuals ``e_k = (y[k-1] - 2 y[k] + y[k+1]) / sqrt(6)`` have the
-    noise variance when the signal is locally linear over three samples (Gasser, Sroka &
-    Jennen-Steinmetz, Biometrika 73(3), 1986). Their scale is taken robustly, as
+    Pseudo-residuals of Gasser, Sroka & Jennen-Steinmetz (Biometrika 73(3), 1986), the
+    deviation of each sample from the straight line through its two neighbours,
+    ``e_k = (a_k y[k-1] + b_k y[k+1] - y[k]) / sqrt(a_k^2 + b_k^2 + 1)`` with
+    ``a_k = (t[k+1] - t[k]) / (t[k+1] - t[k-1])`` and ``b_k = (t[k] - t[k-1]) / (t[k+1] - t[k-1])``,
+    have the noise variance wherever the signal is locally linear over three samples, on any
+    design, even or not (on an even grid ``a = b = 1/2`` and
+    ``e_k = -(y[k-1] - 2 y[k] + y[k+1]) / sqrt(6)``). Their scale is taken robustly, as
     ``1.4826 * median |e - median e|`` (Hampel, JASA 69, 1974), so the few samples where a
     control step bends the signal do not count. At 100 Hz a rigid-body response changes its
     slope far less per sample than typical sensor noise (pitch rate: ``h^2 q_ddot ~ 1e-4``
@@ -75,6 +97,8 @@ def estimate_noise_sd(measured: np.ndarray) -> float:
     Parameters
     ----------
     measured : ndarray, shape (n,), n >= 3
+    time : ndarray, shape (n,), optional
+        Strictly increasing sample times, s; default evenly spaced.
 
     Returns
     -------
@@ -82,7 +106,13 @@ def estimate_noise_sd(measured: np.ndarray) -> float:
         Noise standard deviation in the signal's units; at least ``1e-6`` of its RMS (plus
         1e-12), so noise-free data still get finite weights.
     """
-    e = (measured[:-2] - 2 * measured[1:-1] + measured[2:]) / math.sqrt(6.0)
+    if time is None:
+        before = after = np.full(len(measured) - 2, 0.5)
+    else:
+        gaps = np.diff(time)
+        span = gaps[:-1] + gaps[1:]
+        before, after = gaps[1:] / span, gaps[:-1] / span  # a_k, b_k
+    e = (before * measured[:-2] + after * measured[2:] - measured[1:-1]) / np.sqrt(before**2 + after**2 + 1)
     sd = 1.4826 * float(np.median(np.abs(e - np.median(e))))
     return max(sd, 1e-6 * float(np.sqrt(np.mean(measured**2))) + 1e-12)
 
@@ -182,10 +212,51 @@ def _load(items, reference, *, held_out: bool, start_index: int = 0) -> list:
         if len(recording.time) < 3:
             raise BadInputError(f"{name}: {len(recording.time)} samples; too short to identify anything")
         steps = np.diff(recording.time)
-        if np.ptp(steps) > 1e-6 * np.mean(steps):
-            raise BadInputError(f"{name}: uneven sampling; diagnose needs evenly sampled recordings")
+        if not _evenly_sampled(recording.time) and not isinstance(reference, BlimpReference):
+            raise BadInputError(f"{name}: uneven sampling (intervals {steps.min():.6g} to {steps.max():.6g} s); "
+                                f"the {reference.name} reference is discretised exactly with one step, so "
+                                "diagnose needs evenly sampled recordings for it: resample onto an even grid")
         sources.append(_Source(name, recording, held_out))
     return sources
+
+
+def _evenly_sampled(time: np.ndarray) -> bool:
+    """Whether the intervals of ``time`` (n,) agree to :data:`EVEN_TOLERANCE`."""
+    steps = np.diff(time)
+    return bool(np.ptp(steps) <= EVEN_TOLERANCE * np.mean(steps))
+
+
+def _nominal_step(time: np.ndarray) -> float:
+    """Nominal sample interval of a recording, s: its span over its number of nominal
+    intervals, each actual interval counted as ``round(h_k / median h)`` of them (so a dropped
+    frame counts twice). Exact on an even grid; with frame-timing jitter of sd ``s`` it is off
+    by about ``sqrt(2) s / (n - 1)`` only, where the median interval alone is off by about
+    ``sqrt(pi/2) sqrt(2) s / sqrt(n)`` (the sample median's asymptotic standard error for a
+    normal law), 1 % at 20 Hz with 4 ms jitter over 20 s."""
+    steps = np.diff(time)
+    counts = np.maximum(1.0, np.round(steps / np.median(steps)))
+    return float((time[-1] - time[0]) / counts.sum())
+
+
+def _on_nominal_grid(time: np.ndarray, values: np.ndarray, step: float, *, held: bool = False) -> np.ndarray:
+    """``values`` (n,) sampled at ``time`` (n,), brought onto the grid ``time[0] + k step``
+    covering it, shape (m,); unchanged when ``time`` is evenly sampled already.
+
+    Residuals are interpolated linearly; inputs (``held``) keep their zero-order hold (the row
+    acting at each grid time). Linear interpolation is an approximation for white noise: a grid
+    value between samples at fractions ``w, 1 - w`` has variance ``(w^2 + (1 - w)^2) sigma^2``,
+    at least half of ``sigma^2`` (about 0.9 of it for 4 ms jitter at 20 Hz), and neighbours that
+    share a sample correlate; so spectra on the grid sit a little below the white floor
+    ``2 sigma^2 / fs`` at high frequencies, which makes :func:`_excess_bands` slightly
+    conservative there, and phases are off by at most the jitter.
+    """
+    if _evenly_sampled(time):
+        return values
+    grid = time[0] + step * np.arange(int(math.floor((time[-1] - time[0]) / step + 1e-6)) + 1)
+    if held:
+        rows = np.searchsorted(time, grid + EVEN_TOLERANCE * step, side="right") - 1
+        return values[np.clip(rows, 0, len(values) - 1)]
+    return np.interp(grid, time, values)
 
 
 def _moving_mean_square(residual: np.ndarray, width: int) -> np.ndarray:
@@ -197,7 +268,9 @@ def _moving_mean_square(residual: np.ndarray, width: int) -> np.ndarray:
 def _mismatch_windows(time, residual, noise_sd, width) -> list:
     """Windows where the moving mean square exceeds the noise: under white noise of variance
     sigma^2 a window's mean square is sigma^2 chi2(W)/W; exceeding its 1 - LOCATE_ALPHA
-    quantile marks a mismatch. Adjacent marked samples merge into one window."""
+    quantile marks a mismatch. Adjacent marked samples merge into one window. ``width`` counts
+    samples (about :data:`WINDOW` s at the nominal rate): the law counts samples whatever their
+    spacing, so unevenly sampled recordings are tested on their own samples, not resampled."""
     width = max(3, min(width, len(residual)))
     limit = noise_sd**2 * stats.chi2.isf(LOCATE_ALPHA, width) / width
     marked = _moving_mean_square(residual, width) > limit
@@ -244,21 +317,22 @@ def _excess_bands(residuals, noise_sds, fs) -> list:
     return bands
 
 
-def _coherent_inputs(sources, residual_of, output, excited, fs) -> list:
+def _coherent_inputs(signals, output, excited, fs) -> list:
     """Inputs the residual of ``output`` is coherent with (magnitude-squared coherence,
     Welch-averaged, scipy.signal.coherence). Under independence and K segments the estimate's
     null distribution gives ``P(C > c) = (1 - c)^(K-1)`` (Carter, Proc. IEEE 75(2), 1987); the
     threshold is its ``LOCATE_ALPHA``-quantile. Only bins where the input carries at least 1 %
-    of its peak power count. Returns ``[{"input", "coherence", "frequency"}]`` above threshold."""
+    of its peak power count. ``signals`` holds ``(inputs, residuals)`` per diagnosed recording,
+    dicts of name -> ndarray (m,) on one even grid of rate ``fs`` Hz (:func:`_on_nominal_grid`).
+    Returns ``[{"input", "coherence", "frequency"}]`` above threshold."""
     found = []
-    usable = [s for s in sources if not s.held_out]
     for name in excited:
         best = (0.0, 0.0)
-        for source in usable:
-            u = source.recording.input(name)
+        for inputs, residuals in signals:
+            u = inputs[name]
             if np.ptp(u) <= EXCITATION_THRESHOLD:
                 continue
-            residual = residual_of[source.name][output]
+            residual = residuals[output]
             nperseg = _welch_segment(len(u), fs)
             with np.errstate(invalid="ignore", divide="ignore"):  # segments where u is constant
                 frequency, coherence = signal.coherence(u, residual, fs=fs, nperseg=nperseg)
@@ -276,11 +350,12 @@ def _coherent_inputs(sources, residual_of, output, excited, fs) -> list:
     return sorted(found, key=lambda item: -item["coherence"])
 
 
-def _gp_features(states: np.ndarray, inputs: np.ndarray, step: float, excited_columns) -> np.ndarray:
-    """GP inputs per sample: the model's states, their rates of change (central differences)
-    and the excited inputs, shape (n, 2 n_states + n_excited). A lag or an unmodelled mode shows
-    up as an error proportional to state rates and inputs; states carry the rest."""
-    return np.hstack([states, np.gradient(states, step, axis=0), inputs[:, excited_columns]])
+def _gp_features(states: np.ndarray, inputs: np.ndarray, time: np.ndarray, excited_columns) -> np.ndarray:
+    """GP inputs per sample: the model's states, their rates of change (second-order central
+    differences on the actual sample times ``time`` (n,), even or not, ``numpy.gradient``) and
+    the excited inputs, shape (n, 2 n_states + n_excited). A lag or an unmodelled mode shows up
+    as an error proportional to state rates and inputs; states carry the rest."""
+    return np.hstack([states, np.gradient(states, time, axis=0), inputs[:, excited_columns]])
 
 
 def _fit_residual_gp(features: np.ndarray, residual: np.ndarray, *, seed: int):
@@ -313,6 +388,8 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
     recordings : sequence of path-like or Recording
         Recordings of the vehicle ``reference`` describes, starting at trim (DESIGN.md,
         "Recording files"). Paths are read with :func:`validation.recordings.read_recording`.
+        Evenly sampled for a Bo105; the blimp's may be unevenly sampled (module docstring). All
+        share one nominal sample interval.
     reference : str
         ``bo105-<V>kt`` or ``blimp``.
     holdout : sequence of path-like or Recording, optional
@@ -331,7 +408,8 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
     ------
     BadInputError
         Unknown or unsupported reference; recordings that miss its inputs, hold another
-        vehicle's columns, have no outputs, hold NaN, or are too short to identify anything.
+        vehicle's columns, have no outputs, hold NaN, or are too short to identify anything;
+        unevenly sampled Bo105 recordings; recordings at different nominal sample rates.
     """
     model = _check_reference(reference)
     if not recordings:
@@ -341,11 +419,12 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
         sources += _load(holdout, model, held_out=True, start_index=len(sources))
     elif len(sources) > 1:
         sources[-1].held_out = True
-    steps = {round(float(np.mean(np.diff(s.recording.time))), 12) for s in sources}
-    if len(steps) > 1:
-        raise BadInputError(f"recordings are sampled at different intervals ({', '.join(map(str, sorted(steps)))} s); "
+    nominal = [_nominal_step(s.recording.time) for s in sources]
+    step = float(np.mean(nominal))
+    if max(nominal) - min(nominal) > RATE_TOLERANCE * step:
+        raise BadInputError(f"recordings are sampled at different intervals "
+                            f"({', '.join(f'{h:.6g}' for h in sorted(set(nominal)))} s nominal); "
                             "resample them to one rate")
-    step = steps.pop()
     fs = 1.0 / step
 
     # Fit and held-out samples per recording.
@@ -385,7 +464,8 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
                   "on it cannot be tested" for name in model.input_names if name not in excited]
 
     measured = [np.column_stack([s.recording.output(n) for n in output_names]) for s in sources]
-    noise_sd = [np.array([estimate_noise_sd(column) for column in m.T]) for m in measured]
+    noise_sd = [np.array([estimate_noise_sd(column, time=s.recording.time) for column in m.T])
+                for s, m in zip(sources, measured)]
     data = FitData(time=[s.recording.time for s in sources], inputs=[s.recording.inputs for s in sources],
                    measured=measured, output_names=output_names, noise_sd=noise_sd, fit_mask=fit_masks)
     typical_sd = {name: float(np.median([sd[i] for sd in noise_sd])) for i, name in enumerate(output_names)}
@@ -402,15 +482,19 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
                                                          sd[i], int(round(WINDOW * fs))):
                 mismatch.append({"output": name, "t_start": round(t_start, 4), "t_end": round(t_end, 4),
                                  "rms_error": rms, "recording": source.name})
-    locate = {"noise_sd": typical_sd, "noise_estimator": "Gasser et al. 1986 second differences, MAD",
+    locate = {"noise_sd": typical_sd, "noise_estimator": "Gasser et al. 1986 pseudo-residuals, MAD",
               "bands": {}, "coherent_inputs": {}}
-    diagnosed = [s for s in sources if not s.held_out]
+    if not all(_evenly_sampled(s.recording.time) for s in sources):
+        locate["spectra"] = f"on the nominal {step:.6g} s grid (residuals interpolated linearly, inputs held)"
+    on_grid = [({n: _on_nominal_grid(s.recording.time, s.recording.input(n), step, held=True) for n in excited},
+                {n: _on_nominal_grid(s.recording.time, residual_of[s.name][n], step) for n in output_names})
+               for s in sources if not s.held_out]
     for i, name in enumerate(output_names):
-        bands = _excess_bands([residual_of[s.name][name] for s in diagnosed],
+        bands = _excess_bands([residuals[name] for _, residuals in on_grid],
                               [sd[i] for s, sd in zip(sources, noise_sd) if not s.held_out], fs)
         if bands:
             locate["bands"][name] = [{"f_low": lo, "f_high": hi, "peak_ratio": ratio} for lo, hi, ratio in bands]
-            locate["coherent_inputs"][name] = _coherent_inputs(sources, residual_of, name, excited, fs)
+            locate["coherent_inputs"][name] = _coherent_inputs(on_grid, name, excited, fs)
 
     # 2. Explain.
     hypotheses = hypotheses_for(model, excited_inputs=excited, output_names=output_names, noise_sd=typical_sd)
@@ -423,8 +507,10 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
     corrected_states, reference_states = zip(*(simulate_many(model, [named_effects, []], t, u)
                                                for t, u in zip(data.time, data.inputs)))
     excited_columns = [model.input_names.index(n) for n in excited]
-    corrected_features = [_gp_features(x, u, step, excited_columns) for x, u in zip(corrected_states, data.inputs)]
-    reference_features = [_gp_features(x, u, step, excited_columns) for x, u in zip(reference_states, data.inputs)]
+    corrected_features = [_gp_features(x, u, t, excited_columns)
+                          for x, u, t in zip(corrected_states, data.inputs, data.time)]
+    reference_features = [_gp_features(x, u, t, excited_columns)
+                          for x, u, t in zip(reference_states, data.inputs, data.time)]
     n_fit = int(sum(m.sum() for m in fit_masks))
     stride = max(1, -(-n_fit // MAX_GP_POINTS))
 

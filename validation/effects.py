@@ -199,7 +199,7 @@ def simulate_with_effects(reference, effects: list[dict], time: np.ndarray, inpu
     effects : list of dict
         Already checked (:func:`check_effects`).
     time : ndarray, shape (n,)
-        Evenly spaced sample times, s.
+        Sample times, s: evenly spaced for a Bo105, strictly increasing for the blimp.
     inputs : ndarray, shape (n, n_inputs)
         Commanded inputs (reference units), zero-order hold (row k acts from ``time[k]`` to
         ``time[k+1]``).
@@ -317,15 +317,24 @@ class EffectVehicle:
 
     def simulate(self, time, inputs, *, seed: int = 0) -> Recording:
         """Fly ``inputs`` from trim; returns every state as recorded, with sensor noise drawn
-        from ``np.random.default_rng(seed)``."""
-        time, inputs, step = check_history(time, inputs, self.input_names)
+        from ``np.random.default_rng(seed)``.
+
+        ``time`` must be evenly spaced for a Bo105 (its exact discretisation has one step); the
+        blimp also takes unevenly spaced times (e.g. jittered motion-capture frames), and the
+        recording's metadata then says ``uneven_sampling`` with the median interval as
+        ``sample_time_nominal`` (DESIGN.md, "Recording files")."""
+        blimp = isinstance(self._reference, BlimpReference)
+        time, inputs, step = check_history(time, inputs, self.input_names, evenly_sampled=not blimp)
         outputs = self.simulate_states(time, inputs)
         rng = np.random.default_rng(seed)
         noise = np.array([self._noise_sd.get(name, 0.0) for name in self.state_names])
         outputs = outputs + rng.standard_normal(outputs.shape) * noise
+        steps = np.diff(time)
+        sampling = ({"sample_time": step} if np.ptp(steps) <= 1e-6 * step else
+                    {"uneven_sampling": True, "sample_time_nominal": float(np.median(steps))})
         # "vehicle" is the reference, so the columns read back as its recording (the sidecar
         # still names the effects; diagnose never reads them).
-        metadata = {"vehicle": self.reference_name, "simulator": self.name, "sample_time": step,
+        metadata = {"vehicle": self.reference_name, "simulator": self.name, **sampling,
                     "seed": seed, "effects": self.effects, "sensor_noise_std": self.noise_sd}
         return Recording(time, inputs, self.input_names, outputs, self.state_names, metadata)
 
