@@ -126,7 +126,7 @@ def test_delay_finding_flags_the_gp_that_would_absorb_it():
     fit, held = _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.08}], duration=10.0)
     finding = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()["findings"][0]
     assert finding["effect"] == "time_delay" and finding["main_output"] == "q"
-    assert finding["gp_absorbs"] > 0.5
+    assert finding["gp_absorbs"] > 0.5 and finding["carries_over"]
     # The lag competitor is listed or overwhelmingly disfavoured; either way the delay wins.
     assert finding["confidence"] > 0.9
     assert finding["statement"].startswith("Pitch-rate response lags the model by 0.0")
@@ -146,6 +146,21 @@ def test_rotor_flapping_is_unexplained_and_the_gp_models_it():
     assert unexplained and result["verdict"] == "missing_physics"
     assert all(f["noise_ratio"] > 1.2 for f in unexplained)
     assert "unexplained" in unexplained[0]["statement"]
+
+
+def test_an_effect_that_does_not_carry_over_to_the_held_out_flight_is_flagged():
+    """A pitch-rate bias in the diagnosed flight only (a drifting sensor): named, but it makes the
+    held-out pitch rate worse, and the finding says so."""
+    bias = [{"effect": "sensor_bias", "output": "q", "value": 4 * SENSOR_NOISE_STD["q"]}]
+    fit, _ = _concealed(bias, duration=10.0)
+    _, held = _concealed([], duration=10.0)
+    result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
+    finding = next(f for f in result["findings"] if f["effect"] == "sensor_bias")
+    assert finding["output"] == "q" and not finding["carries_over"]
+    assert finding["rmse_effect_alone"] > result["fit"]["rmse_reference"]["q"]
+    assert "does not carry over" in finding["statement"]
+    assert any(f["effect"] == "unexplained" and f["output"] == "q" and f["data"] == "holdout"
+               for f in result["findings"])
 
 
 @pytest.mark.slow
