@@ -44,7 +44,7 @@ _MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_
 
 
 def _number(value: float) -> str:
-    return f"{value:.3g}"
+    return f"{value + 0.0:.3g}"  # + 0.0 turns -0.0 into 0.0
 
 
 def _span(interval) -> str:
