@@ -58,7 +58,10 @@ def _improvement(finding: dict, fit: dict) -> str:
         return ""
     before, after = fit["rmse_reference"][name], finding["rmse_effect_alone"]
     words = OUTPUT_WORDS.get(name, name)
-    if after < before:
+    if finding.get("carries_over") is None:
+        return (f" The held-out data do not exercise it (held-out {words} RMSE {_number(before)} "
+                f"{column_unit(name)} with or without it).")
+    if finding["carries_over"]:
         return (f" Adding it cuts held-out {words} RMSE from {_number(before)} to {_number(after)} "
                 f"{column_unit(name)}.")
     return (f" But it does not carry over: on the held-out data it takes the {words} RMSE from "

@@ -13,7 +13,7 @@
  * fmu_src/native_blimp.py:
  *
  *   8 bytes  "FGPBLMP1"
- *   8 bytes  number of doubles that follow (uint64, native byte order)
+ *   8 bytes  number of doubles that follow (uint64, little-endian, as the doubles)
  *   doubles  per GP part p (d = N_GP_INPUTS, m = BASIS_POINTS[p], q = PART_OUTPUTS[p]; all in
  *            standardised units): input_mean (d), input_scale (d), output_mean (q),
  *            output_scale (q), kernel_weights (d), log_signal_variance, basis (m x d, by rows),
@@ -63,14 +63,13 @@ struct Model {
     double *data;
     GPPart part[N_PARTS];
     double lower[D], upper[D];  /* the envelope with its margin */
-    double *k, *v;              /* scratch (m_max,) */
+    double *k;                  /* scratch (m_max,) */
 };
 
 void model_free(Model *model) {
     if (model == NULL) return;
     free(model->data);
     free(model->k);
-    free(model->v);
     free(model);
 }
 
@@ -134,8 +133,7 @@ Model *model_load(const char *resources_dir, char **error) {
         model->upper[i] = ENVELOPE_HIGH[i] + margin;
     }
     model->k = malloc(sizeof(double) * (size_t)m_max);
-    model->v = malloc(sizeof(double) * (size_t)m_max);
-    if (model->k == NULL || model->v == NULL) return fail(model, error, NULL);
+    if (model->k == NULL) return fail(model, error, NULL);
     return model;
 }
 
