@@ -136,6 +136,60 @@ char *format_message(const char *format, ...) {
     return text;
 }
 
+double *read_model_data(const char *resources_dir, const char *magic, size_t count, char **error) {
+    *error = NULL;
+    size_t length = strlen(resources_dir);
+    const char *separator = length > 0 && resources_dir[length - 1] == '/' ? "" : "/";
+    char *path = format_message("%s%s%s", resources_dir, separator, DATA_FILE);
+    if (path == NULL) return NULL;
+    FILE *file = fopen(path, "rb");
+    char found[8];
+    uint64_t stored = 0;
+    double *data = NULL;
+    int ok = file != NULL && fread(found, 1, 8, file) == 8 && memcmp(found, magic, 8) == 0
+             && fread(&stored, sizeof(stored), 1, file) == 1 && stored == (uint64_t)count;
+    if (ok) {
+        data = malloc(sizeof(double) * count);
+        ok = data != NULL && fread(data, sizeof(double), count, file) == count && fgetc(file) == EOF;
+    }
+    if (file != NULL) fclose(file);
+    if (!ok) {
+        free(data);
+        data = NULL;
+        *error = format_message("cannot read the model constants %s: missing, truncated or not the %lu doubles "
+                                "this binary was built for (rebuild the FMU)", path, (unsigned long)count);
+    }
+    free(path);
+    return data;
+}
+
+char *number_list(const double *numbers, int n) {
+    char *text = format_message("[");
+    for (int i = 0; i < n && text != NULL; i++) {
+        char *longer = format_message("%s%s%.17g", text, i ? ", " : "", numbers[i]);
+        free(text);
+        text = longer;
+    }
+    char *closed = text == NULL ? NULL : format_message("%s]", text);
+    free(text);
+    return closed;
+}
+
+char *envelope_excursions(const double *x, int n, const char *const names[], const double *low, const double *high,
+                          double margin) {
+    char *outside = NULL;
+    for (int i = 0; i < n; i++) {
+        double widen = margin * (high[i] - low[i]);
+        if (!(x[i] < low[i] - widen || x[i] > high[i] + widen)) continue;
+        char *phrase = format_message("%s = %.6g (trained on %.6g .. %.6g)", names[i], x[i], low[i], high[i]);
+        char *joined = outside == NULL ? phrase : format_message("%s; %s", outside, phrase ? phrase : "?");
+        if (joined != phrase) free(phrase);
+        free(outside);
+        outside = joined != NULL ? joined : format_message("(out of memory)");
+    }
+    return outside;
+}
+
 static char *copy_string(const char *text) {
     return text == NULL ? NULL : format_message("%s", text);
 }

@@ -12,6 +12,8 @@
 #ifndef FLIGHTGP_MODEL_H
 #define FLIGHTGP_MODEL_H
 
+#include <stddef.h>
+
 #include "fmi2Functions.h"
 
 /* Kinds, causalities and variabilities of the variable table (model_config.h). */
@@ -49,6 +51,20 @@ char *format_message(const char *format, ...)
     __attribute__((format(printf, 1, 2)))
 #endif
     ;
+
+/* The model's constants: resources_dir/DATA_FILE holds 8 bytes of magic, the number of doubles
+ * (uint64) and the doubles, both little-endian as the builders write them. Returns the count
+ * doubles (malloc'd), or NULL with *error set to a malloc'd message (NULL if out of memory). */
+double *read_model_data(const char *resources_dir, const char *magic, size_t count, char **error);
+
+/* "[a, b, c]" of n numbers, for messages (malloc'd; NULL if out of memory). */
+char *number_list(const double *numbers, int n);
+
+/* The model inputs x (n) outside the training range [low, high] widened by margin of it on each
+ * side (fmu_src/_runtime.py, Envelope), as "name = x (trained on a .. b); ..." (malloc'd), or
+ * NULL when all are inside. */
+char *envelope_excursions(const double *x, int n, const char *const names[], const double *low, const double *high,
+                          double margin);
 
 /* Load the model's constants from the FMU's resources folder (a local path). Returns NULL and
  * sets *error (malloc'd message) on failure. */

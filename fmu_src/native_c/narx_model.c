@@ -97,7 +97,6 @@ typedef struct {
 struct Model {
     double *data;
     OutputGP gp[N_OUTPUTS];
-    double lower[N_REGRESSORS], upper[N_REGRESSORS];  /* the envelope with its margin */
     double *squared;                                  /* scratch (m_max, d) */
     double *k, *v;                                    /* scratch (m_max,) */
     /* free-run scratch */
@@ -202,29 +201,8 @@ static int prepare_free_run(Model *model, int m_max) {
 Model *model_load(const char *resources_dir, char **error) {
     Model *model = calloc(1, sizeof(Model));
     if (model == NULL) return fail(NULL, error, NULL);
-    size_t length = strlen(resources_dir);
-    const char *separator = length > 0 && resources_dir[length - 1] == '/' ? "" : "/";
-    char *path = format_message("%s%s%s", resources_dir, separator, DATA_FILE);
-    if (path == NULL) return fail(model, error, NULL);
-    FILE *file = fopen(path, "rb");
-    char magic[8];
-    uint64_t count = 0;
-    int ok = file != NULL && fread(magic, 1, 8, file) == 8 && memcmp(magic, DATA_MAGIC, 8) == 0
-             && fread(&count, sizeof(count), 1, file) == 1 && count == (uint64_t)DATA_DOUBLES;
-    if (ok) {
-        model->data = malloc(sizeof(double) * (size_t)DATA_DOUBLES);
-        ok = model->data != NULL && fread(model->data, sizeof(double), DATA_DOUBLES, file) == DATA_DOUBLES
-             && fgetc(file) == EOF;
-    }
-    if (file != NULL) fclose(file);
-    if (!ok) {
-        char *message = format_message("cannot read the model constants %s: missing, truncated or not the "
-                                       "%lu doubles this binary was built for (rebuild the FMU)", path,
-                                       (unsigned long)DATA_DOUBLES);
-        free(path);
-        return fail(model, error, message);
-    }
-    free(path);
+    model->data = read_model_data(resources_dir, DATA_MAGIC, DATA_DOUBLES, error);
+    if (model->data == NULL) return fail(model, error, *error);
     /* Point every output's GP into the data (layout above). */
     const double *p = model->data;
     int m_max = 1;
@@ -246,12 +224,6 @@ Model *model_load(const char *resources_dir, char **error) {
         for (int s = 0; s < gp->S; s++)
             gp->signal_variance[s] = exp(gp->samples[(size_t)s * gp->sample_size + m + N_REGRESSORS]);
         if (gp->m > m_max) m_max = gp->m;
-    }
-    /* Envelope: the training range widened by ENVELOPE_MARGIN of it on each side (_runtime.Envelope). */
-    for (int i = 0; i < N_REGRESSORS; i++) {
-        double margin = ENVELOPE_MARGIN * (ENVELOPE_HIGH[i] - ENVELOPE_LOW[i]);
-        model->lower[i] = ENVELOPE_LOW[i] - margin;
-        model->upper[i] = ENVELOPE_HIGH[i] + margin;
     }
     model->squared = malloc(sizeof(double) * (size_t)m_max * N_REGRESSORS);
     model->k = malloc(sizeof(double) * (size_t)m_max);
@@ -793,19 +765,6 @@ void model_start(Model *model, double *values, double *state) {
     set_outputs(values, y0, zero);
 }
 
-/* "[a, b, c]" of n numbers, for messages. */
-static char *number_list(const double *numbers, int n) {
-    char *text = format_message("[");
-    for (int i = 0; i < n && text != NULL; i++) {
-        char *longer = format_message("%s%s%.17g", text, i ? ", " : "", numbers[i]);
-        free(text);
-        text = longer;
-    }
-    char *closed = text == NULL ? NULL : format_message("%s]", text);
-    free(text);
-    return closed;
-}
-
 char *model_advance(Model *model, const Slave *slave, double *values, double *state, double t, double h) {
     double *next = model->next_state; /* the new state, committed at the end */
     double *inputs = next + INPUT_HISTORY, *outputs = next + OUTPUT_HISTORY;
@@ -845,16 +804,7 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
         return message != NULL ? message : format_message("non-finite prediction");
     }
     /* Envelope (RatePredictor.advance_model, FlightgpSlave.report_envelope): warn once per excursion. */
-    char *outside = NULL;
-    for (int i = 0; i < N_REGRESSORS; i++)
-        if (x[i] < model->lower[i] || x[i] > model->upper[i]) {
-            char *phrase = format_message("%s = %.6g (trained on %.6g .. %.6g)", REGRESSOR_NAMES[i], x[i],
-                                          ENVELOPE_LOW[i], ENVELOPE_HIGH[i]);
-            char *joined = outside == NULL ? phrase : format_message("%s; %s", outside, phrase ? phrase : "?");
-            if (joined != phrase) free(phrase);
-            free(outside);
-            outside = joined != NULL ? joined : format_message("(out of memory)");
-        }
+    char *outside = envelope_excursions(x, N_REGRESSORS, REGRESSOR_NAMES, ENVELOPE_LOW, ENVELOPE_HIGH, ENVELOPE_MARGIN);
     const int was_outside = state[OUTSIDE_ENVELOPE] != 0.0;
     if (outside != NULL && !was_outside)
         slave_log(slave, fmi2Warning, "t = %.16g s: input outside the training envelope: %s. The GP extrapolates; "
