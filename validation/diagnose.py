@@ -32,7 +32,7 @@ the moving-RMS test counts samples (its law does not depend on their spacing), a
 Welch PSD bands and the coherence, which need an even grid, are computed on the residual
 linearly interpolated (inputs held) onto the nominal grid ``t_0 + k h`` (an approximation, see
 :func:`_on_nominal_grid`). All recordings must share one nominal interval ``h``
-(:func:`_nominal_step`, within :data:`RATE_TOLERANCE`).
+(:func:`validation.recordings.nominal_step`, within :data:`RATE_TOLERANCE`).
 """
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ from .bo105 import Bo105Reference
 from .diagnose_hypotheses import FitData, hypotheses_for, select_effects
 from .effects import TARGET_KEYS, EffectVehicle, effect_unit, model_value, simulate_many
 from .errors import BadInputError
-from .recordings import Recording, read_recording
+from .recordings import Recording, nominal_step, read_recording, uneven_steps
 from .vehicles import get_vehicle
 
 #: Held-out share of a single recording's time when no other held-out data exist.
@@ -69,13 +69,13 @@ EXCITATION_THRESHOLD = 1e-6
 #: Fraction of a named effect a residual GP must absorb to be flagged.
 SOAK_FLAG = 0.5
 #: Relative difference of nominal sample intervals above which recordings count as sampled at
-#: different rates. Timing jitter of sd ``s`` moves :func:`_nominal_step` by about
+#: different rates. Timing jitter of sd ``s`` moves :func:`validation.recordings.nominal_step` by about
 #: ``sqrt(2) s / (n - 1)`` (0.03 % for 4 ms on 20 s at 20 Hz), while the rates people record at
 #: (20, 25, 50, 100 Hz ...) differ by 20 % or more.
 RATE_TOLERANCE = 0.01
-#: Relative spread of the sample intervals up to which a recording counts as evenly sampled
-#: (far above the rounding of ``t0 + k*h`` grids, far below any real jitter; as
-#: :func:`validation.vehicles.check_history`).
+#: Relative tolerance of evenly sampled data: how closely evenly sampled recordings must agree on
+#: their rate, and the offset of grid look-ups (far above the rounding of ``t0 + k*h`` grids, far
+#: below any real jitter; the tolerance of :func:`validation.recordings.uneven_steps`).
 EVEN_TOLERANCE = 1e-6
 
 
@@ -223,21 +223,8 @@ def _load(items, reference, *, held_out: bool, start_index: int = 0) -> list:
 
 
 def _evenly_sampled(time: np.ndarray) -> bool:
-    """Whether the intervals of ``time`` (n,) agree to :data:`EVEN_TOLERANCE`."""
-    steps = np.diff(time)
-    return bool(np.ptp(steps) <= EVEN_TOLERANCE * np.mean(steps))
-
-
-def _nominal_step(time: np.ndarray) -> float:
-    """Nominal sample interval of a recording, s: its span over its number of nominal
-    intervals, each actual interval counted as ``round(h_k / median h)`` of them (so a dropped
-    frame counts twice). Exact on an even grid; with frame-timing jitter of sd ``s`` it is off
-    by about ``sqrt(2) s / (n - 1)`` only, where the median interval alone is off by about
-    ``sqrt(pi/2) sqrt(2) s / sqrt(n)`` (the sample median's asymptotic standard error for a
-    normal law), 1 % at 20 Hz with 4 ms jitter over 20 s."""
-    steps = np.diff(time)
-    counts = np.maximum(1.0, np.round(steps / np.median(steps)))
-    return float((time[-1] - time[0]) / counts.sum())
+    """Whether ``time`` (n,) is evenly sampled (:func:`validation.recordings.uneven_steps`)."""
+    return not len(uneven_steps(time))
 
 
 def _on_nominal_grid(time: np.ndarray, values: np.ndarray, step: float, *, held: bool = False) -> np.ndarray:
@@ -421,7 +408,7 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
         sources += _load(holdout, model, held_out=True, start_index=len(sources))
     elif len(sources) > 1:
         sources[-1].held_out = True
-    nominal = [_nominal_step(s.recording.time) for s in sources]
+    nominal = [nominal_step(s.recording.time) for s in sources]
     step = float(np.mean(nominal))
     # Jittered recordings agree on their nominal rate only roughly; evenly sampled ones exactly.
     even = all(_evenly_sampled(s.recording.time) for s in sources)

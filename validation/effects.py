@@ -48,7 +48,7 @@ from .blimp import BlimpReference
 from .bo105 import INPUT_NAMES, ROW_LETTERS, STATE_NAMES, Bo105Reference, _propagate
 from .errors import BadInputError
 from .files import write_json
-from .recordings import Recording, column_unit
+from .recordings import Recording, column_unit, nominal_step, uneven_steps
 from .vehicles import check_history, get_vehicle
 
 #: Every effect name of the diagnosis.json contract (DESIGN.md).
@@ -329,9 +329,8 @@ class EffectVehicle:
         rng = np.random.default_rng(seed)
         noise = np.array([self._noise_sd.get(name, 0.0) for name in self.state_names])
         outputs = outputs + rng.standard_normal(outputs.shape) * noise
-        steps = np.diff(time)
-        sampling = ({"sample_time": step} if np.ptp(steps) <= 1e-6 * step else
-                    {"uneven_sampling": True, "sample_time_nominal": float(np.median(steps))})
+        sampling = ({"sample_time": step} if not len(uneven_steps(time)) else
+                    {"uneven_sampling": True, "sample_time_nominal": nominal_step(time)})
         # "vehicle" is the reference, so the columns read back as its recording (the sidecar
         # still names the effects; diagnose never reads them).
         metadata = {"vehicle": self.reference_name, "simulator": self.name, **sampling,

@@ -409,6 +409,29 @@ def _parse_numbers(path: Path, header: list[str], rows: list[list[str]], line_nu
     return table
 
 
+def uneven_steps(time: np.ndarray) -> np.ndarray:
+    """Indices ``k`` of the intervals ``time[k+1] - time[k]`` that differ from the median interval
+    by more than 1e-6 of it plus a few ulps of the times (``t0 + k*h`` grids are rounded): the one
+    test of even sampling (recording files, vehicle simulations, diagnose). ``time`` (n,), n >= 2,
+    strictly increasing; empty when evenly sampled."""
+    step = np.diff(time)
+    nominal = float(np.median(step))
+    tolerance = _STEP_RTOL * nominal + 4 * np.spacing(np.maximum(abs(time[:-1]), abs(time[1:])))
+    return np.flatnonzero(abs(step - nominal) > tolerance)
+
+
+def nominal_step(time: np.ndarray) -> float:
+    """Nominal sample interval of a recording, s: its span over its number of nominal
+    intervals, each actual interval counted as ``round(h_k / median h)`` of them (so a dropped
+    frame counts twice). Exact on an even grid; with frame-timing jitter of sd ``s`` it is off
+    by about ``sqrt(2) s / (n - 1)`` only, where the median interval alone is off by about
+    ``sqrt(pi/2) sqrt(2) s / sqrt(n)`` (the sample median's asymptotic standard error for a
+    normal law), 1 % at 20 Hz with 4 ms jitter over 20 s."""
+    steps = np.diff(time)
+    counts = np.maximum(1.0, np.round(steps / np.median(steps)))
+    return float((time[-1] - time[0]) / counts.sum())
+
+
 def _check_time(path: Path, time: np.ndarray, line_numbers: list[int], *, uneven_allowed: bool) -> None:
     """``time`` must increase strictly, and by equal steps unless ``uneven_allowed``."""
     step = np.diff(time)
@@ -423,9 +446,7 @@ def _check_time(path: Path, time: np.ndarray, line_numbers: list[int], *, uneven
     if uneven_allowed:
         return
     nominal = float(np.median(step))
-    # 1e-6 of the step, plus a few ulps of the times themselves (t0 + k*h is rounded).
-    tolerance = _STEP_RTOL * nominal + 4 * np.spacing(np.maximum(abs(time[:-1]), abs(time[1:])))
-    uneven = np.flatnonzero(abs(step - nominal) > tolerance)
+    uneven = uneven_steps(time)
     if len(uneven):
         k = uneven[0] + 1
         raise BadInputError(

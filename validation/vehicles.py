@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 
 from .errors import BadInputError
-from .recordings import Recording
+from .recordings import Recording, uneven_steps
 
 #: Trim speeds, kt, at which Padfield tabulates the Bo105 linear models.
 BO105_SPEEDS_KT = (0, 20, 40, 60, 80, 100, 120, 140)
@@ -45,8 +45,8 @@ def check_history(time, inputs, input_names, *, evenly_sampled: bool = True):
     ----------
     time : array_like, shape (n,)
         Sample times, s; at least 2, finite, strictly increasing, and (if ``evenly_sampled``)
-        evenly spaced to a relative 1e-6 (far above the rounding of ``t0 + k*h`` grids, far
-        below any real irregularity).
+        evenly spaced (:func:`validation.recordings.uneven_steps`: to 1e-6 of the median step, far
+        above the rounding of ``t0 + k*h`` grids, far below any real irregularity).
     inputs : array_like, shape (n, len(input_names))
     input_names : sequence of str
         Column names, for messages.
@@ -78,10 +78,10 @@ def check_history(time, inputs, input_names, *, evenly_sampled: bool = True):
         worst = int(np.argmin(steps))
         raise BadInputError(f"time must be strictly increasing; it goes from {time[worst]:.9g} s to "
                             f"{time[worst + 1]:.9g} s at sample {worst}")
-    worst = int(np.argmax(np.abs(steps - step)))
-    if evenly_sampled and abs(steps[worst] - step) > 1e-6 * step:
-        raise BadInputError(f"time must be evenly spaced; the step at sample {worst} is "
-                            f"{steps[worst]:.9g} s against a mean of {step:.9g} s")
+    uneven = uneven_steps(time) if evenly_sampled else ()
+    if len(uneven):
+        raise BadInputError(f"time must be evenly spaced; the step at sample {uneven[0]} is "
+                            f"{steps[uneven[0]]:.9g} s against a usual {np.median(steps):.9g} s")
     return time, inputs, float(step)
 
 
