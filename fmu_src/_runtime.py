@@ -41,8 +41,8 @@ import json
 
 import numpy as np
 
-# The builder rewrites this import to the copy of gp_model/_uncertain_input.py in the FMU's package.
-from gp_model._uncertain_input import MomentMatcher, frame_gp, narx_belief_start, narx_belief_step
+# The builder rewrites this import to the copy of gp_model/uncertain_input.py in the FMU's package.
+from gp_model.uncertain_input import MomentMatcher, frame_gp, narx_belief_start, narx_belief_step
 
 FORMAT = "flightgp-fmu-narx"
 VERSION = 1

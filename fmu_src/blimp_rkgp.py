@@ -5,7 +5,7 @@ residual inside (:class:`gp_model.GreyBoxGP` with the physics ``blimp_rk4``).
 This file is copied into every blimp RKGP FMU (``resources/<package>/blimp_rkgp.py``), so it
 imports only :mod:`._base`, :mod:`._runtime` (its envelope margin), numpy and the standard
 library. :func:`blimp_dynamics` and the RK4 step are copies of
-:func:`validation.blimp.blimp_dynamics` and :func:`validation.blimp_identification.physics_step`
+:func:`validation.vehicles.blimp.blimp_dynamics` and :func:`validation.models.blimp_identification.physics_step`
 (for one state), with the same formulas in the same order, so the FMU reproduces
 ``GreyBoxGP.rollout`` with that physics to rounding (tests/test_fmu.py, 1e-9).
 
@@ -24,7 +24,7 @@ training GP inputs ``[states[state_columns], u_gondola, mu, u_tail, dt]``). Per 
 Timing (the sampling convention of :mod:`._base`)
 -------------------------------------------------
 The model was trained on frame pairs with the frame interval as its fourth input column ``dt``
-(:func:`validation.blimp_identification.recording_arrays`): the physics integrates over ``dt``
+(:func:`validation.models.blimp_identification.recording_arrays`): the physics integrates over ``dt``
 and the GP sees it. The FMU does exactly that with ``dt = h``, the communication step: the host
 chooses ``h`` (the default experiment's step is the median training frame interval), the first
 ``fmi2DoStep`` fixes it until reset, and a step outside the training range of ``dt`` (widened by
@@ -37,7 +37,7 @@ length is not what the GP learned. The commands set at ``t_k`` are held over ``[
 (each step cut into equal RK4 substeps no longer than ``max_step``), which is
 ``GreyBoxGP.rollout`` (the mean rollout: the mean is fed back). The outputs at ``t0`` are the
 start state, the ``<state>_start`` parameters (default: at rest at the origin hanging in the
-static attitude of the model's parameters, as :class:`validation.blimp.BlimpReference` starts).
+static attitude of the model's parameters, as :class:`validation.vehicles.blimp.BlimpReference` starts).
 
 Standard deviations
 -------------------
@@ -71,7 +71,7 @@ VERSION = 1
 MODEL_FILE = "model.npz"
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "U", "V", "W", "P", "Q", "R")
 INPUT_NAMES = ("u_gondola", "mu", "u_tail")
-STANDARD_GRAVITY = 9.80665  # as validation.blimp
+STANDARD_GRAVITY = 9.80665  # as validation.vehicles.blimp
 #: Arrays per GP part and their number of dimensions.
 PER_PART = {"basis": 2, "weights": 2, "variance_factor": 2, "kernel_weights": 1,
             "log_signal_variance": 0, "input_mean": 1, "input_scale": 1, "output_mean": 1,
@@ -142,7 +142,7 @@ class BlimpParameterSet:
         for name in ("net_lift", "gondola_thrust_forward", "gondola_thrust_backward", "gondola_arm",
                      "tail_thrust_positive", "tail_thrust_negative", "tail_arm", "fin_lift"):
             setattr(self, name, vector[name])
-        # M = M_RB + M_A about the CB (Fossen 2011, eq. 3.44; as validation.blimp._mass_matrix).
+        # M = M_RB + M_A about the CB (Fossen 2011, eq. 3.44; as validation.vehicles.blimp.mass_matrix).
         rx, ry, rz = self.cg_position
         skew = np.array([[0.0, -rz, ry], [rz, 0.0, -rx], [-ry, rx, 0.0]])
         matrix = np.zeros((6, 6))
@@ -161,7 +161,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def blimp_dynamics(state: np.ndarray, inputs: np.ndarray, P: BlimpParameterSet) -> np.ndarray:
-    """``d state / dt``, state (12,), inputs (3,): :func:`validation.blimp.blimp_dynamics`
+    """``d state / dt``, state (12,), inputs (3,): :func:`validation.vehicles.blimp.blimp_dynamics`
     (Ko et al. 2007, sec. III, in Fossen's form; equations and sources there)."""
     angles, nu = state[3:6], state[6:12]
     v, w = nu[:3], nu[3:]
@@ -206,7 +206,7 @@ def blimp_dynamics(state: np.ndarray, inputs: np.ndarray, P: BlimpParameterSet) 
 def physics_step(state: np.ndarray, commands: np.ndarray, dt: float, P: BlimpParameterSet,
                  max_step: float) -> np.ndarray:
     """RK4 over ``dt`` in equal substeps no longer than ``max_step``, commands held
-    (:func:`validation.blimp_identification.physics_step` for one state)."""
+    (:func:`validation.models.blimp_identification.physics_step` for one state)."""
     n_sub = max(1.0, math.ceil(dt / max_step - 1e-9))
     h = dt / n_sub
     for _ in range(int(n_sub)):

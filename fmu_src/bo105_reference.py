@@ -3,7 +3,7 @@
 ``x_dot = A x + B u`` with ``x = (u, w, q, theta, v, p, phi, r)`` and
 ``u = (theta_0, theta_1s, theta_1c, theta_0T)``, perturbations from trim in SI units
 (G. D. Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007; DESIGN.md, "Vehicles and reference
-names"), exactly as :class:`validation.bo105.Bo105Reference`. ``A`` and ``B`` travel in the FMU
+names"), exactly as :class:`validation.vehicles.bo105.Bo105Reference`. ``A`` and ``B`` travel in the FMU
 (``resources/<package>/model.npz``, written by :func:`pack_model`); the run time needs numpy
 only.
 

@@ -69,7 +69,7 @@ def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) ->
     Parameters
     ----------
     model_path : path
-        A model file written by :func:`validation.narx.save_trained` (``flightgp train``).
+        A model file written by :func:`validation.models.narx.save_trained` (``flightgp train``).
     out_dir : path
         Folder for the FMU (created if missing).
     name : str, optional
@@ -85,11 +85,11 @@ def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) ->
     ------
     gp_model.ModelFileError
         The model file is missing, corrupt or not a GP-NARX model.
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         Bad ``name``; a model the FMU cannot run (an input lag 0, a signal without a known unit);
         ``out_dir`` is a file.
     """
-    from validation.files import write_atomically
+    from validation.core.files import write_atomically
 
     target, trained, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
     fmu_bytes = _build(target.stem, slave_module="rate_predictor", slave_class="RatePredictor",
@@ -107,7 +107,7 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> tup
     -------
     target : Path
         ``out_dir/<name>.fmu`` (name checked; default the model file's stem made into a name).
-    trained : validation.narx.TrainedNarx
+    trained : validation.models.narx.TrainedNarx
     arrays : dict
         :func:`export_narx_arrays` of the model.
     interface : dict
@@ -115,7 +115,7 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> tup
     description : str
         The FMU's one-line description.
     """
-    from validation.narx import load_trained
+    from validation.models.narx import load_trained
 
     model_path = Path(model_path)
     target = _target(out_dir, _default_name(model_path.stem) if name is None else name)
@@ -130,10 +130,10 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> tup
 
 def export_narx_arrays(trained) -> dict:
     """The FMU model file's arrays (:mod:`fmu_src._runtime`) of a
-    :class:`validation.narx.TrainedNarx`: every output's predictive forms (one per
+    :class:`validation.models.narx.TrainedNarx`: every output's predictive forms (one per
     hyperparameter sample, as ``GaussianProcess.predict`` mixes them), kernel weights, signal
     and noise variances, scalers, the NARX structure and step, and the training envelope."""
-    from validation.errors import BadInputError
+    from validation.core.errors import BadInputError
 
     structure = trained.model.structure
     if 0 in structure.input_lags:
@@ -188,12 +188,12 @@ def build_bo105_reference_fmu(speed_kt: int, out_dir, *, name: str | None = None
 
     Raises
     ------
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         An untabulated speed, an unknown or non-finite derivative, a bad ``name``, ``out_dir`` a
         file.
     """
-    from validation.bo105 import INPUT_NAMES, STATE_NAMES, Bo105Reference
-    from validation.files import write_atomically
+    from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES, STATE_NAMES
+    from validation.core.files import write_atomically
 
     from . import bo105_reference
 
@@ -226,7 +226,7 @@ _COMMAND_TRAVEL = {"fcs/collective-cmd-norm": (0.0, 1.0)}  # every other command
 def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path:
     """Build the FMU of a JSBSim aircraft (``jsbsim:<aircraft>``, :mod:`fmu_src.jsbsim_aircraft`).
 
-    The FMU reaches the starting condition of :class:`validation.jsbsim_vehicles.JSBSimVehicle`
+    The FMU reaches the starting condition of :class:`validation.vehicles.jsbsim_vehicle.JSBSimVehicle`
     (fixed-wing: trimmed level cruise; ``ah1s``: hover from its flight-test script) with the same
     recipe, whose numbers travel in the model file. The host's Python needs the ``jsbsim``
     package.
@@ -247,37 +247,37 @@ def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path
 
     Raises
     ------
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         JSBSim has no such aircraft (the message names similar ones) or cannot trim it; a bad
         ``name``; ``out_dir`` a file.
     """
     import jsbsim
-    from validation import jsbsim_vehicles
-    from validation.files import write_atomically
+    from validation.vehicles import jsbsim as jsbsim_vehicle
+    from validation.core.files import write_atomically
 
     from . import jsbsim_aircraft
 
-    vehicle = jsbsim_vehicles.JSBSimVehicle(aircraft)
+    vehicle = jsbsim_vehicle.JSBSimVehicle(aircraft)
     target = _target(out_dir, _default_name(f"jsbsim_{aircraft}") if name is None else name)
     # Reaching the starting condition here raises BadInputError for an aircraft JSBSim cannot trim.
     steady = vehicle.simulate(np.array([0.0, vehicle.sample_time]), np.zeros((2, len(vehicle.input_names))))
     # The recipe of JSBSimVehicle._start, as data (tests/test_fmu.py proves the FMU flies the same).
-    hover = jsbsim_vehicles.HOVER_SCRIPTS.get(aircraft)
-    properties = (jsbsim_vehicles.HELICOPTER_CONTROLS if hover else jsbsim_vehicles.FIXED_WING_CONTROLS)
+    hover = jsbsim_vehicle.HOVER_SCRIPTS.get(aircraft)
+    properties = (jsbsim_vehicle.HELICOPTER_CONTROLS if hover else jsbsim_vehicle.FIXED_WING_CONTROLS)
     controls = [(n, properties[n], *_COMMAND_TRAVEL.get(properties[n], (-1.0, 1.0)))
                 for n in vehicle.input_names]
-    states = [(n, *jsbsim_vehicles.STATE_PROPERTIES[n]) for n in vehicle.state_names]
+    states = [(n, *jsbsim_vehicle.STATE_PROPERTIES[n]) for n in vehicle.state_names]
     if hover:
         recipe = {"start": "script", "script": hover[0], "script_time": hover[1],
                   "after_start": [("simulation/test-variant", 0.0)]}
         condition = f"hovering, {hover[1]:g} s into its flight-test script {hover[0]}"
     else:
         recipe = {"start": "trim",
-                  "initial_conditions": [("ic/h-sl-ft", jsbsim_vehicles.CRUISE_ALTITUDE_FT),
-                                         ("ic/vc-kts", jsbsim_vehicles.CRUISE_AIRSPEED_KT),
+                  "initial_conditions": [("ic/h-sl-ft", jsbsim_vehicle.CRUISE_ALTITUDE_FT),
+                                         ("ic/vc-kts", jsbsim_vehicle.CRUISE_AIRSPEED_KT),
                                          ("ic/gamma-deg", 0.0), ("ic/psi-true-deg", 90.0)]}
-        condition = (f"trimmed in level flight at {jsbsim_vehicles.CRUISE_AIRSPEED_KT:g} kt calibrated, "
-                     f"{jsbsim_vehicles.CRUISE_ALTITUDE_FT:g} ft, heading east")
+        condition = (f"trimmed in level flight at {jsbsim_vehicle.CRUISE_AIRSPEED_KT:g} kt calibrated, "
+                     f"{jsbsim_vehicle.CRUISE_ALTITUDE_FT:g} ft, heading east")
     arrays = jsbsim_aircraft.pack_model(aircraft=aircraft, jsbsim_version=jsbsim.__version__,
                                         controls=controls, states=states, **recipe)
     trim = ", ".join(f"{k} {v:.4g}" for k, v in steady.metadata["trim"].items())
@@ -304,7 +304,7 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
     model_path : path
         A ``GreyBoxGP`` saved by :func:`gp_model.save_model` with
         ``physics=blimp_physics_description(params)``, trained on 12 blimp states and the inputs
-        ``u_gondola, mu, u_tail, dt`` (:func:`validation.blimp_identification.recording_arrays`).
+        ``u_gondola, mu, u_tail, dt`` (:func:`validation.models.blimp_identification.recording_arrays`).
     out_dir : path
         Folder for the FMU (created if missing).
     name : str, optional
@@ -319,10 +319,10 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
     ------
     gp_model.ModelFileError
         Missing, corrupt or not a grey-box model file.
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         Other physics than ``blimp_rk4``; hyperparameter samples; a bad ``name`` or ``out_dir``.
     """
-    from validation.files import write_atomically
+    from validation.core.files import write_atomically
 
     target, arrays, interface, description, nominal_step = blimp_rkgp_parts(model_path, out_dir, name=name)
     fmu_bytes = _build(target.stem, slave_module="blimp_rkgp", slave_class="BlimpRKGP",
@@ -356,9 +356,9 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
     As :func:`build_blimp_rkgp_fmu`.
     """
     from gp_model import GreyBoxGP, ModelFileError, load_model, read_header
-    from validation.blimp import INPUT_NAMES, STATE_NAMES, _hanging_state
-    from validation.blimp_identification import blimp_physics_from_description
-    from validation.errors import BadInputError
+    from validation.vehicles.blimp import INPUT_NAMES, STATE_NAMES, hanging_state
+    from validation.models.blimp_identification import blimp_physics_from_description
+    from validation.core.errors import BadInputError
 
     from . import blimp_rkgp
 
@@ -393,7 +393,7 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
         max_step=physics["max_step"], state_columns=model.state_columns_,
         envelope_low=X.min(axis=0), envelope_high=X.max(axis=0), parts=parts)
     nominal_step = float(np.median(X[:, -1]))
-    start = _hanging_state(params)
+    start = hanging_state(params)
     inputs = tuple((n, *_signal(n, "input")[1:3], _BLIMP_PHRASES[n]) for n in INPUT_NAMES)
     states = tuple((n, *_signal(n, "state")[1:3], _BLIMP_PHRASES[n], float(s))
                    for n, s in zip(STATE_NAMES, start))
@@ -406,7 +406,7 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
     return target, arrays, {"inputs": inputs, "states": states}, description, nominal_step
 
 
-#: What the blimp's signals are (validation.blimp, module docstring: NED earth, body axes).
+#: What the blimp's signals are (validation.vehicles.blimp, module docstring: NED earth, body axes).
 _BLIMP_PHRASES = {
     "u_gondola": "gondola fan command (positive pushes forward)",
     "mu": "gondola thrust angle (positive tilts the thrust up)",
@@ -431,7 +431,7 @@ def build_model_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
 
 def reference_fmu_names() -> list[str]:
     """The names :func:`build_reference_fmu` accepts (``jsbsim:<aircraft>`` as a pattern)."""
-    from validation.vehicles import BO105_SPEEDS_KT
+    from validation.vehicles.bo105 import BO105_SPEEDS_KT
 
     return [f"bo105-{v}kt" for v in BO105_SPEEDS_KT] + ["jsbsim:<aircraft>"]
 
@@ -442,11 +442,11 @@ def build_reference_fmu(reference: str, out_dir, *, name: str | None = None) -> 
 
     Raises
     ------
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         Any other name (the message lists the valid ones), or what the builder raises.
     """
-    from validation.errors import BadInputError
-    from validation.vehicles import BO105_SPEEDS_KT
+    from validation.core.errors import BadInputError
+    from validation.vehicles.bo105 import BO105_SPEEDS_KT
 
     match = re.fullmatch(r"bo105-(\d+)kt", reference)
     if match and int(match.group(1)) in BO105_SPEEDS_KT:
@@ -459,8 +459,8 @@ def build_reference_fmu(reference: str, out_dir, *, name: str | None = None) -> 
 
 def _signal(name: str, kind: str) -> tuple:
     """(name, unit, limit, phrase) of a signal, from the recording conventions."""
-    from validation.errors import BadInputError
-    from validation.recordings import column_limit, column_unit
+    from validation.core.errors import BadInputError
+    from validation.core.recordings import column_limit, column_unit
 
     from ._base import UNITS
 
@@ -473,7 +473,7 @@ def _signal(name: str, kind: str) -> tuple:
 
 def _interface(config) -> dict:
     """(name, unit, limit, phrase) of every input and output, from the recording conventions."""
-    from validation.errors import BadInputError
+    from validation.core.errors import BadInputError
 
     inputs = tuple(_signal(n, "input") for n in config.inputs)
     outputs = tuple(_signal(n, "output") for n in config.outputs)
@@ -493,8 +493,8 @@ def _default_name(text: str) -> str:
 
 def _target(out_dir, name: str) -> Path:
     """``out_dir/<name>.fmu`` after checking ``name`` and ``out_dir`` (BadInputError)."""
-    from validation.errors import BadInputError
-    from validation.files import check_output_folder
+    from validation.core.errors import BadInputError
+    from validation.core.files import check_output_folder
 
     out_dir = Path(out_dir)
     if not _NAME.match(name):
@@ -589,7 +589,7 @@ def _vendor_gp_model_imports(sources: dict) -> None:
     import ...``) and point those imports at the copy (``from .<m> import ...``).
 
     Only self-contained gp_model modules qualify (numpy and the standard library, no relative
-    imports), such as :mod:`gp_model._uncertain_input`: a host has no gp_model, and one copy of
+    imports), such as :mod:`gp_model.uncertain_input`: a host has no gp_model, and one copy of
     the maths serves flightgp and its FMUs alike.
     """
     import gp_model

@@ -6,7 +6,7 @@ pythonfmu. This file is copied into every JSBSim FMU (``resources/<package>/jsbs
 so it imports only :mod:`._base`, numpy, the standard library and ``jsbsim`` (at
 initialisation, so that a host without it gets a logged Error, not a failed instantiation).
 
-Starting condition (the recipe of :class:`validation.jsbsim_vehicles.JSBSimVehicle`, whose
+Starting condition (the recipe of :class:`validation.vehicles.jsbsim.JSBSimVehicle`, whose
 numbers travel in ``resources/<package>/model.npz``, written by :func:`pack_model`)
 ----------------------------------------------------------------------------------------------
 - ``start = "trim"`` (fixed-wing, e.g. ``c172x``): ``load_model``, JSBSim step 0.01 s, the
@@ -54,7 +54,7 @@ FORMAT = "flightgp-fmu-jsbsim"
 VERSION = 1
 #: The model file inside the FMU's package folder.
 MODEL_FILE = "model.npz"
-#: JSBSim's integration step, s (validation.jsbsim_vehicles.JSBSimVehicle.sample_time).
+#: JSBSim's integration step, s (validation.vehicles.jsbsim.JSBSimVehicle.sample_time).
 JSBSIM_STEP = 0.01
 #: Relative tolerance on "the step is a whole multiple of JSBSIM_STEP".
 _MULTIPLE_TOLERANCE = 1e-6

@@ -9,7 +9,7 @@ parameters, start values, default experiment and sampling convention, since its
 ``modelDescription.xml`` is written by the same code) and the same one-step numbers (the
 formulas of :class:`fmu_src._runtime.NarxPredictor`, free-run mode included: the belief over
 the lagged outputs propagated by moment matching over the hyperparameter mixture, eqs. (1)-(6)
-of :mod:`gp_model._uncertain_input`), but whose binary needs only the C library and libm.
+of :mod:`gp_model.uncertain_input`), but whose binary needs only the C library and libm.
 The FMI layer (``fmi2_slave.c``), :func:`package_native_fmu` and :func:`compile_shared_library`
 also build the native blimp RKGP (:mod:`fmu_src.native_blimp`).
 
@@ -72,7 +72,7 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     Parameters
     ----------
     model_path : path
-        A model file written by :func:`validation.narx.save_trained` (``flightgp train``).
+        A model file written by :func:`validation.models.narx.save_trained` (``flightgp train``).
     out_dir : path
         Folder for the FMU (created if missing).
     name : str, optional
@@ -88,7 +88,7 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     ------
     gp_model.ModelFileError
         The model file is missing, corrupt or not a GP-NARX model.
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         As :func:`fmu_src.builder.build_rate_predictor_fmu`; also no ``gcc`` on the path or a
         platform other than Linux x86-64.
     RuntimeError
@@ -111,9 +111,9 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
 
 
 def check_platform() -> None:
-    """Raise :class:`validation.errors.BadInputError` unless this is Linux x86-64 (the only
+    """Raise :class:`validation.core.errors.BadInputError` unless this is Linux x86-64 (the only
     platform whose binary the native builders compile)."""
-    from validation.errors import BadInputError
+    from validation.core.errors import BadInputError
 
     if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
         raise BadInputError(f"native FMUs are built for Linux x86-64 ({PLATFORM_FOLDER}); this is "
@@ -143,7 +143,7 @@ def package_native_fmu(target: Path, *, slave_class, c_sources: tuple, config, d
     Path
         ``target``, written atomically.
     """
-    from validation.files import write_atomically
+    from validation.core.files import write_atomically
 
     xml, guid = _model_description(slave_class, c_sources)
     sources = {file: (_NATIVE_C / file).read_bytes() for file in (*c_sources, *C_HEADERS)}
@@ -190,12 +190,12 @@ def compile_shared_library(sources: dict, name: str, *, extra_flags=()) -> bytes
 
     Raises
     ------
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         No gcc on the path.
     RuntimeError
         gcc failed (the message holds its output).
     """
-    from validation.errors import BadInputError
+    from validation.core.errors import BadInputError
 
     gcc = shutil.which("gcc")
     if gcc is None:
@@ -229,19 +229,19 @@ def _model_description(slave_class, c_sources: tuple) -> tuple[bytes, str]:
     return ElementTree.tostring(root, encoding="UTF-8", xml_declaration=True), root.get("guid")
 
 
-def _c_string(text: str) -> str:
+def c_string(text: str) -> str:
     if not (text.isascii() and text.isprintable()) or '"' in text or "\\" in text:
         raise ValueError(f"{text!r} cannot be a plain C string literal")
     return f'"{text}"'
 
 
-def _c_number(value: float) -> str:
+def c_number(value: float) -> str:
     if not np.isfinite(value):
         raise ValueError(f"model constant {value} is not finite")
     return repr(float(value))  # shortest round-trip form: strtod reads back the same double
 
 
-def _c_array(c_type: str, name: str, values, form=str) -> str:
+def c_array(c_type: str, name: str, values, form=str) -> str:
     """``static const <type> <name>[n] = {...};`` (one placeholder element when empty: ISO C
     has no zero-length arrays)."""
     values = list(values)
@@ -260,12 +260,12 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor, arrays: dict
         "#ifndef FLIGHTGP_MODEL_CONFIG_H", "#define FLIGHTGP_MODEL_CONFIG_H", "",
         "#include <float.h>", '#include "model.h"', "",
         "/* Identity (modelDescription.xml) */",
-        f"#define MODEL_IDENTIFIER {_c_string(name)}",
-        f"#define MODEL_GUID {_c_string(guid)}",
+        f"#define MODEL_IDENTIFIER {c_string(name)}",
+        f"#define MODEL_GUID {c_string(guid)}",
         "/* Communication step = NARX step, s; relative time tolerance (fmu_src/_base.py) */",
-        f"#define STEP_SIZE {_c_number(predictor.step)}",
-        f"#define TIME_TOLERANCE {_c_number(_base.TIME_TOLERANCE)}", "",
-        *_variable_table(variables, "fmu_src/rate_predictor.py, rate_predictor_variables"),
+        f"#define STEP_SIZE {c_number(predictor.step)}",
+        f"#define TIME_TOLERANCE {c_number(_base.TIME_TOLERANCE)}", "",
+        *variable_table(variables, "fmu_src/rate_predictor.py, rate_predictor_variables"),
         "/* NARX structure (fmu_src/_runtime.py): regressors = every input at every input lag, then",
         "   every output at every output lag */",
         f"#define N_INPUTS {len(predictor.input_names)}",
@@ -278,40 +278,40 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor, arrays: dict
         "/* Hidden state: lag histories, envelope flag, free-run belief mean and covariance (narx_model.c) */",
         "#define BELIEF_SIZE (MAX_OUTPUT_LAG * N_OUTPUTS)",
         "#define MODEL_STATE_SIZE (MAX_LAG * (N_INPUTS + N_OUTPUTS) + 1 + BELIEF_SIZE * (BELIEF_SIZE + 1))",
-        _c_array("int", "INPUT_LAGS", predictor.input_lags).rstrip(),
-        _c_array("int", "OUTPUT_LAGS", predictor.output_lags).rstrip(),
+        c_array("int", "INPUT_LAGS", predictor.input_lags).rstrip(),
+        c_array("int", "OUTPUT_LAGS", predictor.output_lags).rstrip(),
         "/* Value references: controls, *_prev inputs, means, lower and upper bounds, parameters */",
-        _c_array("unsigned", "CONTROL_VR", [reference[n] for n in predictor.input_names]).rstrip(),
-        _c_array("unsigned", "PREVIOUS_VR", [reference[f"{n}_prev"] for n in outputs]).rstrip(),
-        _c_array("unsigned", "MEAN_VR", [reference[n] for n in outputs]).rstrip(),
-        _c_array("unsigned", "LOWER_VR", [reference[f"{n}_lower"] for n in outputs]).rstrip(),
-        _c_array("unsigned", "UPPER_VR", [reference[f"{n}_upper"] for n in outputs]).rstrip(),
+        c_array("unsigned", "CONTROL_VR", [reference[n] for n in predictor.input_names]).rstrip(),
+        c_array("unsigned", "PREVIOUS_VR", [reference[f"{n}_prev"] for n in outputs]).rstrip(),
+        c_array("unsigned", "MEAN_VR", [reference[n] for n in outputs]).rstrip(),
+        c_array("unsigned", "LOWER_VR", [reference[f"{n}_lower"] for n in outputs]).rstrip(),
+        c_array("unsigned", "UPPER_VR", [reference[f"{n}_upper"] for n in outputs]).rstrip(),
         f"#define CONFIDENCE_LEVEL_VR {reference['confidence_level']}",
         f"#define FREE_RUN_VR {reference['free_run']}", "",
         "/* Training envelope of each regressor (physical units) and its margin */",
-        _c_array("char *const", "REGRESSOR_NAMES", predictor.regressor_names, _c_string).rstrip(),
-        _c_array("double", "ENVELOPE_LOW", predictor.envelope.low, _c_number).rstrip(),
-        _c_array("double", "ENVELOPE_HIGH", predictor.envelope.high, _c_number).rstrip(),
-        f"#define ENVELOPE_MARGIN {_c_number(_runtime.ENVELOPE_MARGIN)}", "",
+        c_array("char *const", "REGRESSOR_NAMES", predictor.regressor_names, c_string).rstrip(),
+        c_array("double", "ENVELOPE_LOW", predictor.envelope.low, c_number).rstrip(),
+        c_array("double", "ENVELOPE_HIGH", predictor.envelope.high, c_number).rstrip(),
+        f"#define ENVELOPE_MARGIN {c_number(_runtime.ENVELOPE_MARGIN)}", "",
         f"/* GP arrays in resources/{DATA_FILE} (layout: narx_model.c) */",
-        f"#define DATA_FILE {_c_string(DATA_FILE)}",
+        f"#define DATA_FILE {c_string(DATA_FILE)}",
         f"#define DATA_DOUBLES {sum(_part_size(p) for p in parts)}",
-        _c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
-        _c_array("int", "HYPERPARAMETER_SAMPLES", [len(p["weights"]) for p in parts]).rstrip(),
-        _c_array("int", "LOWER_TRIANGULAR", [int(_lower_triangular(p["variance_factor"])) for p in parts]).rstrip(),
+        c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
+        c_array("int", "HYPERPARAMETER_SAMPLES", [len(p["weights"]) for p in parts]).rstrip(),
+        c_array("int", "LOWER_TRIANGULAR", [int(lower_triangular(p["variance_factor"])) for p in parts]).rstrip(),
         "", "#endif", ""]
     return "\n".join(lines)
 
 
-def _variable_table(variables: tuple, source: str) -> list:
+def variable_table(variables: tuple, source: str) -> list:
     """Lines of ``model_config.h`` declaring the variable table (model.h, VariableInfo)."""
     rows = []
     for v in variables:
-        minimum = "-DBL_MAX" if v.minimum is None else _c_number(v.minimum)
-        maximum = "DBL_MAX" if v.maximum is None else _c_number(v.maximum)
-        rows.append(f"    {{{_c_string(v.name)}, {_KINDS[v.kind]}, CAUSALITY_{v.causality.upper()}, "
-                    f"VARIABILITY_{v.variability.upper()}, {_c_string(v.unit or '')}, "
-                    f"{_c_number(float(v.start))}, {minimum}, {maximum}}},")
+        minimum = "-DBL_MAX" if v.minimum is None else c_number(v.minimum)
+        maximum = "DBL_MAX" if v.maximum is None else c_number(v.maximum)
+        rows.append(f"    {{{c_string(v.name)}, {_KINDS[v.kind]}, CAUSALITY_{v.causality.upper()}, "
+                    f"VARIABILITY_{v.variability.upper()}, {c_string(v.unit or '')}, "
+                    f"{c_number(float(v.start))}, {minimum}, {maximum}}},")
     return [f"/* Variable table ({source}): row = value reference */", f"#define N_VARIABLES {len(variables)}",
             "static const VariableInfo VARIABLES[N_VARIABLES] = {", *rows, "};", ""]
 
@@ -322,11 +322,11 @@ def _part(arrays: dict, j: int) -> dict:
 
 def _part_size(part: dict) -> int:
     (m, d), S = part["basis"].shape, len(part["weights"])
-    factor = m * (m + 1) // 2 if _lower_triangular(part["variance_factor"]) else m * m
+    factor = m * (m + 1) // 2 if lower_triangular(part["variance_factor"]) else m * m
     return 2 * d + 2 + m * d + S * (m + d + 2 + factor)
 
 
-def _lower_triangular(factors: np.ndarray) -> bool:
+def lower_triangular(factors: np.ndarray) -> bool:
     """Whether every variance factor (S, m, m) is zero above its diagonal (an exact GP's L^-1)."""
     return not np.any(np.triu(factors, k=1))
 
@@ -339,7 +339,7 @@ def _narx_data(arrays: dict, n_outputs: int) -> bytes:
         p = _part(arrays, j)
         m = len(p["basis"])
         # columns of V_s; of a lower triangular one only rows c .. m - 1 of column c
-        columns = (np.triu_indices(m)[::-1] if _lower_triangular(p["variance_factor"])
+        columns = (np.triu_indices(m)[::-1] if lower_triangular(p["variance_factor"])
                    else tuple(np.indices((m, m)).reshape(2, -1)[::-1]))
         chunks += [p["input_mean"], p["input_scale"], [p["output_mean"], p["output_scale"]], p["basis"].ravel()]
         for s in range(len(p["weights"])):

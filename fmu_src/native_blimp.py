@@ -36,8 +36,8 @@ import numpy as np
 from . import _base, _runtime
 from .blimp_rkgp import (INPUT_NAMES, STANDARD_GRAVITY, STATE_NAMES, BlimpRKGP, RKGPModel,
                          blimp_rkgp_variables)
-from .native import (DATA_FILE, _c_array, _c_number, _c_string, _lower_triangular,
-                     _variable_table, check_platform, package_native_fmu)
+from .native import (DATA_FILE, c_array, c_number, c_string, lower_triangular,
+                     variable_table, check_platform, package_native_fmu)
 
 #: The C sources compiled into every native blimp RKGP FMU (``fmu_src/native_c``).
 C_SOURCES = ("fmi2_slave.c", "blimp_model.c")
@@ -71,7 +71,7 @@ def build_native_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None)
     ------
     gp_model.ModelFileError
         Missing, corrupt or not a grey-box model file.
-    validation.errors.BadInputError
+    validation.core.errors.BadInputError
         As :func:`fmu_src.builder.build_blimp_rkgp_fmu` (other physics, hyperparameter samples, a
         bad ``name`` or ``out_dir``); also no ``gcc`` or a platform other than Linux x86-64.
     RuntimeError
@@ -102,49 +102,49 @@ def _blimp_config(guid: str, name: str, variables: tuple, model: RKGPModel) -> s
         "#ifndef FLIGHTGP_MODEL_CONFIG_H", "#define FLIGHTGP_MODEL_CONFIG_H", "",
         "#include <float.h>", '#include "model.h"', "",
         "/* Identity (modelDescription.xml) */",
-        f"#define MODEL_IDENTIFIER {_c_string(name)}",
-        f"#define MODEL_GUID {_c_string(guid)}",
+        f"#define MODEL_IDENTIFIER {c_string(name)}",
+        f"#define MODEL_GUID {c_string(guid)}",
         "/* Communication step: fixed by the first fmi2DoStep (STEP_SIZE 0), inside the training range",
         "   of dt plus the envelope margin (blimp_rkgp.py, RKGPModel.step_range), s; relative time",
         "   tolerance (fmu_src/_base.py) */",
         "#define STEP_SIZE 0.0",
-        f"#define MIN_STEP_SIZE {_c_number(low)}",
-        f"#define MAX_STEP_SIZE {_c_number(high)}",
+        f"#define MIN_STEP_SIZE {c_number(low)}",
+        f"#define MAX_STEP_SIZE {c_number(high)}",
         '#define STEP_RANGE_REASON "the frame intervals the GP residual was trained on (plus 10 %); step '
         'with the default experiment\'s step size"',
-        f"#define TIME_TOLERANCE {_c_number(_base.TIME_TOLERANCE)}", "",
-        *_variable_table(variables, "fmu_src/blimp_rkgp.py, blimp_rkgp_variables"),
+        f"#define TIME_TOLERANCE {c_number(_base.TIME_TOLERANCE)}", "",
+        *variable_table(variables, "fmu_src/blimp_rkgp.py, blimp_rkgp_variables"),
         f"#define N_STATES {len(STATE_NAMES)}",
         "/* Hidden state: the 12 states, then the envelope flag (blimp_model.c) */",
         "#define MODEL_STATE_SIZE (N_STATES + 1)",
         "/* Value references: commands, states, their sds, their start parameters */",
-        _c_array("unsigned", "COMMAND_VR", [reference[n] for n in INPUT_NAMES]).rstrip(),
-        _c_array("unsigned", "STATE_VR", [reference[n] for n in STATE_NAMES]).rstrip(),
-        _c_array("unsigned", "SD_VR", [reference[f"{n}_sd"] for n in STATE_NAMES]).rstrip(),
-        _c_array("unsigned", "START_VR", [reference[f"{n}_start"] for n in STATE_NAMES]).rstrip(), "",
+        c_array("unsigned", "COMMAND_VR", [reference[n] for n in INPUT_NAMES]).rstrip(),
+        c_array("unsigned", "STATE_VR", [reference[n] for n in STATE_NAMES]).rstrip(),
+        c_array("unsigned", "SD_VR", [reference[f"{n}_sd"] for n in STATE_NAMES]).rstrip(),
+        c_array("unsigned", "START_VR", [reference[f"{n}_start"] for n in STATE_NAMES]).rstrip(), "",
         "/* Physics (blimp_rkgp.py, BlimpParameterSet; SI units) and the longest RK4 substep, s */",
-        f"#define MAX_STEP {_c_number(model.max_step)}",
-        f"#define STANDARD_GRAVITY {_c_number(STANDARD_GRAVITY)}",
-        *(f"#define {field.upper()} {_c_number(getattr(P, field))}" for field in _SCALARS),
-        *(_c_array("double", field.upper(), getattr(P, field), _c_number).rstrip() for field in _TRIPLES),
+        f"#define MAX_STEP {c_number(model.max_step)}",
+        f"#define STANDARD_GRAVITY {c_number(STANDARD_GRAVITY)}",
+        *(f"#define {field.upper()} {c_number(getattr(P, field))}" for field in _SCALARS),
+        *(c_array("double", field.upper(), getattr(P, field), c_number).rstrip() for field in _TRIPLES),
         "/* M = M_RB + M_A about the centre of buoyancy (Fossen 2011, eq. 3.44) and M^-1, by rows */",
-        _c_array("double", "MASS_MATRIX", P.matrix.ravel(), _c_number).rstrip(),
-        _c_array("double", "INVERSE_MASS_MATRIX", P.inverse.ravel(), _c_number).rstrip(), "",
+        c_array("double", "MASS_MATRIX", P.matrix.ravel(), c_number).rstrip(),
+        c_array("double", "INVERSE_MASS_MATRIX", P.inverse.ravel(), c_number).rstrip(), "",
         "/* GP: inputs [states[STATE_COLUMNS], u_gondola, mu, u_tail, dt]; parts (one shared, or one per state) */",
         f"#define N_STATE_COLUMNS {len(model.state_columns)}",
         f"#define N_GP_INPUTS {len(model.input_names)}",
-        _c_array("int", "STATE_COLUMNS", model.state_columns).rstrip(),
+        c_array("int", "STATE_COLUMNS", model.state_columns).rstrip(),
         f"#define N_PARTS {len(parts)}",
-        _c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
-        _c_array("int", "PART_OUTPUTS", [p["weights"].shape[1] for p in parts]).rstrip(),
-        _c_array("int", "LOWER_TRIANGULAR", [int(_lower_triangular(p["variance_factor"])) for p in parts]).rstrip(),
+        c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
+        c_array("int", "PART_OUTPUTS", [p["weights"].shape[1] for p in parts]).rstrip(),
+        c_array("int", "LOWER_TRIANGULAR", [int(lower_triangular(p["variance_factor"])) for p in parts]).rstrip(),
         "/* Training envelope of each GP input (physical units) and its margin */",
-        _c_array("char *const", "GP_INPUT_NAMES", model.input_names, _c_string).rstrip(),
-        _c_array("double", "ENVELOPE_LOW", model.envelope.low, _c_number).rstrip(),
-        _c_array("double", "ENVELOPE_HIGH", model.envelope.high, _c_number).rstrip(),
-        f"#define ENVELOPE_MARGIN {_c_number(_runtime.ENVELOPE_MARGIN)}", "",
+        c_array("char *const", "GP_INPUT_NAMES", model.input_names, c_string).rstrip(),
+        c_array("double", "ENVELOPE_LOW", model.envelope.low, c_number).rstrip(),
+        c_array("double", "ENVELOPE_HIGH", model.envelope.high, c_number).rstrip(),
+        f"#define ENVELOPE_MARGIN {c_number(_runtime.ENVELOPE_MARGIN)}", "",
         f"/* GP arrays in resources/{DATA_FILE} (layout: blimp_model.c) */",
-        f"#define DATA_FILE {_c_string(DATA_FILE)}",
+        f"#define DATA_FILE {c_string(DATA_FILE)}",
         f"#define DATA_DOUBLES {len(_blimp_doubles(model))}",
         "", "#endif", ""]
     return "\n".join(lines)
@@ -156,7 +156,7 @@ def _blimp_doubles(model: RKGPModel) -> np.ndarray:
     for p in model.parts:
         factor = p["variance_factor"]
         # by rows; of a lower triangular V only columns 0 .. i of row i
-        packed = factor[np.tril_indices(len(factor))] if _lower_triangular(factor) else factor.ravel()
+        packed = factor[np.tril_indices(len(factor))] if lower_triangular(factor) else factor.ravel()
         chunks += [p["input_mean"], p["input_scale"], p["output_mean"], p["output_scale"], p["kernel_weights"],
                    [p["log_signal_variance"]], p["basis"].ravel(), p["weights"].ravel(), packed]
     return np.concatenate([np.ravel(np.asarray(c, dtype="<f8")) for c in chunks])

@@ -25,7 +25,7 @@ the ``*_prev`` inputs (the given initial rates) with zero-width bounds.
 Free-run mode (``free_run = true``): the FMU predicts from its own earlier predictions instead of
 the ``*_prev`` inputs, which are then read only once, at initialisation, as the initial rates. It
 propagates a Gaussian over the lagged rates by exact moment matching (Girard et al. 2003;
-Deisenroth & Rasmussen 2011; :mod:`gp_model._uncertain_input`), so its bounds grow with the
+Deisenroth & Rasmussen 2011; :mod:`gp_model.uncertain_input`), so its bounds grow with the
 horizon as the free run's uncertainty does: outputs equal
 ``GPNarx.free_run(method="moment_matching")`` from a vehicle steady at the initial rates. It
 matches the moments of the mixture over the hyperparameter samples, so a free-run step costs

@@ -1,7 +1,7 @@
 """Moment matching for fitted GPs: :func:`predict_uncertain_input` and :func:`moment_matcher`.
 
 The mathematics (eqs. (1)-(6), Girard et al. 2003; Deisenroth & Rasmussen 2011) lives in
-:mod:`gp_model._uncertain_input`, which needs numpy only so that FMUs can carry it; this module
+:mod:`gp_model.uncertain_input`, which needs numpy only so that FMUs can carry it; this module
 checks fitted :class:`~gp_model.GaussianProcess` objects and expresses them in its common frame.
 """
 from __future__ import annotations
@@ -11,13 +11,13 @@ import numpy as np
 from ._gp import GaussianProcess
 from ._kernels import StationaryKernel
 from ._sparse_gp import SparseGaussianProcess
-from ._uncertain_input import FrameGP, MomentMatcher, frame_gp
+from .uncertain_input import FrameGP, MomentMatcher, frame_gp
 
 
 def predict_uncertain_input(gps, mean, cov, *, include_noise: bool = True):
     """Exact mean and covariance of m GP predictions at a Gaussian input (moment matching).
 
-    Implements eqs. (1)-(6) of :mod:`gp_model._uncertain_input` (Girard et al. 2003; Deisenroth
+    Implements eqs. (1)-(6) of :mod:`gp_model.uncertain_input` (Girard et al. 2003; Deisenroth
     & Rasmussen 2011).
 
     Parameters
@@ -65,7 +65,7 @@ def predict_uncertain_input(gps, mean, cov, *, include_noise: bool = True):
 
 
 def moment_matcher(gps, *, use_samples: bool = False) -> MomentMatcher:
-    """Prepare eqs. (1)-(6) of :mod:`gp_model._uncertain_input` for a list of fitted GPs.
+    """Prepare eqs. (1)-(6) of :mod:`gp_model.uncertain_input` for a list of fitted GPs.
 
     Parameters
     ----------

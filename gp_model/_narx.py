@@ -352,7 +352,7 @@ class GPNarx:
 
     def _free_run_moment_matching(self, inputs, initial, *, include_noise, feedback_noise, use_samples):
         from ._moment_matching import moment_matcher
-        from ._uncertain_input import narx_belief_start, narx_belief_step
+        from .uncertain_input import narx_belief_start, narx_belief_step
 
         matcher = moment_matcher(self.model.gps, use_samples=use_samples)
         s = self.structure

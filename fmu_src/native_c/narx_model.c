@@ -33,7 +33,7 @@
  *
  * Free run (free_run = true): a Gaussian belief over the lagged outputs, propagated by exact
  * moment matching over the hyperparameter mixture, as NarxPredictor.free_run_step: eqs. (1)-(6)
- * of gp_model/_uncertain_input.py (MomentMatcher, _woodbury_terms) and its belief shift
+ * of gp_model/uncertain_input.py (MomentMatcher, _woodbury_terms) and its belief shift
  * (narx_belief_start, narx_belief_step). Every output's GP is expressed in output 0's input
  * frame (frame_gp), with the per-sample A_s = K_inv[s] = V_s^T V_s precomputed at load. A
  * lagged output that is a regressor takes its covariance with the prediction from eq. (2); one
@@ -62,7 +62,7 @@
 #define OUTPUT_HISTORY (MAX_LAG * N_INPUTS)            /* MAX_LAG x N_OUTPUTS */
 #define OUTSIDE_ENVELOPE (MAX_LAG * SIGNALS)           /* 1.0 while outside the envelope */
 /* The free-run belief over y(k-1), ..., y(k-L), L = MAX_OUTPUT_LAG, lag-major: entry
-   (lag - 1) * N_OUTPUTS + output (gp_model/_uncertain_input.py, narx_belief_start). */
+   (lag - 1) * N_OUTPUTS + output (gp_model/uncertain_input.py, narx_belief_start). */
 #define BELIEF_MEAN (OUTSIDE_ENVELOPE + 1)             /* BELIEF_SIZE */
 #define BELIEF_COV (BELIEF_MEAN + BELIEF_SIZE)         /* BELIEF_SIZE x BELIEF_SIZE, row-major */
 #define D N_REGRESSORS
@@ -82,7 +82,7 @@ typedef struct {
     double *frame_basis;                     /* (m, d) X_a */
     double *precision;                       /* (S, d) diagonal of Lambda_a^-1 = 2 w / ratio^2 */
     double *K_inv;                           /* (S, m, m) A_s = V_s^T V_s */
-    /* moment-matching scratch for the current sample s (eq. numbers of _uncertain_input.py): */
+    /* moment-matching scratch for the current sample s (eq. numbers of uncertain_input.py): */
     double *u;                               /* (m, d) u_ai = Lambda_a^-1 nu_ai */
     double *q;                               /* (m,) q_ai, eq. 1 */
     double *weighted;                        /* (m,) beta_ai q_ai */
@@ -312,7 +312,7 @@ static void predict_output(const Model *model, const OutputGP *gp, const double 
     *var_out = spread * gp->output_scale * gp->output_scale;
 }
 
-/* -- free run: moment matching (gp_model/_uncertain_input.py) ----------------------------- */
+/* -- free run: moment matching (gp_model/uncertain_input.py) ----------------------------- */
 
 /* _woodbury_terms: M(P) = (P + S^-1)^-1 = P^-1/2 (I + T)^-1 T P^-1/2 with T = P^1/2 S P^1/2,
  * and ln|I + T| (eq. 6), for a positive diagonal precision P (d,) and the standardised input
@@ -374,7 +374,7 @@ static double quadratic_form(const double u[D], const double M[D * D]) {
 
 /* -- symmetric eigen-decomposition, for the covariance check and the pseudo-inverse --------- */
 
-/* gp_model/_uncertain_input.py: COVARIANCE_TOLERANCE (relative asymmetry and negative
+/* gp_model/uncertain_input.py: COVARIANCE_TOLERANCE (relative asymmetry and negative
  * eigenvalues tolerated in the standardised input covariance) and the rcond of the pinv in
  * _cross_covariance_of_lagged_outputs. */
 #define COVARIANCE_TOLERANCE 1e-10
@@ -479,7 +479,7 @@ static char *covariance_problem(const Model *model, const double x_mean[D], cons
     if (asymmetry > COVARIANCE_TOLERANCE * size)
         return format_message("the free-run regressor covariance is not symmetric: max |S - S^T| = %.3g against "
                               "max |S| = %.3g (S = the covariance standardised by the GP input scales; tolerance "
-                              "%.3g relative, COVARIANCE_TOLERANCE of gp_model/_uncertain_input.py)",
+                              "%.3g relative, COVARIANCE_TOLERANCE of gp_model/uncertain_input.py)",
                               asymmetry, size, COVARIANCE_TOLERANCE);
     double work[D * D], values[D];
     for (int i = 0; i < D; i++)
@@ -491,7 +491,7 @@ static char *covariance_problem(const Model *model, const double x_mean[D], cons
     if (smallest < -COVARIANCE_TOLERANCE * fmax(largest, 0.0))
         return format_message("the free-run regressor covariance is not positive semi-definite: the standardised "
                               "covariance has eigenvalue %.3g (largest %.3g; tolerance %.3g relative, "
-                              "COVARIANCE_TOLERANCE of gp_model/_uncertain_input.py)",
+                              "COVARIANCE_TOLERANCE of gp_model/uncertain_input.py)",
                               smallest, largest, COVARIANCE_TOLERANCE);
     *failed = 0;
     return NULL;
@@ -501,7 +501,7 @@ static char *covariance_problem(const Model *model, const double x_mean[D], cons
  * covariance_problem, so a bug. */
 static char *cholesky_failure(void) {
     return format_message("the free-run input covariance is not positive semi-definite (a Cholesky factor of "
-                          "I + T, eq. 6 of gp_model/_uncertain_input.py, failed); please report");
+                          "I + T, eq. 6 of gp_model/uncertain_input.py, failed); please report");
 }
 
 /* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance

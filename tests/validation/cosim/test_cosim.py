@@ -1,0 +1,108 @@
+"""fmpy co-simulation of the GP rate-predictor FMU against recordings (flightgp cosim)."""
+import json
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+
+from fmu_src.builder import build_rate_predictor_fmu
+from validation.cli import main
+from validation.cosim.cosimulation import cosimulate
+from validation.models.narx import narx_arrays, save_trained, train_narx
+from validation.core.recordings import write_recording
+from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    """The paper's training manoeuvre, its GP-NARX and that model's FMU."""
+    folder = tmp_path_factory.mktemp("cosim")
+    recording = fly_3211("bo105-80kt-flight", input_name="theta_1s",
+                         amplitude=np.radians(TRAINING_MANOEUVRE["amplitude_deg"]),
+                         step_time=TRAINING_MANOEUVRE["step_time"], start=1.0, duration=8.0, seed=0)
+    write_recording(folder / "flight.csv", recording)
+    trained = train_narx([recording], PAPER_CONFIG, seed=0, n_samples=64)
+    model = save_trained(folder / "gp.npz", trained)
+    fmu = build_rate_predictor_fmu(model, folder, name="cosim_gp")
+    return folder, recording, trained, fmu
+
+
+def test_fmu_free_run_equals_the_python_moment_matching_rollout(case):
+    """The FMU takes the vehicle as steady before t0 (README, sampling convention) and predicts
+    from t1; the Python moment-matching free run on the same history, padded with the t0 values,
+    must agree, bounds included."""
+    folder, recording, trained, fmu = case
+    result = cosimulate(fmu, recording)
+    _, u, y = narx_arrays(recording, trained.config)
+    pad = trained.config.structure().max_lag - 1
+    u_padded = np.vstack([np.repeat(u[:1], pad, axis=0), u])
+    python = trained.model.free_run(u_padded, np.repeat(y[:1], pad + 1, axis=0), method="moment_matching")
+    z = NormalDist().inv_cdf(0.975)  # the FMU's default confidence_level, 0.95
+    for j, axis in enumerate(result.axes):
+        # Same model, same arithmetic up to summation order: 1e-9 rad/s.
+        np.testing.assert_allclose(result.gp.outputs[axis], python.mean[pad:, j], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(result.gp.outputs[f"{axis}_upper"] - result.gp.outputs[axis],
+                                   z * np.sqrt(python.var[pad:, j]), rtol=0, atol=1e-9)
+
+
+def test_cross_check_files_and_summary(case, tmp_path):
+    folder, recording, _, fmu = case
+    result = cosimulate(fmu, recording, out_dir=tmp_path)
+    model = tmp_path / "cosim_gp"
+    inputs = np.genfromtxt(model / "cosim_gp_in.csv", delimiter=",", names=True)
+    outputs = np.genfromtxt(model / "cosim_gp_ref.csv", delimiter=",", names=True)
+    assert inputs.dtype.names[:2] == ("time", "theta_1s")
+    assert {"p", "q_lower", "r_upper"} <= set(outputs.dtype.names)
+    np.testing.assert_allclose(outputs["q"], result.gp.outputs["q"], rtol=1e-15)
+    options = dict(line.split(", ") for line in (model / "cosim_gp_ref.opt").read_text().splitlines())
+    assert float(options["StepSize"]) == pytest.approx(0.1) and float(options["StopTime"]) == pytest.approx(8.0)
+    summary = json.loads((tmp_path / "cosim.json").read_text())
+    assert summary["rmse"] == result.rmse() and summary["axes"] == ["p", "q", "r"]
+    assert (tmp_path / "cosim.png").stat().st_size > 10_000
+
+
+def test_cli_cosim_with_a_recording_and_with_a_manoeuvre(case, tmp_path, capsys):
+    folder, _, _, fmu = case
+    assert main(["cosim", str(fmu), "--recording", str(folder / "flight.csv"), "--out", str(tmp_path / "a")]) == 0
+    first = capsys.readouterr().out
+    assert "GP FMU (free run)" in first
+    assert main(["cosim", str(fmu), "--vehicle", "bo105-80kt-flight", "--input", "theta_1s",
+                 "--duration", "8", "--out", str(tmp_path / "b")]) == 0
+    # The same manoeuvre and seed as the recording: the same table.
+    assert capsys.readouterr().out.splitlines()[1:4] == first.splitlines()[1:4]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--out", "OUT"], "give either --recording"),
+    (["--recording", "REC", "--vehicle", "bo105-80kt-flight", "--out", "OUT"], "give either --recording"),
+    (["--vehicle", "bo105-80kt-flight", "--out", "OUT"], "--vehicle needs --input"),
+    (["--recording", "REC", "--reference", "missing.fmu", "--out", "OUT"], "no such FMU"),
+])
+def test_cli_cosim_bad_usage_exits_2(case, tmp_path, capsys, argv, message):
+    folder, _, _, fmu = case
+    argv = [a.replace("REC", str(folder / "flight.csv")).replace("OUT", str(tmp_path / "o")) for a in argv]
+    assert main(["cosim", str(fmu), *argv]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+# Measured on this case (seed 0, the paper configuration, 64 annealing samples as in `case`; the
+# FMU's free run by moment matching over the samples): GP FMU RMSE p 0.0103, q 0.0135, r 0.0237
+# rad/s; reference FMU p 0.0483, q 0.0422, r 0.0300. (The earlier mean-feedback free run measured
+# 0.0103, 0.0137, 0.0219.) The guard allows 30 % above the measured GP values: far more than BLAS
+# or platform rounding moves them (< 1e-9), far less than the gap to the reference (2-4x on p, q).
+GP_RMSE_GUARD = {"p": 0.0103 * 1.3, "q": 0.0135 * 1.3, "r": 0.0237 * 1.3}
+
+
+def test_ci_guard_3211_rmse_of_the_fmu_against_the_flight_test(case, tmp_path):
+    """Issue 5's CI check: build the Bo105 rate-predictor FMU, co-simulate the 80 kt 3-2-1-1 in
+    fmpy, and keep its per-axis RMSE against the flight-test stand-in below the guard and below
+    the physics reference FMU's."""
+    from fmu_src.builder import build_bo105_reference_fmu
+
+    folder, recording, _, gp_fmu = case
+    reference_fmu = build_bo105_reference_fmu(80, tmp_path, name="guard_reference")
+    rmse = cosimulate(gp_fmu, recording, reference_fmu=reference_fmu).rmse()
+    for axis in "pqr":
+        assert rmse["gp"][axis] < GP_RMSE_GUARD[axis], (axis, rmse["gp"][axis])
+        assert rmse["gp"][axis] < rmse["reference"][axis], axis

@@ -1,0 +1,302 @@
+"""flightgp diagnose: each stage on small cases, the issue's acceptance criteria on concealed
+effects (EffectVehicle as ground truth, sensor noise on), and exit-2 errors."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from validation.vehicles.bo105_flight import Bo105FlightTest, SENSOR_NOISE_STD
+from validation.cli import main
+from validation.diagnose.pipeline import diagnose, estimate_noise_sd, theil_inequality, write_diagnosis
+from validation.vehicles.bo105_effects import identification_manoeuvre
+from validation.vehicles.effects import EffectVehicle
+from validation.core.errors import BadInputError
+from validation.core.recordings import Recording, write_recording
+
+
+def _recordings(vehicle, *, duration=20.0):
+    """A fitting recording (variant 0) and a held-out one (a different manoeuvre), 100 Hz."""
+    fit = vehicle.simulate(*identification_manoeuvre(duration=duration, variant=0), seed=1)
+    held = vehicle.simulate(*identification_manoeuvre(duration=duration, variant=1), seed=2)
+    return fit, held
+
+
+def _concealed(effects, *, duration=20.0):
+    return _recordings(EffectVehicle("bo105-80kt", effects, noise_sd=SENSOR_NOISE_STD), duration=duration)
+
+
+# -- stage tests ------------------------------------------------------------------------------
+
+def test_noise_estimator_recovers_white_noise_on_a_smooth_signal():
+    rng = np.random.default_rng(0)
+    time = np.arange(0, 20, 0.01)
+    smooth = 0.2 * np.sin(2 * np.pi * 0.5 * time) + 0.1 * (time > 5)  # one step: an outlier
+    estimate = estimate_noise_sd(smooth + 0.003 * rng.standard_normal(len(time)))
+    # 2000 samples: the MAD estimate's relative sd is about 1.65/sqrt(2000) = 3.7 %; 4 sigma.
+    assert estimate == pytest.approx(0.003, rel=0.15)
+
+
+def test_theil_coefficient_bounds():
+    y = np.sin(np.linspace(0, 10, 200))
+    assert theil_inequality(y, y) == 0.0
+    assert theil_inequality(y, -y) == pytest.approx(1.0)
+    assert theil_inequality(y, np.zeros_like(y)) == pytest.approx(1.0)
+
+
+def test_locate_names_windows_bands_and_the_coherent_input():
+    fit, held = _concealed([{"effect": "time_delay", "input": "theta_1c", "value": 0.08}], duration=10.0)
+    result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
+    roll = [m for m in result["mismatch"] if m["output"] == "p"]
+    # The lateral-cyclic 3-2-1-1 runs from 6.0 to 8.1 s; the roll-rate misfit must sit there.
+    assert roll and any(m["t_start"] < 8.1 and m["t_end"] > 6.0 for m in roll)
+    assert all(m["t_start"] > 5.5 for m in roll)  # nothing before the input moves
+    assert result["locate"]["bands"]["p"]
+    assert result["locate"]["coherent_inputs"]["p"][0]["input"] == "theta_1c"
+    assert result["locate"]["noise_sd"]["p"] == pytest.approx(SENSOR_NOISE_STD["p"], rel=0.15)
+
+
+def test_unexcited_inputs_are_reported_untestable():
+    vehicle = EffectVehicle("bo105-80kt", [], noise_sd=SENSOR_NOISE_STD)
+    time, inputs = identification_manoeuvre(duration=8.0)
+    inputs[:, [0, 3]] = 0.0  # no collective, no pedals
+    result = diagnose([vehicle.simulate(time, inputs, seed=1), vehicle.simulate(time, inputs, seed=2)],
+                      reference="bo105-80kt").as_dict()
+    assert result["verdict"] == "consistent" and result["findings"] == []
+    assert {note.split(":")[0] for note in result["untestable"]} == {"theta_0", "theta_0T"}
+
+
+def test_holdout_is_the_tail_of_a_single_recording():
+    fit, _ = _concealed([], duration=8.0)
+    result = diagnose([fit], reference="bo105-80kt").as_dict()
+    assert "last 30%" in result["fit"]["holdout"]
+    assert result["verdict"] == "consistent"
+
+
+# -- acceptance: concealed named effects ---------------------------------------------------------
+
+def _check_named(result, truth):
+    """Every true effect named, with the true value inside the interval, and its main output's
+    held-out RMSE cut by at least 60 % (the issue's scorecard criteria)."""
+    named = [f for f in result["findings"] if f["effect"] != "unexplained"]
+    assert result["verdict"] == "missing_physics"
+    assert len(named) == len(truth), [f["statement"] for f in result["findings"]]
+    for effect in truth:
+        key = next(k for k in ("input", "term", "output") if k in effect)
+        match = [f for f in named if f["effect"] == effect["effect"] and f.get(key) == effect[key]]
+        assert match, (effect, [f["statement"] for f in named])
+        low, high = match[0]["interval"]
+        assert low <= effect["value"] <= high, (effect, match[0]["value"], match[0]["interval"])
+    fit = result["fit"]
+    for finding in named:
+        output = finding["main_output"]
+        assert fit["rmse_corrected"][output] <= 0.4 * fit["rmse_reference"][output], output
+    assert not [f for f in result["findings"] if f["effect"] == "unexplained"]
+
+
+CASES = {
+    "delay": [{"effect": "time_delay", "input": "theta_1s", "value": 0.04}],
+    "lag": [{"effect": "input_lag", "input": "theta_1c", "value": 0.05}],
+    "control_derivative": [{"effect": "control_derivative", "term": "M_theta_1s", "value": 0.75 * 46.8384}],
+    "pitch_damping": [{"effect": "stability_derivative", "term": "M_q", "value": 0.75 * -3.9954}],
+    "off_axis_L_q": [{"effect": "stability_derivative", "term": "L_q", "value": -1.0}],
+    "bias": [{"effect": "sensor_bias", "output": "q", "value": 3 * SENSOR_NOISE_STD["q"]}],
+    "pair_delay_bias": [{"effect": "time_delay", "input": "theta_1s", "value": 0.05},
+                        {"effect": "sensor_bias", "output": "p", "value": 0.01}],
+    "pair_lag_derivative": [{"effect": "input_lag", "input": "theta_0T", "value": 0.06},
+                            {"effect": "stability_derivative", "term": "M_p", "value": 0.5}],
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES)
+def test_concealed_effect_is_named_with_its_value(case):
+    fit, held = _concealed(CASES[case])
+    _check_named(diagnose([fit], reference="bo105-80kt", holdout=[held], seed=0).as_dict(), CASES[case])
+
+
+def test_no_effect_is_consistent():
+    fit, held = _concealed([])
+    result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
+    assert result["verdict"] == "consistent" and result["findings"] == []
+    for name in result["fit"]["outputs"]:  # held-out error is the sensor noise (20 % margin)
+        assert result["fit"]["rmse_reference"][name] < 1.2 * SENSOR_NOISE_STD[name]
+
+
+def test_delay_finding_flags_the_gp_that_would_absorb_it():
+    fit, held = _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.08}], duration=10.0)
+    finding = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()["findings"][0]
+    assert finding["effect"] == "time_delay" and finding["main_output"] == "q"
+    assert finding["gp_absorbs"] > 0.5 and finding["carries_over"]
+    # The lag competitor is listed or overwhelmingly disfavoured; either way the delay wins.
+    assert finding["confidence"] > 0.9
+    assert finding["statement"].startswith("Pitch-rate response lags the model by 0.0")
+    low, high = finding["interval"]
+    assert low <= 0.08 <= high
+
+
+@pytest.mark.slow
+def test_rotor_flapping_is_unexplained_and_the_gp_models_it():
+    """Flapping (Bo105FlightTest's first effect) is not a named effect: the residual stays above
+    the noise after the named effects, so diagnose says `unexplained` and fits the GP."""
+    vehicle = Bo105FlightTest(80, dynamic_inflow=False, actuators=False, transport_delay=False,
+                              off_axis_coupling=False, turbulence=False)
+    fit, held = _recordings(vehicle)
+    result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
+    unexplained = [f for f in result["findings"] if f["effect"] == "unexplained"]
+    assert unexplained and result["verdict"] == "missing_physics"
+    assert all(f["noise_ratio"] > 1.2 for f in unexplained)
+    assert "unexplained" in unexplained[0]["statement"]
+
+
+def test_an_effect_that_does_not_carry_over_to_the_held_out_flight_is_flagged():
+    """A pitch-rate bias in the diagnosed flight only (a drifting sensor): named, but it makes the
+    held-out pitch rate worse, and the finding says so."""
+    bias = [{"effect": "sensor_bias", "output": "q", "value": 4 * SENSOR_NOISE_STD["q"]}]
+    fit, _ = _concealed(bias, duration=10.0)
+    _, held = _concealed([], duration=10.0)
+    result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
+    finding = next(f for f in result["findings"] if f["effect"] == "sensor_bias")
+    assert finding["output"] == "q" and finding["carries_over"] is False
+    assert finding["rmse_effect_alone"] > result["fit"]["rmse_reference"]["q"]
+    assert "does not carry over" in finding["statement"]
+    assert any(f["effect"] == "unexplained" and f["output"] == "q" and f["data"] == "holdout"
+               for f in result["findings"])
+
+
+@pytest.mark.slow
+def test_a_dead_band_the_named_effects_only_mimic_is_unexplained_on_held_out_data():
+    """A +/-0.3 deg dead band on longitudinal cyclic is not a named effect. On the diagnosed
+    manoeuvre control-derivative changes fit it to the noise; the held-out manoeuvre (other
+    amplitudes) shows they only mimic it, so diagnose says `unexplained` there."""
+    from validation.diagnose.bench import case_recordings, concealed_cases
+
+    case = next(c for c in concealed_cases() if c.name == "outside-dead-band")
+    fit, held, _ = case_recordings(case, seed=0)
+    result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
+    held_out = {f["output"]: f for f in result["findings"]
+                if f["effect"] == "unexplained" and f["data"] == "holdout"}
+    assert "theta" in held_out
+    theta = held_out["theta"]
+    # Measured (seed 0): fitted to 1.08x the noise, held out 5.3x.
+    assert theta["fit_noise_ratio"] < 1.2 < theta["noise_ratio"]
+    assert theta["value"] == result["fit"]["rmse_corrected"]["theta"]
+    assert "held-out pitch-attitude" in theta["statement"] and "unexplained" in theta["statement"]
+
+
+def test_noise_excess_needs_both_the_chi_squared_test_and_the_ratio():
+    from validation.diagnose.pipeline import UNEXPLAINED_RATIO, _noise_excess
+
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(4000)
+    assert not _noise_excess(white)[1]
+    assert _noise_excess(1.5 * white)[1]
+    # Significant with many samples but within the ratio: a noise estimate a few per cent off.
+    slightly = 1.1 * rng.standard_normal(200_000)
+    ratio, exceeds = _noise_excess(slightly)
+    assert ratio < UNEXPLAINED_RATIO and not exceeds
+    # Far above the ratio but too few samples to tell.
+    assert not _noise_excess(np.array([1.3, -1.3]))[1]
+
+
+# -- command line, files, bad input -------------------------------------------------------------
+
+def test_cli_writes_report_json_plots_and_a_loadable_corrected_model(tmp_path, capsys):
+    fit, held = _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.08}], duration=10.0)
+    write_recording(tmp_path / "fit.csv", fit)
+    write_recording(tmp_path / "held.csv", held)
+    out = tmp_path / "out"
+    assert main(["diagnose", str(tmp_path / "fit.csv"), "--holdout", str(tmp_path / "held.csv"),
+                 "--reference", "bo105-80kt", "--out", str(out), "--no-progress"]) == 0
+    result = json.loads((out / "diagnosis.json").read_text())
+    assert {"reference", "verdict", "mismatch", "findings", "fit"} <= set(result)
+    assert result["findings"][0]["effect"] == "time_delay"
+    assert result["fit"]["data"] == "holdout" and set(result["fit"]["rmse_corrected_gp"]) == set(fit.output_names)
+    report = (out / "report.md").read_text()
+    assert report.startswith("- Pitch-rate response lags the model")
+    assert (out / "holdout_q.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    corrected = EffectVehicle.load(out / "corrected_model.json")
+    assert corrected.effects[0]["input"] == "theta_1s"
+    assert "lags the model" in capsys.readouterr().out
+
+
+def _write_table(path, header, rows):
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("problem, expected", [
+    ("missing_input", "missing input column(s) 'theta_0T'"),
+    ("wrong_vehicle", "another vehicle"),
+    ("no_outputs", "no output columns"),
+    ("too_short", "too short to identify anything"),
+    ("nan", "not a finite number"),
+])
+def test_bad_recordings_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, problem, expected):
+    time = np.arange(0, 1.0, 0.01) if problem == "too_short" else np.arange(0, 4.0, 0.01)
+    rows = [[t, 0.0, 0.01 * (t > 0.5), 0.0, 0.0, 0.0] for t in time]
+    header = ["time", "theta_0", "theta_1s", "theta_1c", "theta_0T", "q"]
+    if problem == "missing_input":
+        header, rows = header[:4] + header[5:], [r[:4] + r[5:] for r in rows]
+    elif problem == "wrong_vehicle":
+        header = ["time", "u_gondola", "mu", "u_tail", "U", "R"]
+    elif problem == "no_outputs":
+        header, rows = header[:5], [r[:5] for r in rows]
+    elif problem == "nan":
+        rows[10][5] = "nan"
+    path = _write_table(tmp_path / "bad.csv", header, rows)
+    out = tmp_path / "out"
+    assert main(["diagnose", str(path), "--reference", "bo105-80kt", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_unsupported_reference_and_flight_stand_in_are_refused():
+    fit, _ = _concealed([], duration=4.0)
+    with pytest.raises(BadInputError, match="flight-test stand-in"):
+        diagnose([fit], reference="bo105-80kt-flight")
+    with pytest.raises(BadInputError, match="not implemented"):
+        diagnose([fit], reference="jsbsim:c172x")
+
+
+def test_recording_objects_with_nan_are_refused():
+    fit, _ = _concealed([], duration=4.0)
+    outputs = fit.outputs.copy()
+    outputs[3, 0] = math.nan
+    bad = Recording(fit.time, fit.inputs, fit.input_names, outputs, fit.output_names)
+    with pytest.raises(BadInputError, match="NaN"):
+        diagnose([bad], reference="bo105-80kt")
+
+
+def test_recording_objects_whose_time_does_not_increase_are_refused():
+    fit, _ = _concealed([], duration=4.0)
+    time = fit.time.copy()
+    time[10] = time[9]
+    bad = Recording(time, fit.inputs, fit.input_names, fit.outputs, fit.output_names)
+    with pytest.raises(BadInputError, match="increase strictly"):
+        diagnose([bad], reference="bo105-80kt")
+
+
+def test_an_input_that_moves_only_in_the_held_out_data_skips_the_held_out_check():
+    """Pedals held in the diagnosed flight, a 0.1 s pedal delay seen only in the held-out one: no
+    `unexplained` is blamed on physics outside the named list; the pedal is reported untestable."""
+    vehicle = EffectVehicle("bo105-80kt", [{"effect": "time_delay", "input": "theta_0T", "value": 0.1}],
+                            noise_sd=SENSOR_NOISE_STD)
+    time, inputs = identification_manoeuvre(duration=10.0, variant=0)
+    inputs[:, 3] = 0.0
+    held = vehicle.simulate(*identification_manoeuvre(duration=10.0, variant=1), seed=2)
+    result = diagnose([vehicle.simulate(time, inputs, seed=1)], reference="bo105-80kt", holdout=[held]).as_dict()
+    assert not [f for f in result["findings"] if f.get("data") == "holdout"]
+    assert any(note.startswith("theta_0T: moves only in the held-out data") for note in result["untestable"])
+
+
+def test_write_diagnosis_is_all_or_nothing(tmp_path):
+    fit, held = _concealed([], duration=4.0)
+    diagnosis = diagnose([fit], reference="bo105-80kt", holdout=[held])
+    blocker = tmp_path / "out"
+    blocker.mkdir()
+    (blocker / "report.md").mkdir()  # a folder where a file must go: the write fails
+    with pytest.raises(OSError):
+        write_diagnosis(diagnosis, blocker)
+    assert sorted(p.name for p in blocker.iterdir()) == ["report.md"]

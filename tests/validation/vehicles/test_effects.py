@@ -1,0 +1,117 @@
+"""validation.vehicles.effects: each named effect does what its docstring says, against independent
+constructions; model files round-trip; bad effects are refused with one clear line."""
+import numpy as np
+import pytest
+
+from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES
+from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
+from validation.vehicles.bo105_effects import identification_manoeuvre
+from validation.vehicles.effects import EffectVehicle, check_effects
+from validation.core.errors import BadInputError
+
+Q, P = 2, 5  # columns of q and p in the Bo105 state vector
+
+
+@pytest.fixture(scope="module")
+def manoeuvre():
+    return identification_manoeuvre(duration=8.0)
+
+
+def _states(effects, time, inputs):
+    return EffectVehicle("bo105-80kt", effects).simulate_states(time, inputs)
+
+
+def test_no_effect_is_the_reference(manoeuvre):
+    time, inputs = manoeuvre
+    assert np.array_equal(_states([], time, inputs), Bo105Reference(80).simulate_states(time, inputs))
+
+
+def test_whole_sample_delay_equals_shifted_input(manoeuvre):
+    time, inputs = manoeuvre
+    shifted = inputs.copy()
+    shifted[:, 1] = np.concatenate([np.zeros(7), inputs[:-7, 1]])
+    expected = Bo105Reference(80).simulate_states(time, shifted)
+    got = _states([{"effect": "time_delay", "input": "theta_1s", "value": 0.07}], time, inputs)
+    np.testing.assert_allclose(got, expected, atol=1e-12)  # exact: same discrete system
+
+
+def test_fractional_delay_matches_fine_grid(manoeuvre):
+    """0.043 s on a 1 ms grid is a whole number of steps: the 10 ms result must agree with it
+    at the common samples (exact ZOH on both grids, so only rounding differs)."""
+    time, inputs = manoeuvre
+    fine_time = np.arange(len(time) * 10 - 9) * 0.001
+    fine_inputs = np.repeat(inputs, 10, axis=0)[:len(fine_time)]
+    effect = [{"effect": "time_delay", "input": "theta_1c", "value": 0.043}]
+    fine = _states(effect, fine_time, fine_inputs)[::10]
+    np.testing.assert_allclose(_states(effect, time, inputs), fine, atol=1e-9)
+
+
+def test_lag_matches_fine_grid(manoeuvre):
+    time, inputs = manoeuvre
+    fine_time = np.arange(len(time) * 10 - 9) * 0.001
+    fine_inputs = np.repeat(inputs, 10, axis=0)[:len(fine_time)]
+    effect = [{"effect": "input_lag", "input": "theta_1s", "value": 0.07}]
+    fine = _states(effect, fine_time, fine_inputs)[::10]
+    np.testing.assert_allclose(_states(effect, time, inputs), fine, atol=1e-9)
+
+
+def test_lag_steady_state_gain_is_one():
+    """A first-order lag delays a step but keeps its final value (DC gain 1)."""
+    time = np.arange(0, 3.0, 0.01)
+    inputs = np.zeros((len(time), 4))
+    inputs[10:, 3] = 0.01  # pedal step; yaw rate settles in about 1 s at 80 kt
+    plain = _states([], time, inputs)
+    lagged = _states([{"effect": "input_lag", "input": "theta_0T", "value": 0.05}], time, inputs)
+    assert abs(lagged[15, 7]) < abs(plain[15, 7])  # lags early on
+    assert lagged[-1, 7] == pytest.approx(plain[-1, 7], rel=0.02)  # 0.05 s lag, 3 s horizon
+
+
+def test_derivatives_and_bias(manoeuvre):
+    time, inputs = manoeuvre
+    effects = [{"effect": "stability_derivative", "term": "L_q", "value": -3.0},
+               {"effect": "sensor_bias", "output": "q", "value": 0.01}]
+    expected = Bo105Reference(80).with_derivatives({"L_q": -3.0}).simulate_states(time, inputs)
+    expected[:, Q] += 0.01
+    np.testing.assert_allclose(_states(effects, time, inputs), expected, atol=1e-12)
+
+
+def test_noise_is_seeded_and_sized(manoeuvre):
+    time, inputs = manoeuvre
+    vehicle = EffectVehicle("bo105-80kt", [], noise_sd=SENSOR_NOISE_STD)
+    first, again = vehicle.simulate(time, inputs, seed=3), vehicle.simulate(time, inputs, seed=3)
+    assert np.array_equal(first.outputs, again.outputs)
+    noise = first.outputs - _states([], time, inputs)
+    # 801 samples: the sample sd is within 10 % of the true one (5 sigma is 12.5 %).
+    assert np.std(noise[:, P]) == pytest.approx(SENSOR_NOISE_STD["p"], rel=0.1)
+    assert first.metadata["vehicle"] == "bo105-80kt" and first.input_names == INPUT_NAMES
+
+
+def test_model_file_round_trip(tmp_path, manoeuvre):
+    time, inputs = manoeuvre
+    vehicle = EffectVehicle("bo105-40kt", [{"effect": "input_lag", "input": "theta_0", "value": 0.1},
+                                           {"effect": "control_derivative", "term": "Z_theta_0", "value": -90.0}])
+    loaded = EffectVehicle.load(vehicle.save(tmp_path / "model.json"))
+    assert loaded.effects == vehicle.effects
+    assert np.array_equal(loaded.simulate_states(time, inputs), vehicle.simulate_states(time, inputs))
+
+
+@pytest.mark.parametrize("effect, message", [
+    ({"effect": "gremlin", "input": "theta_0", "value": 1}, "unknown effect"),
+    ({"effect": "time_delay", "input": "stick", "value": 0.1}, "is not one of"),
+    ({"effect": "stability_derivative", "term": "M_theta_1s", "value": 1}, "is not one of"),
+    ({"effect": "control_derivative", "term": "M_q", "value": 1}, "is not one of"),
+    ({"effect": "input_lag", "input": "theta_0", "value": -0.1}, "outside"),
+    ({"effect": "sensor_bias", "output": "q", "value": float("nan")}, "finite"),
+])
+def test_bad_effects_are_refused(effect, message):
+    with pytest.raises(BadInputError, match=message):
+        check_effects([effect], Bo105Reference(80))
+
+
+def test_other_references_and_bo105_effects_on_the_blimp_are_refused():
+    with pytest.raises(BadInputError, match="bo105-<V>kt and blimp"):
+        EffectVehicle("blimp-flight", [])
+    with pytest.raises(BadInputError, match="is not one of"):
+        EffectVehicle("blimp", [{"effect": "stability_derivative", "term": "M_q", "value": -1.0}])
+    with pytest.raises(BadInputError, match="unknown effect 'quadratic_drag'"):
+        EffectVehicle("bo105-80kt", [{"effect": "quadratic_drag", "term": "X_UU", "value": -1.0}])

@@ -1,0 +1,77 @@
+"""``flightgp build-fmu (MODEL_FILE | --reference NAME) --out DIR [--name NAME] [--native]``: an
+FMI 2.0 co-simulation FMU of a trained model (a GP-NARX model: the rate predictor of
+:mod:`fmu_src.rate_predictor`; a blimp grey-box ``GreyBoxGP``: the RKGP FMU of
+:mod:`fmu_src.blimp_rkgp`) or of a physics reference (``bo105-<V>kt``:
+:mod:`fmu_src.bo105_reference`; ``jsbsim:<aircraft>``: :mod:`fmu_src.jsbsim_aircraft`).
+
+With ``--native``, a trained model's FMU is built as C compiled with the system gcc, with the
+same interface and numbers and no Python at run time: the rate predictor by
+:mod:`fmu_src.native`, the blimp RKGP by :mod:`fmu_src.native_blimp`."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from validation.core.errors import BadInputError
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "build-fmu", help="build an FMI 2.0 co-simulation FMU from a trained model or a reference",
+        description="Build a pythonfmu FMU and write DIR/NAME.fmu. From MODEL_FILE (written by "
+                    "`flightgp train`): the GP-NARX rate predictor, the model's control inputs and the "
+                    "previous outputs in, the predicted outputs and their confidence bounds out, one "
+                    "NARX step per communication step; or, from a blimp grey-box model (GreyBoxGP with "
+                    "blimp_rk4 physics), the blimp RKGP FMU: motor commands in, the 12 states and their "
+                    "one-step standard deviations out, RK4 physics plus GP residual inside. With "
+                    "--native, either model's FMU is native C instead (same interface and outputs, "
+                    "compiled with the system gcc, no Python at run time). With --reference: a physics "
+                    "reference, "
+                    "bo105-<V>kt (Padfield's linear Bo105, V in 0, 20, ..., 140) or jsbsim:<aircraft> "
+                    "(a JSBSim aircraft, e.g. jsbsim:c172x or jsbsim:ah1s; the host needs the jsbsim "
+                    "Python package).")
+    parser.add_argument("model", type=Path, nargs="?", metavar="MODEL_FILE", help="trained model (.npz)")
+    parser.add_argument("--reference", metavar="NAME",
+                        help="build a reference FMU instead: bo105-<V>kt or jsbsim:<aircraft>")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for the FMU")
+    parser.add_argument("--native", action="store_true",
+                        help="build MODEL_FILE's FMU (the GP-NARX rate predictor or the blimp RKGP) as "
+                             "a native FMU: C compiled with the system gcc, no Python at run time "
+                             "(fmu_src/native.py, fmu_src/native_blimp.py)")
+    parser.add_argument("--name", help="FMU name and model identifier (letters, digits, underscores; "
+                                       "default: the model file's name, bo105_<V>kt_reference or "
+                                       "jsbsim_<aircraft>)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from fmu_src.builder import build_model_fmu, build_reference_fmu
+
+    if (args.model is None) == (args.reference is None):
+        raise BadInputError("give either MODEL_FILE (a trained GP-NARX or blimp grey-box model) or "
+                            "--reference NAME (bo105-<V>kt or jsbsim:<aircraft>), not both or neither")
+    if args.native:
+        path = _build_native(args)
+    elif args.reference is not None:
+        path = build_reference_fmu(args.reference, args.out, name=args.name)
+    else:
+        path = build_model_fmu(args.model, args.out, name=args.name)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def _build_native(args: argparse.Namespace) -> Path:
+    """``--native``: the native FMU of a model file, by its type: a blimp grey-box ``GreyBoxGP``
+    gives the native blimp RKGP, anything else the native GP-NARX rate predictor (which says when
+    the file is not a GP-NARX model)."""
+    from fmu_src.native import build_native_rate_predictor_fmu
+    from fmu_src.native_blimp import build_native_blimp_rkgp_fmu
+    from gp_model import read_header
+
+    if args.reference is not None:
+        raise BadInputError("--native builds the FMU of a trained MODEL_FILE (GP-NARX rate predictor or "
+                            "blimp RKGP); reference FMUs have no native build (drop --native)")
+    if read_header(args.model).get("type") == "GreyBoxGP":
+        return build_native_blimp_rkgp_fmu(args.model, args.out, name=args.name)
+    return build_native_rate_predictor_fmu(args.model, args.out, name=args.name)
+

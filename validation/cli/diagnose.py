@@ -1,0 +1,51 @@
+"""``flightgp diagnose RECORDING... --reference NAME [--holdout RECORDING...] --out DIR``."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from validation.cli.arguments import seed
+from validation.core.files import check_output_folder
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "diagnose", help="locate a simulation/recording mismatch, name the missing physics, model it",
+        description="Replay the reference on the recorded inputs, locate where the residual exceeds "
+                    "the sensor noise, test named effects (time delay, input lag, control and "
+                    "stability derivatives, sensor bias; on the blimp also quadratic drag and force "
+                    "offsets) by likelihood ratio, build the corrected "
+                    "model plus a residual GP, and score all three on held-out data. Writes "
+                    "DIR/diagnosis.json, DIR/report.md with PNGs, and DIR/corrected_model.json.")
+    parser.add_argument("recordings", nargs="+", type=Path, metavar="RECORDING",
+                        help="recording CSV files (DESIGN.md, Recording files), starting at trim")
+    parser.add_argument("--reference", required=True, metavar="NAME", help="physics reference: bo105-<V>kt or blimp")
+    parser.add_argument("--holdout", nargs="+", type=Path, metavar="RECORDING",
+                        help="recordings used only to score the models (default: the last recording, "
+                             "or the last 30 %% of a single one)")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed of the residual GP (default 0)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from validation.diagnose.pipeline import diagnose, write_diagnosis
+    from validation.core.progress import progress_bar
+
+    check_output_folder(args.out)
+    with progress_bar("diagnose", enabled=not args.no_progress, unit="fit") as update:
+        diagnosis = diagnose(args.recordings, reference=args.reference, holdout=args.holdout,
+                             seed=args.seed, progress=update)
+    written = write_diagnosis(diagnosis, args.out)
+    result = diagnosis.as_dict()
+    print(f"{result['reference']}: {result['verdict']}")
+    for finding in result["findings"]:
+        print(f"- {finding['statement']}")
+    fit = result["fit"]
+    print(f"held-out RMSE ({fit['holdout']}): output reference -> corrected -> corrected + GP")
+    for name in fit["outputs"]:
+        print(f"  {name:6s} {fit['rmse_reference'][name]:.4g} -> {fit['rmse_corrected'][name]:.4g} "
+              f"-> {fit['rmse_corrected_gp'][name]:.4g}")
+    print(f"written {len(written)} files to {args.out} (report.md, diagnosis.json, corrected_model.json)")
+    return 0

@@ -1,0 +1,45 @@
+"""``flightgp inspect``: check a recording and summarise it."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from validation.core.recordings import column_unit
+from validation.vehicles import read_recording
+
+
+def register(subparsers) -> None:
+    inspect = subparsers.add_parser(
+        "inspect",
+        help="check a recording and print a summary",
+        description="Check a recording (and its JSON sidecar) and print duration, sampling and "
+                    "each column's unit and range. A malformed file exits with code 2 and names "
+                    "file, row and column.",
+    )
+    inspect.add_argument("recording", type=Path, metavar="FILE.csv")
+    inspect.add_argument("--vehicle", help="check the columns against this vehicle "
+                                           "(default: the sidecar's vehicle, if any)")
+    inspect.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = read_recording(args.recording, vehicle=args.vehicle)
+    time = recording.time
+    steps = np.diff(time)
+    vehicle = args.vehicle or recording.metadata.get("vehicle")
+    print(f"{args.recording}: valid recording"
+          + (f" of {vehicle}" if vehicle else " (no vehicle named; columns not checked against one)"))
+    sampling = (f"sample time {steps[0]:.6g} s ({1 / steps[0]:.6g} Hz)"
+                if np.ptp(steps) <= 1e-6 * steps[0] else
+                f"uneven sampling, steps {steps.min():.6g} .. {steps.max():.6g} s")
+    print(f"{len(time)} samples, {time[0]:g} .. {time[-1]:g} s (duration {time[-1] - time[0]:g} s), {sampling}")
+    rows = [("time", "time", time)]
+    rows += [(name, "input", recording.input(name)) for name in recording.input_names]
+    rows += [(name, "output", recording.output(name)) for name in recording.output_names]
+    width = max(len(name) for name, _, _ in rows)
+    print(f"{'column':<{width}}  {'role':<6}  {'unit':<5}  {'min':>12}  {'max':>12}")
+    for name, role, values in rows:
+        print(f"{name:<{width}}  {role:<6}  {column_unit(name):<5}  {values.min():>12.6g}  {values.max():>12.6g}")
+    return 0

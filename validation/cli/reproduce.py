@@ -1,0 +1,46 @@
+"""``flightgp reproduce PAPER --out DIR``: the seed papers' experiments from one command."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from validation.cli.arguments import seed
+from validation.core.errors import BadInputError
+from validation.core.files import check_output_folder
+
+PAPERS = ("bo105", "blimp")
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "reproduce", help="reproduce a seed paper's experiment",
+        description="bo105: the Bo105 GP-NARX paper (AHS 74th Forum, 2018) on the flight-test "
+                    "stand-in, plus its future work. Writes figures, recordings, models and "
+                    "results.json to DIR and prints the RMSE table. blimp: Table I of the blimp "
+                    "RKGP paper (Ko et al., ICRA 2007) on the blimp-flight stand-in: one-second "
+                    "predictions of RK, ODE, RKGP, ODEGP and GP-only; writes results.json and "
+                    "predictions.png (--runs and --paper-only apply to bo105 only).")
+    parser.add_argument("paper", choices=PAPERS)
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
+    parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
+    parser.add_argument("--paper-only", action="store_true", help="skip the beyond-the-paper studies")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)
+    if args.paper == "blimp":
+        from validation.reproduce.blimp import format_results, reproduce_blimp
+
+        print(format_results(reproduce_blimp(args.out, seed=args.seed)))
+        print(f"written {args.out}/results.json and predictions.png")
+        return 0
+    from validation.reproduce.bo105 import format_results, reproduce_bo105
+
+    if args.runs < 10:
+        raise BadInputError(f"--runs must be at least 10 for meaningful bounds, got {args.runs}")
+    results = reproduce_bo105(args.out, seed=args.seed, n_runs=args.runs, beyond=not args.paper_only)
+    print(format_results(results))
+    print(f"written {args.out}/results.json and figures")
+    return 0

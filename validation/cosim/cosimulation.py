@@ -1,0 +1,237 @@
+"""Co-simulation of a GP rate-predictor FMU and a physics reference FMU in fmpy, compared with
+a recording.
+
+Both FMUs are driven by the same control inputs on the GP model's NARX step grid
+(``t_k = t0 + k h``); the GP FMU runs in free-run mode (it feeds back its own predictions,
+started from the recording's first rates), the reference FMU from trim. Every FMU follows the
+sampling convention of the README ("FMUs"): outputs at ``t_{k+1}`` come from inputs at ``t_k``,
+so row ``k`` of every result is comparable with the recording at ``t_k``.
+
+Results are written in the layout of the FMI Cross-Check repository: for each FMU a folder with
+``<model>_in.csv`` (the inputs it was given), ``<model>_ref.csv`` (its outputs) and
+``<model>_ref.opt`` (start time, stop time, step size, tolerance), so other tools can replay and
+compare them.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from validation.core.errors import BadInputError
+from validation.core.files import write_files_atomically
+from validation.core.plots import png_bytes
+from validation.core.recordings import Recording
+
+
+@dataclass
+class FmuRun:
+    """One FMU's co-simulation result.
+
+    Attributes
+    ----------
+    name : str
+        The FMU's model name.
+    time : ndarray, shape (n,)
+    inputs : dict of str -> ndarray, shape (n,)
+    outputs : dict of str -> ndarray, shape (n,)
+    """
+
+    name: str
+    time: np.ndarray
+    inputs: dict
+    outputs: dict = field(default_factory=dict)
+
+
+def simulate(fmu_path, *, time: np.ndarray, inputs: dict, outputs, start_values: dict | None = None) -> FmuRun:
+    """Run one FMU in fmpy on the grid ``time`` (evenly spaced) with the given inputs.
+
+    Parameters
+    ----------
+    fmu_path : path
+    time : ndarray, shape (n,)
+        Communication points, s; the step is ``time[1] - time[0]``.
+    inputs : dict of str -> ndarray, shape (n,)
+        Input values at each communication point (held over the step that follows).
+    outputs : sequence of str
+    start_values : dict, optional
+        Parameters and start values.
+    """
+    import fmpy
+    from fmpy import read_model_description
+
+    description = read_model_description(str(fmu_path))
+    names = {v.name for v in description.modelVariables}
+    missing = [n for n in (*inputs, *outputs, *(start_values or {})) if n not in names]
+    if missing:
+        raise BadInputError(f"{fmu_path}: the FMU has no variable(s) {', '.join(missing)}")
+    signal = np.zeros(len(time), dtype=[("time", float)] + [(n, float) for n in inputs])
+    signal["time"] = time
+    for name, values in inputs.items():
+        signal[name] = values
+    step = float(time[1] - time[0])
+    messages = []
+
+    def logger(component, instance, status, category, message):
+        messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
+
+    try:
+        result = fmpy.simulate_fmu(str(fmu_path), start_time=float(time[0]), stop_time=float(time[-1]),
+                                   step_size=step, output_interval=step, input=signal,
+                                   output=list(outputs), start_values=start_values or {},
+                                   debug_logging=False, logger=logger)
+    except Exception as error:  # fmpy raises plain Exceptions for FMI error statuses
+        detail = f" ({messages[-1]})" if messages else ""
+        raise BadInputError(f"{fmu_path}: co-simulation failed: {error}{detail}") from None
+    rows = np.searchsorted(result["time"], time - 1e-9 * step)
+    return FmuRun(description.modelName, time, dict(inputs),
+                  {name: np.asarray(result[name])[rows] for name in outputs})
+
+
+def cross_check_files(run: FmuRun, out_dir: Path) -> dict:
+    """The FMI Cross-Check files of ``run`` as ``{path: text}`` (written by the caller)."""
+    folder = Path(out_dir) / run.name
+    step = float(run.time[1] - run.time[0])
+
+    def table(columns: dict) -> str:
+        header = ",".join(["time", *columns])
+        rows = np.column_stack([run.time, *columns.values()])
+        return "\n".join([header] + [",".join(map(repr, row)) for row in rows.tolist()]) + "\n"
+
+    options = (f"StartTime, {float(run.time[0])!r}\nStopTime, {float(run.time[-1])!r}\n"
+               f"StepSize, {step!r}\nRelTol, 1e-06\n")
+    return {folder / f"{run.name}_in.csv": table(run.inputs),
+            folder / f"{run.name}_ref.csv": table(run.outputs),
+            folder / f"{run.name}_ref.opt": options}
+
+
+@dataclass
+class CosimResult:
+    """GP FMU, reference FMU and recording on one time grid.
+
+    Attributes
+    ----------
+    time : ndarray, shape (n,)
+    axes : tuple of str
+        The compared outputs (e.g. ``("p", "q", "r")``).
+    measured : ndarray, shape (n, n_axes)
+    gp : FmuRun
+    reference : FmuRun or None
+    """
+
+    time: np.ndarray
+    axes: tuple
+    measured: np.ndarray
+    gp: FmuRun
+    reference: FmuRun | None
+
+    def rmse(self) -> dict:
+        """RMSE per axis against the recording, from the first predicted step on (rad/s)."""
+        def rmse_of(values):
+            error = np.column_stack(values)[1:] - self.measured[1:]
+            return {axis: float(v) for axis, v in zip(self.axes, np.sqrt(np.mean(error**2, axis=0)))}
+
+        table = {"gp": rmse_of([self.gp.outputs[a] for a in self.axes])}
+        if self.reference is not None:
+            table["reference"] = rmse_of([self.reference.outputs[a] for a in self.axes])
+        return table
+
+    def coverage(self) -> dict:
+        """Fraction of recorded samples (after the first) inside the GP FMU's bounds."""
+        result = {}
+        for j, axis in enumerate(self.axes):
+            lower, upper = self.gp.outputs[f"{axis}_lower"][1:], self.gp.outputs[f"{axis}_upper"][1:]
+            inside = (self.measured[1:, j] >= lower) & (self.measured[1:, j] <= upper)
+            result[axis] = float(np.mean(inside))
+        return result
+
+
+def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None) -> CosimResult:
+    """Co-simulate the GP rate predictor (free run) and a reference FMU under a recording's
+    inputs and compare both with it.
+
+    Parameters
+    ----------
+    gp_fmu : path
+        A rate-predictor FMU (``flightgp build-fmu``); its default experiment step is the
+        NARX step, and the recording is sampled on that grid.
+    recording : Recording
+        Inputs to apply and outputs to compare with (evenly sampled, step dividing the FMU's).
+    reference_fmu : path, optional
+        A physics FMU whose inputs are the recording's inputs and whose outputs include the
+        GP's outputs (e.g. ``flightgp build-fmu --reference bo105-80kt``).
+    out_dir : path, optional
+        Where to write the Cross-Check files, ``cosim.json`` and ``cosim.png`` (atomically).
+    """
+    from fmpy import read_model_description
+
+    description = read_model_description(str(gp_fmu))
+    step = description.defaultExperiment.stepSize if description.defaultExperiment else None
+    if not step:
+        raise BadInputError(f"{gp_fmu}: no default experiment step; is it a flightgp rate predictor?")
+    step = float(step)
+    variables = {v.name: v for v in description.modelVariables}
+    axes = tuple(v.name for v in description.modelVariables
+                 if v.causality == "output" and f"{v.name}_prev" in variables)
+    controls = tuple(v.name for v in description.modelVariables
+                     if v.causality == "input" and not v.name.endswith("_prev"))
+    sample = float(np.mean(np.diff(recording.time)))
+    decimation = int(round(step / sample))
+    if decimation < 1 or abs(decimation * sample - step) > 1e-6 * step:
+        raise BadInputError(f"the recording is sampled every {sample:g} s, which does not divide the "
+                            f"FMU's step of {step:g} s")
+    missing = [c for c in (*controls, *axes) if c not in (*recording.input_names, *recording.output_names)]
+    if missing:
+        raise BadInputError(f"the recording has no column(s) {', '.join(missing)} the FMU needs")
+    rows = slice(None, None, decimation)
+    time = recording.time[rows] - recording.time[0]
+    measured = np.column_stack([recording.output(a) for a in axes])[rows]
+    # In free-run mode the *_prev inputs are read only at initialisation; they are still given
+    # (held at their start values) so that no host warns about undriven inputs.
+    held = {f"{a}_prev": np.full(len(time), measured[0, j]) for j, a in enumerate(axes)}
+    gp = simulate(gp_fmu, time=time, inputs={**{c: recording.input(c)[rows] for c in controls}, **held},
+                  outputs=[n for a in axes for n in (a, f"{a}_lower", f"{a}_upper")],
+                  start_values={"free_run": True,
+                                **{f"{a}_prev": float(measured[0, j]) for j, a in enumerate(axes)}})
+    reference = None
+    if reference_fmu is not None:
+        reference = simulate(reference_fmu, time=time,
+                             inputs={c: recording.input(c)[rows] for c in recording.input_names},
+                             outputs=list(axes))
+    result = CosimResult(time, axes, measured, gp, reference)
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        files = cross_check_files(gp, out_dir)
+        if reference is not None:
+            files.update(cross_check_files(reference, out_dir))
+        summary = {"step_s": step, "axes": list(axes), "rmse": result.rmse(),
+                   "coverage": result.coverage(), "gp_fmu": str(gp_fmu),
+                   "reference_fmu": str(reference_fmu) if reference_fmu else None}
+        files[out_dir / "cosim.json"] = json.dumps(summary, indent=2) + "\n"
+        files[out_dir / "cosim.png"] = png_bytes(_figure(result))
+        write_files_atomically(files)
+    return result
+
+
+def _figure(result: CosimResult) -> Figure:
+    figure = Figure(figsize=(8, 2.3 * len(result.axes) + 0.4), layout="constrained")
+    FigureCanvasAgg(figure)
+    panels = figure.subplots(len(result.axes), 1, sharex=True, squeeze=False)[:, 0]
+    for j, (panel, axis) in enumerate(zip(panels, result.axes)):
+        panel.plot(result.time, result.measured[:, j], "k", lw=1, label="recording")
+        if result.reference is not None:
+            panel.plot(result.time, result.reference.outputs[axis], "--", color="tab:orange",
+                       label=f"{result.reference.name} (FMU)")
+        panel.plot(result.time, result.gp.outputs[axis], color="tab:blue", label=f"{result.gp.name} (FMU)")
+        panel.fill_between(result.time, result.gp.outputs[f"{axis}_lower"], result.gp.outputs[f"{axis}_upper"],
+                           color="tab:blue", alpha=0.25, label="GP bounds")
+        panel.set_ylabel(f"{axis} [rad/s]")
+        panel.grid(True, alpha=0.3)
+    panels[0].legend(fontsize="small", ncol=2)
+    panels[-1].set_xlabel("time [s]")
+    figure.suptitle("fmpy co-simulation: GP FMU (free run) and reference FMU vs recording")
+    return figure

@@ -1,0 +1,235 @@
+"""The human side of a diagnosis: plain-language statements, ``report.md`` and its plots."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from validation.vehicles.effects import TARGET_KEYS
+from validation.core.plots import png_bytes
+from validation.core.recordings import column_unit
+
+INPUT_WORDS = {"theta_0": "main-rotor collective", "theta_1s": "longitudinal cyclic",
+               "theta_1c": "lateral cyclic", "theta_0T": "tail-rotor collective (pedals)",
+               "u_gondola": "gondola thrust command", "mu": "gondola thrust angle",
+               "u_tail": "tail-fan command"}
+OUTPUT_WORDS = {"u": "forward speed", "w": "vertical speed", "q": "pitch-rate", "theta": "pitch-attitude",
+                "v": "lateral speed", "p": "roll-rate", "phi": "roll-attitude", "r": "yaw-rate",
+                "x": "north position", "y": "east position", "z": "height (down)", "psi": "heading",
+                "U": "surge speed", "V": "sway speed", "W": "heave speed", "P": "roll-rate",
+                "Q": "pitch-rate", "R": "yaw-rate"}
+#: Common names of derivatives (Padfield 2007, ch. 4 and 7).
+TERM_WORDS = {"M_q": "pitch damping", "L_p": "roll damping", "N_r": "yaw damping",
+              "L_q": "roll moment due to pitch rate (off-axis coupling)",
+              "M_p": "pitch moment due to roll rate (off-axis coupling)",
+              "M_w": "pitch moment due to heave velocity (incidence stability)",
+              "M_u": "speed stability", "N_v": "weathercock stability", "L_v": "dihedral effect",
+              "X_u": "drag damping", "Z_w": "heave damping", "Y_v": "side-force damping",
+              "M_theta_1s": "pitch control power", "L_theta_1c": "roll control power",
+              "N_theta_0T": "yaw control power", "Z_theta_0": "heave control power",
+              # The blimp's terms (validation.vehicles.blimp_effects).
+              "gondola_thrust_forward": "gondola thrust per unit forward command",
+              "gondola_thrust_backward": "gondola thrust per unit backward command",
+              "tail_thrust_positive": "tail-fan thrust per unit positive command",
+              "tail_thrust_negative": "tail-fan thrust per unit negative command",
+              "L_P": "roll damping", "M_Q": "pitch damping", "N_R": "yaw damping",
+              "X_UU": "quadratic surge drag", "Y_VV": "quadratic sway drag", "Z_WW": "quadratic heave drag",
+              "X_0": "constant surge force", "Y_0": "constant side force",
+              "Z_0": "buoyancy imbalance (net downward force)", "N_0": "constant yaw moment"}
+_KIND_WORDS = {"control_derivative": "control derivative", "stability_derivative": "stability derivative",
+               "quadratic_drag": "quadratic drag derivative", "force_offset": "force offset"}
+_MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_gp": "corrected + GP"}
+
+
+def _number(value: float) -> str:
+    return f"{value + 0.0:.3g}"  # + 0.0 turns -0.0 into 0.0
+
+
+def _span(interval) -> str:
+    return f"({_number(interval[0])} to {_number(interval[1])})"
+
+
+def _improvement(finding: dict, fit: dict) -> str:
+    """``" Adding it cuts held-out pitch-rate RMSE from 0.031 to 0.006 rad/s."``"""
+    name = finding.get("main_output")
+    if name is None or name not in fit["rmse_reference"]:
+        return ""
+    before, after = fit["rmse_reference"][name], finding["rmse_effect_alone"]
+    words = OUTPUT_WORDS.get(name, name)
+    if finding.get("carries_over") is None:
+        return (f" The held-out data do not exercise it (held-out {words} RMSE {_number(before)} "
+                f"{column_unit(name)} with or without it).")
+    if finding["carries_over"]:
+        return (f" Adding it cuts held-out {words} RMSE from {_number(before)} to {_number(after)} "
+                f"{column_unit(name)}.")
+    return (f" But it does not carry over: on the held-out data it takes the {words} RMSE from "
+            f"{_number(before)} to {_number(after)} {column_unit(name)}, so it is specific to the "
+            "diagnosed data (e.g. a drift that differs between flights) or stands in for physics "
+            "outside the named list.")
+
+
+def statement(finding: dict, fit: dict) -> str:
+    """The plain-language sentence of one finding (what a flight-test engineer would write)."""
+    kind, value = finding["effect"], finding["value"]
+    if kind == "unexplained":
+        name = finding["output"]
+        words = OUTPUT_WORDS.get(name, name)
+        if finding.get("data") == "holdout":
+            return (f"The corrected model fits the diagnosed {words} to the noise "
+                    f"({finding['fit_noise_ratio']:.2f}x) but misses the held-out {words} by "
+                    f"{_number(value)} {column_unit(name)} RMS, {finding['noise_ratio']:.1f}x the sensor "
+                    "noise: physics outside the named list that the named effects only mimic on the "
+                    "diagnosed manoeuvre (unexplained; e.g. an amplitude-dependent nonlinearity). A "
+                    "residual GP on the reference's residual gives held-out RMSE "
+                    f"{_number(fit['rmse_reference'][name])} -> {_number(finding['rmse_reference_gp'])} "
+                    f"{column_unit(name)}.")
+        gp = fit["rmse_corrected_gp"].get(name)
+        corrected = fit["rmse_corrected"].get(name)
+        gp_text = (f" A residual GP models it: held-out RMSE {_number(corrected)} -> {_number(gp)} "
+                   f"{column_unit(name)}." if gp is not None else "")
+        return (f"The {words} still differs from the corrected model by {_number(value)} "
+                f"{column_unit(name)} RMS, {finding['noise_ratio']:.1f}x the sensor noise, and no named "
+                f"effect accounts for it (unexplained).{gp_text}")
+    interval = _span(finding["interval"])
+    unit = finding["unit"]
+    if kind in ("time_delay", "input_lag"):
+        name = finding.get("main_output", "")
+        words = OUTPUT_WORDS.get(name, name).capitalize()
+        control = INPUT_WORDS[finding["input"]]
+        if kind == "time_delay":
+            text = (f"{words} response lags the model by {_number(value)} s {interval}: a transport "
+                    f"delay on {control} ({finding['input']}).")
+        else:
+            text = (f"{words} response to {control} ({finding['input']}) is smoothed by a first-order "
+                    f"lag of {_number(value)} s {interval}: unmodelled actuator or rotor dynamics.")
+    elif kind == "sensor_bias":
+        name = finding["output"]
+        text = (f"The {OUTPUT_WORDS.get(name, name)} sensor reads {_number(abs(value))} {unit} "
+                f"{interval} {'high' if value > 0 else 'low'}: a sensor bias on {name}.")
+    else:
+        term, model_value = finding["term"], finding["model_value"]
+        words = TERM_WORDS.get(term, "the derivative")
+        change = (f"{(value - model_value) / abs(model_value):+.0%}" if model_value != 0 else "missing in the model")
+        text = (f"The {_KIND_WORDS[kind]} {term} ({words}) is {_number(value)} {unit} {interval}, not the "
+                f"model's {_number(model_value)} ({change}).")
+    alternatives = finding.get("alternatives") or []
+    if alternatives:
+        alternative = alternatives[0]
+        target = alternative[TARGET_KEYS[alternative["effect"]]]
+        text += (f" Next best: {alternative['effect'].replace('_', ' ')} on {target} "
+                 f"({_number(alternative['value'])}), which the data disfavour {alternative['evidence_ratio']:.3g}:1.")
+    return text + _improvement(finding, fit)
+
+
+def _output_figure(name: str, trace: dict, fit: dict) -> Figure:
+    """Held-out before/after plot of one output: measured, reference, corrected (+ GP)."""
+    figure = Figure(figsize=(8, 3.2), layout="constrained")
+    FigureCanvasAgg(figure)
+    axis = figure.subplots()
+    axis.plot(trace["time"], trace["measured"], color="0.6", lw=0.8, label="measured (held out)")
+    styles = {"reference": ("C3", "--"), "corrected": ("C0", "-"), "corrected_gp": ("C2", ":")}
+    for key, (colour, style) in styles.items():
+        axis.plot(trace["time"], trace[key], color=colour, ls=style, lw=1.4,
+                  label=f"{_MODEL_LABELS[key]} (RMSE {_number(fit['rmse_' + key][name])})")
+    axis.set_xlabel("time [s]")
+    axis.set_ylabel(f"{name} [{column_unit(name)}]")
+    axis.grid(True, alpha=0.3)
+    axis.legend(loc="upper right", fontsize="small")
+    axis.set_title(f"{OUTPUT_WORDS.get(name, name)} on held-out data")
+    return figure
+
+
+def report_markdown(diagnosis, plot_names: dict) -> str:
+    """``report.md``: findings first, then the held-out fit table, locate results, search notes."""
+    result = diagnosis.as_dict()
+    lines = []
+    if result["findings"]:
+        lines += [f"- {finding['statement']}" for finding in result["findings"]]
+    else:
+        lines.append(f"- The simulation ({result['reference']}) is consistent with the recordings: no "
+                     "named effect is significant and the residual is at the sensor-noise level.")
+    lines += ["", f"# Diagnosis of {result['reference']} against recordings", "",
+              f"Verdict: **{result['verdict']}**.", ""]
+    fit = result["fit"]
+    lines += [f"## Held-out fit ({fit['holdout']})", "",
+              "| output | noise sd | RMSE reference | RMSE corrected | RMSE corrected + GP | Theil U ref. | Theil U corr. | Theil U corr. + GP |",
+              "|---|---|---|---|---|---|---|---|"]
+    for name in fit["outputs"]:
+        lines.append(f"| {name} [{column_unit(name)}] | {_number(fit['noise_sd'][name])} | "
+                     + " | ".join(_number(fit[f"{metric}_{key}"][name]) for metric in ("rmse", "theil")
+                                  for key in ("reference", "corrected", "corrected_gp")) + " |")
+    lines += ["", "## Findings in detail", ""]
+    for finding in result["findings"]:
+        target = finding.get(TARGET_KEYS.get(finding["effect"], "output"), finding.get("output"))
+        if finding["effect"] == "unexplained":
+            data = "held-out" if finding.get("data") == "holdout" else "diagnosed"
+            lines.append(f"- unexplained on {target} ({data} data): residual RMS {_number(finding['value'])} "
+                         f"{finding['unit']}, {finding['noise_ratio']:.2f}x noise")
+            continue
+        lines.append(f"- {finding['effect']} on {target}: {_number(finding['value'])} {finding['unit']}, "
+                     f"95 % interval {_span(finding['interval'])}, likelihood ratio "
+                     f"{finding['likelihood_ratio']:.4g} (p = {finding['p_value']:.2g}), confidence "
+                     f"(Akaike weight) {finding['confidence']:.3f}")
+        for alternative in finding["alternatives"]:
+            alt_target = alternative[TARGET_KEYS[alternative["effect"]]]
+            lines.append(f"  - alternative: {alternative['effect']} on {alt_target} = "
+                         f"{_number(alternative['value'])}; data prefer the finding "
+                         f"{alternative['evidence_ratio']:.3g}:1")
+        flag = (" **A residual GP alone would hide this effect.**"
+                if finding["gp_absorbs"] >= 0.5 else "")
+        lines.append(f"  - a GP fitted to the uncorrected {finding['main_output']} residual absorbs "
+                     f"{finding['gp_absorbs']:.0%} of what this effect explains (in-sample); held-out "
+                     f"RMSE reference + GP {_number(finding['rmse_reference_gp'])} vs reference + "
+                     f"this effect {_number(finding['rmse_effect_alone'])}.{flag}")
+    if not result["findings"]:
+        lines.append("None.")
+    search = result["search"]
+    lines += ["", "## What was tested", "",
+              f"{search['hypotheses_tested']} hypotheses (delay and lag per excited input, every control "
+              "and stability term of the reference, a bias per output), forward stepwise by likelihood ratio; "
+              f"weighted RSS {search['null_rss']:.1f} (reference) -> {search['final_rss']:.1f} "
+              f"for {search['n_residuals']} residuals."]
+    if search["rejected"]:
+        rejected = search["rejected"]
+        target = rejected[TARGET_KEYS[rejected["effect"]]]
+        lines.append(f"Best hypothesis not accepted: {rejected['effect']} on {target} "
+                     f"(LR {rejected['likelihood_ratio']:.3g} below the threshold {rejected['threshold']:.3g}).")
+    for note in result["untestable"]:
+        lines.append(f"- Not testable: {note}")
+    lines += ["", "## Where the reference misfits (locate)", ""]
+    if result["mismatch"]:
+        lines += ["| recording | output | t_start [s] | t_end [s] | RMS error |", "|---|---|---|---|---|"]
+        for item in result["mismatch"][:40]:
+            lines.append(f"| {item['recording']} | {item['output']} | {item['t_start']:.2f} | "
+                         f"{item['t_end']:.2f} | {_number(item['rms_error'])} |")
+        if len(result["mismatch"]) > 40:
+            lines.append(f"| ... | {len(result['mismatch']) - 40} more in diagnosis.json | | | |")
+    else:
+        lines.append("No time window exceeds the sensor noise.")
+    locate = result["locate"]
+    for name, bands in locate["bands"].items():
+        text = ", ".join(f"{b['f_low']:.2f}-{b['f_high']:.2f} Hz (x{b['peak_ratio']:.3g})" for b in bands)
+        coherent = ", ".join(f"{c['input']} ({c['coherence']:.2f} at {c['frequency']:.2f} Hz)"
+                             for c in locate["coherent_inputs"].get(name, [])) or "none"
+        lines.append(f"- {name}: residual PSD above noise in {text}; coherent with {coherent}")
+    lines += ["", "## Held-out plots", ""]
+    for name, file_name in plot_names.items():
+        lines.append(f"![{name}]({file_name})")
+    lines += ["", "The corrected model is `corrected_model.json` (load it with "
+              "`validation.vehicles.effects.EffectVehicle.load` and call `.simulate(time, inputs)`).", ""]
+    return "\n".join(lines)
+
+
+def report_files(diagnosis, out_dir: Path) -> dict:
+    """``{path: content}`` of everything a diagnosis writes (see ``write_diagnosis``)."""
+    files, plot_names = {}, {}
+    for name, trace in diagnosis.holdout_traces.items():
+        file_name = f"holdout_{name}.png"
+        files[out_dir / file_name] = png_bytes(_output_figure(name, trace, diagnosis.fit))
+        plot_names[name] = file_name
+    files[out_dir / "diagnosis.json"] = json.dumps(diagnosis.as_dict(), indent=2) + "\n"
+    files[out_dir / "corrected_model.json"] = json.dumps(diagnosis.corrected.as_dict(), indent=2) + "\n"
+    files[out_dir / "report.md"] = report_markdown(diagnosis, plot_names)
+    return files

@@ -1,0 +1,115 @@
+"""Named effects on the linear Bo105 reference (:mod:`validation.vehicles.bo105`), and the
+multi-axis identification manoeuvre that excites them.
+
+The effect dicts are those of :mod:`validation.vehicles.effects`. How each effect enters the linear Bo105 (``x_dot = A x + B u``, :mod:`validation.vehicles.bo105`):
+
+- derivatives replace entries of ``A`` (stability) or ``B`` (control) through
+  :meth:`~validation.vehicles.bo105.Bo105Reference.with_derivatives`;
+- ``input_lag`` on input ``j``: ``T z_dot = -z + u_j`` and column ``j`` of ``B`` acts on ``z``
+  (an augmented state starting at trim, 0), discretised exactly with the rest;
+- ``time_delay`` on input ``j``: ``u_j(t - tau)``. With the zero-order hold of the recordings and
+  ``tau = (m + f) h`` (integer ``m``, ``0 <= f < 1``) the delayed input switches inside each
+  interval, and ``x[k+1] = Phi x[k] + Gamma_a u_j[k-m-1] + Gamma_b u_j[k-m]`` with
+  ``Gamma_b = int_0^{(1-f)h} e^{As} ds b_j`` and ``Gamma_a = e^{A(1-f)h} int_0^{fh} e^{As} ds b_j``
+  (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
+  The result is exact and continuous in ``tau``, which a fit needs;
+- ``sensor_bias`` adds a constant to a recorded output.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
+from validation.core.sampling import check_history
+from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES, STATE_NAMES, propagate, zero_order_hold
+
+
+def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
+    """``signal[k - samples]`` (trim, 0, before the start), shape like ``signal``."""
+    if samples <= 0:
+        return signal
+    shifted = np.zeros_like(signal)
+    shifted[samples:] = signal[:len(signal) - samples]
+    return shifted
+
+
+def simulate_bo105_with_effects(reference: Bo105Reference, effects, time, inputs) -> np.ndarray:
+    """The Bo105 case of :func:`simulate_with_effects` (module docstring), shape (n, 8)."""
+    time, inputs, step = check_history(time, inputs, INPUT_NAMES)
+    derivatives = {e["term"]: e["value"] for e in effects if "term" in e}
+    model = reference.with_derivatives(derivatives) if derivatives else reference
+    A, B = model.A, model.B
+    n_states, n_inputs = B.shape
+    lags = {INPUT_NAMES.index(e["input"]): e["value"] for e in effects
+            if e["effect"] == "input_lag" and e["value"] > 0}
+    delays = {INPUT_NAMES.index(e["input"]): e["value"] for e in effects
+              if e["effect"] == "time_delay" and e["value"] > 0}
+    # Augmented system: rigid body, then one lag state per lagged input.
+    size = n_states + len(lags)
+    F, G = np.zeros((size, size)), np.zeros((size, n_inputs))
+    F[:n_states, :n_states] = A
+    G[:n_states] = B
+    for extra, (column, time_constant) in enumerate(sorted(lags.items()), start=n_states):
+        G[:n_states, column] = 0.0
+        F[:n_states, extra] = B[:, column]
+        F[extra, extra] = -1.0 / time_constant
+        G[extra, column] = 1.0 / time_constant
+    Phi, Gamma = zero_order_hold(F, G, step)
+    held = inputs[:-1]
+    undelayed = [column for column in range(n_inputs) if column not in delays]
+    forcing = held[:, undelayed] @ Gamma[:, undelayed].T
+    for column, delay in delays.items():
+        whole = int(math.floor(delay / step + 1e-9))
+        fraction = delay / step - whole
+        late_Phi, late_Gamma = zero_order_hold(F, G[:, [column]], (1.0 - fraction) * step)
+        gamma_late = late_Gamma[:, 0]
+        gamma_early = (late_Phi @ zero_order_hold(F, G[:, [column]], fraction * step)[1])[:, 0] \
+            if fraction > 1e-12 else np.zeros(size)
+        forcing += np.outer(_delayed(held[:, column], whole), gamma_late)
+        forcing += np.outer(_delayed(held[:, column], whole + 1), gamma_early)
+    states = propagate(Phi, forcing, np.zeros(size))[:, :n_states]
+    for effect in effects:
+        if effect["effect"] == "sensor_bias":
+            states[:, STATE_NAMES.index(effect["output"])] += effect["value"]
+    return states
+
+
+def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = 0.01,
+                             variant: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A multi-axis Bo105 identification input: a 3-2-1-1 on each cyclic, then doublets on
+    pedals and collective, one after the other, so that every control derivative and delay is
+    identifiable (Tischler & Remple, *Aircraft and Rotorcraft System Identification*, 2012,
+    ch. 5: one axis at a time, multisteps for broad-band excitation).
+
+    Parameters
+    ----------
+    duration, sample_time : float
+        s; manoeuvres that do not fit in ``duration`` are cut off.
+    variant : int
+        0: 1 deg, 0.4/0.3 s steps (for fitting); 1: 1.5 deg, 0.3/0.5 s steps, signs reversed,
+        pedal before lateral cyclic (a different manoeuvre, for held-out data).
+
+    Returns
+    -------
+    time : ndarray, shape (n,)
+    inputs : ndarray, shape (n, 4)
+        ``theta_0, theta_1s, theta_1c, theta_0T``, rad.
+    """
+    time = time_grid(duration=duration, sample_time=sample_time)
+    inputs = np.zeros((len(time), len(INPUT_NAMES)))
+    degree = math.radians(1.0)
+    column = {name: INPUT_NAMES.index(name) for name in INPUT_NAMES}
+    if variant == 0:
+        inputs[:, column["theta_1s"]] = three_two_one_one(time, amplitude=degree, step_time=0.4, start=1.0)
+        inputs[:, column["theta_1c"]] = three_two_one_one(time, amplitude=degree, step_time=0.3, start=6.0)
+        inputs[:, column["theta_0T"]] = doublet(time, amplitude=degree, step_time=0.5, start=10.0)
+        inputs[:, column["theta_0"]] = doublet(time, amplitude=degree, step_time=0.5, start=14.0)
+    else:
+        amplitude = -1.5 * degree
+        inputs[:, column["theta_1s"]] = three_two_one_one(time, amplitude=amplitude, step_time=0.3, start=1.0)
+        inputs[:, column["theta_0T"]] = doublet(time, amplitude=amplitude, step_time=0.4, start=5.0)
+        inputs[:, column["theta_1c"]] = three_two_one_one(time, amplitude=amplitude / 1.5, step_time=0.5, start=8.0)
+        inputs[:, column["theta_0"]] = doublet(time, amplitude=amplitude, step_time=0.6, start=14.0)
+    return time, inputs

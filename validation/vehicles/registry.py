@@ -1,0 +1,120 @@
+"""Vehicle names (docs/vehicles.md) and the interface they share.
+
+Every vehicle, physics reference or flight-test stand-in, is an object with
+
+- ``name`` : str, the registry name (``"bo105-80kt"``, ``"blimp-flight"``, ``"jsbsim:c172x"``);
+- ``input_names`` : tuple of str, the control inputs in recording-column order;
+- ``state_names`` : tuple of str, the states it records (its measured outputs);
+- ``sample_time`` : float, s, the interval at which it records by default;
+- ``simulate(time, inputs, *, seed=0) -> Recording``: fly the input history ``inputs``
+  (shape (n, n_inputs), held constant over each interval, sampled at ``time``, shape (n,),
+  ``time = t0 + k*h``) and return the recording the vehicle would produce. Reference models are
+  deterministic; stand-ins draw turbulence and sensor noise from ``seed``.
+
+:func:`get_vehicle` turns a name into such an object (the JSBSim module is imported only when a
+JSBSim aircraft is asked for, so that ``jsbsim`` loads only then); :func:`read_recording` reads a
+recording file with the vehicle named by the caller or by its sidecar.
+"""
+from __future__ import annotations
+
+import functools
+import re
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.core.recordings import Recording, parse_recording, read_sidecar, sidecar_path
+from validation.vehicles.blimp import BlimpReference
+from validation.vehicles.blimp_flight import BlimpFlightTest
+from validation.vehicles.bo105 import BO105_SPEEDS_KT, Bo105Reference
+from validation.vehicles.bo105_flight import Bo105FlightTest
+
+
+class Vehicle(Protocol):
+    name: str
+    input_names: tuple[str, ...]
+    state_names: tuple[str, ...]
+    sample_time: float
+
+    def simulate(self, time: np.ndarray, inputs: np.ndarray, *, seed: int = 0) -> Recording:
+        ...
+
+
+def vehicle_names() -> list[str]:
+    """Every name :func:`get_vehicle` accepts, JSBSim aircraft shown as ``jsbsim:<aircraft>``."""
+    names = []
+    for speed in BO105_SPEEDS_KT:
+        names += [f"bo105-{speed}kt", f"bo105-{speed}kt-flight"]
+    return names + ["blimp", "blimp-flight", "jsbsim:c172x", "jsbsim:ah1s"]
+
+
+def get_vehicle(name: str) -> Vehicle:
+    """The vehicle called ``name``; :class:`BadInputError` naming the valid choices otherwise."""
+    match = re.fullmatch(r"bo105-(\d+)kt(-flight)?", name)
+    if match:
+        speed = int(match.group(1))
+        if speed not in BO105_SPEEDS_KT:
+            raise BadInputError(
+                f"no Bo105 model at {speed} kt: Padfield tabulates {', '.join(map(str, BO105_SPEEDS_KT))} kt"
+            )
+        return Bo105FlightTest(speed) if match.group(2) else Bo105Reference(speed)
+    if name in ("blimp", "blimp-flight"):
+        return BlimpFlightTest() if name == "blimp-flight" else BlimpReference()
+    if name.startswith("jsbsim:"):
+        from validation.vehicles.jsbsim import JSBSimVehicle  # loads jsbsim only when asked for
+
+        return JSBSimVehicle(name.split(":", 1)[1])
+    raise BadInputError(f"unknown vehicle {name!r}; known: {', '.join(vehicle_names())} (any JSBSim aircraft as jsbsim:<name>)")
+
+
+@functools.lru_cache(maxsize=1)
+def reference_vehicles() -> tuple:
+    """Every reference vehicle of the registry (stand-ins share their reference's columns)."""
+    return tuple(get_vehicle(name) for name in vehicle_names() if not name.endswith("-flight"))
+
+
+def read_recording(path, *, vehicle=None) -> Recording:
+    """Read and check the recording at ``path`` (and its sidecar, if there is one).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The CSV file (docs/conventions.md, "Recording files").
+    vehicle : str or Vehicle, optional
+        The vehicle the recording must fit: a registry name or an object with ``name``,
+        ``input_names`` and ``state_names``. Default: the sidecar's ``vehicle``, if any. With a
+        vehicle, every one of its inputs must be present, the outputs must be a non-empty subset
+        of its states, any other column is an error, and the columns come back in the vehicle's
+        order. Without one, the columns must fit one of the registry's references: those named
+        like its inputs are inputs and the rest outputs, in file order.
+
+    Returns
+    -------
+    Recording
+        ``metadata`` is the sidecar's content (``{}`` without a sidecar).
+
+    Raises
+    ------
+    BadInputError
+        One line naming file, row and column (:func:`validation.core.recordings.parse_recording`),
+        or the sidecar and its key when it names an unknown vehicle.
+    """
+    if isinstance(vehicle, str):
+        vehicle = get_vehicle(vehicle)
+    elif vehicle is None:
+        name = read_sidecar(Path(path)).get("vehicle")
+        if name is not None:
+            vehicle = _sidecar_vehicle(Path(path), name)
+    return parse_recording(path, vehicle=vehicle, candidates=reference_vehicles())
+
+
+def _sidecar_vehicle(path: Path, name):
+    """The vehicle the sidecar of ``path`` names, with the sidecar named in any error."""
+    if not isinstance(name, str):
+        raise BadInputError(f"{sidecar_path(path)}: key 'vehicle' must be a vehicle name (a string)")
+    try:
+        return get_vehicle(name)
+    except BadInputError as error:
+        raise BadInputError(f"{sidecar_path(path)}: key 'vehicle': {error}") from None
