@@ -275,7 +275,7 @@ class NarxPredictor:
         self._blocks = [_Block([parts[j] for j in group]) for group in members]
 
     @classmethod
-    def load(cls, path) -> "NarxPredictor":
+    def load(cls, path) -> NarxPredictor:
         """Read ``path`` (an ``.npz`` written from :func:`pack_model`; never unpickles)."""
         with np.load(path, allow_pickle=False) as npz:
             return cls({name: npz[name] for name in npz.files})

@@ -252,7 +252,7 @@ class RKGPModel:
         self.envelope = Envelope(envelope_low, envelope_high, self.input_names)
 
     @classmethod
-    def load(cls, path) -> "RKGPModel":
+    def load(cls, path) -> RKGPModel:
         with np.load(path, allow_pickle=False) as npz:
             return cls({name: npz[name] for name in npz.files})
 

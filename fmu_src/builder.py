@@ -192,8 +192,8 @@ def build_bo105_reference_fmu(speed_kt: int, out_dir, *, name: str | None = None
         An untabulated speed, an unknown or non-finite derivative, a bad ``name``, ``out_dir`` a
         file.
     """
-    from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES, STATE_NAMES
     from validation.core.files import write_atomically
+    from validation.vehicles.bo105 import INPUT_NAMES, STATE_NAMES, Bo105Reference
 
     from . import bo105_reference
 
@@ -252,8 +252,9 @@ def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path
         ``name``; ``out_dir`` a file.
     """
     import jsbsim
-    from validation.vehicles import jsbsim as jsbsim_vehicle
+
     from validation.core.files import write_atomically
+    from validation.vehicles import jsbsim as jsbsim_vehicle
 
     from . import jsbsim_aircraft
 
@@ -356,9 +357,9 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
     As :func:`build_blimp_rkgp_fmu`.
     """
     from gp_model import GreyBoxGP, ModelFileError, load_model, read_header
-    from validation.vehicles.blimp import INPUT_NAMES, STATE_NAMES, hanging_state
-    from validation.models.blimp_identification import blimp_physics_from_description
     from validation.core.errors import BadInputError
+    from validation.models.blimp_identification import blimp_physics_from_description
+    from validation.vehicles.blimp import INPUT_NAMES, STATE_NAMES, hanging_state
 
     from . import blimp_rkgp
 

@@ -34,10 +34,17 @@ from pathlib import Path
 import numpy as np
 
 from . import _base, _runtime
-from .blimp_rkgp import (INPUT_NAMES, STANDARD_GRAVITY, STATE_NAMES, BlimpRKGP, RKGPModel,
-                         blimp_rkgp_variables)
-from .native import (DATA_FILE, c_array, c_number, c_string, lower_triangular,
-                     variable_table, check_platform, package_native_fmu)
+from .blimp_rkgp import INPUT_NAMES, STANDARD_GRAVITY, STATE_NAMES, BlimpRKGP, RKGPModel, blimp_rkgp_variables
+from .native import (
+    DATA_FILE,
+    c_array,
+    c_number,
+    c_string,
+    check_platform,
+    lower_triangular,
+    package_native_fmu,
+    variable_table,
+)
 
 #: The C sources compiled into every native blimp RKGP FMU (``fmu_src/native_c``).
 C_SOURCES = ("fmi2_slave.c", "blimp_model.c")

@@ -6,11 +6,16 @@ module exports; everything else lives in private modules.
 from ._errors import GPNumericalError, ModelFileError
 from ._gp import GaussianProcess, PerOutputGP, PredictiveForm
 from ._greybox import GreyBoxGP
-from ._inference import (AnnealingResult, MaximumLikelihoodResult, MCMCResult,
-                         anneal_hyperparameters, maximize_marginal_likelihood, metropolis,
-                         simulated_annealing)
-from ._kernels import (HigdonKernel, SquaredExponentialARD, alpha_from_length_scale,
-                       length_scale_from_alpha)
+from ._inference import (
+                         AnnealingResult,
+                         MaximumLikelihoodResult,
+                         MCMCResult,
+                         anneal_hyperparameters,
+                         maximize_marginal_likelihood,
+                         metropolis,
+                         simulated_annealing,
+)
+from ._kernels import HigdonKernel, SquaredExponentialARD, alpha_from_length_scale, length_scale_from_alpha
 from ._model_file import load_model, read_header, save_model
 from ._moment_matching import moment_matcher, predict_uncertain_input
 from ._narx import FreeRunResult, GPNarx, NarxStructure

@@ -135,7 +135,7 @@ class GaussianProcess:
         return self.kernel.prior() + noise
 
     # -- fitting ------------------------------------------------------------------------------
-    def fit(self, X, y, *, theta=None) -> "GaussianProcess":
+    def fit(self, X, y, *, theta=None) -> GaussianProcess:
         """Condition on training data with fixed hyperparameters.
 
         Parameters
@@ -173,7 +173,7 @@ class GaussianProcess:
         self.set_hyperparameters(self.theta if theta is None else theta)
         return self
 
-    def set_hyperparameters(self, theta, *, samples=None) -> "GaussianProcess":
+    def set_hyperparameters(self, theta, *, samples=None) -> GaussianProcess:
         """Use ``theta`` (shape (p,)) and optionally a sample set (shape (S, p)) for the mixture.
 
         The configured ``kernel`` and ``noise_variance`` are updated to match ``theta``.
@@ -346,7 +346,7 @@ class PerOutputGP:
         self.gps = list(gps)
 
     @classmethod
-    def fit(cls, make_gp, X, Y) -> "PerOutputGP":
+    def fit(cls, make_gp, X, Y) -> PerOutputGP:
         """Fit ``make_gp()`` to each column of ``Y`` (shape (n, m)) with inputs ``X`` (n, d)."""
         Y = np.asarray(Y, dtype=float)
         if Y.ndim != 2:

@@ -106,7 +106,7 @@ class GreyBoxGP:
 
     # -- fitting -----------------------------------------------------------------------------
     def fit(self, states, inputs, next_states, physics_step, *, optimize: bool = True,
-            seed: int = 0) -> "GreyBoxGP":
+            seed: int = 0) -> GreyBoxGP:
         """Fit the residual GP to one-step transitions.
 
         Parameters
@@ -148,7 +148,7 @@ class GreyBoxGP:
                     maximize_marginal_likelihood(gp, n_restarts=self.n_restarts, seed=seed + j)
         return self
 
-    def fit_trajectories(self, trajectories, physics_step, **options) -> "GreyBoxGP":
+    def fit_trajectories(self, trajectories, physics_step, **options) -> GreyBoxGP:
         """:meth:`fit` on every consecutive pair of samples of several trajectories.
 
         Parameters

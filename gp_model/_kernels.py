@@ -175,7 +175,7 @@ class StationaryKernel:
         _, dw_dtheta = self._weights_and_derivative(theta[1:])
         return np.concatenate(([MK.sum()], d_w * dw_dtheta))
 
-    def clone_with_theta(self, theta) -> "StationaryKernel":
+    def clone_with_theta(self, theta) -> StationaryKernel:
         """A copy with hyperparameters ``theta``."""
         new = object.__new__(type(self))
         new.theta = np.array(theta, dtype=float)

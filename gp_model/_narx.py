@@ -145,7 +145,7 @@ class GPNarx:
     def fit(cls, structure: NarxStructure, recordings, *, kernel: str = "higdon",
             hyperparameters: str = "annealing", stride: int = 1, rows=None, seed: int = 0,
             n_inducing: int | None = None, progress=None,
-            **inference_options) -> "GPNarx":
+            **inference_options) -> GPNarx:
         """Train one GP per output on regressors built from one or more recordings.
 
         Parameters

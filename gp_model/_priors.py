@@ -34,7 +34,7 @@ class IndependentPrior:
         """``n`` independent draws, shape (n, p)."""
         return np.column_stack([m.rvs(size=n, random_state=rng) for m in self.marginals])
 
-    def __add__(self, other: "IndependentPrior") -> "IndependentPrior":
+    def __add__(self, other: IndependentPrior) -> IndependentPrior:
         """Concatenation: the prior of ``[theta_self, theta_other]``."""
         return IndependentPrior(self.marginals + other.marginals, self.names + other.names)
 

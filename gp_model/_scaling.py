@@ -13,7 +13,7 @@ class Standardizer:
     def __init__(self, *, enabled: bool = True) -> None:
         self.enabled = enabled
 
-    def fit(self, X: np.ndarray) -> "Standardizer":
+    def fit(self, X: np.ndarray) -> Standardizer:
         """Learn ``mean_`` and ``scale_`` from ``X``, shape (n, d)."""
         d = X.shape[1]
         if self.enabled:
@@ -31,7 +31,7 @@ class Standardizer:
         return Z * self.scale_ + self.mean_
 
     @classmethod
-    def from_arrays(cls, mean: np.ndarray, scale: np.ndarray) -> "Standardizer":
+    def from_arrays(cls, mean: np.ndarray, scale: np.ndarray) -> Standardizer:
         new = cls(enabled=True)
         new.mean_, new.scale_ = np.asarray(mean, float), np.asarray(scale, float)
         return new

@@ -216,7 +216,7 @@ class SparseGaussianProcess:
     predict = GaussianProcess.predict
 
     # -- fitting ------------------------------------------------------------------------------
-    def fit(self, X, y, *, theta=None) -> "SparseGaussianProcess":
+    def fit(self, X, y, *, theta=None) -> SparseGaussianProcess:
         """Select the inducing inputs and condition on training data with fixed hyperparameters.
 
         Parameters
@@ -240,7 +240,7 @@ class SparseGaussianProcess:
         # The exact GP's fit validates the data, standardises it and calls set_hyperparameters.
         return GaussianProcess.fit(self, X, y, theta=theta)
 
-    def set_hyperparameters(self, theta, *, samples=None) -> "SparseGaussianProcess":
+    def set_hyperparameters(self, theta, *, samples=None) -> SparseGaussianProcess:
         """Use ``theta`` (shape (p,)) and optionally a sample set (shape (S, p)) for the mixture.
 
         The configured ``kernel`` and ``noise_variance`` are updated to match ``theta``. The

@@ -16,41 +16,47 @@ import re
 import subprocess
 import sys
 import zipfile
+from collections.abc import Callable
 from ctypes import byref
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from statistics import NormalDist
-from typing import Callable
 
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Discard, fmi2Error,
-                       fmi2Warning)
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+    fmi2Discard,
+    fmi2Error,
+    fmi2Warning,
+)
 from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 from pythonfmu.enums import Fmi2Status
 
 from fmu_src._base import FlightgpSlave, ModelFailure, Variable
-from fmu_src.builder import (build_blimp_rkgp_fmu, build_bo105_reference_fmu,
-                              build_jsbsim_fmu, build_rate_predictor_fmu)
+from fmu_src.builder import build_blimp_rkgp_fmu, build_bo105_reference_fmu, build_jsbsim_fmu, build_rate_predictor_fmu
 from gp_model import GreyBoxGP, save_model
+from validation.cli import main
+from validation.core.manoeuvres import doublet, step, three_two_one_one
+from validation.cosim.hosts import simulate_in_libcosim
+from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
+from validation.models.narx import NarxConfig, one_step, save_trained, train_narx
+from validation.reproduce.bo105 import PAPER_CONFIG, fly_3211
 from validation.vehicles.blimp import INPUT_NAMES as BLIMP_INPUTS
 from validation.vehicles.blimp import STATE_NAMES as BLIMP_STATES
 from validation.vehicles.blimp import BlimpParameters
 from validation.vehicles.blimp_flight import BlimpFlightTest
-from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
 from validation.vehicles.bo105 import INPUT_NAMES as BO105_INPUTS
 from validation.vehicles.bo105 import STATE_NAMES as BO105_STATES
 from validation.vehicles.bo105 import Bo105Reference
-from validation.cli import main
-from validation.cosim.hosts import simulate_in_libcosim
 from validation.vehicles.jsbsim import JSBSimVehicle
-from validation.core.manoeuvres import doublet, step, three_two_one_one
-from validation.models.narx import NarxConfig, one_step, save_trained, train_narx
-from validation.reproduce.bo105 import PAPER_CONFIG, fly_3211
 
 FMI_FATAL = 4
 

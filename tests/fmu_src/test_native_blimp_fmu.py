@@ -24,39 +24,55 @@ from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Error
 from fmpy.validation import validate_fmu
-from tests.fmu_src.test_fmu import (FMI_FATAL, BLIMP_HOLD, Host, blimp_model_file, blimp_rkgp_case,  # noqa: F401
-                      blimp_rkgp_fmu, blimp_trained, host, standard_run,
-                      test_bad_input_is_a_discard_even_without_logging,
-                      test_bad_input_is_a_logged_discard_and_the_step_can_be_retried,
-                      test_illegal_calls_are_logged_discards, test_outputs_equal_the_python_model,
-                      test_outside_the_training_envelope_warns_and_widens_the_bounds,
-                      test_reset_reproduces_a_run,
-                      test_runs_where_flightgp_is_not_importable_and_prints_nothing,
-                      test_second_host_libcosim_agrees_with_fmpy, test_simulate_fmu_runs_with_finite_outputs,
-                      test_state_capability_is_declared_honestly,
-                      test_state_save_step_restore_step_is_identical,
-                      test_two_instances_in_one_process_stay_independent, test_validates_without_problems,
-                      unzipdir)
-from tests.fmu_src.test_fmu import \
-    test_blimp_rkgp_declares_the_interface_and_refuses_steps_it_was_not_trained_for as blimp_interface_checks
-from tests.fmu_src.test_native_fmu import (test_fmpy_compile_rebuilds_the_binary_from_the_shipped_sources,  # noqa: F401
-                             test_illegal_call_order_is_a_logged_error_and_changes_nothing,
-                             test_model_description_declares_the_pythonfmu_interface,
-                             test_runs_in_a_plain_c_host_without_python, test_runtime_is_self_contained,
-                             test_sources_compile_without_warnings_under_pedantic_c99,
-                             test_wrong_guid_or_resources_refuse_instantiation_with_a_message)
 
 from fmu_src import native_blimp
 from fmu_src.builder import build_blimp_rkgp_fmu
 from fmu_src.native_blimp import C_SOURCES, build_native_blimp_rkgp_fmu
 from gp_model import GreyBoxGP, save_model
+from tests.fmu_src.test_fmu import (  # noqa: F401
+    BLIMP_HOLD,
+    FMI_FATAL,
+    Host,
+    blimp_model_file,
+    blimp_rkgp_case,
+    blimp_rkgp_fmu,
+    blimp_trained,
+    host,
+    standard_run,
+    test_bad_input_is_a_discard_even_without_logging,
+    test_bad_input_is_a_logged_discard_and_the_step_can_be_retried,
+    test_illegal_calls_are_logged_discards,
+    test_outputs_equal_the_python_model,
+    test_outside_the_training_envelope_warns_and_widens_the_bounds,
+    test_reset_reproduces_a_run,
+    test_runs_where_flightgp_is_not_importable_and_prints_nothing,
+    test_second_host_libcosim_agrees_with_fmpy,
+    test_simulate_fmu_runs_with_finite_outputs,
+    test_state_capability_is_declared_honestly,
+    test_state_save_step_restore_step_is_identical,
+    test_two_instances_in_one_process_stay_independent,
+    test_validates_without_problems,
+    unzipdir,
+)
+from tests.fmu_src.test_fmu import (
+    test_blimp_rkgp_declares_the_interface_and_refuses_steps_it_was_not_trained_for as blimp_interface_checks,
+)
+from tests.fmu_src.test_native_fmu import (  # noqa: F401
+    test_fmpy_compile_rebuilds_the_binary_from_the_shipped_sources,
+    test_illegal_call_order_is_a_logged_error_and_changes_nothing,
+    test_model_description_declares_the_pythonfmu_interface,
+    test_runs_in_a_plain_c_host_without_python,
+    test_runtime_is_self_contained,
+    test_sources_compile_without_warnings_under_pedantic_c99,
+    test_wrong_guid_or_resources_refuse_instantiation_with_a_message,
+)
+from validation.bench.benchmarks import time_blimp_rkgp_fmus
+from validation.cli import main
+from validation.models.blimp_identification import blimp_physics_description, physics_step
 from validation.vehicles.blimp import INPUT_NAMES as BLIMP_INPUTS
 from validation.vehicles.blimp import STATE_NAMES as BLIMP_STATES
 from validation.vehicles.blimp import BlimpParameters
 from validation.vehicles.blimp_flight import BlimpFlightTest
-from validation.models.blimp_identification import blimp_physics_description, physics_step
-from validation.bench.benchmarks import time_blimp_rkgp_fmus
-from validation.cli import main
 
 OUTPUTS = [*BLIMP_STATES, *(f"{s}_sd" for s in BLIMP_STATES)]
 STEP = BlimpFlightTest.sample_time

@@ -30,26 +30,37 @@ import pytest
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Error
-from tests.fmu_src.test_fmu import (FMI_FATAL, Host, bo105_flights, bo105_model_file, bo105_trained,  # noqa: F401
-                      host, rate_predictor_case, rate_predictor_fmu, standard_run,
-                      test_bad_input_is_a_discard_even_without_logging,
-                      test_bad_input_is_a_logged_discard_and_the_step_can_be_retried,
-                      test_confidence_level_sets_the_band,
-                      test_free_run_mode_equals_the_python_moment_matching_free_run,
-                      test_illegal_calls_are_logged_discards,
-                      test_outputs_equal_the_python_model,
-                      test_outside_the_training_envelope_warns_and_widens_the_bounds,
-                      test_rate_predictor_starts_at_the_given_rates, test_reset_reproduces_a_run,
-                      test_runs_where_flightgp_is_not_importable_and_prints_nothing,
-                      test_second_host_libcosim_agrees_with_fmpy, test_simulate_fmu_runs_with_finite_outputs,
-                      test_state_capability_is_declared_honestly,
-                      test_state_save_step_restore_step_is_identical,
-                      test_two_instances_in_one_process_stay_independent, test_validates_without_problems,
-                      unzipdir)
 
 from fmu_src.builder import build_rate_predictor_fmu
-from fmu_src.native import (C_HEADERS, C_SOURCES, CONFIG_HEADER, build_native_rate_predictor_fmu,
-                            compile_shared_library)
+from fmu_src.native import C_HEADERS, C_SOURCES, CONFIG_HEADER, build_native_rate_predictor_fmu, compile_shared_library
+from tests.fmu_src.test_fmu import (  # noqa: F401
+    FMI_FATAL,
+    Host,
+    bo105_flights,
+    bo105_model_file,
+    bo105_trained,
+    host,
+    rate_predictor_case,
+    rate_predictor_fmu,
+    standard_run,
+    test_bad_input_is_a_discard_even_without_logging,
+    test_bad_input_is_a_logged_discard_and_the_step_can_be_retried,
+    test_confidence_level_sets_the_band,
+    test_free_run_mode_equals_the_python_moment_matching_free_run,
+    test_illegal_calls_are_logged_discards,
+    test_outputs_equal_the_python_model,
+    test_outside_the_training_envelope_warns_and_widens_the_bounds,
+    test_rate_predictor_starts_at_the_given_rates,
+    test_reset_reproduces_a_run,
+    test_runs_where_flightgp_is_not_importable_and_prints_nothing,
+    test_second_host_libcosim_agrees_with_fmpy,
+    test_simulate_fmu_runs_with_finite_outputs,
+    test_state_capability_is_declared_honestly,
+    test_state_save_step_restore_step_is_identical,
+    test_two_instances_in_one_process_stay_independent,
+    test_validates_without_problems,
+    unzipdir,
+)
 from validation.cli import main
 from validation.cosim.hosts import simulate_in_c_host
 

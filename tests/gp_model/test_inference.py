@@ -2,8 +2,15 @@
 import numpy as np
 import pytest
 
-from gp_model import (GaussianProcess, HigdonKernel, SquaredExponentialARD, anneal_hyperparameters,
-                      length_scale_from_alpha, maximize_marginal_likelihood, metropolis)
+from gp_model import (
+    GaussianProcess,
+    HigdonKernel,
+    SquaredExponentialARD,
+    anneal_hyperparameters,
+    length_scale_from_alpha,
+    maximize_marginal_likelihood,
+    metropolis,
+)
 
 TRUE_LENGTHS = np.array([0.6, 2.0])
 TRUE_SIGNAL, TRUE_NOISE = 1.5, 0.04
@@ -126,9 +133,10 @@ def test_annealing_steps_change_entropy_by_about_the_entropy_step():
     """Conjugate check of eq. (2): prior N(0, 1) and likelihood N(x; 3, 0.05^2) give Gaussian
     tempered targets with variance 1 / (1 + zeta / 0.05^2), whose entropy is known exactly, so
     each stage's entropy change can be compared with the requested step."""
+    from scipy import stats
+
     from gp_model import simulated_annealing
     from gp_model._priors import IndependentPrior
-    from scipy import stats
 
     sigma2 = 0.05**2
     result = simulated_annealing(lambda x: -0.5 * (x[0] - 3.0) ** 2 / sigma2,

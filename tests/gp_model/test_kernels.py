@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-from gp_model import (HigdonKernel, SquaredExponentialARD, alpha_from_length_scale,
-                      length_scale_from_alpha)
+from gp_model import HigdonKernel, SquaredExponentialARD, alpha_from_length_scale, length_scale_from_alpha
 
 KERNEL_FACTORIES = {
     "se_ard": lambda: SquaredExponentialARD(1.7, [0.6, 1.4, 2.5]),

@@ -5,8 +5,16 @@ import zipfile
 import numpy as np
 import pytest
 
-from gp_model import (GaussianProcess, HigdonKernel, ModelFileError, PerOutputGP,
-                      SquaredExponentialARD, load_model, read_header, save_model)
+from gp_model import (
+    GaussianProcess,
+    HigdonKernel,
+    ModelFileError,
+    PerOutputGP,
+    SquaredExponentialARD,
+    load_model,
+    read_header,
+    save_model,
+)
 
 
 @pytest.fixture

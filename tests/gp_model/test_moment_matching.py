@@ -2,9 +2,16 @@
 import numpy as np
 import pytest
 
-from gp_model import (GaussianProcess, HigdonKernel, PerOutputGP, SparseGaussianProcess,
-                      SquaredExponentialARD, alpha_from_length_scale, moment_matcher,
-                      predict_uncertain_input)
+from gp_model import (
+    GaussianProcess,
+    HigdonKernel,
+    PerOutputGP,
+    SparseGaussianProcess,
+    SquaredExponentialARD,
+    alpha_from_length_scale,
+    moment_matcher,
+    predict_uncertain_input,
+)
 
 LENGTH_SCALES = ([0.8, 1.2, 1.5], [1.0, 0.7, 2.0])  # standardised input units, one set per output
 SIGNAL_VARIANCES = (1.0, 1.5)

@@ -5,10 +5,21 @@ import json
 import numpy as np
 import pytest
 
-from gp_model import (GaussianProcess, GPNarx, HigdonKernel, ModelFileError, NarxStructure,
-                      PerOutputGP, SparseGaussianProcess, SquaredExponentialARD,
-                      anneal_hyperparameters, load_model, maximize_marginal_likelihood,
-                      read_header, save_model)
+from gp_model import (
+    GaussianProcess,
+    GPNarx,
+    HigdonKernel,
+    ModelFileError,
+    NarxStructure,
+    PerOutputGP,
+    SparseGaussianProcess,
+    SquaredExponentialARD,
+    anneal_hyperparameters,
+    load_model,
+    maximize_marginal_likelihood,
+    read_header,
+    save_model,
+)
 
 
 def make_data(n=30, d=2, seed=0, noise=0.05):

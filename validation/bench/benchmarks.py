@@ -6,14 +6,19 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from gp_model import (GaussianProcess, GPNarx, HigdonKernel, NarxStructure, SquaredExponentialARD,
-                      maximize_marginal_likelihood)
-
+from gp_model import (
+    GaussianProcess,
+    GPNarx,
+    HigdonKernel,
+    NarxStructure,
+    SquaredExponentialARD,
+    maximize_marginal_likelihood,
+)
 from validation.core.errors import BadInputError
 from validation.core.progress import progress_bar
 
@@ -395,7 +400,6 @@ def bench_fmu(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> d
     from pathlib import Path
 
     from fmu_src.builder import build_rate_predictor_fmu
-
     from validation.models.narx import save_trained, train_narx
     from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
 
@@ -467,7 +471,6 @@ def _native_rows(scratch, paper_model, paper_gp_s: float, inputs, outputs, *, n_
 
     from fmu_src.builder import build_rate_predictor_fmu
     from fmu_src.native import build_native_rate_predictor_fmu
-
     from validation.cosim.hosts import simulate_in_c_host
     from validation.models.narx import load_trained, save_trained, train_narx
     from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
@@ -527,10 +530,9 @@ def blimp_rkgp_row(scratch, *, n_steps: int, seed: int = 0) -> dict:
     from fmu_src.builder import build_blimp_rkgp_fmu
     from fmu_src.native_blimp import build_native_blimp_rkgp_fmu
     from gp_model import GreyBoxGP, save_model
-
+    from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
     from validation.vehicles.blimp import BlimpParameters
     from validation.vehicles.blimp_flight import BlimpFlightTest
-    from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
 
     scratch = Path(scratch)
     time_ = np.arange(int(round(BLIMP_SECONDS / BlimpFlightTest.sample_time)) + 1) * BlimpFlightTest.sample_time
@@ -564,9 +566,9 @@ def time_blimp_rkgp_fmus(python_fmu, native_fmu, commands, start, *, n_steps: in
         ``{"steps", "pythonfmu_us_per_step", "native_us_per_step", "native_c_host_us_per_step",
         "pythonfmu_over_native", "pythonfmu_over_native_c_host"}``.
     """
+    from validation.cosim.hosts import simulate_in_c_host
     from validation.vehicles.blimp import INPUT_NAMES, STATE_NAMES
     from validation.vehicles.blimp_flight import BlimpFlightTest
-    from validation.cosim.hosts import simulate_in_c_host
 
     h, commands = BlimpFlightTest.sample_time, np.asarray(commands, dtype=float)
     steps = min(n_steps, len(commands) - 1)
@@ -642,7 +644,6 @@ def bench_cosim(*, seed: int = 0, progress: bool = True) -> dict:
 
     from fmu_src.builder import build_bo105_reference_fmu, build_rate_predictor_fmu
     from fmu_src.native import build_native_rate_predictor_fmu
-
     from validation.cosim.cosimulation import cosimulate, simulate
     from validation.models.narx import save_trained, train_narx
     from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211

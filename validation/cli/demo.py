@@ -23,8 +23,8 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.reproduce.demo import format_cosim, run_demo
     from validation.reproduce.bo105 import format_results
+    from validation.reproduce.demo import format_cosim, run_demo
 
     check_output_folder(args.out)
     print(f"flightgp demo: Bo105 80 kt 3-2-1-1 -> {args.out}/")

@@ -35,9 +35,15 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.diagnose.bench import concealed_cases, format_scorecard, format_seed_summary, run_bench, summarise_seeds
     from validation.core.files import write_files_atomically
     from validation.core.progress import progress_bar
+    from validation.diagnose.bench import (
+        concealed_cases,
+        format_scorecard,
+        format_seed_summary,
+        run_bench,
+        summarise_seeds,
+    )
 
     cases = concealed_cases(args.reference)
     if args.list:

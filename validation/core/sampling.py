@@ -11,7 +11,6 @@ import numpy as np
 
 from validation.core.errors import BadInputError
 
-
 # Relative tolerance on equal time steps (1e-6 of the step); float rounding of t0 + k*h on top.
 _STEP_RTOL = 1e-6
 

@@ -44,15 +44,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from validation.vehicles import blimp_effects
-from validation.vehicles.blimp import BlimpReference
-from validation.vehicles.bo105 import Bo105Reference, STATE_NAMES
-from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
-from validation.vehicles.bo105_effects import identification_manoeuvre
-from validation.vehicles.effects import EffectVehicle, TARGET_KEYS, model_value, simulate_with_effects
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
-from validation.vehicles import get_vehicle
+from validation.vehicles import blimp_effects, get_vehicle
+from validation.vehicles.blimp import BlimpReference
+from validation.vehicles.bo105 import STATE_NAMES, Bo105Reference
+from validation.vehicles.bo105_effects import identification_manoeuvre
+from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
+from validation.vehicles.effects import TARGET_KEYS, EffectVehicle, model_value, simulate_with_effects
 
 #: Held-out RMSE cut of the affected output that a named effect must achieve (issue 7).
 REQUIRED_CUT = 0.6

@@ -43,15 +43,14 @@ from pathlib import Path
 import numpy as np
 from scipy import signal, stats
 
-from validation.vehicles.blimp import BlimpReference
-from validation.vehicles.bo105 import Bo105Reference
-from validation.diagnose.hypotheses import FitData, hypotheses_for, select_effects
-from validation.vehicles.effects import EffectVehicle, TARGET_KEYS, effect_unit, model_value, simulate_many
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.core.sampling import nominal_step, uneven_steps
-from validation.vehicles import read_recording
-from validation.vehicles import get_vehicle
+from validation.diagnose.hypotheses import FitData, hypotheses_for, select_effects
+from validation.vehicles import get_vehicle, read_recording
+from validation.vehicles.blimp import BlimpReference
+from validation.vehicles.bo105 import Bo105Reference
+from validation.vehicles.effects import TARGET_KEYS, EffectVehicle, effect_unit, model_value, simulate_many
 
 #: Held-out share of a single recording's time when no other held-out data exist.
 HOLDOUT_FRACTION = 0.3

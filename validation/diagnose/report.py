@@ -7,9 +7,9 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from validation.vehicles.effects import TARGET_KEYS
 from validation.core.plots import png_bytes
 from validation.core.recordings import column_unit
+from validation.vehicles.effects import TARGET_KEYS
 
 INPUT_WORDS = {"theta_0": "main-rotor collective", "theta_1s": "longitudinal cyclic",
                "theta_1c": "lateral cyclic", "theta_0T": "tail-rotor collective (pedals)",

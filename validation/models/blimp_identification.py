@@ -37,8 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from validation.vehicles.blimp import BlimpParameters, INPUT_NAMES, MAX_STEP, STATE_NAMES, blimp_dynamics
 from validation.core.errors import BadInputError
+from validation.vehicles.blimp import INPUT_NAMES, MAX_STEP, STATE_NAMES, BlimpParameters, blimp_dynamics
 
 IDENTIFIED_PARAMETERS = (
     "quadratic_drag_x", "quadratic_drag_y", "quadratic_drag_z", "added_mass_x", "rotational_damping_z",

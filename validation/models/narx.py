@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from gp_model import GPNarx, NarxStructure, load_model, read_header, save_model
-
 from validation.core.errors import BadInputError
 from validation.core.progress import progress_bar
 from validation.core.recordings import Recording

@@ -54,15 +54,28 @@ from scipy.integrate import solve_ivp
 
 from fmu_src.builder import build_blimp_rkgp_fmu
 from gp_model import GreyBoxGP, save_model
-
-from validation.reproduce import blimp_control
-from validation.vehicles.blimp import ADAPTIVE_ATOL, ADAPTIVE_RTOL, INPUT_NAMES, SAMPLE_TIME, STATE_NAMES, blimp_dynamics, hanging_state
-from validation.vehicles.blimp_flight import BlimpFlightTest, FLIGHT_TEST_PARAMETERS
-from validation.models.blimp_identification import blimp_physics_description, identify_parameters, physics_step, recording_arrays, simulate_segments
 from validation.core.files import write_atomically, write_json
 from validation.core.plots import png_bytes
 from validation.core.progress import progress_bar
 from validation.core.recordings import Recording
+from validation.models.blimp_identification import (
+    blimp_physics_description,
+    identify_parameters,
+    physics_step,
+    recording_arrays,
+    simulate_segments,
+)
+from validation.reproduce import blimp_control
+from validation.vehicles.blimp import (
+    ADAPTIVE_ATOL,
+    ADAPTIVE_RTOL,
+    INPUT_NAMES,
+    SAMPLE_TIME,
+    STATE_NAMES,
+    blimp_dynamics,
+    hanging_state,
+)
+from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS, BlimpFlightTest
 
 METHODS = ("RK", "ODE", "RKGP", "ODEGP", "GPonly")
 GROUPS = {"position": (0, 1, 2), "orientation": (3, 4, 5), "velocity": (6, 7, 8),

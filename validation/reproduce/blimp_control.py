@@ -49,7 +49,14 @@ import numpy as np
 from scipy.optimize import minimize
 
 from validation.vehicles.blimp import SAMPLE_TIME, euler_rates, hanging_state, rk4, rk4_substeps
-from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, BlimpFlightTest, DRIFT_TIME_CONSTANT, MOCAP_JITTER_LIMIT, MOCAP_JITTER_STD, local_derivative
+from validation.vehicles.blimp_flight import (
+    ATTITUDE_NOISE_STD,
+    DRIFT_TIME_CONSTANT,
+    MOCAP_JITTER_LIMIT,
+    MOCAP_JITTER_STD,
+    BlimpFlightTest,
+    local_derivative,
+)
 
 #: Controller parameters, in the order of every parameter vector.
 PARAMETER_NAMES = ("b_plus", "b_minus", "damping", "tanh_slope")

@@ -27,9 +27,9 @@ from matplotlib.figure import Figure
 
 from validation.core.files import write_atomically, write_json
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
-from validation.models.narx import NarxConfig, NarxPrediction, free_run, one_step, save_trained, train_narx
 from validation.core.plots import png_bytes
 from validation.core.recordings import Recording, column_unit, write_recording
+from validation.models.narx import NarxConfig, NarxPrediction, free_run, one_step, save_trained, train_narx
 from validation.vehicles import get_vehicle
 
 AXES = ("p", "q", "r")

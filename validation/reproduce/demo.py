@@ -12,11 +12,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from fmu_src.builder import build_bo105_reference_fmu, build_rate_predictor_fmu
-
-from validation.cosim.cosimulation import cosimulate
 from validation.core.files import write_atomically
-from validation.vehicles import read_recording
+from validation.cosim.cosimulation import cosimulate
 from validation.reproduce.bo105 import format_results, reproduce_bo105
+from validation.vehicles import read_recording
 
 
 def run_demo(out_dir, *, seed: int = 0, n_runs: int = 1000, progress: bool = True) -> dict:

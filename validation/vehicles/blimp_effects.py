@@ -51,7 +51,15 @@ import math
 
 import numpy as np
 
-from validation.vehicles.blimp import BlimpReference, INPUT_NAMES, STATE_NAMES, blimp_dynamics, check_command_history, hanging_state, mass_matrix
+from validation.vehicles.blimp import (
+    INPUT_NAMES,
+    STATE_NAMES,
+    BlimpReference,
+    blimp_dynamics,
+    check_command_history,
+    hanging_state,
+    mass_matrix,
+)
 from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_STD
 
 #: Control-derivative terms: fan, command column, sign of the commands it applies to.

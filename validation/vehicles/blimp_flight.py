@@ -13,7 +13,21 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.core.sampling import sampling_metadata
-from validation.vehicles.blimp import BlimpParameters, INPUT_NAMES, MAX_STEP, SAMPLE_TIME, STATE_NAMES, blimp_dynamics, body_rates, check_command_history, checked_max_step, hanging_state, rk4, rk4_substeps, rotation_body_to_earth
+from validation.vehicles.blimp import (
+    INPUT_NAMES,
+    MAX_STEP,
+    SAMPLE_TIME,
+    STATE_NAMES,
+    BlimpParameters,
+    blimp_dynamics,
+    body_rates,
+    check_command_history,
+    checked_max_step,
+    hanging_state,
+    rk4,
+    rk4_substeps,
+    rotation_body_to_earth,
+)
 
 _REFERENCE_PARAMETERS = BlimpParameters()
 

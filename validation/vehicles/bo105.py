@@ -16,7 +16,7 @@ from __future__ import annotations
 import copy
 import json
 import math
-from functools import lru_cache
+from functools import cache
 from importlib.resources import files
 
 import numpy as np
@@ -52,7 +52,7 @@ _STATE = {name: i for i, name in enumerate(STATE_NAMES)}
 _INPUT = {name: i for i, name in enumerate(INPUT_NAMES)}
 
 
-@lru_cache(maxsize=None)
+@cache
 def padfield_table() -> dict:
     """Padfield's tabulated models, parsed once."""
     return json.loads((files("validation.vehicles") / "data" / "bo105_padfield_linear.json").read_text())
@@ -176,7 +176,7 @@ class Bo105Reference:
         matrix, row, column = self._locate(name)
         return float((self._A if matrix == "A" else self._B)[row, column])
 
-    def with_derivatives(self, values: dict[str, float]) -> "Bo105Reference":
+    def with_derivatives(self, values: dict[str, float]) -> Bo105Reference:
         """A new reference with the derivatives in ``values`` (name -> value) replaced.
 
         Raises

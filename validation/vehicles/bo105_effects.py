@@ -23,7 +23,7 @@ import numpy as np
 
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
 from validation.core.sampling import check_history
-from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES, STATE_NAMES, propagate, zero_order_hold
+from validation.vehicles.bo105 import INPUT_NAMES, STATE_NAMES, Bo105Reference, propagate, zero_order_hold
 
 
 def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:

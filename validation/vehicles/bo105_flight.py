@@ -89,7 +89,29 @@ from scipy import linalg
 
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history
-from validation.vehicles.bo105 import AIR_DENSITY, BLADE_CHORD, Bo105Reference, GRAVITY, INPUT_NAMES, I_XX, I_YY, KNOT, LIFT_SLOPE, LOCK_NUMBER, MASS, N_BLADES, ROTOR_RADIUS, ROTOR_SPEED, ROW_LETTERS, SAMPLE_TIME, STATE_NAMES, cached_zero_order_hold, padfield_condition, padfield_table, propagate
+from validation.vehicles.bo105 import (
+    AIR_DENSITY,
+    BLADE_CHORD,
+    GRAVITY,
+    I_XX,
+    I_YY,
+    INPUT_NAMES,
+    KNOT,
+    LIFT_SLOPE,
+    LOCK_NUMBER,
+    MASS,
+    N_BLADES,
+    ROTOR_RADIUS,
+    ROTOR_SPEED,
+    ROW_LETTERS,
+    SAMPLE_TIME,
+    STATE_NAMES,
+    Bo105Reference,
+    cached_zero_order_hold,
+    padfield_condition,
+    padfield_table,
+    propagate,
+)
 
 _STATE = {name: i for i, name in enumerate(STATE_NAMES)}
 _INPUT = {name: i for i, name in enumerate(INPUT_NAMES)}

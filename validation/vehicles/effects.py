@@ -34,7 +34,7 @@ from validation.core.recordings import Recording, column_unit
 from validation.core.sampling import check_history, sampling_metadata
 from validation.vehicles import blimp_effects
 from validation.vehicles.blimp import BlimpReference
-from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES, ROW_LETTERS, STATE_NAMES
+from validation.vehicles.bo105 import INPUT_NAMES, ROW_LETTERS, STATE_NAMES, Bo105Reference
 from validation.vehicles.bo105_effects import simulate_bo105_with_effects
 from validation.vehicles.registry import get_vehicle
 
@@ -273,7 +273,7 @@ class EffectVehicle:
         return write_json(path, self.as_dict())
 
     @classmethod
-    def from_dict(cls, content: dict, *, source: str = "model") -> "EffectVehicle":
+    def from_dict(cls, content: dict, *, source: str = "model") -> EffectVehicle:
         """The model :meth:`as_dict` describes; BadInputError naming ``source`` otherwise."""
         if not isinstance(content, dict) or content.get("format") != _FILE_FORMAT:
             raise BadInputError(f"{source}: not a flightgp effect-vehicle model "
@@ -285,7 +285,7 @@ class EffectVehicle:
                    noise_sd=content.get("noise_sd") or None)
 
     @classmethod
-    def load(cls, path) -> "EffectVehicle":
+    def load(cls, path) -> EffectVehicle:
         """Read a model written by :meth:`save`."""
         path = Path(path)
         try:

@@ -7,9 +7,9 @@ import pytest
 
 from fmu_src.builder import build_rate_predictor_fmu
 from validation.cli import main
+from validation.core.recordings import write_recording
 from validation.cosim.cosimulation import cosimulate
 from validation.models.narx import narx_arrays, save_trained, train_narx
-from validation.core.recordings import write_recording
 from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
 
 

@@ -5,11 +5,20 @@ import math
 import numpy as np
 import pytest
 
-from validation.vehicles.bo105 import Bo105Reference, STATE_NAMES
-from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
 from validation.cli import main
-from validation.diagnose.bench import ConcealedCase, REQUIRED_CUT, _quadratic_pitch_damping_states, case_recordings, concealed_cases, format_seed_summary, score_case, summarise_seeds
+from validation.diagnose.bench import (
+    REQUIRED_CUT,
+    ConcealedCase,
+    _quadratic_pitch_damping_states,
+    case_recordings,
+    concealed_cases,
+    format_seed_summary,
+    score_case,
+    summarise_seeds,
+)
+from validation.vehicles.bo105 import STATE_NAMES, Bo105Reference
 from validation.vehicles.bo105_effects import identification_manoeuvre
+from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
 from validation.vehicles.effects import EffectVehicle
 
 

@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from validation.vehicles.bo105_flight import Bo105FlightTest, SENSOR_NOISE_STD
 from validation.cli import main
-from validation.diagnose.pipeline import diagnose, estimate_noise_sd, theil_inequality, write_diagnosis
-from validation.vehicles.bo105_effects import identification_manoeuvre
-from validation.vehicles.effects import EffectVehicle
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording, write_recording
+from validation.diagnose.pipeline import diagnose, estimate_noise_sd, theil_inequality, write_diagnosis
+from validation.vehicles.bo105_effects import identification_manoeuvre
+from validation.vehicles.bo105_flight import SENSOR_NOISE_STD, Bo105FlightTest
+from validation.vehicles.effects import EffectVehicle
 
 
 def _recordings(vehicle, *, duration=20.0):

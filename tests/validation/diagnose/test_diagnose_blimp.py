@@ -9,16 +9,16 @@ import math
 import numpy as np
 import pytest
 from scipy import integrate, signal
-from tests.validation.diagnose.test_diagnose import _check_named, _write_table  # shared with the Bo105 tests
 
-from validation.vehicles.blimp import BlimpParameters, BlimpReference
-from validation.vehicles.blimp_effects import SAMPLE_TIME, SENSOR_NOISE_STD, identification_manoeuvre, simulate_batch
+from tests.validation.diagnose.test_diagnose import _check_named, _write_table  # shared with the Bo105 tests
 from validation.cli import main
-from validation.diagnose.pipeline import diagnose, estimate_noise_sd
-from validation.diagnose.bench import concealed_cases
-from validation.vehicles.effects import EffectVehicle
 from validation.core.errors import BadInputError
 from validation.core.recordings import write_recording
+from validation.diagnose.bench import concealed_cases
+from validation.diagnose.pipeline import diagnose, estimate_noise_sd
+from validation.vehicles.blimp import BlimpParameters, BlimpReference
+from validation.vehicles.blimp_effects import SAMPLE_TIME, SENSOR_NOISE_STD, identification_manoeuvre, simulate_batch
+from validation.vehicles.effects import EffectVehicle
 
 DEFAULT = BlimpParameters()
 

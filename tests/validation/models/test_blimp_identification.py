@@ -9,10 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from validation.vehicles.blimp import BlimpParameters, BlimpReference, STATE_NAMES, rk4_step
-from validation.models.blimp_identification import IDENTIFIED_PARAMETERS, identify_parameters, physics_step, recording_arrays
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
+from validation.models.blimp_identification import (
+    IDENTIFIED_PARAMETERS,
+    identify_parameters,
+    physics_step,
+    recording_arrays,
+)
+from validation.vehicles.blimp import STATE_NAMES, BlimpParameters, BlimpReference, rk4_step
 
 STEP = 0.05  # s: frame interval and RK4 step of these tests
 TRUTH = BlimpParameters()

@@ -8,8 +8,8 @@ import pytest
 from gp_model import ModelFileError, save_model
 from validation.cli import main
 from validation.core.errors import BadInputError
-from validation.models.narx import NarxConfig, free_run, load_trained, one_step, save_trained, train_narx
 from validation.core.recordings import write_recording
+from validation.models.narx import NarxConfig, free_run, load_trained, one_step, save_trained, train_narx
 from validation.reproduce.bo105 import fly_3211
 
 

@@ -11,9 +11,16 @@ import math
 import numpy as np
 import pytest
 
-from validation.vehicles.blimp import BlimpParameters, BlimpReference, SAMPLE_TIME
 from validation.cli import main
-from validation.reproduce.blimp import GROUPS, METHODS, adaptive_step, format_results, random_command_flight, reproduce_blimp
+from validation.reproduce.blimp import (
+    GROUPS,
+    METHODS,
+    adaptive_step,
+    format_results,
+    random_command_flight,
+    reproduce_blimp,
+)
+from validation.vehicles.blimp import SAMPLE_TIME, BlimpParameters, BlimpReference
 
 
 @pytest.fixture(scope="module")
@@ -64,9 +71,9 @@ def test_quick_reproduction_writes_table2(quick):
 
 def test_table2_is_reproducible_from_the_seed(quick):
     from gp_model import GreyBoxGP
-    from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS
     from validation.models.blimp_identification import physics_step
     from validation.reproduce.blimp import GP_STATE_COLUMNS, QUICK_TABLE2, RK_MAX_STEP, _table2, _transitions
+    from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS
 
     # A cheap model (known parameters, fixed hyperparameters, a short flight) through the same
     # Table II code twice with one seed and once with another: the full run is seeded the same way.
@@ -183,8 +190,8 @@ def test_reproduction_builds_the_blimp_rkgp_fmu_from_its_model(quick):
     import fmpy
     from fmpy.validation import validate_fmu
 
-    from validation.models.blimp_identification import blimp_physics_from_description
     from gp_model import load_model, read_header
+    from validation.models.blimp_identification import blimp_physics_from_description
 
     out, results = quick
     fmu = out / results["fmu"]["fmu"]

@@ -5,11 +5,20 @@ import numpy as np
 import pytest
 
 from gp_model import GreyBoxGP
-from validation.vehicles.blimp import hanging_state
-from validation.vehicles.blimp_flight import BlimpFlightTest, FLIGHT_TEST_PARAMETERS
-from validation.reproduce.blimp_control import INITIAL_PARAMETERS, TurnTask, fly_stand_in, pegasus_cost, rk_simulator, rkgp_simulator, switching_function, yaw_command
 from validation.models.blimp_identification import physics_step
 from validation.reproduce.blimp import GP_STATE_COLUMNS, RK_MAX_STEP, _transitions, random_command_flight
+from validation.reproduce.blimp_control import (
+    INITIAL_PARAMETERS,
+    TurnTask,
+    fly_stand_in,
+    pegasus_cost,
+    rk_simulator,
+    rkgp_simulator,
+    switching_function,
+    yaw_command,
+)
+from validation.vehicles.blimp import hanging_state
+from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS, BlimpFlightTest
 
 PARAMS = np.array([0.5, 0.3, 0.5, 3.0])
 

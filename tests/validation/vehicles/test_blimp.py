@@ -8,11 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from validation.vehicles.blimp import BlimpParameters, BlimpReference, STANDARD_GRAVITY, blimp_dynamics, rk4_step
-from validation.vehicles.blimp_flight import BlimpFlightTest, FLIGHT_TEST_PARAMETERS
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
 from validation.vehicles import get_vehicle
+from validation.vehicles.blimp import STANDARD_GRAVITY, BlimpParameters, BlimpReference, blimp_dynamics, rk4_step
+from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS, BlimpFlightTest
 
 PARAMS = BlimpParameters()
 

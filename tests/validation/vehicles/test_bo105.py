@@ -8,13 +8,11 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from validation.vehicles import bo105_flight
-from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES, STATE_NAMES
-from validation.vehicles.bo105_flight import Bo105FlightTest, EFFECTS
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import three_two_one_one, time_grid
-from validation.vehicles import get_vehicle
-from validation.vehicles.bo105 import BO105_SPEEDS_KT
+from validation.vehicles import bo105_flight, get_vehicle
+from validation.vehicles.bo105 import BO105_SPEEDS_KT, INPUT_NAMES, STATE_NAMES, Bo105Reference
+from validation.vehicles.bo105_flight import EFFECTS, Bo105FlightTest
 
 P, Q, R, W = (STATE_NAMES.index(name) for name in ("p", "q", "r", "w"))
 THETA_0, THETA_1S = INPUT_NAMES.index("theta_0"), INPUT_NAMES.index("theta_1s")

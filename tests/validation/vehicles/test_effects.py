@@ -3,11 +3,11 @@ constructions; model files round-trip; bad effects are refused with one clear li
 import numpy as np
 import pytest
 
-from validation.vehicles.bo105 import Bo105Reference, INPUT_NAMES
-from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
-from validation.vehicles.bo105_effects import identification_manoeuvre
-from validation.vehicles.effects import EffectVehicle, check_effects
 from validation.core.errors import BadInputError
+from validation.vehicles.bo105 import INPUT_NAMES, Bo105Reference
+from validation.vehicles.bo105_effects import identification_manoeuvre
+from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
+from validation.vehicles.effects import EffectVehicle, check_effects
 
 Q, P = 2, 5  # columns of q and p in the Bo105 state vector
 

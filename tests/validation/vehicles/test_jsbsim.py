@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from validation.core.errors import BadInputError
-from validation.vehicles.jsbsim import JSBSimVehicle
 from validation.core.manoeuvres import manoeuvre, time_grid
 from validation.vehicles import get_vehicle
+from validation.vehicles.jsbsim import JSBSimVehicle
 
 KT = 0.514444  # m/s per kt
 
