@@ -1,0 +1,2 @@
+"""Co-simulation: FMUs run in fmpy against recordings, and the second hosts (libcosim, a
+plain C program)."""

@@ -1,0 +1,1 @@
+"""Models trained on recordings: GP-NARX rate predictors and the blimp's physical parameters."""
