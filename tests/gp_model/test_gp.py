@@ -31,35 +31,6 @@ def test_interpolates_training_points_with_tiny_noise(make_kernel):
     assert var.max() < 1e-6 * y.var()
 
 
-@pytest.mark.parametrize("n_outputs", [1, 3])
-def test_lml_gradient_matches_finite_differences(make_kernel, n_outputs):
-    X, y = make_data()
-    Y = np.column_stack([y * (j + 1) + j for j in range(n_outputs)])
-    gp = GaussianProcess(make_kernel(2), noise_variance=0.05).fit(X, Y if n_outputs > 1 else y)
-    theta = gp.theta_ + 0.1  # away from any stationary point
-    lml, gradient = gp.log_marginal_likelihood(theta, return_gradient=True)
-    assert lml == pytest.approx(gp.log_marginal_likelihood(theta), rel=1e-12)
-    step = 1e-6
-    numeric = np.array([
-        (gp.log_marginal_likelihood(theta + step * e) - gp.log_marginal_likelihood(theta - step * e))
-        / (2 * step) for e in np.eye(len(theta))
-    ])
-    # Central differences: truncation O(h^2) ~ 1e-12, rounding O(eps |lml| / h) ~ 1e-8.
-    np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-6)
-
-
-def test_variance_equals_covariance_diagonal(make_kernel):
-    X, y = make_data()
-    gp = GaussianProcess(make_kernel(2), noise_variance=0.01).fit(X, y)
-    Xs = np.random.default_rng(3).uniform(-3, 3, size=(15, 2))
-    mean_v, var = gp.predict(Xs, return_var=True)
-    mean_c, cov = gp.predict(Xs, return_cov=True)
-    np.testing.assert_allclose(mean_v, mean_c, rtol=1e-14)
-    np.testing.assert_allclose(var, np.diag(cov), rtol=1e-9, atol=1e-15)
-    noisy = gp.predict(Xs, return_var=True, include_noise=True)[1]
-    np.testing.assert_allclose(noisy - var, gp.noise_variance * y.std() ** 2, rtol=1e-9)
-
-
 def test_matches_scikit_learn_for_the_same_fixed_kernel():
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel
@@ -168,31 +139,3 @@ def test_mixture_over_samples_obeys_law_of_total_variance():
     np.testing.assert_allclose(point_mean, parts[0][0], rtol=1e-12)
 
 
-def test_predictive_forms_reproduce_predict():
-    X, y = make_data()
-    gp = GaussianProcess(HigdonKernel(1.0, [0.4, 0.6]), noise_variance=0.02).fit(X, y)
-    gp.set_hyperparameters(gp.theta_, samples=np.array([gp.theta_, gp.theta_ + 0.2]))
-    Xs = gp.input_scaler_.transform(make_data(n=6, seed=8)[0])
-    for form, use in zip(gp.predictive_forms(), [0, 1]):
-        single = GaussianProcess(HigdonKernel(1.0, [0.5, 0.5])).fit(X, y, theta=form.theta)
-        mean, var = single.predict(gp.input_scaler_.inverse_transform(Xs), return_var=True)
-        k = single.kernel(Xs, form.basis)
-        scale = gp.output_scaler_.scale_[0]
-        np.testing.assert_allclose(k @ form.weights * scale + gp.output_scaler_.mean_[0], mean, rtol=1e-10)
-        latent = single.kernel.diag(Xs) - ((k @ form.variance_factor.T) ** 2).sum(1)
-        np.testing.assert_allclose(latent * scale**2, var, rtol=1e-8, atol=1e-14)
-    assert len(gp.predictive_forms(use_samples=False)) == 1
-
-
-def test_predictive_forms_of_a_multi_output_gp_share_the_variance_factor():
-    X, y = make_data()
-    Y = np.column_stack([y, np.cos(X[:, 1])])
-    gp = GaussianProcess(SquaredExponentialARD(1.0, [0.9, 1.1]), noise_variance=0.01).fit(X, Y)
-    (form,) = gp.predictive_forms()
-    assert form.weights.shape == (len(X), 2)
-    Xs = make_data(n=5, seed=6)[0]
-    k = gp.kernel(gp.input_scaler_.transform(Xs), form.basis)
-    mean, var = gp.predict(Xs, return_var=True)
-    np.testing.assert_allclose(gp.output_scaler_.inverse_transform(k @ form.weights), mean, rtol=1e-10)
-    latent = gp.kernel.diag(Xs) - ((k @ form.variance_factor.T) ** 2).sum(1)
-    np.testing.assert_allclose(latent[:, None] * gp.output_scaler_.scale_**2, var, rtol=1e-8, atol=1e-14)
