@@ -66,7 +66,7 @@ from tests.fmu_src.test_native_fmu import (  # noqa: F401
     test_sources_compile_without_warnings_under_pedantic_c99,
     test_wrong_guid_or_resources_refuse_instantiation_with_a_message,
 )
-from validation.bench.benchmarks import time_blimp_rkgp_fmus
+from validation.bench.fmu import time_blimp_rkgp_fmus
 from validation.cli import main
 from validation.models.blimp_identification import blimp_physics_description, physics_step
 from validation.vehicles.blimp import INPUT_NAMES as BLIMP_INPUTS
@@ -221,7 +221,7 @@ def test_a_step_outside_the_trained_dt_range_is_a_logged_discard_and_changes_not
 
 # -- flightgp bench fmu ------------------------------------------------------------------------------
 def test_bench_times_both_blimp_fmus(blimp_rkgp_fmu, native_fmu, blimp_trained):
-    """validation.bench.benchmarks.time_blimp_rkgp_fmus (``flightgp bench fmu``'s blimp row): the
+    """validation.bench.fmu.time_blimp_rkgp_fmus (``flightgp bench fmu``'s blimp row): the
     report's structure, finite positive times and ratios that are their quotients (no speed
     asserted: speed goals live in the benchmark, README "Benchmarks")."""
     row = time_blimp_rkgp_fmus(blimp_rkgp_fmu, native_fmu, blimp_trained["commands"], blimp_trained["states"][0],

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from validation.bench.benchmarks import BENCHMARKS, format_summary
+from validation.bench.summary import BENCHMARKS, format_summary
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder, write_json
 

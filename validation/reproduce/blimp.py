@@ -80,7 +80,6 @@ from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS, BlimpFlight
 METHODS = ("RK", "ODE", "RKGP", "ODEGP", "GPonly")
 GROUPS = {"position": (0, 1, 2), "orientation": (3, 4, 5), "velocity": (6, 7, 8),
           "angular_velocity": (9, 10, 11)}
-GROUP_UNITS = {"position": "m", "orientation": "rad", "velocity": "m/s", "angular_velocity": "rad/s"}
 #: GP state inputs: every state but absolute position and yaw (Ko et al. 2007, sec. IV-B).
 GP_STATE_COLUMNS = tuple(STATE_NAMES.index(n) for n in ("phi", "theta", "U", "V", "W", "P", "Q", "R"))
 #: Random commands, each drawn uniformly and held 0.25 s (Ko et al.'s 4 Hz controller). mu is
@@ -401,7 +400,7 @@ def _table3(model: GreyBoxGP, rk, params, setup: Table3Setup, seed: int, progres
 
 def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: bool = False) -> dict:
     """Run Tables I, II and III; write ``results.json``, ``predictions.png``, ``table2.png`` and
-    ``table3.png`` to ``out_dir``.
+    ``table3.png`` to ``out_dir``, and the RKGP model file and its FMU.
 
     Parameters
     ----------
@@ -426,28 +425,63 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
     """
     out_dir = Path(out_dir)
     setup = QUICK_SETUP if quick else DEFAULT_SETUP
-    table2_setup = QUICK_TABLE2 if quick else DEFAULT_TABLE2
-    table3_setup = QUICK_TABLE3 if quick else DEFAULT_TABLE3
     started = clock.perf_counter()
+    training, held_out = _fly_flights(setup, seed=seed, progress=progress)
+    fitted = _fit_models(training, setup, seed=seed)
+    table1 = _table1(fitted, held_out, setup, seed=seed, progress=progress)
+    table2, table2_paths = _table2(held_out[0], fitted.models["RKGP"], fitted.rk,
+                                   QUICK_TABLE2 if quick else DEFAULT_TABLE2, seed, progress)
+    began = clock.perf_counter()
+    table3, table3_paths = _table3(fitted.models["RKGP"], fitted.rk, fitted.identified.params,
+                                   QUICK_TABLE3 if quick else DEFAULT_TABLE3, seed, progress)
+    table3["setup"]["seconds"] = clock.perf_counter() - began
+    results = _results(setup, fitted, table1, table2, table3, seed=seed, quick=quick)
+    results["fmu"] = _save_rkgp_model(out_dir, fitted)
+    write_atomically(out_dir / "predictions.png", png_bytes(prediction_figure(table1.paths, table1.truth, n_shown=3)))
+    write_atomically(out_dir / "table2.png", png_bytes(table2_figure(*table2_paths)))
+    write_atomically(out_dir / "table3.png", png_bytes(table3_figure(table3_paths)))
+    results["total_seconds"] = clock.perf_counter() - started
+    write_json(out_dir / "results.json", results)
+    return results
+
+
+def _fly_flights(setup: Table1Setup, *, seed: int, progress: bool) -> tuple[list, list]:
+    """The training and held-out random-command flights (seeds: :func:`reproduce_blimp`)."""
+    flights = ([], [])
     with progress_bar("blimp flights", enabled=progress,
                       total=setup.training_flights + setup.held_out_flights, unit="flight") as update:
-        flights = {}
         for group, (count, duration) in enumerate((
                 (setup.training_flights, setup.training_duration),
                 (setup.held_out_flights, setup.held_out_duration))):
-            flights[group] = []
             for i in range(count):
                 flights[group].append(random_command_flight(duration, [seed, group, i]))
                 if update:
                     update(1)
-    training, held_out = flights[0], flights[1]
+    return flights
 
+
+@dataclass
+class _FittedModels:
+    """The identified ODE, its RK and adaptive steps, and the three GP models (RKGP, ODEGP,
+    GPonly) with their training points and the seconds each took."""
+
+    identified: object
+    identification_s: float
+    rk: object
+    ode: object
+    models: dict
+    fit_seconds: dict
+    n_gp_points: int
+
+
+def _fit_models(training, setup: Table1Setup, *, seed: int) -> _FittedModels:
+    """Identify the ODE on the training flights and fit the residual GPs on every
+    ``gp_stride``-th transition."""
     began = clock.perf_counter()
     identified = identify_parameters(training, max_step=RK_MAX_STEP)
     identification_s = clock.perf_counter() - began
     rk = physics_step(identified.params, max_step=RK_MAX_STEP)
     ode = adaptive_step(identified.params)
-
     states, inputs, next_states = _transitions(training, setup.gp_stride)
     models, fit_seconds = {}, {}
     for name, physics in (("RKGP", rk), ("ODEGP", ode), ("GPonly", None)):
@@ -455,7 +489,24 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
         models[name] = GreyBoxGP(state_columns=GP_STATE_COLUMNS, shared=True, n_restarts=0).fit(
             states, inputs, next_states, physics, seed=seed)
         fit_seconds[name] = clock.perf_counter() - began
+    return _FittedModels(identified, identification_s, rk, ode, models, fit_seconds, len(states))
 
+
+@dataclass
+class _Table1:
+    """Table I (per method: RMSE per state group and seconds per prediction), the one-frame
+    RMSEs, and the predicted and recorded paths of every start, shapes (S, 21, 12)."""
+
+    table: dict
+    one_step: dict
+    paths: dict
+    truth: np.ndarray
+
+
+def _table1(fitted: _FittedModels, held_out, setup: Table1Setup, *, seed: int, progress: bool) -> _Table1:
+    """One-second predictions of every method from random held-out start states, and one-frame
+    predictions on every held-out transition."""
+    rk, ode, models = fitted.rk, fitted.ode, fitted.models
     starts, step_inputs, truth = _start_windows(held_out, setup.n_starts, np.random.default_rng([seed, 2]))
     predictors = {
         "RK": lambda s, u: simulate_segments(rk, s[None], u[None])[0],
@@ -472,7 +523,6 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
             paths[method] = np.concatenate([starts[:, None], predicted], axis=1)
             rmse = np.sqrt(np.mean(_group_errors(paths[method][:, -1], truth[:, -1]) ** 2, axis=0))
             table[method] = {**{g: float(v) for g, v in zip(GROUPS, rmse)}, "time_s": seconds}
-
     # One-frame predictions on every held-out transition: does the residual GP help where it
     # was trained to (one step), apart from how its errors compound over a second?
     held_states, held_inputs, held_next = _transitions(held_out, 1)
@@ -481,12 +531,13 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
                 "GPonly": models["GPonly"].predict_one_step(held_states, held_inputs, None)[0]}
     one_step = {m: {g: float(v) for g, v in zip(GROUPS, np.sqrt(np.mean(
         _group_errors(p, held_next) ** 2, axis=0)))} for m, p in one_step.items()}
+    return _Table1(table, one_step, paths, truth)
 
-    table2, table2_paths = _table2(held_out[0], models["RKGP"], rk, table2_setup, seed, progress)
-    began = clock.perf_counter()
-    table3, table3_paths = _table3(models["RKGP"], rk, identified.params, table3_setup, seed, progress)
-    table3["setup"]["seconds"] = clock.perf_counter() - began
 
+def _results(setup: Table1Setup, fitted: _FittedModels, table1: _Table1, table2: dict, table3: dict, *,
+             seed: int, quick: bool) -> dict:
+    """The content of ``results.json`` (without the FMU and the total time)."""
+    identified = fitted.identified
     results = {
         "case": "Ko et al. (ICRA 2007) Table I on the blimp-flight stand-in: one-second prediction "
                 "from random start states on held-out random-command flights",
@@ -500,11 +551,11 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
                   "horizon_frames": HORIZON_FRAMES, "rk_step": "one RK4 step per mocap frame",
                   "ode": "scipy RK45 per frame, rtol 1e-8, atol 1e-10",
                   "gp_inputs": [STATE_NAMES[c] for c in GP_STATE_COLUMNS] + [*INPUT_NAMES, "dt"],
-                  "gp_training_points": int(len(states)),
+                  "gp_training_points": int(fitted.n_gp_points),
                   "gp": "one squared-exponential ARD GP shared by the 12 residual outputs, "
                         "type-II maximum likelihood"},
-        "table1": table,
-        "one_step_rmse": one_step,
+        "table1": table1.table,
+        "one_step_rmse": table1.one_step,
         "table2": table2,
         "table3": table3,
         "identification": {
@@ -512,24 +563,20 @@ def reproduce_blimp(out_dir, *, seed: int = 0, progress: bool = True, quick: boo
                 FLIGHT_TEST_PARAMETERS.to_vector()[FLIGHT_TEST_PARAMETERS.vector_names().index(name)])}
                 for name, entry in identified.as_dict().items()},
             "n_segments": identified.n_segments, "rms_scaled_residual": identified.rms_residual,
-            "seconds": identification_s},
-        "gp_fit_seconds": fit_seconds,
-        "comparisons": _comparisons(table),
+            "seconds": fitted.identification_s},
+        "gp_fit_seconds": fitted.fit_seconds,
+        "comparisons": _comparisons(table1.table),
         "total_seconds": None,
     }
     results["notes"] = _notes(results)
-    # The RKGP model as a portable file and as an FMU (issue 5's blimp RKGP FMU, built from it).
-    model_path = save_model(out_dir / "blimp_rkgp.npz", models["RKGP"], physics=blimp_physics_description(
-        identified.params, max_step=RK_MAX_STEP))
-    results["fmu"] = {"model": model_path.name,
-                      "fmu": build_blimp_rkgp_fmu(model_path, out_dir, name="blimp_rkgp").name}
-    figure = prediction_figure(paths, truth, n_shown=3)
-    write_atomically(out_dir / "predictions.png", png_bytes(figure))
-    write_atomically(out_dir / "table2.png", png_bytes(table2_figure(*table2_paths)))
-    write_atomically(out_dir / "table3.png", png_bytes(table3_figure(table3_paths)))
-    results["total_seconds"] = clock.perf_counter() - started
-    write_json(out_dir / "results.json", results)
     return results
+
+
+def _save_rkgp_model(out_dir: Path, fitted: _FittedModels) -> dict:
+    """The RKGP model as a portable file and as the blimp RKGP FMU built from it."""
+    model_path = save_model(out_dir / "blimp_rkgp.npz", fitted.models["RKGP"], physics=blimp_physics_description(
+        fitted.identified.params, max_step=RK_MAX_STEP))
+    return {"model": model_path.name, "fmu": build_blimp_rkgp_fmu(model_path, out_dir, name="blimp_rkgp").name}
 
 
 def _comparisons(table: dict) -> dict:

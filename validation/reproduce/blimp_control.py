@@ -41,19 +41,15 @@ parameters, so a derivative-free optimiser (Nelder-Mead) can compare policies wi
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
 
-from validation.vehicles.blimp import SAMPLE_TIME, euler_rates, hanging_state, rk4, rk4_substeps
+from validation.vehicles.blimp import SAMPLE_TIME, euler_rates
 from validation.vehicles.blimp_flight import (
     ATTITUDE_NOISE_STD,
-    DRIFT_TIME_CONSTANT,
-    MOCAP_JITTER_LIMIT,
-    MOCAP_JITTER_STD,
     BlimpFlightTest,
     local_derivative,
 )
@@ -198,14 +194,15 @@ def learn_controller(simulator, task: TurnTask, start_state, seeds, *, max_evalu
 def fly_stand_in(params, *, seed, frames: int, vehicle: BlimpFlightTest | None = None):
     """The controller in the loop of the ``blimp-flight`` stand-in, frame by frame.
 
-    The stand-in's :meth:`~validation.vehicles.blimp.BlimpFlightTest.simulate` takes the whole command
-    history up front; here the same vehicle (fan lag, dead band, buoyancy drift, jittered frame
-    times, true parameters) is stepped one frame at a time so the 4 Hz controller can act on
-    what it measures: the yaw with 0.5 deg marker noise and the yaw rate as the slope of a
+    The stand-in's :meth:`~validation.vehicles.blimp_flight.BlimpFlightTest.simulate` takes the
+    whole command history up front; here the same vehicle (fan lag, dead band, buoyancy drift,
+    jittered frame times, true parameters) is stepped one frame at a time
+    (:meth:`~validation.vehicles.blimp_flight.BlimpFlightTest.start_flight`) so the 4 Hz
+    controller can act on what it measures: the yaw with 0.5 deg marker noise and the yaw rate as the slope of a
     quadratic fit through the last 5 noisy yaws (the one-sided end of the stand-in's 5-sample
     differentiator; zero, the known rest, before 5 frames exist). Jitter and drift come from
-    the streams ``simulate`` uses with the same seed; for a command sequence that does not
-    depend on the measurements the true states equal ``simulate``'s (tested).
+    the streams ``simulate`` uses with the same seed, so for a command sequence that does not
+    depend on the measurements the true states equal ``simulate``'s.
 
     Returns
     -------
@@ -217,45 +214,22 @@ def fly_stand_in(params, *, seed, frames: int, vehicle: BlimpFlightTest | None =
         Held commands (the last row repeats the one before).
     """
     vehicle = BlimpFlightTest() if vehicle is None else vehicle
-    nominal = np.arange(frames + 1) * SAMPLE_TIME
-    jitter_rng, drift_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
-    time = nominal
-    if vehicle.mocap:
-        limit = MOCAP_JITTER_LIMIT * SAMPLE_TIME
-        jitter = np.clip(jitter_rng.normal(0.0, MOCAP_JITTER_STD, len(nominal)), -limit, limit)
-        jitter[0] = 0.0
-        time = nominal + jitter
-    # Buoyancy drift: the exact Ornstein-Uhlenbeck update of BlimpFlightTest._true_states.
-    substeps = rk4_substeps(time, vehicle.max_step)
-    step_lengths = np.repeat(np.diff(time) / substeps, substeps)
-    decay = np.exp(-step_lengths / DRIFT_TIME_CONSTANT)
-    shocks = drift_rng.standard_normal(len(step_lengths) + 1)
-    lift, value = np.empty(len(step_lengths)), vehicle.buoyancy_drift * shocks[0]
-    for j, a in enumerate(decay):
-        lift[j] = value
-        value = a * value + vehicle.buoyancy_drift * math.sqrt(1.0 - a * a) * shocks[j + 1]
-
-    state = np.concatenate([hanging_state(vehicle.params), np.zeros(2)])
-    states = np.empty((frames + 1, 12))
+    flight = vehicle.start_flight(np.arange(frames + 1) * SAMPLE_TIME, seed=seed)
     measured_yaw = np.empty(frames + 1)
     commands = np.zeros((frames + 1, 3))
-    j = 0
     for k in range(frames + 1):
-        states[k] = state[:12]
-        measured_yaw[k] = state[5] + (noise_rng.normal(0.0, ATTITUDE_NOISE_STD) if vehicle.mocap else 0.0)
+        noise = flight.noise_rng.normal(0.0, ATTITUDE_NOISE_STD) if vehicle.mocap else 0.0
+        measured_yaw[k] = flight.state[5] + noise
         if k == frames:
             commands[k] = commands[k - 1]
             break
         if k % FRAMES_PER_DECISION == 0:
-            rate = 0.0 if k < 4 else local_derivative(time[k - 4:k + 1], measured_yaw[k - 4:k + 1, None])[-1, 0]
+            rate = 0.0 if k < 4 else local_derivative(flight.time[k - 4:k + 1], measured_yaw[k - 4:k + 1, None])[-1, 0]
             commands[k] = [0.0, 0.0, float(yaw_command(_wrap(TURN - measured_yaw[k]), rate, params))]
         else:
             commands[k] = commands[k - 1]
-        for _ in range(substeps[k]):
-            physics = dataclasses.replace(vehicle.params, net_lift=vehicle.params.net_lift + lift[j])
-            state = rk4(lambda s: vehicle._derivative(s, commands[k], physics), state, step_lengths[j])
-            j += 1
-    return time, states, commands
+        flight.advance(commands[k])
+    return flight.time, flight.states, commands
 
 
 def turn_errors(states) -> dict:

@@ -44,22 +44,11 @@ FLIGHT_TEST_PARAMETERS = dataclasses.replace(
     quadratic_drag=(1.15 * _REFERENCE_PARAMETERS.quadratic_drag[0], *_REFERENCE_PARAMETERS.quadratic_drag[1:]),
 )
 
-
 MOCAP_JITTER_STD = 0.004  # s, frame timing jitter (assumed; Ko et al. report "jitter" only)
-
-
 MOCAP_JITTER_LIMIT = 0.25  # jitter clipped to this fraction of the smallest command interval
-
-
 POSITION_NOISE_STD = 0.001  # m per axis, marker noise of an indoor mocap (assumed, ~mm)
-
-
 ATTITUDE_NOISE_STD = math.radians(0.5)  # rad per Euler angle (assumed)
-
-
 DIFFERENCE_WINDOW = 5  # samples in the local quadratic fit that differentiates poses
-
-
 DRIFT_TIME_CONSTANT = 60.0  # s, correlation time of the buoyancy drift (assumed)
 
 
@@ -135,8 +124,22 @@ class BlimpFlightTest:
         self.mocap = bool(mocap)
         self.max_step = checked_max_step(max_step)
 
-    def _derivative(self, state: np.ndarray, command: np.ndarray, params: BlimpParameters) -> np.ndarray:
-        """Rigid-body state (12) plus the two fans' effective commands (2)."""
+    def start_flight(self, time, *, seed: int = 0) -> StandInFlight:
+        """A flight stepped frame by frame (for a controller in the loop; :meth:`simulate` flies
+        a whole command history through the same steps).
+
+        Parameters
+        ----------
+        time : array_like, shape (n,)
+            Nominal frame times, s (``t0 + k*h``), jittered when ``mocap``.
+        seed : int
+            As :meth:`simulate`'s: the same seed gives the same jitter, drift and noise streams.
+        """
+        return StandInFlight(self, np.asarray(time, dtype=float), seed=seed)
+
+    def derivative(self, state: np.ndarray, command: np.ndarray, params: BlimpParameters) -> np.ndarray:
+        """Time derivative of the rigid-body state (12) plus the two fans' effective commands (2)
+        under ``command`` (3), with the fans' dead band and spin-up lag; shape (14,)."""
         target = np.where(np.abs(command[[0, 2]]) < self.dead_band, 0.0, command[[0, 2]])
         if self.motor_time_constants is None:
             effective, fans_dot = target, np.zeros(2)
@@ -145,30 +148,6 @@ class BlimpFlightTest:
             fans_dot = (target - effective) / np.asarray(self.motor_time_constants)
         body_inputs = np.array([effective[0], command[1], effective[1]])
         return np.concatenate([blimp_dynamics(state[:12], body_inputs, params), fans_dot])
-
-    def _true_states(self, time, inputs, drift_rng) -> np.ndarray:
-        substeps = rk4_substeps(time, self.max_step)
-        step_lengths = np.repeat(np.diff(time) / substeps, substeps)
-        # Exact Ornstein-Uhlenbeck update over each RK4 step, net lift held within the step.
-        decay = np.exp(-step_lengths / DRIFT_TIME_CONSTANT)
-        shocks = drift_rng.standard_normal(len(step_lengths) + 1)
-        lift = np.empty(len(step_lengths))
-        value = self.buoyancy_drift * shocks[0]
-        for j, a in enumerate(decay):
-            lift[j] = value
-            value = a * value + self.buoyancy_drift * math.sqrt(1.0 - a * a) * shocks[j + 1]
-
-        state = np.concatenate([hanging_state(self.params), np.zeros(2)])
-        states = np.empty((len(time), len(STATE_NAMES)))
-        states[0] = state[:12]
-        j = 0
-        for k, n_steps in enumerate(substeps):
-            for _ in range(n_steps):
-                params = dataclasses.replace(self.params, net_lift=self.params.net_lift + lift[j])
-                state = rk4(lambda s: self._derivative(s, inputs[k], params), state, step_lengths[j])
-                j += 1
-            states[k + 1] = state[:12]
-        return states
 
     def simulate(self, time, inputs, *, seed: int = 0) -> Recording:
         """Fly ``inputs`` (held from each frame to the next) and return the mocap recording.
@@ -188,15 +167,11 @@ class BlimpFlightTest:
             and ``sample_time_nominal``); outputs are all 12 states as measured.
         """
         time, inputs = check_command_history(time, inputs, min_samples=DIFFERENCE_WINDOW)
-        jitter_rng, drift_rng, noise_rng = (
-            np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
         nominal_step = float(np.median(np.diff(time)))
-        if self.mocap:
-            limit = MOCAP_JITTER_LIMIT * float(np.min(np.diff(time)))
-            jitter = np.clip(jitter_rng.normal(0.0, MOCAP_JITTER_STD, len(time)), -limit, limit)
-            jitter[0] = 0.0
-            time = time + jitter
-        states = self._true_states(time, inputs, drift_rng)
+        flight = self.start_flight(time, seed=seed)
+        for command in inputs[:-1]:
+            flight.advance(command)
+        time, states = flight.time, flight.states
         metadata = {"vehicle": self.name, "seed": int(seed),
                     "parameters": dict(zip(BlimpParameters.vector_names(), self.params.to_vector().tolist())),
                     "effects": {"motor_time_constants": self.motor_time_constants,
@@ -204,7 +179,7 @@ class BlimpFlightTest:
                                 "buoyancy_drift_time_constant": DRIFT_TIME_CONSTANT,
                                 "mocap": self.mocap}}
         if self.mocap:
-            states = self._measure(time, states, noise_rng)
+            states = self._measure(time, states, flight.noise_rng)
             # Velocity noise: interior samples on the nominal grid (see local_derivative).
             slope_gain = 1.0 / (math.sqrt(10.0) * nominal_step)
             noise_std = dict.fromkeys(("x", "y", "z"), POSITION_NOISE_STD)
@@ -227,3 +202,78 @@ class BlimpFlightTest:
         body_velocity = np.einsum("nji,nj->ni", rotation_body_to_earth(angles), earth_velocity)
         rates = body_rates(angles, local_derivative(time, angles))
         return np.concatenate([position, angles, body_velocity, rates], axis=1)
+
+
+class StandInFlight:
+    """One flight of the ``blimp-flight`` stand-in, stepped one frame at a time.
+
+    The frame times are jittered (when the vehicle has ``mocap``) and the buoyancy drift is
+    drawn for the whole flight at the start, from independent streams spawned from ``seed``
+    (jitter, drift, then marker noise in :attr:`noise_rng`, as :meth:`BlimpFlightTest.simulate`
+    draws them). Each :meth:`advance` holds one command over the next frame interval, cut into
+    equal RK4 substeps no longer than the vehicle's ``max_step``, with the net lift of each
+    substep held.
+
+    Attributes
+    ----------
+    time : ndarray, shape (n,)
+        Frame times, s.
+    states : ndarray, shape (n, 12)
+        True states at the frames reached so far (rows beyond :attr:`frame` are unset).
+    frame : int
+        Index of the current frame.
+    noise_rng : numpy.random.Generator
+        The stream of the flight's marker noise.
+    """
+
+    def __init__(self, vehicle: BlimpFlightTest, nominal_time: np.ndarray, *, seed: int) -> None:
+        jitter_rng, drift_rng, self.noise_rng = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+        self.vehicle = vehicle
+        self.time = nominal_time
+        if vehicle.mocap:
+            limit = MOCAP_JITTER_LIMIT * float(np.min(np.diff(nominal_time)))
+            jitter = np.clip(jitter_rng.normal(0.0, MOCAP_JITTER_STD, len(nominal_time)), -limit, limit)
+            jitter[0] = 0.0
+            self.time = nominal_time + jitter
+        self._substeps = rk4_substeps(self.time, vehicle.max_step)
+        self._step_lengths = np.repeat(np.diff(self.time) / self._substeps, self._substeps)
+        self._lift = _buoyancy_drift(self._step_lengths, vehicle.buoyancy_drift, drift_rng)
+        self._state = np.concatenate([hanging_state(vehicle.params), np.zeros(2)])
+        self.states = np.empty((len(self.time), len(STATE_NAMES)))
+        self.states[0] = self._state[:12]
+        self.frame = 0
+        self._substep = 0
+
+    @property
+    def state(self) -> np.ndarray:
+        """The true state at the current frame, shape (12,)."""
+        return self._state[:12].copy()
+
+    def advance(self, command) -> None:
+        """Hold ``command`` (3,) from the current frame to the next."""
+        if self.frame + 1 >= len(self.time):
+            raise IndexError(f"the flight has {len(self.time)} frames; it is at the last")
+        command = np.asarray(command, dtype=float)
+        params = self.vehicle.params
+        for _ in range(self._substeps[self.frame]):
+            lifted = dataclasses.replace(params, net_lift=params.net_lift + self._lift[self._substep])
+            self._state = rk4(lambda s, p=lifted: self.vehicle.derivative(s, command, p), self._state,
+                              self._step_lengths[self._substep])
+            self._substep += 1
+        self.frame += 1
+        self.states[self.frame] = self._state[:12]
+
+
+def _buoyancy_drift(step_lengths: np.ndarray, drift_sd: float, rng) -> np.ndarray:
+    """Net-lift change over each RK4 step, N, shape like ``step_lengths``: an Ornstein-Uhlenbeck
+    process of standard deviation ``drift_sd`` and correlation time :data:`DRIFT_TIME_CONSTANT`,
+    from its stationary distribution, updated exactly from step to step (held within a step)."""
+    decay = np.exp(-step_lengths / DRIFT_TIME_CONSTANT)
+    shocks = rng.standard_normal(len(step_lengths) + 1)
+    lift = np.empty(len(step_lengths))
+    value = drift_sd * shocks[0]
+    for j, a in enumerate(decay):
+        lift[j] = value
+        value = a * value + drift_sd * math.sqrt(1.0 - a * a) * shocks[j + 1]
+    return lift

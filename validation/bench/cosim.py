@@ -1,0 +1,92 @@
+"""``flightgp bench cosim``: wall-clock time of the GP rate-predictor co-simulation against
+simulated time and against the reference FMU alone (docs/benchmarks.md)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+#: Goal of ``bench cosim`` (docs/benchmarks.md): the 8 s 3-2-1-1 co-simulation at least this many times
+#: faster than real time.
+COSIM_GOAL_REAL_TIME = 200.0
+
+
+def run(*, seed: int = 0, progress: bool = True) -> dict:
+    """Wall-clock time of the 8 s 80 kt 3-2-1-1 co-simulation in fmpy (``flightgp cosim``: the GP
+    rate-predictor FMU in free-run mode, moment matching, next to the Bo105 reference FMU) against
+    the same co-simulation's simulated time (real time) and against the reference FMU alone in
+    the same loop (the peer), for the pythonfmu and the native GP FMU of two models: the paper's
+    (32 points, 400 annealing samples) and one with a single (maximum-likelihood) hyperparameter
+    set.
+
+    Returns
+    -------
+    dict
+        ``{"simulated_s", "goal_real_time", "rows": [{"model", "fmu", "seconds",
+        "real_time_factor", "over_reference_alone", "goal_met"}], "reference_alone_s"}``.
+    """
+    import tempfile
+    from dataclasses import replace
+    from pathlib import Path
+
+    from fmu_src.builder import build_bo105_reference_fmu, build_rate_predictor_fmu
+    from fmu_src.native import build_native_rate_predictor_fmu
+    from validation.cosim.cosimulation import cosimulate, simulate
+    from validation.models.narx import save_trained, train_narx
+    from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+    recording = fly_3211("bo105-80kt-flight", input_name="theta_1s",
+                         amplitude=np.radians(TRAINING_MANOEUVRE["amplitude_deg"]),
+                         step_time=TRAINING_MANOEUVRE["step_time"], start=1.0, duration=8.0, seed=seed)
+    simulated = float(recording.time[-1] - recording.time[0])
+    models = (("paper: 32 points, 400 samples", PAPER_CONFIG, {}),
+              ("32 points, 1 sample (max. likelihood)",
+               replace(PAPER_CONFIG, hyperparameters="maximum_likelihood"), {"n_restarts": 0}))
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="flightgp-bench-cosim-") as scratch:
+        scratch = Path(scratch)
+        reference = build_bo105_reference_fmu(80, scratch, name="bench_reference")
+        rows_01 = slice(None, None, 10)  # the recording (100 Hz) on the 0.1 s NARX grid
+        reference_alone = _best_time(lambda: simulate(
+            reference, time=recording.time[rows_01] - recording.time[0],
+            inputs={c: recording.input(c)[rows_01] for c in recording.input_names}, outputs=["p", "q", "r"]))
+        for index, (label, config, options) in enumerate(models):
+            trained = train_narx([recording], config, seed=seed, progress=progress, **options)
+            path = save_trained(scratch / f"model_{index}.npz", trained)
+            for kind, build in (("pythonfmu", build_rate_predictor_fmu),
+                                ("native", build_native_rate_predictor_fmu)):
+                fmu = build(path, scratch, name=f"bench_{kind}_{index}")
+                seconds = _best_time(lambda fmu=fmu: cosimulate(fmu, recording, reference_fmu=reference))
+                rows.append({"model": label, "fmu": kind, "seconds": seconds,
+                             "real_time_factor": simulated / seconds,
+                             "over_reference_alone": seconds / reference_alone,
+                             "goal_met": simulated / seconds >= COSIM_GOAL_REAL_TIME})
+    return {"simulated_s": simulated, "goal_real_time": COSIM_GOAL_REAL_TIME,
+            "reference_alone_s": reference_alone, "rows": rows}
+
+
+def _best_time(call, *, repeats: int = 3) -> float:
+    """Best wall-clock seconds of ``call()`` over ``repeats`` calls."""
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        call()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def format_table(report: dict) -> str:
+    """The ``bench cosim`` report as a table."""
+    return "\n".join([
+        f"Co-simulation of the {report['simulated_s']:g} s 80 kt 3-2-1-1 in fmpy (GP FMU free run + "
+        f"Bo105 reference FMU), best of 3; reference FMU alone {report['reference_alone_s'] * 1e3:.0f} ms; "
+        f"goal >= {report['goal_real_time']:g}x real time",
+        f"{'model':<40} {'GP FMU':<10} {'s':>7} {'x real time':>12} {'x ref. alone':>13} {'met':>4}",
+        *(f"{r['model']:<40} {r['fmu']:<10} {r['seconds']:7.3f} {r['real_time_factor']:12.1f} "
+          f"{r['over_reference_alone']:13.1f} {'yes' if r['goal_met'] else 'no':>4}" for r in report["rows"]),
+    ])
+
+
+def summary_rows(report: dict) -> list:
+    return [(f"co-simulation, {r['fmu']} GP FMU, {r['model']}", f"{r['real_time_factor']:.0f}x real time",
+             f">= {report['goal_real_time']:g}x", r["goal_met"]) for r in report["rows"]]

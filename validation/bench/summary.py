@@ -1,0 +1,55 @@
+"""The benchmarks of ``flightgp bench`` by name, and the one table of their headline
+measures against their goals.
+
+Each benchmark measures flightgp against a peer run in the same process, as a ratio; speed
+goals live here, never in timed unit tests (docs/benchmarks.md)."""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from validation.bench import cosim, diagnose, fmu, gp, narx
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """One entry of :data:`BENCHMARKS`.
+
+    Attributes
+    ----------
+    run : callable
+        ``run(progress=..., **options) -> dict``, the JSON report.
+    format_table : callable
+        ``format_table(report) -> str``.
+    options : dict
+        Command-line option of ``flightgp bench`` (argparse dest) -> keyword of ``run``.
+    summary : callable
+        ``summary(report) -> [(measure, value, goal, met)]``: the headline rows of the combined
+        ``flightgp bench`` table (``value`` and ``goal`` as text, ``met`` True/False/None).
+    """
+
+    run: Callable[..., dict]
+    format_table: Callable[[dict], str]
+    options: dict
+    summary: Callable[[dict], list]
+
+
+#: Benchmarks by name, with the ``flightgp bench`` options each takes (argparse dest -> keyword
+#: of its ``run``). ``flightgp bench`` without a name runs them all.
+BENCHMARKS = {
+    "gp": Benchmark(gp.run, gp.format_table, {"sizes": "sizes", "restarts": "n_restarts"}, gp.summary_rows),
+    "narx": Benchmark(narx.run, narx.format_table, {"runs": "n_runs", "steps": "n_steps"}, narx.summary_rows),
+    "fmu": Benchmark(fmu.run, fmu.format_table, {"fmu_steps": "n_steps"}, fmu.summary_rows),
+    "cosim": Benchmark(cosim.run, cosim.format_table, {}, cosim.summary_rows),
+    "diagnose": Benchmark(diagnose.run, diagnose.format_table, {}, diagnose.summary_rows),
+}
+
+
+def format_summary(reports: dict) -> str:
+    """One table of every benchmark's headline rows (``flightgp bench``)."""
+    rows = [row for name, report in reports.items() for row in BENCHMARKS[name].summary(report)]
+    width = max(len(row[0]) for row in rows)
+    lines = [f"{'measure':<{width}}  {'measured':<34} {'goal':<16} met"]
+    for measure, value, goal, met in rows:
+        lines.append(f"{measure:<{width}}  {value:<34} {goal:<16} {'-' if met is None else 'yes' if met else 'no'}")
+    return "\n".join(lines)
