@@ -9,16 +9,7 @@ import pytest
 from gp_model import GaussianProcess, GreyBoxGP, HigdonKernel, PerOutputGP, SparseGaussianProcess, SquaredExponentialARD
 from tests.gp_model.cart import CART_PHYSICS, physics, trajectory
 from tests.gp_model.contract import GPModelCase, GPModelContract
-
-
-def regression_data(n, *, n_outputs=1, seed=0):
-    """Smooth targets of two inputs with a little noise; ``y`` (n,) or (n, n_outputs)."""
-    rng = np.random.default_rng(seed)
-    X = rng.uniform(-2.0, 2.0, size=(n, 2))
-    y = np.sin(X[:, 0]) + 0.3 * X[:, 1] ** 2 + 0.05 * rng.normal(size=n)
-    if n_outputs == 1:
-        return X, y
-    return X, np.column_stack([y * (j + 1) + j for j in range(n_outputs)])
+from tests.gp_model.data import make_data
 
 
 def prediction_points(seed=7):
@@ -42,7 +33,7 @@ class TestExactSquaredExponential(GPModelContract):
     @pytest.fixture(scope="class")
     @classmethod
     def case(cls):
-        X, y = regression_data(30)
+        X, y = make_data(30)
         return gp_case(GaussianProcess(SquaredExponentialARD(1.3, [0.7, 1.5]), noise_variance=0.05).fit(X, y))
 
 
@@ -50,7 +41,7 @@ class TestExactHigdonMixtureSharedOutputs(GPModelContract):
     @pytest.fixture(scope="class")
     @classmethod
     def case(cls):
-        X, Y = regression_data(30, n_outputs=3)
+        X, Y = make_data(30, n_outputs=3)
         return gp_case(with_samples(GaussianProcess(HigdonKernel(1.2, [0.3, 0.6]), noise_variance=0.03).fit(X, Y)))
 
 
@@ -58,7 +49,7 @@ class TestSparseSquaredExponentialMixture(GPModelContract):
     @pytest.fixture(scope="class")
     @classmethod
     def case(cls):
-        X, y = regression_data(60)
+        X, y = make_data(60)
         gp = SparseGaussianProcess(SquaredExponentialARD(1.3, [0.7, 1.5]), n_inducing=12, noise_variance=0.02)
         return gp_case(with_samples(gp.fit(X, y)))
 
@@ -67,7 +58,7 @@ class TestSparseHigdonSharedOutputs(GPModelContract):
     @pytest.fixture(scope="class")
     @classmethod
     def case(cls):
-        X, Y = regression_data(60, n_outputs=3)
+        X, Y = make_data(60, n_outputs=3)
         return gp_case(SparseGaussianProcess(HigdonKernel(1.3, [0.3, 0.7]), n_inducing=10,
                                              noise_variance=0.05).fit(X, Y))
 
@@ -76,7 +67,7 @@ class TestPerOutputExactAndSparse(GPModelContract):
     @pytest.fixture(scope="class")
     @classmethod
     def case(cls):
-        X, Y = regression_data(40, n_outputs=2)
+        X, Y = make_data(40, n_outputs=2)
         factories = iter([lambda: GaussianProcess(SquaredExponentialARD(1.0, [1.0, 1.0])),
                           lambda: SparseGaussianProcess(HigdonKernel(1.0, [0.5, 0.5]), n_inducing=8)])
         model = PerOutputGP.fit(lambda: next(factories)(), X, Y)

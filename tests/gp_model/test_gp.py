@@ -4,21 +4,8 @@ import logging
 import numpy as np
 import pytest
 
-from gp_model import GaussianProcess, GPNumericalError, HigdonKernel, PerOutputGP, SquaredExponentialARD
-
-
-def make_data(n=30, d=2, seed=0, noise=0.05):
-    rng = np.random.default_rng(seed)
-    X = rng.uniform(-2, 2, size=(n, d))
-    y = np.sin(1.5 * X[:, 0]) + 0.3 * X[:, -1] ** 2 + noise * rng.standard_normal(n)
-    return X, y
-
-
-@pytest.fixture(params=["se_ard", "higdon"])
-def make_kernel(request):
-    if request.param == "se_ard":
-        return lambda d: SquaredExponentialARD(1.3, np.linspace(0.7, 1.5, d))
-    return lambda d: HigdonKernel(1.3, np.linspace(0.3, 0.7, d))
+from gp_model import GaussianProcess, GPNumericalError, PerOutputGP, SquaredExponentialARD
+from tests.gp_model.data import make_data
 
 
 def test_interpolates_training_points_with_tiny_noise(make_kernel):

@@ -1,6 +1,5 @@
 """Sparse GP (Titsias 2009 VFE): the exact GP as a limit, the bound's properties, gradients,
 predictive forms, inference, GP-NARX training on every sample, and model files."""
-import json
 
 import numpy as np
 import pytest
@@ -20,20 +19,7 @@ from gp_model import (
     read_header,
     save_model,
 )
-
-
-def make_data(n=30, d=2, seed=0, noise=0.05):
-    rng = np.random.default_rng(seed)
-    X = rng.uniform(-2, 2, size=(n, d))
-    y = np.sin(1.5 * X[:, 0]) + 0.3 * X[:, -1] ** 2 + noise * rng.standard_normal(n)
-    return X, y
-
-
-@pytest.fixture(params=["se_ard", "higdon"])
-def make_kernel(request):
-    if request.param == "se_ard":
-        return lambda d: SquaredExponentialARD(1.3, np.linspace(0.7, 1.5, d))
-    return lambda d: HigdonKernel(1.3, np.linspace(0.3, 0.7, d))
+from tests.gp_model.data import make_data, rewrite_header
 
 
 def finite_difference_gradient(function, theta, step=1e-6):
@@ -228,23 +214,14 @@ def test_round_trip_sparse_narx_free_runs_identically(tmp_path, sparse_narx):
     np.testing.assert_array_equal(a.runs, b.runs)
 
 
-def _rewrite_header(path, change):
-    with np.load(path, allow_pickle=False) as npz:
-        arrays = {k: npz[k] for k in npz.files}
-    header = json.loads(str(arrays["__header__"]))
-    change(header)
-    arrays["__header__"] = np.array(json.dumps(header))
-    np.savez(path, **arrays)
-
-
 def test_parts_without_gp_type_are_exact_and_unknown_types_are_refused(tmp_path):
     X, y = make_data()
     gp = GaussianProcess(SquaredExponentialARD(1.0, [1.0, 1.0])).fit(X, y)
     path = save_model(tmp_path / "old.npz", gp)
-    _rewrite_header(path, lambda h: h["parts"][0].pop("gp_type"))  # as written before sparse GPs
+    rewrite_header(path, lambda h: h["parts"][0].pop("gp_type"))  # as written before sparse GPs
     loaded = load_model(path)
     assert type(loaded) is GaussianProcess
     np.testing.assert_array_equal(loaded.predict(X), gp.predict(X))
-    _rewrite_header(path, lambda h: h["parts"][0].update(gp_type="fitc"))
+    rewrite_header(path, lambda h: h["parts"][0].update(gp_type="fitc"))
     with pytest.raises(ModelFileError, match="unknown type 'fitc'.*reads exact, sparse_vfe"):
         load_model(path)

@@ -1,5 +1,5 @@
 """Writing output files atomically: temporary files in the target folders, then renames, so a
-crash or a bad input never leaves half a file where a good one was (DESIGN.md, "Conventions")."""
+crash or a bad input never leaves half a file where a good one was (docs/conventions.md, "Writing files")."""
 from __future__ import annotations
 
 import json

@@ -331,7 +331,7 @@ def _split_columns(path: Path, header: list[str], vehicle, candidates) -> tuple[
             if name not in _COLUMNS:
                 raise BadInputError(f"{_where(path, 1, index, name)}: unknown column; flightgp's "
                                     "column names are the vehicles' inputs and states (see the "
-                                    "README, Vehicles), or name the vehicle with --vehicle")
+                                    "docs/vehicles.md), or name the vehicle with --vehicle")
         # The vehicles whose inputs all appear and whose states cover the rest.
         signatures = [(frozenset(v.input_names), frozenset(v.state_names)) for v in candidates]
         matches = [(inputs, states) for inputs, states in signatures

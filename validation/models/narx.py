@@ -7,7 +7,7 @@ this module ties it to :class:`~validation.core.recordings.Recording` s:
 - the NARX step is ``decimation`` recording samples (default 10: 0.1 s at 100 Hz). At 100 Hz a
   rate changes by less than its sensor noise from one sample to the next, so a one-sample NARX
   learns mostly noise and drifts in free run; at 0.1 s the step-to-step change is well above the
-  noise (measured on the Bo105 stand-in; see the README, "Bo105 GP-NARX");
+  noise (measured on the Bo105 stand-in; docs/reproductions.md, "Bo105 GP-NARX");
 - training rows are every ``stride``-th *recording sample* (the Bo105 paper: every 25th), each
   with its regressors ``decimation`` samples apart; ``stride`` need not be a multiple of
   ``decimation``, and ``stride=1`` trains on all samples (every phase of the NARX grid);

@@ -1,6 +1,6 @@
 """Reproduce the blimp RKGP paper's Tables I, II and III (Ko, Klein, Fox & Haehnel, ICRA 2007).
 
-The paper's experiment, with our stand-in (README, "Vehicles"): the ``blimp-flight`` stand-in
+The paper's experiment, with our stand-in (docs/vehicles.md): the ``blimp-flight`` stand-in
 flies random command sequences; the blimp ODE's unknown parameters are identified on training
 flights (:mod:`validation.models.blimp_identification`); then from random start states on held-out
 flights each model predicts one second ahead (20 mocap frames) and is scored against the

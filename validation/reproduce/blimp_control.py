@@ -3,15 +3,15 @@
 Ko, Klein, Fox & Haehnel (ICRA 2007), sec. V: a 4-parameter yaw controller, learned by policy
 search in a simulator with fixed random seeds (PEGASUS: Ng & Jordan, UAI 2000, "PEGASUS: a
 policy search method for large MDPs and POMDPs"), flown on the real blimp for a 90 degree turn.
-DESIGN.md gives the structure (three gains of a second-order yaw model and a tanh smoothing
-slope of a switching curve, controller at 4 Hz) but not the paper's exact law; the law below is
-ours, with that structure.
+The paper gives the structure (three gains of a second-order yaw model and a tanh smoothing
+slope of a switching curve, controller at 4 Hz) but not its exact law; the law below is ours,
+with that structure.
 
 Control law
 -----------
 Yaw error ``e = wrap(psi_target - psi)`` (rad, positive: target to the right), yaw rate
 ``r = psi_dot`` (rad/s). Second-order yaw model with a tail fan stronger in one direction
-(DESIGN.md, "Physics facts")::
+(Ko et al. 2007: the tail motor is stronger in one direction)::
 
     r_dot = b_plus u - a r   (u > 0),      r_dot = b_minus u - a r   (u < 0)
 
@@ -62,7 +62,7 @@ PARAMETER_UNITS = ("rad/s^2", "rad/s^2", "1/s", "1/rad")
 #: damping order, and a slope that saturates the command beyond 20 deg of switching function).
 INITIAL_PARAMETERS = np.array([0.5, 0.3, 0.5, 3.0])
 TURN = math.radians(90.0)
-FRAMES_PER_DECISION = 5  # 4 Hz controller on 20 Hz mocap frames (Ko et al., via DESIGN.md)
+FRAMES_PER_DECISION = 5  # 4 Hz controller on 20 Hz mocap frames (Ko et al. 2007, sec. V)
 
 
 def switching_function(yaw_error, yaw_rate, params) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Reproduce the Bo105 GP-NARX paper (AHS 74th Forum, 2018), then go past its future work.
 
-The paper's experiment, with our stand-ins (README, "Vehicles"): the Bo105 flight-test stand-in
+The paper's experiment, with our stand-ins (docs/vehicles.md): the Bo105 flight-test stand-in
 at 80 kt flies a 3-2-1-1 on longitudinal cyclic (1 deg, 0.4 s steps, 8 s at 100 Hz); a GP-NARX
 with Higdon's kernel and simulated annealing predicts pitch, roll and yaw rate from the cyclic
 and the previous rates; one-step-ahead (OSAP) and free-run (FMP, Monte Carlo with

@@ -33,7 +33,7 @@ _REFERENCE_PARAMETERS = BlimpParameters()
 
 #: True parameters of the ``blimp-flight`` stand-in: the reference's, except
 #: - tail fan 40 % weaker pushing the tail right (u_tail < 0) than left, as a fixed-pitch
-#:   propeller run backwards is (Ko et al.'s tail motor is "stronger in one direction", DESIGN.md);
+#:   propeller run backwards is (Ko et al. 2007: the tail motor is "stronger in one direction");
 #: - CG 5 mm right of the centre line (an off-centre battery, assumed): the blimp hangs rolled by
 #:   atan(5 / 155) = 1.8 deg, and the offset couples sway, heave, roll and yaw through ``M``;
 #: - 15 % more surge drag (gondola, fan guards and fins add frontal area; assumed).

@@ -8,7 +8,7 @@ keyword of the same name; all on by default):
     The reference's rotor moments are quasi-static: they follow control and body rates at once.
     A real rotor's tip-path plane settles with the flap time constant
     ``tau_beta = 16 / (gamma Omega) = 16 / (5.09 * 44.4 rad/s) = 0.071 s`` (Padfield 2007, ch. 2
-    and sec. 3.2, centre-spring rotor; Bo105 Lock number and rotor speed from DESIGN.md). The
+    and sec. 3.2, centre-spring rotor; Bo105 Lock number and rotor speed: Padfield 2007, appendix 4B). The
     rotor part of each hub force and moment passes through ``tau_beta z_dot = -z + f_rotor``.
     The split: the rotor part is the main-rotor control columns (``theta_0, theta_1s,
     theta_1c``) of the X, Y, L, M, N rows, plus the rate terms ``L_p, L_q, M_p, M_q``. ``L_q``

@@ -1,4 +1,4 @@
-"""JSBSim aircraft as flightgp vehicles (``jsbsim:<aircraft>``, DESIGN.md "Vehicles").
+"""JSBSim aircraft as flightgp vehicles (``jsbsim:<aircraft>``, docs/vehicles.md).
 
 :class:`JSBSimVehicle` flies one of the aircraft that ship with the ``jsbsim`` package
 (``jsbsim.get_default_root_dir()/aircraft``) from a steady starting condition:

@@ -28,7 +28,7 @@ def case(tmp_path_factory):
 
 
 def test_fmu_free_run_equals_the_python_moment_matching_rollout(case):
-    """The FMU takes the vehicle as steady before t0 (README, sampling convention) and predicts
+    """The FMU takes the vehicle as steady before t0 (docs/conventions.md, "FMU sampling convention") and predicts
     from t1; the Python moment-matching free run on the same history, padded with the t0 values,
     must agree, bounds included."""
     folder, recording, trained, fmu = case
@@ -95,7 +95,7 @@ GP_RMSE_GUARD = {"p": 0.0103 * 1.3, "q": 0.0135 * 1.3, "r": 0.0237 * 1.3}
 
 
 def test_ci_guard_3211_rmse_of_the_fmu_against_the_flight_test(case, tmp_path):
-    """Issue 5's CI check: build the Bo105 rate-predictor FMU, co-simulate the 80 kt 3-2-1-1 in
+    """The CI check of docs/fmus.md: build the Bo105 rate-predictor FMU, co-simulate the 80 kt 3-2-1-1 in
     fmpy, and keep its per-axis RMSE against the flight-test stand-in below the guard and below
     the physics reference FMU's."""
     from fmu_src.builder import build_bo105_reference_fmu

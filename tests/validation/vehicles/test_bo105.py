@@ -25,7 +25,7 @@ def table(speed_kt):
 
 
 def cyclic_3211(*, duration=8.0, sample_time=0.01, step_time=0.4, amplitude=math.radians(1.0)):
-    """The DESIGN.md manoeuvre: theta_1s 3-2-1-1 starting at 1 s."""
+    """The Bo105 paper's manoeuvre: theta_1s 3-2-1-1 starting at 1 s."""
     time = time_grid(duration=duration, sample_time=sample_time)
     inputs = np.zeros((len(time), 4))
     inputs[:, THETA_1S] = three_two_one_one(time, amplitude=amplitude, step_time=step_time, start=1.0)
@@ -76,7 +76,7 @@ def test_discrete_eigenvalues_are_exp_of_continuous_ones(speed_kt):
 def test_80kt_modes_are_padfields():
     eigenvalues = Bo105Reference(80).eigenvalues()
     real = eigenvalues[np.abs(eigenvalues.imag) < 1e-9].real
-    # Tolerances: half a unit in the last digit DESIGN.md quotes (-13.7, -4.25, -0.565 +/- 2.641j).
+    # Tolerances: half a unit in the last digit of the eigenvalues quoted in docs/vehicles.md (-13.7, -4.25, -0.565 +/- 2.641j).
     assert np.min(np.abs(real - (-13.7))) < 0.05, "roll subsidence"
     assert np.min(np.abs(real - (-4.25))) < 0.005, "pitch subsidence"
     dutch_roll = eigenvalues[np.argmin(np.abs(eigenvalues - (-0.565 + 2.641j)))]
@@ -110,7 +110,7 @@ def test_free_response_from_an_initial_state_is_the_matrix_exponential():
 def test_3211_peak_pitch_rate(step_time):
     time, inputs = cyclic_3211(step_time=step_time)
     q = Bo105Reference(80).simulate(time, inputs).output("q")
-    # DESIGN.md: "about 0.21 rad/s" for 0.3-0.5 s steps; these derivatives give 0.213 (0.3 s) to
+    # docs/vehicles.md: "about 0.21 rad/s" for 0.3-0.5 s steps; these derivatives give 0.213 (0.3 s) to
     # 0.223 (0.5 s), so the band is 0.21 -0.005 (rounding) / +0.025 (the long-step end).
     assert 0.205 < np.abs(q).max() < 0.235
     # The first excursion has the sign of M_theta_1s (positive in this data set).
@@ -285,7 +285,7 @@ def test_flapping_lags_the_rotor_part_by_the_flap_time_constant():
     reference = Bo105Reference(80)
     A, B = reference.A, reference.B
     A_rotor, B_rotor = rotor_split()
-    tau = 16 / (5.09 * 44.4)  # DESIGN.md: 16 / (gamma Omega), about 0.07 s
+    tau = 16 / (5.09 * 44.4)  # Padfield 2007, sec. 3.2: 16 / (gamma Omega), about 0.07 s
     assert bo105_flight.FLAP_TIME_CONSTANT == pytest.approx(tau) == pytest.approx(0.0708, abs=5e-5)
 
     def rhs(x, u):
@@ -353,7 +353,7 @@ def test_off_axis_coupling_is_the_reference_with_rotated_rate_derivatives():
     reference = Bo105Reference(80)
     A_rotor, _ = rotor_split()
     delta = math.radians(20.0)
-    inertia_ratio = 4973.0 / 1433.0  # I_yy / I_xx, DESIGN.md
+    inertia_ratio = 4973.0 / 1433.0  # I_yy / I_xx (Padfield 2007, appendix 4B)
     rotor_L, rotor_M = A_rotor[P, [P, Q]], A_rotor[Q, [P, Q]]
     rotated_L = math.cos(delta) * rotor_L + math.sin(delta) * inertia_ratio * rotor_M
     rotated_M = -math.sin(delta) / inertia_ratio * rotor_L + math.cos(delta) * rotor_M
