@@ -93,13 +93,8 @@ def read_recording(path, *, vehicle=None) -> Recording:
     Returns
     -------
     Recording
-        ``metadata`` is the sidecar's content (``{}`` without a sidecar).
-
-    Raises
-    ------
-    BadInputError
-        One line naming file, row and column (:func:`validation.core.recordings.parse_recording`),
-        or the sidecar and its key when it names an unknown vehicle.
+        As :func:`validation.core.recordings.parse_recording`, which raises the same
+        :class:`BadInputError` s; here also when the sidecar names an unknown vehicle.
     """
     if isinstance(vehicle, str):
         vehicle = get_vehicle(vehicle)
