@@ -31,7 +31,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from validation.core.progress import progress_bar
-    from validation.diagnose.pipeline import diagnose, write_diagnosis
+    from validation.diagnose import diagnose, write_diagnosis
 
     check_output_folder(args.out)
     with progress_bar("diagnose", enabled=not args.no_progress, unit="fit") as update:

@@ -1,26 +1,30 @@
 """``flightgp diagnose-bench``: the concealed-effect benchmark of ``flightgp diagnose``.
 
 Each case flies the Bo105 reference with effects that :func:`validation.diagnose.pipeline.diagnose` is not
-told about, records it with sensor noise, diagnoses it and scores the answer against the truth:
+told about, records it with sensor noise, diagnoses it and scores the answer against the truth
+(docs/diagnose.md, scorecards):
 
-- **single** named effects on several channels and at several magnitudes, all at or above the
-  realistic sizes the issue sets (delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %,
-  biases >= 3x the sensor noise);
+- **single** named effects on several channels and at several magnitudes, all at or above
+  realistic sizes (delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %, biases >= 3x the
+  sensor noise);
 - **pair**: two named effects at once;
 - **none**: the reference itself (any finding is a false finding);
 - **outside**: physics outside the named list (an input dead band, a quadratic pitch damping
   ``M_q|q| q|q|``), where the honest answer is ``unexplained`` and the residual GP should recover
   part of the mismatch.
 
-Recordings (both 20 s at 100 Hz from trim, every state measured with the flight-test stand-in's
-sensor noise, :data:`validation.vehicles.bo105.SENSOR_NOISE_STD`): the diagnosed one flies the multi-axis
-identification manoeuvre of :func:`validation.vehicles.effects.identification_manoeuvre` (variant 0), the
-held-out one its variant 1 (other amplitudes, step times and order). Noise is seeded by the run's
+Recordings (both :data:`DURATION` s from trim at the reference's
+:attr:`~validation.vehicles.effects.EffectModel.sample_time`, every state measured with its
+:attr:`~validation.vehicles.effects.EffectModel.sensor_noise_sd`): the diagnosed one flies its
+:meth:`~validation.vehicles.effects.EffectModel.identification_manoeuvre` variant 0, the
+held-out one variant 1 (other amplitudes, step times and order). On a Bo105 (:func:`bo105_cases`)
+that is 100 Hz with the flight-test stand-in's sensor noise and the multi-axis manoeuvre of
+:func:`validation.vehicles.bo105_effects.identification_manoeuvre`. Noise is seeded by the run's
 seed, the recording and the case's name: each case is an independent trial, and running a case
 alone gives what it gives in the whole suite.
 
 The ``blimp`` suite (:func:`blimp_cases`, ``concealed_cases("blimp")``) does the same on the blimp
-ODE: 20 s at 20 Hz (the mocap rate), all 12 states with the white noise of
+ODE: 20 Hz (the mocap rate), all 12 states with the white noise of
 :data:`validation.vehicles.blimp_effects.SENSOR_NOISE_STD`, the manoeuvres of
 :func:`validation.vehicles.blimp_effects.identification_manoeuvre`; single effects of every kind the blimp
 takes, a pair, no effect, and two fan nonlinearities outside the named list (thrust quadratic
@@ -46,34 +50,20 @@ import numpy as np
 
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
-from validation.vehicles import blimp_effects, get_vehicle
+from validation.diagnose.pipeline import diagnose
+from validation.vehicles import get_vehicle
 from validation.vehicles.blimp import BlimpReference
-from validation.vehicles.bo105 import STATE_NAMES, Bo105Reference
-from validation.vehicles.bo105_effects import identification_manoeuvre
-from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
-from validation.vehicles.effects import TARGET_KEYS, EffectVehicle, model_value, simulate_with_effects
+from validation.vehicles.blimp_effects import BlimpEffects
+from validation.vehicles.bo105 import STATE_NAMES
+from validation.vehicles.bo105_effects import Bo105Effects
+from validation.vehicles.effect_vehicle import EFFECT_REFERENCES, EffectVehicle, effect_model_of
+from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
-#: Held-out RMSE cut of the affected output that a named effect must achieve (issue 7).
+#: Held-out RMSE cut of the affected output that a named effect must achieve (docs/diagnose.md,
+#: scorecards: the corrected model must remove most of the error the effect causes).
 REQUIRED_CUT = 0.6
-#: Recording length and interval of every case, s (issue 7's runtime goal is per 20 s at 100 Hz).
+#: Recording length of every case, s (the runtime goal of docs/diagnose.md is per 20 s recording).
 DURATION = 20.0
-SAMPLE_TIME = 0.01
-
-
-@dataclass(frozen=True)
-class _Setup:
-    """What a suite needs of its reference: noise per state, the manoeuvre and its rate."""
-
-    noise_sd: dict
-    manoeuvre: object
-    sample_time: float
-
-
-def _setup(reference) -> _Setup:
-    if isinstance(reference, BlimpReference):
-        return _Setup(blimp_effects.SENSOR_NOISE_STD, blimp_effects.identification_manoeuvre,
-                      blimp_effects.SAMPLE_TIME)
-    return _Setup(SENSOR_NOISE_STD, identification_manoeuvre, SAMPLE_TIME)
 
 
 @dataclass(frozen=True)
@@ -108,21 +98,24 @@ def _single_case(effect: dict, name: str, description: str) -> ConcealedCase:
     return ConcealedCase(name, "single", (effect,), description=description)
 
 
-def _scaled_case(reference, kind: str, term: str, factor: float, *, description: str) -> ConcealedCase:
+def _scaled_case(reference: EffectModel, kind: str, term: str, factor: float, *,
+                 description: str) -> ConcealedCase:
     """A case scaling ``term`` of ``reference`` by ``factor``, named ``<term><+-percent>%``."""
-    old = model_value(reference, term)
+    old = reference.model_value(term)
     value = old * factor
     return ConcealedCase(f"{term}{round((factor - 1) * 100):+d}%", "single",
                          ({"effect": kind, "term": term, "value": value},),
                          description=f"{description}: {old:.4g} -> {value:.4g}")
 
 
-def blimp_cases() -> list[ConcealedCase]:
+def blimp_cases(reference: BlimpEffects | None = None) -> list[ConcealedCase]:
     """The blimp suite (module docstring): every effect kind the blimp takes at sizes a real
     indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
     errors, a buoyancy imbalance of 0.3 g), a pair, no effect, and two fan nonlinearities
-    outside the named list (:data:`COMMAND_MAPS`)."""
-    reference = BlimpReference()
+    outside the named list (:data:`COMMAND_MAPS`). ``reference``: the blimp's effect model
+    (default: the ``blimp`` reference's)."""
+    reference = reference or BlimpEffects(BlimpReference())
+    noise = reference.sensor_noise_sd
 
     def scaled(kind, term, factor, description):
         return _scaled_case(reference, kind, term, factor, description=description)
@@ -147,7 +140,7 @@ def blimp_cases() -> list[ConcealedCase]:
                "buoyancy imbalance: 3 mN (0.3 g) heavy"),
         single({"effect": "force_offset", "term": "N_0", "value": 0.002}, "N_0-2mNm",
                "constant yaw moment 2 mN m (a bent fin)"),
-        single({"effect": "sensor_bias", "output": "psi", "value": 5 * blimp_effects.SENSOR_NOISE_STD["psi"]},
+        single({"effect": "sensor_bias", "output": "psi", "value": 5 * noise["psi"]},
                "bias-psi-5sd", "heading sensor bias 5x noise"),
         ConcealedCase("pair-delay+Z_0", "pair",
                       ({"effect": "time_delay", "input": "u_gondola", "value": 0.1},
@@ -161,24 +154,19 @@ def blimp_cases() -> list[ConcealedCase]:
     ]
 
 
-def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
-    """The benchmark suite for one reference: :func:`blimp_cases` for ``blimp``, else the Bo105
-    suite (module docstring).
+def bo105_cases(reference: Bo105Effects) -> list[ConcealedCase]:
+    """The Bo105 suite (module docstring) on ``reference``, a Bo105's effect model.
 
     Derivative changes are relative to the reference's own values, so the suite works at every
     tabulated speed; the off-axis ``L_q``/``M_p`` values are the wake-distortion changes that the
     flight-test stand-in applies at 80 kt (Keller, JAHS 1996; :mod:`validation.vehicles.bo105`).
     """
-    model = _reference_model(reference)
-    if isinstance(model, BlimpReference):
-        return blimp_cases()
-
     def scaled(kind, term, factor):
-        return _scaled_case(model, kind, term, factor, description=f"{term} ({round((factor - 1) * 100):+d} %)")
+        return _scaled_case(reference, kind, term, factor,
+                            description=f"{term} ({round((factor - 1) * 100):+d} %)")
 
     single = _single_case
-
-    noise = SENSOR_NOISE_STD
+    noise = reference.sensor_noise_sd
     cases = [
         single({"effect": "time_delay", "input": "theta_1s", "value": 0.06}, "delay-theta_1s-60ms",
                "transport delay 60 ms on longitudinal cyclic"),
@@ -199,9 +187,9 @@ def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
         scaled("stability_derivative", "L_p", 0.7),
         scaled("stability_derivative", "N_r", 1.5),
         single({"effect": "stability_derivative", "term": "L_q", "value": -3.35}, "L_q-wake",
-               f"off-axis coupling L_q {model.derivative('L_q'):.3g} -> -3.35 (wake distortion)"),
+               f"off-axis coupling L_q {reference.model_value('L_q'):.3g} -> -3.35 (wake distortion)"),
         single({"effect": "stability_derivative", "term": "M_p", "value": 1.13}, "M_p-wake",
-               f"off-axis coupling M_p {model.derivative('M_p'):.3g} -> 1.13 (wake distortion)"),
+               f"off-axis coupling M_p {reference.model_value('M_p'):.3g} -> 1.13 (wake distortion)"),
         single({"effect": "sensor_bias", "output": "q", "value": 3 * noise["q"]}, "bias-q-3sd",
                f"pitch-rate sensor bias {3 * noise['q']:g} rad/s (3x noise)"),
         single({"effect": "sensor_bias", "output": "phi", "value": -5 * noise["phi"]}, "bias-phi-5sd",
@@ -213,7 +201,7 @@ def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
         ConcealedCase("pair-lag+M_q", "pair",
                       ({"effect": "input_lag", "input": "theta_1c", "value": 0.08},
                        {"effect": "stability_derivative", "term": "M_q",
-                        "value": model.derivative("M_q") * 0.7}),
+                        "value": reference.model_value("M_q") * 0.7}),
                       description="80 ms lag on theta_1c and M_q -30 %"),
         ConcealedCase("none", "none", description="the reference itself, with sensor noise"),
         ConcealedCase("outside-dead-band", "outside", outside=("dead_band", "theta_1s", math.radians(0.3)),
@@ -222,6 +210,21 @@ def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
                       description="quadratic pitch damping M = -40 q|q| (not a named effect)"),
     ]
     return cases
+
+
+#: The concealed-effect suite of each effect model type.
+SUITES = {Bo105Effects: bo105_cases, BlimpEffects: blimp_cases}
+
+
+def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
+    """The benchmark suite for the reference called ``reference`` (:data:`SUITES`): the Bo105
+    suite for every ``bo105-<V>kt``, :func:`blimp_cases` for ``blimp``."""
+    model = _effect_model(reference)
+    suite = SUITES.get(type(model))
+    if suite is None:
+        raise BadInputError(f"diagnose-bench has no concealed-effect suite for {reference!r}; suites exist for "
+                            f"the {EFFECT_REFERENCES} references")
+    return suite(model)
 
 
 def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed: int = 0):
@@ -233,11 +236,12 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
     truth_states : ndarray, shape (n, n_states)
         Noise-free states of the held-out flight with the concealed physics (for scoring).
     """
-    setup = _setup(_reference_model(reference))
-    vehicle = EffectVehicle(reference, case.effects, noise_sd=setup.noise_sd)
+    model = _effect_model(reference)
+    vehicle = EffectVehicle(reference, case.effects, noise_sd=model.sensor_noise_sd)
     recordings = []
     for variant in (0, 1):
-        time, inputs = setup.manoeuvre(duration=DURATION, sample_time=setup.sample_time, variant=variant)
+        time, inputs = model.identification_manoeuvre(duration=DURATION, sample_time=model.sample_time,
+                                                      variant=variant)
         if case.outside is None:
             states = vehicle.simulate_states(time, inputs)
         else:
@@ -245,10 +249,10 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
         # Each case draws its own noise (seeded by its name), so the cases of one run are
         # independent trials of diagnose rather than one noise draw seen through many effects.
         rng = np.random.default_rng([seed, variant, zlib.crc32(case.name.encode())])
-        noise = np.array([setup.noise_sd[name] for name in vehicle.state_names])
+        noise = np.array([model.sensor_noise_sd[name] for name in vehicle.state_names])
         measured = states + rng.standard_normal(states.shape) * noise
         metadata = {"vehicle": reference, "simulator": f"diagnose-bench case {case.name}",
-                    "sample_time": setup.sample_time, "seed": seed, "sensor_noise_std": dict(setup.noise_sd)}
+                    "sample_time": model.sample_time, "seed": seed, "sensor_noise_std": dict(model.sensor_noise_sd)}
         recordings.append((Recording(time, inputs, vehicle.input_names, measured, vehicle.state_names, metadata),
                            states))
     (fit, _), (holdout, truth_states) = recordings
@@ -284,8 +288,8 @@ def _outside_states(outside: tuple, vehicle: EffectVehicle, time, inputs) -> np.
 def _quadratic_pitch_damping_states(reference: str, coefficient: float, time, inputs) -> np.ndarray:
     """``x_dot = A x + B u + e_q c q|q|`` (a pitch moment per unit pitch inertia quadratic in q),
     integrated by classical RK4 at the recording interval with the inputs held over each
-    interval; ``c`` in 1/rad."""
-    model = _reference_model(reference)
+    interval; ``c`` in 1/rad. ``reference`` names a Bo105 (``bo105-<V>kt``)."""
+    model = get_vehicle(reference)
     A, B = model.A, model.B
     q = STATE_NAMES.index("q")
 
@@ -380,9 +384,9 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
             f.get("interval") is not None and f["interval"][0] <= truth[key]["value"] <= f["interval"][1]
             for key, f in matched.items())
     # The affected output: the one the concealed physics moves most, relative to its noise.
-    model = _reference_model(reference)
-    replay = simulate_with_effects(model, [], holdout.time, holdout.inputs)
-    noise_sd, names = _setup(model).noise_sd, model.state_names
+    model = _effect_model(reference)
+    replay = model.simulate_many([[]], holdout.time, holdout.inputs)[0]
+    noise_sd, names = model.sensor_noise_sd, model.state_names
     outputs = diagnosis["fit"]["outputs"]
     if case.kind != "none":
         energy = [np.sum(((truth_states[:, names.index(n)] - replay[:, names.index(n)])
@@ -409,8 +413,6 @@ def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=N
     progress : callable, optional
         Called as ``progress(1, case=name)`` after each case.
     """
-    from validation.diagnose.pipeline import diagnose
-
     rows = []
     for case in cases:
         fit, holdout, truth_states = case_recordings(case, reference=reference, seed=seed)
@@ -422,7 +424,7 @@ def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=N
         if progress:
             progress(1, case=case.name)
     return {"reference": reference, "seed": seed, "duration_s": DURATION,
-            "sample_time_s": _setup(_reference_model(reference)).sample_time,
+            "sample_time_s": _effect_model(reference).sample_time,
             "required_cut": REQUIRED_CUT, "cases": [row.as_dict() for row in rows],
             "passed": sum(row.passed for row in rows), "total": len(rows),
             "max_seconds": max((row.seconds for row in rows), default=0.0)}
@@ -493,19 +495,20 @@ def format_seed_summary(summary: dict) -> str:
              f"{'case':<{width}} {'pass':>5} {'named':>5} {'in CI':>5} {'false':>5} {'unexp.':>6} "
              f"{'cut':>5} {'max s':>6}"]
     for c in summary["cases"]:
-        count = lambda k: f"{c[k]}/{c['runs']}"  # noqa: E731
+        count = {key: f"{c[key]}/{c['runs']}" for key in ("passed", "named", "in_interval",
+                                                          "with_false_findings", "says_unexplained")}
         cut = "-" if c["median_cut"] is None else f"{c['median_cut']:.0%}"
-        named = count("named") if c["kind"] in ("single", "pair") else "-"
-        in_ci = count("in_interval") if c["kind"] in ("single", "pair") else "-"
-        lines.append(f"{c['case']:<{width}} {count('passed'):>5} {named:>5} {in_ci:>5} "
-                     f"{count('with_false_findings'):>5} {count('says_unexplained'):>6} {cut:>5} "
+        named = count["named"] if c["kind"] in ("single", "pair") else "-"
+        in_ci = count["in_interval"] if c["kind"] in ("single", "pair") else "-"
+        lines.append(f"{c['case']:<{width}} {count['passed']:>5} {named:>5} {in_ci:>5} "
+                     f"{count['with_false_findings']:>5} {count['says_unexplained']:>6} {cut:>5} "
                      f"{c['max_seconds']:>6.1f}")
     return "\n".join(lines)
 
 
-def _reference_model(reference: str):
-    """The ``bo105-<V>kt`` or ``blimp`` reference (BadInputError for anything else)."""
-    model = get_vehicle(reference)
-    if not isinstance(model, (Bo105Reference, BlimpReference)):
-        raise BadInputError(f"diagnose-bench runs on the bo105-<V>kt and blimp references, not {reference!r}")
+def _effect_model(reference: str) -> EffectModel:
+    """The effect model of the reference called ``reference`` (BadInputError if it takes none)."""
+    model = effect_model_of(get_vehicle(reference))
+    if model is None:
+        raise BadInputError(f"diagnose-bench runs on the {EFFECT_REFERENCES} references, not {reference!r}")
     return model

@@ -1,15 +1,25 @@
-"""The human side of a diagnosis: plain-language statements, ``report.md`` and its plots."""
+"""Report: the diagnosis assembled (:class:`Diagnosis`, exactly diagnosis.json), its
+plain-language statements, ``report.md`` with its plots, and the files a diagnosis writes
+(docs/diagnose.md)."""
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from validation.core.files import check_output_folder, write_files_atomically
 from validation.core.plots import png_bytes
 from validation.core.recordings import column_unit
-from validation.vehicles.effects import TARGET_KEYS
+from validation.diagnose.data import PreparedData
+from validation.diagnose.explain import Explanation, NamedEffect
+from validation.diagnose.locate import Location
+from validation.diagnose.model import Models
+from validation.diagnose.prove import MODEL_KEYS, HeldOutEffect, Proof
+from validation.vehicles.effect_vehicle import EffectVehicle
+from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
 INPUT_WORDS = {"theta_0": "main-rotor collective", "theta_1s": "longitudinal cyclic",
                "theta_1c": "lateral cyclic", "theta_0T": "tail-rotor collective (pedals)",
@@ -41,6 +51,78 @@ TERM_WORDS = {"M_q": "pitch damping", "L_p": "roll damping", "N_r": "yaw damping
 _KIND_WORDS = {"control_derivative": "control derivative", "stability_derivative": "stability derivative",
                "quadratic_drag": "quadratic drag derivative", "force_offset": "force offset"}
 _MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_gp": "corrected + GP"}
+#: Share of a named effect's signal that a GP on the uncorrected residual must reproduce for the
+#: report to warn that a residual GP alone would hide the effect (half: it would carry more of
+#: the effect than it leaves).
+HIDDEN_BY_GP = 0.5
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`validation.diagnose.pipeline.diagnose`.
+
+    ``as_dict()`` is exactly ``diagnosis.json`` (docs/diagnose.md): ``reference``, ``verdict``,
+    ``mismatch``, ``findings``, ``fit``, plus ``locate`` (noise, bands, coherence), ``untestable``
+    and ``search`` (what was tested and the last rejected hypothesis). The other attributes
+    feed the report and the corrected-model file.
+
+    Attributes
+    ----------
+    reference : str
+    verdict : {"missing_physics", "consistent"}
+    findings : list of dict
+        Ranked, most important first; empty when ``verdict == "consistent"``.
+    corrected : EffectVehicle
+        The reference with the named effects (the model file :func:`write_diagnosis` saves).
+    holdout_traces : dict of str -> dict
+        Per output: ``time``, ``measured``, ``reference``, ``corrected``, ``corrected_gp``
+        (ndarrays over the held-out samples, recordings concatenated) for the plots.
+    """
+
+    reference: str
+    verdict: str
+    mismatch: list
+    findings: list
+    fit: dict
+    locate: dict
+    untestable: list
+    search: dict
+    corrected: EffectVehicle
+    holdout_traces: dict = field(repr=False, default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"reference": self.reference, "verdict": self.verdict, "mismatch": self.mismatch,
+                "findings": self.findings, "fit": self.fit, "locate": self.locate,
+                "untestable": self.untestable, "search": self.search}
+
+
+def write_up(reference: EffectModel, data: PreparedData, location: Location, explanation: Explanation,
+             models: Models, proof: Proof) -> Diagnosis:
+    """The diagnosis of the stages' results: one finding per named effect (most important
+    first), then the ``unexplained`` ones of the model and the prove stage, each with its
+    :func:`statement`."""
+    findings = [_named_finding(named, data.output_names[named.main_output], held_out, absorbs)
+                for named, held_out, absorbs in zip(explanation.named, proof.effects, models.gp_absorbs)]
+    findings += models.unexplained + proof.unexplained
+    for finding in findings:
+        finding["statement"] = statement(finding, proof.fit)
+    return Diagnosis(reference=reference.name,
+                     verdict="missing_physics" if findings else "consistent", mismatch=location.mismatch,
+                     findings=findings, fit=proof.fit, locate=location.summary,
+                     untestable=data.untestable + proof.untestable, search=explanation.search,
+                     corrected=models.corrected, holdout_traces=proof.traces)
+
+
+def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float) -> dict:
+    """The diagnosis.json finding of a named effect (docs/diagnose.md), keys in contract order."""
+    finding = {**named.effect, "unit": named.unit, "interval": named.interval}
+    if named.model_value is not None:
+        finding["model_value"] = named.model_value
+    finding.update({"confidence": named.confidence, "likelihood_ratio": named.likelihood_ratio,
+                    "p_value": named.p_value, "alternatives": named.alternatives, "main_output": main_output,
+                    "rmse_effect_alone": held_out.rmse_effect_alone, "carries_over": held_out.carries_over,
+                    "rmse_reference_gp": held_out.rmse_reference_gp, "gp_absorbs": gp_absorbs})
+    return finding
 
 
 def _number(value: float) -> str:
@@ -141,8 +223,9 @@ def _output_figure(name: str, trace: dict, fit: dict) -> Figure:
     return figure
 
 
-def report_markdown(diagnosis, plot_names: dict) -> str:
-    """``report.md``: findings first, then the held-out fit table, locate results, search notes."""
+def report_markdown(diagnosis: Diagnosis, plot_names: dict) -> str:
+    """``report.md``: findings first, then the held-out fit table, the findings in detail, what
+    was tested, locate results and the plots (``plot_names``: output -> PNG file name)."""
     result = diagnosis.as_dict()
     lines = []
     if result["findings"]:
@@ -152,78 +235,102 @@ def report_markdown(diagnosis, plot_names: dict) -> str:
                      "named effect is significant and the residual is at the sensor-noise level.")
     lines += ["", f"# Diagnosis of {result['reference']} against recordings", "",
               f"Verdict: **{result['verdict']}**.", ""]
-    fit = result["fit"]
-    lines += [f"## Held-out fit ({fit['holdout']})", "",
-              "| output | noise sd | RMSE reference | RMSE corrected | RMSE corrected + GP | Theil U ref. | Theil U corr. | Theil U corr. + GP |",
-              "|---|---|---|---|---|---|---|---|"]
+    lines += _fit_table(result["fit"])
+    lines += ["", "## Findings in detail", ""]
+    for finding in result["findings"]:
+        lines += _finding_details(finding)
+    if not result["findings"]:
+        lines.append("None.")
+    lines += _search_notes(result["search"], result["untestable"])
+    lines += ["", "## Where the reference misfits (locate)", ""]
+    lines += _locate_notes(result["mismatch"], result["locate"])
+    lines += ["", "## Held-out plots", ""]
+    for name, file_name in plot_names.items():
+        lines.append(f"![{name}]({file_name})")
+    lines += ["", "The corrected model is `corrected_model.json` (load it with "
+              "`validation.vehicles.effect_vehicle.EffectVehicle.load` and call `.simulate(time, inputs)`).", ""]
+    return "\n".join(lines)
+
+
+def _fit_table(fit: dict) -> list[str]:
+    """The held-out fit section of ``report.md``: RMSE and Theil U per output and model."""
+    lines = [f"## Held-out fit ({fit['holdout']})", "",
+             "| output | noise sd | RMSE reference | RMSE corrected | RMSE corrected + GP | Theil U ref. | "
+             "Theil U corr. | Theil U corr. + GP |",
+             "|---|---|---|---|---|---|---|---|"]
     for name in fit["outputs"]:
         lines.append(f"| {name} [{column_unit(name)}] | {_number(fit['noise_sd'][name])} | "
                      + " | ".join(_number(fit[f"{metric}_{key}"][name]) for metric in ("rmse", "theil")
-                                  for key in ("reference", "corrected", "corrected_gp")) + " |")
-    lines += ["", "## Findings in detail", ""]
-    for finding in result["findings"]:
-        target = finding.get(TARGET_KEYS.get(finding["effect"], "output"), finding.get("output"))
-        if finding["effect"] == "unexplained":
-            data = "held-out" if finding.get("data") == "holdout" else "diagnosed"
-            lines.append(f"- unexplained on {target} ({data} data): residual RMS {_number(finding['value'])} "
-                         f"{finding['unit']}, {finding['noise_ratio']:.2f}x noise")
-            continue
-        lines.append(f"- {finding['effect']} on {target}: {_number(finding['value'])} {finding['unit']}, "
-                     f"95 % interval {_span(finding['interval'])}, likelihood ratio "
-                     f"{finding['likelihood_ratio']:.4g} (p = {finding['p_value']:.2g}), confidence "
-                     f"(Akaike weight) {finding['confidence']:.3f}")
-        for alternative in finding["alternatives"]:
-            alt_target = alternative[TARGET_KEYS[alternative["effect"]]]
-            lines.append(f"  - alternative: {alternative['effect']} on {alt_target} = "
-                         f"{_number(alternative['value'])}; data prefer the finding "
-                         f"{alternative['evidence_ratio']:.3g}:1")
-        flag = (" **A residual GP alone would hide this effect.**"
-                if finding["gp_absorbs"] >= 0.5 else "")
-        lines.append(f"  - a GP fitted to the uncorrected {finding['main_output']} residual absorbs "
-                     f"{finding['gp_absorbs']:.0%} of what this effect explains (in-sample); held-out "
-                     f"RMSE reference + GP {_number(finding['rmse_reference_gp'])} vs reference + "
-                     f"this effect {_number(finding['rmse_effect_alone'])}.{flag}")
-    if not result["findings"]:
-        lines.append("None.")
-    search = result["search"]
-    lines += ["", "## What was tested", "",
-              f"{search['hypotheses_tested']} hypotheses (delay and lag per excited input, every control "
-              "and stability term of the reference, a bias per output), forward stepwise by likelihood ratio; "
-              f"weighted RSS {search['null_rss']:.1f} (reference) -> {search['final_rss']:.1f} "
-              f"for {search['n_residuals']} residuals."]
+                                  for key in MODEL_KEYS) + " |")
+    return lines
+
+
+def _finding_details(finding: dict) -> list[str]:
+    """The lines of one finding in the detail section of ``report.md``."""
+    target = finding.get(TARGET_KEYS.get(finding["effect"], "output"), finding.get("output"))
+    if finding["effect"] == "unexplained":
+        data = "held-out" if finding.get("data") == "holdout" else "diagnosed"
+        return [f"- unexplained on {target} ({data} data): residual RMS {_number(finding['value'])} "
+                f"{finding['unit']}, {finding['noise_ratio']:.2f}x noise"]
+    lines = [f"- {finding['effect']} on {target}: {_number(finding['value'])} {finding['unit']}, "
+             f"95 % interval {_span(finding['interval'])}, likelihood ratio "
+             f"{finding['likelihood_ratio']:.4g} (p = {finding['p_value']:.2g}), confidence "
+             f"(Akaike weight) {finding['confidence']:.3f}"]
+    for alternative in finding["alternatives"]:
+        alt_target = alternative[TARGET_KEYS[alternative["effect"]]]
+        lines.append(f"  - alternative: {alternative['effect']} on {alt_target} = "
+                     f"{_number(alternative['value'])}; data prefer the finding "
+                     f"{alternative['evidence_ratio']:.3g}:1")
+    flag = " **A residual GP alone would hide this effect.**" if finding["gp_absorbs"] >= HIDDEN_BY_GP else ""
+    lines.append(f"  - a GP fitted to the uncorrected {finding['main_output']} residual absorbs "
+                 f"{finding['gp_absorbs']:.0%} of what this effect explains (in-sample); held-out "
+                 f"RMSE reference + GP {_number(finding['rmse_reference_gp'])} vs reference + "
+                 f"this effect {_number(finding['rmse_effect_alone'])}.{flag}")
+    return lines
+
+
+def _search_notes(search: dict, untestable: list) -> list[str]:
+    """The "What was tested" section of ``report.md``."""
+    lines = ["", "## What was tested", "",
+             f"{search['hypotheses_tested']} hypotheses (delay and lag per excited input, every control "
+             "and stability term of the reference, a bias per output), forward stepwise by likelihood ratio; "
+             f"weighted RSS {search['null_rss']:.1f} (reference) -> {search['final_rss']:.1f} "
+             f"for {search['n_residuals']} residuals."]
     if search["rejected"]:
         rejected = search["rejected"]
         target = rejected[TARGET_KEYS[rejected["effect"]]]
         lines.append(f"Best hypothesis not accepted: {rejected['effect']} on {target} "
                      f"(LR {rejected['likelihood_ratio']:.3g} below the threshold {rejected['threshold']:.3g}).")
-    for note in result["untestable"]:
-        lines.append(f"- Not testable: {note}")
-    lines += ["", "## Where the reference misfits (locate)", ""]
-    if result["mismatch"]:
+    return lines + [f"- Not testable: {note}" for note in untestable]
+
+
+#: Mismatch windows listed in ``report.md`` (diagnosis.json has them all).
+MAX_REPORTED_WINDOWS = 40
+
+
+def _locate_notes(mismatch: list, locate: dict) -> list[str]:
+    """The locate section of ``report.md``: mismatch windows, bands and coherent inputs."""
+    lines = []
+    if mismatch:
         lines += ["| recording | output | t_start [s] | t_end [s] | RMS error |", "|---|---|---|---|---|"]
-        for item in result["mismatch"][:40]:
+        for item in mismatch[:MAX_REPORTED_WINDOWS]:
             lines.append(f"| {item['recording']} | {item['output']} | {item['t_start']:.2f} | "
                          f"{item['t_end']:.2f} | {_number(item['rms_error'])} |")
-        if len(result["mismatch"]) > 40:
-            lines.append(f"| ... | {len(result['mismatch']) - 40} more in diagnosis.json | | | |")
+        if len(mismatch) > MAX_REPORTED_WINDOWS:
+            lines.append(f"| ... | {len(mismatch) - MAX_REPORTED_WINDOWS} more in diagnosis.json | | | |")
     else:
         lines.append("No time window exceeds the sensor noise.")
-    locate = result["locate"]
     for name, bands in locate["bands"].items():
         text = ", ".join(f"{b['f_low']:.2f}-{b['f_high']:.2f} Hz (x{b['peak_ratio']:.3g})" for b in bands)
         coherent = ", ".join(f"{c['input']} ({c['coherence']:.2f} at {c['frequency']:.2f} Hz)"
                              for c in locate["coherent_inputs"].get(name, [])) or "none"
         lines.append(f"- {name}: residual PSD above noise in {text}; coherent with {coherent}")
-    lines += ["", "## Held-out plots", ""]
-    for name, file_name in plot_names.items():
-        lines.append(f"![{name}]({file_name})")
-    lines += ["", "The corrected model is `corrected_model.json` (load it with "
-              "`validation.vehicles.effects.EffectVehicle.load` and call `.simulate(time, inputs)`).", ""]
-    return "\n".join(lines)
+    return lines
 
 
-def report_files(diagnosis, out_dir: Path) -> dict:
-    """``{path: content}`` of everything a diagnosis writes (see ``write_diagnosis``)."""
+def diagnosis_files(diagnosis: Diagnosis, out_dir) -> dict:
+    """``{path: str or bytes}`` of everything :func:`write_diagnosis` writes to ``out_dir``."""
+    out_dir = Path(out_dir)
     files, plot_names = {}, {}
     for name, trace in diagnosis.holdout_traces.items():
         file_name = f"holdout_{name}.png"
@@ -233,3 +340,11 @@ def report_files(diagnosis, out_dir: Path) -> dict:
     files[out_dir / "corrected_model.json"] = json.dumps(diagnosis.corrected.as_dict(), indent=2) + "\n"
     files[out_dir / "report.md"] = report_markdown(diagnosis, plot_names)
     return files
+
+
+def write_diagnosis(diagnosis: Diagnosis, out_dir) -> list[Path]:
+    """Write ``diagnosis.json``, ``report.md`` with its PNGs and ``corrected_model.json``
+    (load with :meth:`validation.vehicles.effect_vehicle.EffectVehicle.load`) to ``out_dir``, all
+    or nothing (:func:`validation.core.files.write_files_atomically`). Returns the paths written."""
+    out_dir = check_output_folder(out_dir)
+    return write_files_atomically(diagnosis_files(diagnosis, out_dir))

@@ -1,9 +1,12 @@
-"""Named effects on the blimp reference (:mod:`validation.vehicles.blimp`), simulated in batches.
+"""Named effects on the blimp reference (:mod:`validation.vehicles.blimp`), simulated in batches:
+its :class:`~validation.vehicles.effects.EffectModel`, :class:`BlimpEffects`, and the
+identification manoeuvre that excites them.
 
-The effect dicts are those of :mod:`validation.vehicles.effects` (the ``flightgp diagnose`` finding shape).
-On the blimp they act on the ODE of :func:`validation.vehicles.blimp.blimp_dynamics` as follows (body axes,
-SI units; ``M`` is the blimp's system inertia matrix, so an extra generalised force ``tau``
-adds ``M^-1 tau`` to ``nu_dot``):
+The effect dicts are those of :mod:`validation.vehicles.effects` (the ``flightgp diagnose``
+finding shape, docs/vehicles.md). On the blimp they act on the ODE of
+:func:`validation.vehicles.blimp.blimp_dynamics` as follows (body axes, SI units; ``M`` is the
+blimp's system inertia matrix, so an extra generalised force ``tau`` adds ``M^-1 tau`` to
+``nu_dot``):
 
 - ``time_delay`` on ``u_gondola``, ``mu`` or ``u_tail``: the input ``u_j(t - tau)``. The
   recorded input is zero-order held, row k over ``[t_k, t_{k+1})`` of length ``h_k`` (trim, 0,
@@ -41,18 +44,21 @@ Integration: classical RK4 with one step per recording interval, each of its own
 ``h_k = t_{k+1} - t_k`` (motion-capture frames arrive with timing jitter, so recordings may be
 unevenly sampled), from the reference's hanging state (:class:`~validation.vehicles.blimp.BlimpReference`
 uses substeps of at most 0.01 s; at 20 Hz the two agree to far below the sensor noise, see
-``tests/test_diagnose_blimp.py``). All members of a batch are integrated together, one
+``tests/validation/diagnose/test_diagnose_blimp.py``). All members of a batch are integrated together, one
 vectorised :func:`~validation.vehicles.blimp.blimp_dynamics` call per RK4 stage, and all lags of a batch
 are propagated together, which is what makes output-error fitting of many hypotheses affordable.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
+from validation.core.manoeuvres import doublet, time_grid
 from validation.vehicles.blimp import (
     INPUT_NAMES,
+    SAMPLE_TIME,
     STATE_NAMES,
     BlimpReference,
     blimp_dynamics,
@@ -61,6 +67,7 @@ from validation.vehicles.blimp import (
     mass_matrix,
 )
 from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_STD
+from validation.vehicles.effects import TARGET_KEYS, Hypothesis
 
 #: Control-derivative terms: fan, command column, sign of the commands it applies to.
 CONTROL_TERMS = {"gondola_thrust_forward": ("u_gondola", 1.0), "gondola_thrust_backward": ("u_gondola", -1.0),
@@ -76,11 +83,10 @@ TERMS = {"control_derivative": tuple(CONTROL_TERMS), "stability_derivative": tup
 TERM_UNITS = {**dict.fromkeys(CONTROL_TERMS, "N"), **dict.fromkeys(STABILITY_TERMS, "N m s/rad"),
               **dict.fromkeys(DRAG_TERMS, "N s^2/m^2"), "X_0": "N", "Y_0": "N", "Z_0": "N", "N_0": "N m"}
 
-#: Recording interval of the blimp diagnosis, s: the 20 Hz motion capture of Ko et al. (DESIGN.md).
-SAMPLE_TIME = 0.05
 #: White sensor noise per state of the blimp recordings (the ``blimp-flight`` stand-in's marker
 #: noise, 1 mm and 0.5 deg; velocities and rates at the noise of its 5-sample quadratic-fit
-#: differentiator at 20 Hz, ``sd / (sqrt(10) h)``, but white here).
+#: differentiator at the reference's 20 Hz, :data:`validation.vehicles.blimp.SAMPLE_TIME`,
+#: ``sd / (sqrt(10) h)``, but white here).
 SENSOR_NOISE_STD = {
     **dict.fromkeys(("x", "y", "z"), POSITION_NOISE_STD),
     **dict.fromkeys(("phi", "theta", "psi"), ATTITUDE_NOISE_STD),
@@ -182,58 +188,16 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
     time, inputs = check_command_history(time, inputs)
     steps = np.diff(time)
     params = reference.params
-    n, batch = len(time), len(effect_lists)
-    held = np.repeat(inputs[None, :-1], batch, axis=0)  # (B, n-1, 3): what acts over each interval
-    gain_positive, gain_negative = np.ones((batch, 3)), np.ones((batch, 3))
-    extra_damping, extra_drag = np.zeros((batch, 3)), np.zeros((batch, 3))
-    constant, extra_down, bias = np.zeros((batch, 6)), np.zeros(batch), np.zeros((batch, 12))
-    lags = []  # (member, input column, time constant)
-    for b, effects in enumerate(effect_lists):
-        for effect in effects:  # delays first: a lag acts on the delayed input
-            if effect["effect"] == "time_delay" and effect["value"] > 0:
-                j = INPUT_NAMES.index(effect["input"])
-                held[b, :, j] = _delayed_mean(inputs[:, j], effect["value"], time)
-        for effect in effects:
-            kind, value = effect["effect"], effect["value"]
-            if kind == "input_lag" and value > 0:
-                lags.append((b, INPUT_NAMES.index(effect["input"]), value))
-            elif kind == "sensor_bias":
-                bias[b, STATE_NAMES.index(effect["output"])] += value
-            elif kind in ("control_derivative", "stability_derivative", "quadratic_drag", "force_offset"):
-                term = effect["term"]
-                change = value - model_value(reference, term)
-                if term in CONTROL_TERMS:
-                    column, sign = CONTROL_TERMS[term]
-                    gains = gain_positive if sign > 0 else gain_negative
-                    gains[b, INPUT_NAMES.index(column)] = value / model_value(reference, term)
-                elif term in STABILITY_TERMS:
-                    extra_damping[b, STABILITY_TERMS[term]] = change
-                elif term in DRAG_TERMS:
-                    extra_drag[b, DRAG_TERMS[term]] = change
-                elif term == "Z_0":
-                    extra_down[b] = change
-                else:
-                    constant[b, OFFSET_TERMS[term]] = change
-    if lags:
-        members, columns, time_constants = (np.array(values) for values in zip(*lags))
-        held[members, :, columns] = _lagged_means(held[members, :, columns], time_constants, steps)
+    held = _held_inputs(effect_lists, time, inputs)
+    changes = _TermChanges.of(reference, effect_lists)
     _, inverse = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
                               params.cg_position)
 
     def derivative(state, command):
-        effective = command * np.where(command >= 0, gain_positive, gain_negative)
-        v, w, angles = state[:, 6:9], state[:, 9:12], state[:, 3:6]
-        down = np.stack([-np.sin(angles[:, 1]), np.cos(angles[:, 1]) * np.sin(angles[:, 0]),
-                         np.cos(angles[:, 1]) * np.cos(angles[:, 0])], axis=-1)
-        force = constant.copy()
-        force[:, :3] += extra_drag * np.abs(v) * v + extra_down[:, None] * down
-        force[:, 3:] += extra_damping * w
-        rates = blimp_dynamics(state, effective, params)
-        rates[:, 6:] += force @ inverse.T
-        return rates
+        return changes.rates(state, command, params, inverse)
 
-    states = np.empty((batch, n, 12))
-    state = np.repeat(hanging_state(params)[None], batch, axis=0)
+    states = np.empty((len(effect_lists), len(time), 12))
+    state = np.repeat(hanging_state(params)[None], len(effect_lists), axis=0)
     states[:, 0] = state
     for k, step in enumerate(steps):  # classical RK4 over [t_k, t_{k+1}), input row k held
         command = held[:, k]
@@ -243,7 +207,83 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
         k4 = derivative(state + step * k3, command)
         state = state + step / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         states[:, k + 1] = state
-    return states + bias[:, None, :]
+    return states + changes.bias[:, None, :]
+
+
+def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """What acts over each interval for each member: the inputs (n, 3) delayed, then lagged, by
+    the member's effects (module docstring), shape (B, n - 1, 3)."""
+    held = np.repeat(inputs[None, :-1], len(effect_lists), axis=0)
+    lags = []  # (member, input column, time constant)
+    for b, effects in enumerate(effect_lists):
+        for effect in effects:  # delays first: a lag acts on the delayed input
+            if effect["effect"] == "time_delay" and effect["value"] > 0:
+                j = INPUT_NAMES.index(effect["input"])
+                held[b, :, j] = _delayed_mean(inputs[:, j], effect["value"], time)
+        lags += [(b, INPUT_NAMES.index(effect["input"]), effect["value"]) for effect in effects
+                 if effect["effect"] == "input_lag" and effect["value"] > 0]
+    if lags:
+        members, columns, time_constants = (np.array(values) for values in zip(*lags))
+        held[members, :, columns] = _lagged_means(held[members, :, columns], time_constants, np.diff(time))
+    return held
+
+
+@dataclass
+class _TermChanges:
+    """What the term effects and biases of B members change in the blimp's ODE (module
+    docstring), one row per member: thrust gains for positive and negative commands (3 inputs),
+    extra rotational damping (P, Q, R) and quadratic drag (U, V, W), constant generalised forces
+    (6), extra net downward force, N, and biases on the 12 recorded states."""
+
+    gain_positive: np.ndarray
+    gain_negative: np.ndarray
+    extra_damping: np.ndarray
+    extra_drag: np.ndarray
+    constant: np.ndarray
+    extra_down: np.ndarray
+    bias: np.ndarray
+
+    @classmethod
+    def of(cls, reference: BlimpReference, effect_lists) -> _TermChanges:
+        batch = len(effect_lists)
+        changes = cls(np.ones((batch, 3)), np.ones((batch, 3)), np.zeros((batch, 3)), np.zeros((batch, 3)),
+                      np.zeros((batch, 6)), np.zeros(batch), np.zeros((batch, 12)))
+        for b, effects in enumerate(effect_lists):
+            for effect in effects:
+                if effect["effect"] == "sensor_bias":
+                    changes.bias[b, STATE_NAMES.index(effect["output"])] += effect["value"]
+                elif "term" in effect:
+                    changes.set_term(b, effect["term"], effect["value"], model_value(reference, effect["term"]))
+        return changes
+
+    def set_term(self, member: int, term: str, value: float, model: float) -> None:
+        """Term ``term`` of member ``member`` at ``value`` instead of the model's ``model``."""
+        if term in CONTROL_TERMS:
+            column, sign = CONTROL_TERMS[term]
+            gains = self.gain_positive if sign > 0 else self.gain_negative
+            gains[member, INPUT_NAMES.index(column)] = value / model
+        elif term in STABILITY_TERMS:
+            self.extra_damping[member, STABILITY_TERMS[term]] = value - model
+        elif term in DRAG_TERMS:
+            self.extra_drag[member, DRAG_TERMS[term]] = value - model
+        elif term == "Z_0":
+            self.extra_down[member] = value - model
+        else:
+            self.constant[member, OFFSET_TERMS[term]] = value - model
+
+    def rates(self, state: np.ndarray, command: np.ndarray, params, inverse: np.ndarray) -> np.ndarray:
+        """State derivatives (B, 12) of the changed ODEs at ``state`` (B, 12) with the held
+        ``command`` (B, 3); ``inverse`` is the inverse system inertia matrix (6, 6)."""
+        effective = command * np.where(command >= 0, self.gain_positive, self.gain_negative)
+        v, w, angles = state[:, 6:9], state[:, 9:12], state[:, 3:6]
+        down = np.stack([-np.sin(angles[:, 1]), np.cos(angles[:, 1]) * np.sin(angles[:, 0]),
+                         np.cos(angles[:, 1]) * np.cos(angles[:, 0])], axis=-1)
+        force = self.constant.copy()
+        force[:, :3] += self.extra_drag * np.abs(v) * v + self.extra_down[:, None] * down
+        force[:, 3:] += self.extra_damping * w
+        rates = blimp_dynamics(state, effective, params)
+        rates[:, 6:] += force @ inverse.T
+        return rates
 
 
 def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = SAMPLE_TIME,
@@ -267,8 +307,6 @@ def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = SAM
     inputs : ndarray, shape (n, 3)
         ``u_gondola`` (-1..1), ``mu`` (rad), ``u_tail`` (-1..1).
     """
-    from validation.core.manoeuvres import doublet, time_grid
-
     time = time_grid(duration=duration, sample_time=sample_time)
     inputs = np.zeros((len(time), 3))
 
@@ -291,3 +329,73 @@ def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = SAM
         inputs[span(13.0, 17.0), 0] = 1.0
         inputs[span(14.0, 16.0), 1] = 0.3
     return time, inputs
+
+
+#: Screening steps of the blimp's force offsets: 1 mN (about 1 % of full gondola thrust, the
+#: buoyancy drift of the stand-in) and 1 mN m.
+_OFFSET_STEPS = {"X_0": 1e-3, "Y_0": 1e-3, "Z_0": 1e-3, "N_0": 1e-3}
+
+
+class BlimpEffects:
+    """The :class:`~validation.vehicles.effects.EffectModel` of the ``blimp`` reference (module
+    docstring): every effect kind, replays batched, recordings may be unevenly sampled.
+
+    Parameters
+    ----------
+    reference : BlimpReference
+
+    Attributes
+    ----------
+    reference : BlimpReference
+    sensor_noise_sd : dict of str to float
+        :data:`SENSOR_NOISE_STD`.
+
+    The other attributes and the methods are those of the protocol.
+    """
+
+    kinds = tuple(TARGET_KEYS)
+    terms = TERMS
+    batches_simulations = True
+    needs_even_sampling = False
+    sensor_noise_sd = SENSOR_NOISE_STD
+
+    def __init__(self, reference: BlimpReference):
+        self.reference = reference
+        self.name, self.sample_time = reference.name, reference.sample_time
+        self.input_names, self.state_names = reference.input_names, reference.state_names
+
+    def model_value(self, term: str) -> float:
+        return model_value(self.reference, term)
+
+    def term_unit(self, term: str) -> str:
+        """:data:`TERM_UNITS`."""
+        return TERM_UNITS[term]
+
+    def term_value_problem(self, term: str, value: float) -> str | None:
+        """Fan thrust per unit command (the control-derivative terms) must be positive."""
+        if term in CONTROL_TERMS and not value > 0:
+            return f"thrust per unit command must be positive, got {value} N"
+        return None
+
+    def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
+        """The thrust gains of the excited fans (positive), the rotational damping ``L_P, M_Q,
+        N_R``, the quadratic drag ``X_UU, Y_VV, Z_WW`` (screening steps 5 % of the model's
+        value) and the force offsets ``X_0, Y_0, Z_0, N_0`` (steps of :data:`_OFFSET_STEPS`)."""
+        hypotheses = []
+        for term, (column, _) in CONTROL_TERMS.items():
+            if column in excited_inputs:
+                value = self.model_value(term)
+                hypotheses.append(Hypothesis("control_derivative", term, value, 0.0, math.inf, 0.05 * value))
+        for kind, terms in (("stability_derivative", STABILITY_TERMS), ("quadratic_drag", DRAG_TERMS)):
+            for term in terms:
+                value = self.model_value(term)
+                hypotheses.append(Hypothesis(kind, term, value, -math.inf, math.inf, 0.05 * abs(value)))
+        for term, step in _OFFSET_STEPS.items():
+            hypotheses.append(Hypothesis("force_offset", term, self.model_value(term), -math.inf, math.inf, step))
+        return hypotheses
+
+    def simulate_many(self, effect_lists, time, inputs) -> np.ndarray:
+        """:func:`simulate_batch`, shape (B, n, 12)."""
+        return simulate_batch(self.reference, effect_lists, time, inputs)
+
+    identification_manoeuvre = staticmethod(identification_manoeuvre)

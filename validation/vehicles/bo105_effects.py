@@ -1,7 +1,12 @@
-"""Named effects on the linear Bo105 reference (:mod:`validation.vehicles.bo105`), and the
-multi-axis identification manoeuvre that excites them.
+"""Named effects on the linear Bo105 reference (:mod:`validation.vehicles.bo105`): its
+:class:`~validation.vehicles.effects.EffectModel`, :class:`Bo105Effects`, and the multi-axis
+identification manoeuvre that excites them.
 
-The effect dicts are those of :mod:`validation.vehicles.effects`. How each effect enters the linear Bo105 (``x_dot = A x + B u``, :mod:`validation.vehicles.bo105`):
+The effect dicts are those of :mod:`validation.vehicles.effects` (docs/vehicles.md). A Bo105
+takes delays, lags and sensor biases, and as terms its derivatives: ``stability_derivative``
+``<row>_<state>`` and ``control_derivative`` ``<row>_<input>`` with the row letters ``X, Z, M,
+Y, L, N`` of :data:`validation.vehicles.bo105.ROW_LETTERS` (``M_q``, ``L_theta_1c`` ...). How each
+effect enters the linear Bo105 (``x_dot = A x + B u``):
 
 - derivatives replace entries of ``A`` (stability) or ``B`` (control) through
   :meth:`~validation.vehicles.bo105.Bo105Reference.with_derivatives`;
@@ -14,6 +19,9 @@ The effect dicts are those of :mod:`validation.vehicles.effects`. How each effec
   (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
   The result is exact and continuous in ``tau``, which a fit needs;
 - ``sensor_bias`` adds a constant to a recorded output.
+
+Replays are one exact discretisation each (milliseconds), so they are not batched, and they
+need evenly sampled recordings (one step).
 """
 from __future__ import annotations
 
@@ -22,8 +30,20 @@ import math
 import numpy as np
 
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
+from validation.core.recordings import column_unit
 from validation.core.sampling import check_history
-from validation.vehicles.bo105 import INPUT_NAMES, STATE_NAMES, Bo105Reference, propagate, zero_order_hold
+from validation.vehicles.bo105 import (
+    INPUT_NAMES,
+    ROW_LETTERS,
+    STATE_NAMES,
+    Bo105Reference,
+    propagate,
+    zero_order_hold,
+)
+from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
+from validation.vehicles.effects import Hypothesis
+
+_ACCELERATION_UNITS = {"m/s": "m/s^2", "rad/s": "rad/s^2"}
 
 
 def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
@@ -36,7 +56,23 @@ def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
 
 
 def simulate_bo105_with_effects(reference: Bo105Reference, effects, time, inputs) -> np.ndarray:
-    """The Bo105 case of :func:`simulate_with_effects` (module docstring), shape (n, 8)."""
+    """States (plus sensor biases) of a Bo105 with checked ``effects`` (module docstring), from trim.
+
+    Parameters
+    ----------
+    reference : Bo105Reference
+    effects : list of dict
+        Checked (:func:`validation.vehicles.effects.check_effects`).
+    time : ndarray, shape (n,)
+        Evenly spaced sample times, s.
+    inputs : ndarray, shape (n, 4)
+        ``theta_0, theta_1s, theta_1c, theta_0T``, rad, zero-order hold.
+
+    Returns
+    -------
+    ndarray, shape (n, 8)
+        ``u, w, q, theta, v, p, phi, r`` as recorded, SI units.
+    """
     time, inputs, step = check_history(time, inputs, INPUT_NAMES)
     derivatives = {e["term"]: e["value"] for e in effects if "term" in e}
     model = reference.with_derivatives(derivatives) if derivatives else reference
@@ -113,3 +149,74 @@ def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = 0.0
         inputs[:, column["theta_1c"]] = three_two_one_one(time, amplitude=amplitude / 1.5, step_time=0.5, start=8.0)
         inputs[:, column["theta_0"]] = doublet(time, amplitude=amplitude, step_time=0.6, start=14.0)
     return time, inputs
+
+
+class Bo105Effects:
+    """The :class:`~validation.vehicles.effects.EffectModel` of a ``bo105-<V>kt`` reference
+    (module docstring).
+
+    Parameters
+    ----------
+    reference : Bo105Reference
+
+    Attributes
+    ----------
+    reference : Bo105Reference
+    sensor_noise_sd : dict of str to float
+        The flight-test stand-in's sensor noise,
+        :data:`validation.vehicles.bo105_flight.SENSOR_NOISE_STD`.
+
+    The other attributes and the methods are those of the protocol.
+    """
+
+    kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias")
+    terms = {"control_derivative": tuple(f"{letter}_{column}" for letter in ROW_LETTERS for column in INPUT_NAMES),
+             "stability_derivative": tuple(f"{letter}_{column}" for letter in ROW_LETTERS for column in STATE_NAMES)}
+    batches_simulations = False
+    needs_even_sampling = True
+    sensor_noise_sd = SENSOR_NOISE_STD
+
+    def __init__(self, reference: Bo105Reference):
+        self.reference = reference
+        self.name, self.sample_time = reference.name, reference.sample_time
+        self.input_names, self.state_names = reference.input_names, reference.state_names
+
+    def model_value(self, term: str) -> float:
+        return self.reference.derivative(term)
+
+    def term_unit(self, term: str) -> str:
+        """(row acceleration)/(column unit), ``1/s`` when they cancel (``M_q``)."""
+        letter, _, column = term.partition("_")
+        row_unit, column_unit_ = column_unit(ROW_LETTERS[letter]), column_unit(column)
+        return "1/s" if row_unit == column_unit_ else f"({_ACCELERATION_UNITS[row_unit]})/({column_unit_})"
+
+    def term_value_problem(self, term: str, value: float) -> None:
+        """Every finite derivative is acceptable."""
+        return None
+
+    def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
+        """Every control derivative of an excited input and every stability derivative (6 rows
+        x 8 states, off-axis couplings included), unbounded; screening step 5 % of the value, at
+        least 1 % of the row's largest entry (so that zero entries move too) and 1e-6."""
+        hypotheses = []
+        A, B = self.reference.A, self.reference.B
+        for letter, row_state in ROW_LETTERS.items():
+            row = STATE_NAMES.index(row_state)
+            for columns, matrix, kind in ((STATE_NAMES, A, "stability_derivative"),
+                                          (INPUT_NAMES, B, "control_derivative")):
+                typical = np.max(np.abs(matrix[row]))
+                for column, column_name in enumerate(columns):
+                    if kind == "control_derivative" and column_name not in excited_inputs:
+                        continue
+                    value = matrix[row, column]
+                    step = 0.05 * max(abs(value), 0.01 * typical, 1e-6)
+                    hypotheses.append(Hypothesis(kind, f"{letter}_{column_name}", float(value),
+                                                 -math.inf, math.inf, step))
+        return hypotheses
+
+    def simulate_many(self, effect_lists, time, inputs) -> np.ndarray:
+        """:func:`simulate_bo105_with_effects` for each list, shape (B, n, 8)."""
+        return np.stack([simulate_bo105_with_effects(self.reference, effects, time, inputs)
+                         for effects in effect_lists])
+
+    identification_manoeuvre = staticmethod(identification_manoeuvre)

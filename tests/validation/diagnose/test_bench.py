@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from validation.cli import main
+from validation.diagnose import diagnose
 from validation.diagnose.bench import (
     REQUIRED_CUT,
     ConcealedCase,
@@ -19,11 +20,11 @@ from validation.diagnose.bench import (
 from validation.vehicles.bo105 import STATE_NAMES, Bo105Reference
 from validation.vehicles.bo105_effects import identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
-from validation.vehicles.effects import EffectVehicle
+from validation.vehicles.effect_vehicle import EffectVehicle
 
 
 def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
-    """Issue 7's realistic magnitudes: delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %,
+    """Realistic magnitudes (docs/diagnose.md, scorecards): delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %,
     biases >= 3x noise; plus pairs, a no-effect case and effects outside the named list."""
     reference = Bo105Reference(80)
     cases = concealed_cases("bo105-80kt")
@@ -150,8 +151,6 @@ def test_cli_runs_chosen_cases_and_writes_the_scorecard(tmp_path, capsys):
 def test_blimp_fan_thrust_quadratic_in_its_command_is_unexplained():
     """Outside the named list on the blimp: per-direction thrust gains fit the tail fan's u|u|
     thrust at the diagnosed manoeuvre's one amplitude (0.8), not at the held-out one's (0.6)."""
-    from validation.diagnose.pipeline import diagnose
-
     case = next(c for c in concealed_cases("blimp") if c.name == "outside-quadratic-thrust-u_tail")
     fit, holdout, truth = case_recordings(case, reference="blimp", seed=0)
     result = diagnose([fit], reference="blimp", holdout=[holdout], seed=0).as_dict()

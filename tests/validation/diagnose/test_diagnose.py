@@ -1,5 +1,5 @@
-"""flightgp diagnose: each stage on small cases, the issue's acceptance criteria on concealed
-effects (EffectVehicle as ground truth, sensor noise on), and exit-2 errors."""
+"""flightgp diagnose: each stage on small cases, the acceptance criteria of docs/diagnose.md on
+concealed effects (EffectVehicle as ground truth, sensor noise on), and exit-2 errors."""
 import json
 import math
 
@@ -8,11 +8,13 @@ import pytest
 
 from validation.cli import main
 from validation.core.errors import BadInputError
+from validation.core.metrics import theil_inequality
 from validation.core.recordings import Recording, write_recording
-from validation.diagnose.pipeline import diagnose, estimate_noise_sd, theil_inequality, write_diagnosis
+from validation.diagnose import diagnose, write_diagnosis
+from validation.diagnose.noise import UNEXPLAINED_RATIO, estimate_noise_sd, noise_excess
 from validation.vehicles.bo105_effects import identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD, Bo105FlightTest
-from validation.vehicles.effects import EffectVehicle
+from validation.vehicles.effect_vehicle import EffectVehicle
 
 
 def _recordings(vehicle, *, duration=20.0):
@@ -77,7 +79,7 @@ def test_holdout_is_the_tail_of_a_single_recording():
 
 def _check_named(result, truth):
     """Every true effect named, with the true value inside the interval, and its main output's
-    held-out RMSE cut by at least 60 % (the issue's scorecard criteria)."""
+    held-out RMSE cut by at least 60 % (the scorecard criteria of docs/diagnose.md)."""
     named = [f for f in result["findings"] if f["effect"] != "unexplained"]
     assert result["verdict"] == "missing_physics"
     assert len(named) == len(truth), [f["statement"] for f in result["findings"]]
@@ -185,18 +187,16 @@ def test_a_dead_band_the_named_effects_only_mimic_is_unexplained_on_held_out_dat
 
 
 def test_noise_excess_needs_both_the_chi_squared_test_and_the_ratio():
-    from validation.diagnose.pipeline import UNEXPLAINED_RATIO, _noise_excess
-
     rng = np.random.default_rng(0)
     white = rng.standard_normal(4000)
-    assert not _noise_excess(white)[1]
-    assert _noise_excess(1.5 * white)[1]
+    assert not noise_excess(white)[1]
+    assert noise_excess(1.5 * white)[1]
     # Significant with many samples but within the ratio: a noise estimate a few per cent off.
     slightly = 1.1 * rng.standard_normal(200_000)
-    ratio, exceeds = _noise_excess(slightly)
+    ratio, exceeds = noise_excess(slightly)
     assert ratio < UNEXPLAINED_RATIO and not exceeds
     # Far above the ratio but too few samples to tell.
-    assert not _noise_excess(np.array([1.3, -1.3]))[1]
+    assert not noise_excess(np.array([1.3, -1.3]))[1]
 
 
 # -- command line, files, bad input -------------------------------------------------------------

@@ -14,11 +14,12 @@ from tests.validation.diagnose.test_diagnose import _check_named, _write_table  
 from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.core.recordings import write_recording
+from validation.diagnose import diagnose
 from validation.diagnose.bench import concealed_cases
-from validation.diagnose.pipeline import diagnose, estimate_noise_sd
-from validation.vehicles.blimp import BlimpParameters, BlimpReference
-from validation.vehicles.blimp_effects import SAMPLE_TIME, SENSOR_NOISE_STD, identification_manoeuvre, simulate_batch
-from validation.vehicles.effects import EffectVehicle
+from validation.diagnose.noise import estimate_noise_sd
+from validation.vehicles.blimp import SAMPLE_TIME, BlimpParameters, BlimpReference
+from validation.vehicles.blimp_effects import SENSOR_NOISE_STD, identification_manoeuvre, simulate_batch
+from validation.vehicles.effect_vehicle import EffectVehicle
 
 DEFAULT = BlimpParameters()
 
@@ -190,8 +191,8 @@ def _held_states(time, held_means):
 
 
 def test_even_steps_equal_the_fixed_step_formulas(manoeuvre):
-    """On an even grid the per-interval integrator equals the fixed-step formulas it replaced
-    (issue 7): delay ``(1 - f) u[k-m] + f u[k-m-1]``, lag by a constant-coefficient filter with
+    """On an even grid the per-interval integrator equals the fixed-step formulas: delay
+    ``(1 - f) u[k-m] + f u[k-m-1]``, lag by a constant-coefficient filter with
     ``a = exp(-h/T)`` and mean ``u + (z - u) (T/h) (1 - a)``; states to rounding (1e-12 on
     states of order 1, against 1e-14 measured)."""
     time, inputs = manoeuvre
@@ -256,8 +257,8 @@ def test_jittered_delay_and_lag_are_exact_interval_means(manoeuvre):
     def lagged_means(u):
         state, means = np.zeros(2), []  # z and its integral
         for k, (start, stop) in enumerate(zip(time[:-1], time[1:])):
-            solution = integrate.solve_ivp(lambda _t, y: [(u[k] - y[0]) / lag, y[0]], (start, stop), state,
-                                           method="DOP853", rtol=1e-11, atol=1e-13)
+            solution = integrate.solve_ivp(lambda _t, y, held=u[k]: [(held - y[0]) / lag, y[0]], (start, stop),
+                                           state, method="DOP853", rtol=1e-11, atol=1e-13)
             means.append((solution.y[1, -1] - state[1]) / (stop - start))
             state = solution.y[:, -1]
         return np.array(means)

@@ -1,13 +1,16 @@
-"""validation.vehicles.effects: each named effect does what its docstring says, against independent
-constructions; model files round-trip; bad effects are refused with one clear line."""
+"""validation.vehicles.effects and effect_vehicle: each named effect on a Bo105 does what its
+docstring says, against independent constructions; model files round-trip; bad effects are
+refused with one clear line; every diagnosable reference implements the EffectModel protocol."""
 import numpy as np
 import pytest
 
 from validation.core.errors import BadInputError
 from validation.vehicles.bo105 import INPUT_NAMES, Bo105Reference
-from validation.vehicles.bo105_effects import identification_manoeuvre
+from validation.vehicles.bo105_effects import Bo105Effects, identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
-from validation.vehicles.effects import EffectVehicle, check_effects
+from validation.vehicles.effect_vehicle import EffectVehicle, effect_model_of
+from validation.vehicles.effects import TARGET_KEYS, check_effects
+from validation.vehicles.registry import get_vehicle
 
 Q, P = 2, 5  # columns of q and p in the Bo105 state vector
 
@@ -105,7 +108,7 @@ def test_model_file_round_trip(tmp_path, manoeuvre):
 ])
 def test_bad_effects_are_refused(effect, message):
     with pytest.raises(BadInputError, match=message):
-        check_effects([effect], Bo105Reference(80))
+        check_effects([effect], Bo105Effects(Bo105Reference(80)))
 
 
 def test_other_references_and_bo105_effects_on_the_blimp_are_refused():
@@ -115,3 +118,38 @@ def test_other_references_and_bo105_effects_on_the_blimp_are_refused():
         EffectVehicle("blimp", [{"effect": "stability_derivative", "term": "M_q", "value": -1.0}])
     with pytest.raises(BadInputError, match="unknown effect 'quadratic_drag'"):
         EffectVehicle("bo105-80kt", [{"effect": "quadratic_drag", "term": "X_UU", "value": -1.0}])
+
+
+def test_thrust_per_unit_command_must_be_positive_on_the_blimp():
+    with pytest.raises(BadInputError, match="thrust per unit command must be positive, got 0.0 N"):
+        EffectVehicle("blimp", [{"effect": "control_derivative", "term": "tail_thrust_positive", "value": 0.0}])
+
+
+@pytest.mark.parametrize("name", ["bo105-80kt", "bo105-40kt", "blimp"])
+def test_every_diagnosable_reference_keeps_the_effect_model_contract(name):
+    """The EffectModel protocol, checked as diagnose and its bench use it: kinds and terms agree
+    with the shared contract, term hypotheses start at the model's values inside their bounds,
+    the manoeuvre excites every input, and a replay without effects is the reference's own."""
+    vehicle = get_vehicle(name)
+    model = effect_model_of(vehicle)
+    assert (model.name, model.input_names, model.state_names) == (name, vehicle.input_names, vehicle.state_names)
+    assert set(model.kinds) <= set(TARGET_KEYS) and {"time_delay", "input_lag", "sensor_bias"} <= set(model.kinds)
+    assert {kind for kind in model.kinds if TARGET_KEYS[kind] == "term"} == set(model.terms)
+    for terms in model.terms.values():
+        assert all(np.isfinite(model.model_value(term)) and model.term_unit(term) for term in terms)
+    hypotheses = model.term_hypotheses(model.input_names)
+    assert {h.key for h in hypotheses} <= {(kind, term) for kind, terms in model.terms.items() for term in terms}
+    for h in hypotheses:
+        assert h.null == model.model_value(h.target) and h.lower <= h.null <= h.upper and h.step > 0, h
+    assert set(model.sensor_noise_sd) == set(model.state_names) and model.sample_time == vehicle.sample_time
+    time, inputs = model.identification_manoeuvre(duration=20.0, sample_time=model.sample_time, variant=1)
+    assert inputs.shape == (len(time), len(model.input_names)) and np.all(np.ptp(inputs, axis=0) > 0)
+    replay = model.simulate_many([[], []], time, inputs)
+    assert replay.shape == (2, len(time), len(model.state_names)) and np.array_equal(replay[0], replay[1])
+    if model.needs_even_sampling:  # the blimp's RK4 at the recording interval: test_diagnose_blimp
+        np.testing.assert_array_equal(replay[0], vehicle.simulate_states(time, inputs))
+
+
+@pytest.mark.parametrize("name", ["bo105-80kt-flight", "blimp-flight"])
+def test_stand_ins_take_no_effects(name):
+    assert effect_model_of(get_vehicle(name)) is None

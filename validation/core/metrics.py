@@ -1,0 +1,41 @@
+"""Agreement between a measured and a predicted signal: RMSE and Theil's inequality coefficient."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def rmse(measured: np.ndarray, predicted: np.ndarray) -> float:
+    """Root-mean-square error ``sqrt(mean((y - y_hat)^2))``.
+
+    Parameters
+    ----------
+    measured, predicted : ndarray, same shape
+        In one unit (the signal's).
+
+    Returns
+    -------
+    float
+        In the signal's unit.
+    """
+    return float(np.sqrt(np.mean((measured - predicted) ** 2)))
+
+
+def theil_inequality(measured: np.ndarray, predicted: np.ndarray) -> float:
+    """Theil's inequality coefficient ``U = RMSE / (RMS(y) + RMS(y_hat))``, 0 (perfect) to 1
+    (Theil, *Economic Forecasts and Policy*, 1961; Jategaonkar, *Flight Vehicle System
+    Identification*, 2006, sec. 11.4, where ``U < 0.25-0.3`` counts as good agreement).
+
+    Parameters
+    ----------
+    measured, predicted : ndarray, same shape
+        In one unit (the signal's).
+
+    Returns
+    -------
+    float
+        Dimensionless, in [0, 1]; 0 when both signals are zero.
+    """
+    denominator = math.sqrt(np.mean(measured**2)) + math.sqrt(np.mean(predicted**2))
+    return float(rmse(measured, predicted) / denominator) if denominator > 0 else 0.0

@@ -1,0 +1,278 @@
+"""The data a diagnosis works on: the reference checked, recordings read and checked against
+it, split into fitted and held-out samples, with the sensor noise of every measured output.
+
+Held-out data: the ``holdout`` recordings if given; otherwise the last recording when there are
+several; otherwise the last :data:`HOLDOUT_FRACTION` of the single recording (the model is then
+still replayed from trim over the whole recording, but only earlier samples enter any fit).
+
+Sampling: recordings of a reference whose replays need even sampling (a Bo105's exact
+discretisation has one step; :attr:`validation.vehicles.effects.EffectModel.needs_even_sampling`)
+must be evenly sampled; others (the blimp's, motion capture with frame-timing jitter) may not
+be. All recordings must share one nominal interval ``h``
+(:func:`validation.core.sampling.nominal_step`, within :data:`RATE_TOLERANCE`).
+docs/conventions.md describes the recording format, docs/diagnose.md the stages.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.core.recordings import Recording
+from validation.core.sampling import nominal_step, uneven_steps
+from validation.diagnose.fitting import FitData
+from validation.diagnose.noise import estimate_noise_sd
+from validation.vehicles import get_vehicle, read_recording
+from validation.vehicles.effect_vehicle import EFFECT_REFERENCES, effect_model_of
+from validation.vehicles.effects import EffectModel
+
+#: Held-out share of a single recording's time when no other held-out data exist.
+HOLDOUT_FRACTION = 0.3
+#: Least fit data that can identify anything: 2 s (a 3-2-1-1 with 0.3 s steps lasts 2.1 s).
+MIN_FIT_DURATION = 2.0
+#: An input "moves" when its peak-to-peak exceeds this (rad, or normalised command).
+EXCITATION_THRESHOLD = 1e-6
+#: Relative difference of nominal sample intervals above which recordings count as sampled at
+#: different rates. Timing jitter of sd ``s`` moves :func:`validation.core.sampling.nominal_step`
+#: by about ``sqrt(2) s / (n - 1)`` (0.03 % for 4 ms on 20 s at 20 Hz), while the rates people
+#: record at (20, 25, 50, 100 Hz ...) differ by 20 % or more.
+RATE_TOLERANCE = 0.01
+#: Relative tolerance of evenly sampled data: how closely evenly sampled recordings must agree on
+#: their rate, and the offset of grid look-ups (far above the rounding of ``t0 + k*h`` grids, far
+#: below any real jitter; the tolerance of :func:`validation.core.sampling.uneven_steps`).
+EVEN_TOLERANCE = 1e-6
+
+
+@dataclass
+class PreparedData(FitData):
+    """The recordings of one diagnosis, ready for every stage (:func:`prepare`).
+
+    Attributes
+    ----------
+    time, inputs, measured, output_names, noise_sd, fit_mask
+        As :class:`validation.diagnose.fitting.FitData`, one entry per recording (diagnosed
+        ones first, then the held-out ones).
+    input_names : tuple of str
+        The reference's inputs, the column order of ``inputs``.
+    holdout_mask : list of ndarray of bool, shape (n_r,)
+        Samples that only score the models.
+    recording_names : list of str
+    held_out : list of bool
+        Per recording: used only to score the models.
+    holdout_description : str
+        What is held out, for the report.
+    step : float
+        The common nominal sample interval, s.
+    even : bool
+        Whether every recording is evenly sampled.
+    excited : list of str
+        Inputs that move in the fitted samples (:data:`EXCITATION_THRESHOLD`).
+    untestable : list of str
+        Why effects on the other inputs cannot be tested.
+    typical_noise_sd : dict of str to float
+        Per output: the median over recordings of its noise standard deviation, output units.
+    """
+
+    input_names: tuple
+    holdout_mask: list
+    recording_names: list
+    held_out: list
+    holdout_description: str
+    step: float
+    even: bool
+    excited: list
+    untestable: list
+    typical_noise_sd: dict
+
+    @property
+    def sample_rate(self) -> float:
+        """``1 / step``, Hz."""
+        return 1.0 / self.step
+
+    def output_residual(self, replay: list, output: int, masks: list) -> np.ndarray:
+        """Measured minus ``replay`` (per recording, shape (n_r, n_out)) of output index
+        ``output`` on the samples of ``masks``, recordings concatenated, shape (N,), output units."""
+        return np.concatenate([(m[:, output] - r[:, output])[mask]
+                               for m, r, mask in zip(self.measured, replay, masks)])
+
+    def weighted_output_residual(self, replay: list, output: int, masks: list) -> np.ndarray:
+        """:meth:`output_residual` over each recording's noise standard deviation, shape (N,)."""
+        return np.concatenate([(m[:, output] - r[:, output])[mask] / sd[output]
+                               for m, r, mask, sd in zip(self.measured, replay, masks, self.noise_sd)])
+
+
+@dataclass
+class _Source:
+    name: str
+    recording: Recording
+    held_out: bool
+
+
+def diagnosable_reference(name: str) -> EffectModel:
+    """The effect model of the reference called ``name``.
+
+    Raises
+    ------
+    BadInputError
+        An unknown name, a flight-test stand-in, or a vehicle that takes no effects.
+    """
+    vehicle = get_vehicle(name)
+    if name.endswith("-flight"):
+        raise BadInputError(f"--reference {name} is a flight-test stand-in; diagnose a physics "
+                            f"reference ({name.removesuffix('-flight')})")
+    reference = effect_model_of(vehicle)
+    if reference is None:
+        raise BadInputError(f"diagnose supports the {EFFECT_REFERENCES} references; {name!r} is not "
+                            "implemented yet")
+    return reference
+
+
+def prepare(recordings, reference: EffectModel, *, holdout=None) -> PreparedData:
+    """Read and check ``recordings`` (and ``holdout``), split them (module docstring) and
+    estimate their noise (:func:`validation.diagnose.noise.estimate_noise_sd`).
+
+    Raises
+    ------
+    BadInputError
+        No recordings; recordings that miss the reference's inputs, hold another vehicle's
+        columns, have no outputs, hold NaN, are too short to identify anything, are unevenly
+        sampled for a reference that needs even sampling, or are sampled at different nominal
+        rates; no output measured in every recording; no input moving in the fitted data.
+    """
+    if not recordings:
+        raise BadInputError("no recordings to diagnose")
+    sources = _load(recordings, reference, held_out=False)
+    if holdout:
+        sources += _load(holdout, reference, held_out=True, start_index=len(sources))
+    elif len(sources) > 1:
+        sources[-1].held_out = True
+    step, even = _common_step(sources)
+    fit_mask, holdout_mask, description = _split(sources)
+    fit_duration = sum(mask.sum() for mask in fit_mask) * step
+    if fit_duration < MIN_FIT_DURATION:
+        raise BadInputError(f"too short to identify anything: {fit_duration:.2f} s of data to fit "
+                            f"after holding out {description}; need at least {MIN_FIT_DURATION:g} s")
+    output_names = tuple(n for n in reference.state_names if all(n in s.recording.output_names for s in sources))
+    if not output_names:
+        raise BadInputError("the recordings share no measured output; diagnose needs the same "
+                            "outputs in every recording (including --holdout)")
+    excited = _excited_inputs(sources, fit_mask, reference)
+    untestable = [f"{name}: never moves in the fitted data, so delays, lags and control derivatives "
+                  "on it cannot be tested" for name in reference.input_names if name not in excited]
+    measured = [np.column_stack([s.recording.output(n) for n in output_names]) for s in sources]
+    noise_sd = [np.array([estimate_noise_sd(column, time=s.recording.time) for column in m.T])
+                for s, m in zip(sources, measured)]
+    typical = {name: float(np.median([sd[i] for sd in noise_sd])) for i, name in enumerate(output_names)}
+    return PreparedData(time=[s.recording.time for s in sources], inputs=[s.recording.inputs for s in sources],
+                        measured=measured, output_names=output_names, noise_sd=noise_sd, fit_mask=fit_mask,
+                        input_names=reference.input_names, holdout_mask=holdout_mask,
+                        recording_names=[s.name for s in sources], held_out=[s.held_out for s in sources],
+                        holdout_description=description, step=step, even=even, excited=excited,
+                        untestable=untestable, typical_noise_sd=typical)
+
+
+def evenly_sampled(time: np.ndarray) -> bool:
+    """Whether ``time`` (n,) is evenly sampled (:func:`validation.core.sampling.uneven_steps`)."""
+    return not len(uneven_steps(time))
+
+
+def _load(items, reference: EffectModel, *, held_out: bool, start_index: int = 0) -> list[_Source]:
+    """Recordings (paths or :class:`Recording`) checked against ``reference``."""
+    sources = []
+    for index, item in enumerate(items, start=start_index + 1):
+        if isinstance(item, Recording):
+            name = str(item.metadata.get("name", f"recording {index}"))
+            recording = _checked_recording(item, name, reference)
+        else:
+            name = Path(item).name
+            recording = _read(Path(item), reference)
+        if len(recording.time) < 3:
+            raise BadInputError(f"{name}: {len(recording.time)} samples; too short to identify anything")
+        steps = np.diff(recording.time)
+        if np.any(steps <= 0):
+            raise BadInputError(f"{name}: time must increase strictly from sample to sample")
+        if reference.needs_even_sampling and not evenly_sampled(recording.time):
+            raise BadInputError(f"{name}: uneven sampling (intervals {steps.min():.6g} to {steps.max():.6g} s); "
+                                f"the {reference.name} reference is discretised exactly with one step, so "
+                                "diagnose needs evenly sampled recordings for it: resample onto an even grid")
+        sources.append(_Source(name, recording, held_out))
+    return sources
+
+
+def _read(path: Path, reference: EffectModel) -> Recording:
+    """The recording file at ``path`` read as one of ``reference``."""
+    try:
+        return read_recording(path, vehicle=reference)
+    except BadInputError as error:
+        if "unknown column" in str(error):
+            raise BadInputError(f"{error} (is this a recording of another vehicle than "
+                                f"{reference.name}?)") from None
+        raise
+
+
+def _checked_recording(recording: Recording, name: str, reference: EffectModel) -> Recording:
+    """A :class:`Recording` object checked as :func:`read_recording` checks files, its inputs
+    put in the reference's order."""
+    missing = [n for n in reference.input_names if n not in recording.input_names]
+    if missing:
+        raise BadInputError(f"{name}: missing input(s) {', '.join(missing)} of {reference.name}")
+    unknown = [n for n in recording.output_names if n not in reference.state_names]
+    if unknown:
+        raise BadInputError(f"{name}: output(s) {', '.join(unknown)} are not states of "
+                            f"{reference.name} ({', '.join(reference.state_names)}): a "
+                            "recording of another vehicle?")
+    if not recording.output_names:
+        raise BadInputError(f"{name}: no measured outputs")
+    for what, array in (("time", recording.time), ("inputs", recording.inputs), ("outputs", recording.outputs)):
+        if not np.all(np.isfinite(array)):
+            raise BadInputError(f"{name}: {what} hold NaN or infinite values")
+    order = [recording.input_names.index(n) for n in reference.input_names]
+    return Recording(recording.time, recording.inputs[:, order], reference.input_names,
+                     recording.outputs, recording.output_names, recording.metadata)
+
+
+def _common_step(sources: list[_Source]) -> tuple[float, bool]:
+    """The recordings' common nominal interval, s, and whether all are evenly sampled;
+    BadInputError when they differ by more than :data:`RATE_TOLERANCE` (:data:`EVEN_TOLERANCE`
+    when all are evenly sampled: jittered recordings agree on their nominal rate only roughly)."""
+    nominal = [nominal_step(s.recording.time) for s in sources]
+    step = float(np.mean(nominal))
+    even = all(evenly_sampled(s.recording.time) for s in sources)
+    if max(nominal) - min(nominal) > (EVEN_TOLERANCE if even else RATE_TOLERANCE) * step:
+        raise BadInputError(f"recordings are sampled at different intervals "
+                            f"({', '.join(f'{h:.6g}' for h in sorted(set(nominal)))} s nominal); "
+                            "resample them to one rate")
+    return step, even
+
+
+def _split(sources: list[_Source]) -> tuple[list, list, str]:
+    """Fit and held-out sample masks per recording (module docstring), and what is held out."""
+    fit_mask, holdout_mask, description = [], [], ""
+    for source in sources:
+        n = len(source.recording.time)
+        if source.held_out:
+            fit_mask.append(np.zeros(n, bool))
+            holdout_mask.append(np.ones(n, bool))
+        elif any(s.held_out for s in sources):
+            fit_mask.append(np.ones(n, bool))
+            holdout_mask.append(np.zeros(n, bool))
+        else:
+            time = source.recording.time
+            split = time[0] + (1 - HOLDOUT_FRACTION) * (time[-1] - time[0])
+            fit_mask.append(time < split)
+            holdout_mask.append(time >= split)
+            description = (f"last {HOLDOUT_FRACTION:.0%} of {source.name} "
+                           f"(t >= {split:.2f} s; the model is replayed from trim throughout)")
+    return fit_mask, holdout_mask, description or ", ".join(s.name for s in sources if s.held_out)
+
+
+def _excited_inputs(sources: list[_Source], fit_mask: list, reference: EffectModel) -> list[str]:
+    """Inputs that move in the fitted samples; BadInputError when none does."""
+    fit_inputs = np.vstack([s.recording.inputs[m] for s, m in zip(sources, fit_mask) if m.any()])
+    excited = [name for j, name in enumerate(reference.input_names) if np.ptp(fit_inputs[:, j]) > EXCITATION_THRESHOLD]
+    if not excited:
+        raise BadInputError("no input moves in the data to fit: nothing to identify (fly a 3-2-1-1 or "
+                            "doublet on at least one control)")
+    return excited

@@ -1,0 +1,241 @@
+"""Output-error fitting of named effects to recordings (the machinery of the explain stage).
+
+The reference, with the effects under test, is replayed from trim on the recorded inputs
+(:meth:`validation.vehicles.effects.EffectModel.simulate_many`) and the noise-weighted
+differences to the measured outputs are minimised (Jategaonkar, *Flight Vehicle System
+Identification*, 2006, ch. 4). With white Gaussian sensor noise of known standard deviations the
+weighted residual sum of squares ``RSS`` is ``-2 ln L`` up to a constant.
+
+References whose replays are fast (a Bo105: one exact discretisation, milliseconds) are fitted
+one problem at a time by scipy's trust-region reflective ``least_squares``; references that
+batch their replays (the blimp's RK4 integration of a nonlinear ODE) fit all problems of a step
+at once with :func:`_fit_batched`, a Levenberg-Marquardt iteration (Marquardt, J. SIAM 11(2),
+1963) whose trial points and forward-difference Jacobian columns of every problem are one
+batched replay.
+
+Intervals are 95 % Wald intervals from the Jacobian at the joint optimum,
+``cov = s^2 (J^T J)^-1`` with ``s^2 = max(1, RSS / (N - p))`` so that a misfit beyond the noise
+widens them (Seber & Wild, *Nonlinear Regression*, 1989, sec. 2.2).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import least_squares
+
+from validation.vehicles.effects import EffectModel, Hypothesis
+
+_Z95 = stats.norm.isf(0.025)
+#: Largest weighted residual (noise standard deviations) a diverging trial model is given.
+_DIVERGED = 1e6
+#: Batched Levenberg-Marquardt: most iterations, relative RSS change that counts as converged,
+#: forward-difference step as a fraction of each hypothesis' screening step.
+_LM_ITERATIONS = 40
+_LM_RTOL = 1e-9
+_LM_DIFF = 1e-3
+
+
+@dataclass
+class FitData:
+    """Recordings prepared for output-error fitting.
+
+    Attributes
+    ----------
+    time, inputs : list of ndarray, shapes (n_r,), (n_r, n_inputs)
+    measured : list of ndarray, shape (n_r, n_out)
+        Measured outputs, in the order of ``output_names``.
+    output_names : tuple of str
+        Measured states of the reference (any subset of its ``state_names``).
+    noise_sd : list of ndarray, shape (n_out,)
+        Sensor-noise standard deviation per recording and output, output units.
+    fit_mask : list of ndarray of bool, shape (n_r,)
+        Samples that enter the fit (the rest are held out); may be all False for a held-out
+        recording.
+    """
+
+    time: list
+    inputs: list
+    measured: list
+    output_names: tuple
+    noise_sd: list
+    fit_mask: list
+
+    @property
+    def n_residuals(self) -> int:
+        """Residuals of a fit: fitted samples times outputs."""
+        return int(sum(mask.sum() for mask in self.fit_mask)) * len(self.output_names)
+
+    def simulate(self, reference: EffectModel, effects: list[dict]) -> list:
+        """Replayed outputs per recording, shape (n_r, n_out) each."""
+        return [replay[0] for replay in self._simulate_many(reference, [effects], fitted_only=False)]
+
+    def _simulate_many(self, reference: EffectModel, effect_lists, *, fitted_only: bool) -> list:
+        """Per recording (``None`` where ``fitted_only`` and nothing of it is fitted): replayed
+        outputs of each effect list, shape (B, n_r, n_out)."""
+        columns = [reference.state_names.index(name) for name in self.output_names]
+        return [reference.simulate_many(effect_lists, t, u)[:, :, columns]
+                if mask.any() or not fitted_only else None
+                for t, u, mask in zip(self.time, self.inputs, self.fit_mask)]
+
+    def weighted_residuals_many(self, reference: EffectModel, effect_lists) -> np.ndarray:
+        """``(measured - replay) / noise_sd`` on the fit samples for each of B effect lists,
+        flattened per list, shape (B, N)."""
+        parts = []
+        with np.errstate(over="ignore", invalid="ignore"):
+            replays = self._simulate_many(reference, effect_lists, fitted_only=True)
+            for replay, measured, sd, mask in zip(replays, self.measured, self.noise_sd, self.fit_mask):
+                if mask.any():
+                    parts.append(((measured[mask] - replay[:, mask]) / sd).reshape(len(effect_lists), -1))
+        # A trial value that makes the model diverge gets a large, finite misfit, so the
+        # optimiser steps back instead of failing on inf or NaN.
+        return np.clip(np.nan_to_num(np.concatenate(parts, axis=1), nan=_DIVERGED), -_DIVERGED, _DIVERGED)
+
+    def weighted_residuals(self, reference: EffectModel, effects: list[dict]) -> np.ndarray:
+        """``(measured - replay) / noise_sd`` on the fit samples, flattened, shape (N,)."""
+        return self.weighted_residuals_many(reference, [effects])[0]
+
+
+@dataclass
+class FittedModel:
+    """A set of hypotheses at their joint least-squares values.
+
+    Attributes
+    ----------
+    hypotheses : list of Hypothesis
+    values : ndarray, shape (p,)
+        Fitted values, each in its hypothesis' unit.
+    rss : float
+        Weighted residual sum of squares at ``values``.
+    covariance : ndarray, shape (p, p)
+        Wald covariance (module docstring).
+    """
+
+    hypotheses: list
+    values: np.ndarray
+    rss: float
+    covariance: np.ndarray
+
+    def effects(self) -> list[dict]:
+        """The fitted effect dicts."""
+        return [h.as_effect(v) for h, v in zip(self.hypotheses, self.values)]
+
+    def interval(self, index: int) -> tuple[float, float]:
+        """95 % Wald interval of parameter ``index``, clipped to its bounds."""
+        h, value = self.hypotheses[index], self.values[index]
+        half = _Z95 * math.sqrt(max(self.covariance[index, index], 0.0))
+        return max(value - half, h.lower), min(value + half, h.upper)
+
+
+def null_model(data: FitData, reference: EffectModel) -> FittedModel:
+    """The reference without any effect, as a FittedModel (its RSS on ``data``)."""
+    rss = float(np.sum(data.weighted_residuals(reference, []) ** 2))
+    return FittedModel([], np.zeros(0), rss, np.zeros((0, 0)))
+
+
+def fit_many(data: FitData, reference: EffectModel, problems: list) -> list[FittedModel]:
+    """Joint output-error fits of several ``(hypotheses, start values)`` problems, one
+    FittedModel each (batched when the reference batches its replays, module docstring)."""
+    if reference.batches_simulations:
+        return _fit_batched(data, reference, problems)
+    return [_fit(data, reference, hypotheses, start) for hypotheses, start in problems]
+
+
+def _covariance(jacobian: np.ndarray, rss: float) -> np.ndarray:
+    """Wald covariance ``s^2 (J^T J)^-1`` with ``s^2 = max(1, RSS / (N - p))`` (module docstring)."""
+    n, p = jacobian.shape
+    return max(1.0, rss / max(n - p, 1)) * np.linalg.pinv(jacobian.T @ jacobian)
+
+
+def _fit(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], start) -> FittedModel:
+    """Joint output-error least squares of ``hypotheses`` from ``start`` (module docstring)."""
+    lower = np.array([h.lower for h in hypotheses])
+    upper = np.array([h.upper for h in hypotheses])
+    start = np.clip(np.asarray(start, dtype=float), lower, upper)
+
+    def residuals(values):
+        return data.weighted_residuals(reference, [h.as_effect(v) for h, v in zip(hypotheses, values)])
+
+    result = least_squares(residuals, start, bounds=(lower, upper), x_scale="jac", method="trf",
+                           xtol=1e-10, ftol=1e-10, max_nfev=200 * len(hypotheses))
+    rss = float(result.fun @ result.fun)
+    return FittedModel(list(hypotheses), result.x, rss, _covariance(result.jac, rss))
+
+
+@dataclass
+class _Problem:
+    """State of one fit inside :func:`_fit_batched`."""
+
+    hypotheses: list
+    lower: np.ndarray
+    upper: np.ndarray
+    trial: np.ndarray
+    x: np.ndarray | None = None
+    rss: float = math.inf
+    residual: np.ndarray | None = None
+    jacobian: np.ndarray | None = None
+    damping: float = 1e-3
+    done: bool = False
+
+    def trial_points(self) -> tuple[np.ndarray, list]:
+        """Forward-difference steps (``_LM_DIFF`` times each screening step, taken inward at
+        an upper bound) and the points to replay: the trial, then the trial moved by each step."""
+        steps = np.array([_LM_DIFF * h.step for h in self.hypotheses])
+        steps = np.where(self.trial + steps > self.upper, -steps, steps)
+        points = [self.trial] + [self.trial + np.eye(len(steps))[j] * steps[j] for j in range(len(steps))]
+        return steps, points
+
+    def update(self, residual: np.ndarray, neighbours: np.ndarray, steps: np.ndarray) -> None:
+        """One Levenberg-Marquardt step (:func:`_fit_batched`) from the trial's weighted
+        residual (N,) and its neighbours' (p, N)."""
+        rss = float(residual @ residual)
+        if rss < self.rss:
+            converged = self.rss - rss <= _LM_RTOL * rss
+            self.x, self.rss, self.residual = self.trial, rss, residual
+            self.jacobian = (neighbours - residual).T / steps
+            self.damping /= 3.0
+            self.done = converged
+        else:
+            self.damping *= 4.0
+            self.done = self.damping > 1e10
+        if self.done:
+            return
+        normal = self.jacobian.T @ self.jacobian
+        gradient = self.jacobian.T @ self.residual
+        damped = normal + self.damping * np.diag(np.diag(normal)) + 1e-12 * np.eye(len(steps))
+        delta = -np.linalg.solve(damped, gradient)
+        self.trial = np.clip(self.x + delta, self.lower, self.upper)
+        self.done = bool(np.all(self.trial == self.x))
+
+
+def _fit_batched(data: FitData, reference: EffectModel, problems: list) -> list[FittedModel]:
+    """:func:`_fit` for many problems at once by Levenberg-Marquardt (module docstring).
+
+    Each iteration replays, in one batch, every unfinished problem's trial point and its
+    forward-difference neighbours (:meth:`_Problem.trial_points`). A trial that lowers the RSS is
+    accepted and the damping ``lambda`` divided by 3, otherwise ``lambda`` is multiplied by 4;
+    the next trial solves ``(J^T J + lambda diag(J^T J)) delta = -J^T r`` (``J = dr/dx``) and is
+    clipped to the bounds. A problem is done when an accepted step changes the RSS by less than
+    ``_LM_RTOL`` relative, or ``lambda`` exceeds 1e10.
+    """
+    states = []
+    for hypotheses, start in problems:
+        lower = np.array([h.lower for h in hypotheses])
+        upper = np.array([h.upper for h in hypotheses])
+        states.append(_Problem(list(hypotheses), lower, upper, np.clip(np.asarray(start, float), lower, upper)))
+    for _ in range(_LM_ITERATIONS):
+        active = [state for state in states if not state.done]
+        if not active:
+            break
+        members, layout = [], []
+        for state in active:
+            steps, points = state.trial_points()
+            layout.append((len(members), steps))
+            members += [[h.as_effect(v) for h, v in zip(state.hypotheses, point)] for point in points]
+        residuals = data.weighted_residuals_many(reference, members)
+        for state, (first, steps) in zip(active, layout):
+            state.update(residuals[first], residuals[first + 1:first + 1 + len(steps)], steps)
+    return [FittedModel(state.hypotheses, state.x, state.rss, _covariance(state.jacobian, state.rss))
+            for state in states]

@@ -1,0 +1,157 @@
+"""A reference with named effects applied, and the effect model of each reference.
+
+:class:`EffectVehicle` is a reference with a list of effects (:mod:`validation.vehicles.effects`)
+applied, plus optional white sensor noise; it is both the concealed "real aircraft" of tests and
+benchmarks and the corrected model that ``flightgp diagnose`` saves (:meth:`EffectVehicle.save`,
+:meth:`EffectVehicle.load`: a small versioned JSON file; docs/vehicles.md).
+
+:data:`EFFECT_MODELS` says which references take effects and through which
+:class:`~validation.vehicles.effects.EffectModel`; :func:`effect_model_of` looks one up.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.core.files import write_json
+from validation.core.recordings import Recording
+from validation.core.sampling import check_history, sampling_metadata
+from validation.vehicles.blimp import BlimpReference
+from validation.vehicles.blimp_effects import BlimpEffects
+from validation.vehicles.bo105 import Bo105Reference
+from validation.vehicles.bo105_effects import Bo105Effects
+from validation.vehicles.effects import EffectModel, check_effects
+from validation.vehicles.registry import get_vehicle
+
+#: Reference type -> (its effect model's class, called with the reference; how messages name the
+#: references of that type). A reference type not listed takes no effects.
+EFFECT_MODELS = {Bo105Reference: (Bo105Effects, "bo105-<V>kt"), BlimpReference: (BlimpEffects, "blimp")}
+#: The references that take effects, as messages name them: "bo105-<V>kt and blimp".
+EFFECT_REFERENCES = " and ".join(label for _, label in EFFECT_MODELS.values())
+_FILE_FORMAT = "flightgp-effect-vehicle"
+_FILE_VERSION = 1
+
+
+def effect_model_of(vehicle) -> EffectModel | None:
+    """The effect model of ``vehicle`` (an object of the registry,
+    :func:`validation.vehicles.registry.get_vehicle`); ``None`` if its type takes no effects
+    (flight-test stand-ins, JSBSim aircraft)."""
+    entry = EFFECT_MODELS.get(type(vehicle))
+    return None if entry is None else entry[0](vehicle)
+
+
+class EffectVehicle:
+    """A reference vehicle with named effects applied (module docstring).
+
+    Parameters
+    ----------
+    reference_name : str
+        A reference that takes effects (:data:`EFFECT_REFERENCES`).
+    effects : sequence of dict
+        ``{"effect", "input" | "term" | "output", "value"}`` each; extra keys are ignored.
+    noise_sd : dict of str to float, optional
+        White Gaussian sensor noise, standard deviation per state (state units), e.g. the
+        reference's :attr:`~validation.vehicles.effects.EffectModel.sensor_noise_sd`; states not
+        named are noise-free.
+
+    Attributes
+    ----------
+    name : str
+        ``"<reference>+effects"``.
+    reference_name : str
+    effects : list of dict
+        The checked effects (copies).
+    input_names, state_names : tuple of str
+    sample_time : float
+        The reference's default recording interval, s.
+    """
+
+    def __init__(self, reference_name: str, effects=(), *, noise_sd: dict | None = None):
+        reference = effect_model_of(get_vehicle(reference_name))
+        if reference is None:
+            raise BadInputError(f"effects can be applied to the {EFFECT_REFERENCES} references only, "
+                                f"not {reference_name!r}")
+        self._reference = reference
+        self.reference_name = reference.name
+        self.name = f"{reference.name}+effects"
+        self.input_names, self.state_names = reference.input_names, reference.state_names
+        self.sample_time = reference.sample_time
+        self._effects = check_effects(list(effects), reference)
+        self._noise_sd = {}
+        for name, value in (noise_sd or {}).items():
+            if name not in self.state_names or not (math.isfinite(float(value)) and float(value) >= 0):
+                raise BadInputError(f"noise_sd: {name!r}: {value!r} must be a state of "
+                                    f"{reference.name} with a standard deviation >= 0")
+            self._noise_sd[name] = float(value)
+
+    @property
+    def effects(self) -> list[dict]:
+        """The applied effects (copies)."""
+        return [dict(effect) for effect in self._effects]
+
+    @property
+    def noise_sd(self) -> dict:
+        return dict(self._noise_sd)
+
+    def simulate_states(self, time, inputs) -> np.ndarray:
+        """Noise-free recorded states (biases included), shape (n, n_states); see
+        :meth:`validation.vehicles.effects.EffectModel.simulate_many`."""
+        return self._reference.simulate_many([self._effects], time, inputs)[0]
+
+    def simulate(self, time, inputs, *, seed: int = 0) -> Recording:
+        """Fly ``inputs`` from trim; returns every state as recorded, with sensor noise drawn
+        from ``np.random.default_rng(seed)``.
+
+        ``time`` must be evenly spaced for a reference that needs it (a Bo105: its exact
+        discretisation has one step); the blimp also takes unevenly spaced times (e.g. jittered
+        motion-capture frames), and the recording's metadata then says ``uneven_sampling`` with
+        the median interval as ``sample_time_nominal`` (docs/conventions.md, recording format)."""
+        time, inputs, _ = check_history(time, inputs, self.input_names,
+                                        evenly_sampled=self._reference.needs_even_sampling)
+        outputs = self.simulate_states(time, inputs)
+        rng = np.random.default_rng(seed)
+        noise = np.array([self._noise_sd.get(name, 0.0) for name in self.state_names])
+        outputs = outputs + rng.standard_normal(outputs.shape) * noise
+        sampling = sampling_metadata(time)
+        # "vehicle" is the reference, so the columns read back as its recording (the sidecar
+        # still names the effects; diagnose never reads them).
+        metadata = {"vehicle": self.reference_name, "simulator": self.name, **sampling,
+                    "seed": seed, "effects": self.effects, "sensor_noise_std": self.noise_sd}
+        return Recording(time, inputs, self.input_names, outputs, self.state_names, metadata)
+
+    def as_dict(self) -> dict:
+        """The model file's content (see :meth:`save`)."""
+        return {"format": _FILE_FORMAT, "version": _FILE_VERSION, "reference": self.reference_name,
+                "effects": self.effects, "noise_sd": self.noise_sd}
+
+    def save(self, path) -> Path:
+        """Write the model as versioned JSON (atomically); :meth:`load` reads it back."""
+        return write_json(path, self.as_dict())
+
+    @classmethod
+    def from_dict(cls, content: dict, *, source: str = "model") -> EffectVehicle:
+        """The model :meth:`as_dict` describes; BadInputError naming ``source`` otherwise."""
+        if not isinstance(content, dict) or content.get("format") != _FILE_FORMAT:
+            raise BadInputError(f"{source}: not a flightgp effect-vehicle model "
+                                f"(expected \"format\": \"{_FILE_FORMAT}\")")
+        if content.get("version") != _FILE_VERSION:
+            raise BadInputError(f"{source}: model file version {content.get('version')!r}; this "
+                                f"flightgp reads version {_FILE_VERSION}")
+        return cls(content.get("reference", ""), content.get("effects", []),
+                   noise_sd=content.get("noise_sd") or None)
+
+    @classmethod
+    def load(cls, path) -> EffectVehicle:
+        """Read a model written by :meth:`save`."""
+        path = Path(path)
+        try:
+            content = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise BadInputError(f"{path}: no such model file") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise BadInputError(f"{path}: not a JSON model file ({error})") from None
+        return cls.from_dict(content, source=str(path))
