@@ -18,7 +18,7 @@ def register(subparsers) -> None:
                     "model plus a residual GP, and score all three on held-out data. Writes "
                     "DIR/diagnosis.json, DIR/report.md with PNGs, and DIR/corrected_model.json.")
     parser.add_argument("recordings", nargs="+", type=Path, metavar="RECORDING",
-                        help="recording CSV files (DESIGN.md, Recording files), starting at trim")
+                        help="recording CSV files (docs/conventions.md, Recording files), starting at trim")
     parser.add_argument("--reference", required=True, metavar="NAME", help="physics reference: bo105-<V>kt or blimp")
     parser.add_argument("--holdout", nargs="+", type=Path, metavar="RECORDING",
                         help="recordings used only to score the models (default: the last recording, "

@@ -16,10 +16,12 @@ def register(subparsers) -> None:
         "reproduce", help="reproduce a seed paper's experiment",
         description="bo105: the Bo105 GP-NARX paper (AHS 74th Forum, 2018) on the flight-test "
                     "stand-in, plus its future work. Writes figures, recordings, models and "
-                    "results.json to DIR and prints the RMSE table. blimp: Table I of the blimp "
-                    "RKGP paper (Ko et al., ICRA 2007) on the blimp-flight stand-in: one-second "
-                    "predictions of RK, ODE, RKGP, ODEGP and GP-only; writes results.json and "
-                    "predictions.png (--runs and --paper-only apply to bo105 only).")
+                    "results.json to DIR and prints the RMSE table. blimp: Tables I-III of the "
+                    "blimp RKGP paper (Ko et al., ICRA 2007) on the blimp-flight stand-in: "
+                    "one-second predictions of RK, ODE, RKGP, ODEGP and GP-only, trajectory "
+                    "sampling, and a yaw controller learned by policy search; writes results.json, "
+                    "predictions.png, table2.png, table3.png, the RKGP model blimp_rkgp.npz and its "
+                    "FMU (--runs and --paper-only apply to bo105 only).")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")

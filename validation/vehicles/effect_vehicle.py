@@ -109,7 +109,8 @@ class EffectVehicle:
         ``time`` must be evenly spaced for a reference that needs it (a Bo105: its exact
         discretisation has one step); the blimp also takes unevenly spaced times (e.g. jittered
         motion-capture frames), and the recording's metadata then says ``uneven_sampling`` with
-        the median interval as ``sample_time_nominal`` (docs/conventions.md, recording format)."""
+        the nominal interval (:func:`validation.core.sampling.nominal_step`) as
+        ``sample_time_nominal`` (docs/conventions.md, "Recording files")."""
         time, inputs, _ = check_history(time, inputs, self.input_names,
                                         evenly_sampled=self._reference.needs_even_sampling)
         outputs = self.simulate_states(time, inputs)
