@@ -23,7 +23,8 @@ from ._priors import IndependentPrior
 from ._sparse_gp import SparseGaussianProcess
 
 __all__ = [
-    "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "GreyBoxGP", "HigdonKernel", "IndependentPrior",
+    "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "GreyBoxGP",
+    "HigdonKernel", "IndependentPrior",
     "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP", "PredictiveForm",
     "SparseGaussianProcess", "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",

@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
 
         png = png_bytes(paper_figure(prediction, None, title=f"{args.method}: {args.recording.name}",
                                      axes=outputs))
-    write_atomically(args.out, "\n".join([",".join(header)] + [",".join(map(repr, row)) for row in table.tolist()]) + "\n")
+    lines = [",".join(header)] + [",".join(map(repr, row)) for row in table.tolist()]
+    write_atomically(args.out, "\n".join(lines) + "\n")
     if png is not None:
         write_atomically(args.out.with_suffix(".png"), png)
     print(f"{args.method} prediction of {args.recording} ({len(prediction.time)} samples, "

@@ -55,7 +55,7 @@ def write_files_atomically(files: dict) -> list[Path]:
                     stream.write(data)
             except OSError as error:
                 raise OSError(error.errno, error.strerror, str(path)) from None
-        for temporary, path in temporaries:
+        for _, path in temporaries:
             if path.is_dir():
                 raise IsADirectoryError(21, "Is a directory", str(path))
         for temporary, path in temporaries:

@@ -4,8 +4,9 @@ a recording.
 Both FMUs are driven by the same control inputs on the GP model's NARX step grid
 (``t_k = t0 + k h``); the GP FMU runs in free-run mode (it feeds back its own predictions,
 started from the recording's first rates), the reference FMU from trim. Every FMU follows the
-sampling convention of docs/conventions.md ("FMU sampling convention"): outputs at ``t_{k+1}`` come from inputs at ``t_k``,
-so row ``k`` of every result is comparable with the recording at ``t_k``.
+sampling convention of docs/conventions.md ("FMU sampling convention"): outputs at ``t_{k+1}``
+come from inputs at ``t_k``, so row ``k`` of every result is comparable with the recording at
+``t_k``.
 
 Results are written in the layout of the FMI Cross-Check repository: for each FMU a folder with
 ``<model>_in.csv`` (the inputs it was given), ``<model>_ref.csv`` (its outputs) and

@@ -243,7 +243,8 @@ class _PythonLog(jsbsim.FGLogger):
         self._parts: list[str] = []
 
     def set_level(self, level) -> None:
-        self._level = logging.INFO if level >= jsbsim.LogLevel.WARN and level != jsbsim.LogLevel.STDOUT else logging.DEBUG
+        important = level >= jsbsim.LogLevel.WARN and level != jsbsim.LogLevel.STDOUT
+        self._level = logging.INFO if important else logging.DEBUG
         self._parts = []
 
     def message(self, message: str) -> None:

@@ -66,7 +66,8 @@ def get_vehicle(name: str) -> Vehicle:
         from validation.vehicles.jsbsim import JSBSimVehicle  # loads jsbsim only when asked for
 
         return JSBSimVehicle(name.split(":", 1)[1])
-    raise BadInputError(f"unknown vehicle {name!r}; known: {', '.join(vehicle_names())} (any JSBSim aircraft as jsbsim:<name>)")
+    raise BadInputError(f"unknown vehicle {name!r}; known: {', '.join(vehicle_names())} "
+                        "(any JSBSim aircraft as jsbsim:<name>)")
 
 
 @functools.lru_cache(maxsize=1)

@@ -24,7 +24,10 @@ def table(speed_kt):
     return next(c for c in data["conditions"] if c["speed_kt"] == speed_kt)
 
 
-def cyclic_3211(*, duration=8.0, sample_time=0.01, step_time=0.4, amplitude=math.radians(1.0)):
+DEGREE = math.radians(1.0)
+
+
+def cyclic_3211(*, duration=8.0, sample_time=0.01, step_time=0.4, amplitude=DEGREE):
     """The Bo105 paper's manoeuvre: theta_1s 3-2-1-1 starting at 1 s."""
     time = time_grid(duration=duration, sample_time=sample_time)
     inputs = np.zeros((len(time), 4))
@@ -39,7 +42,7 @@ def integrate_piecewise(rhs, time, inputs, n_states):
     edges = np.concatenate(([0], changes, [len(time) - 1]))
     x = np.zeros(n_states)
     for k0, k1 in zip(edges[:-1], edges[1:]):
-        solution = solve_ivp(lambda t, x: rhs(x, inputs[k0]), (time[k0], time[k1]), x,
+        solution = solve_ivp(lambda t, x, held=inputs[k0]: rhs(x, held), (time[k0], time[k1]), x,
                              method="DOP853", t_eval=time[k0:k1 + 1], rtol=1e-11, atol=1e-13)
         states[k0:k1 + 1] = solution.y.T
         x = solution.y[:, -1]
@@ -76,7 +79,8 @@ def test_discrete_eigenvalues_are_exp_of_continuous_ones(speed_kt):
 def test_80kt_modes_are_padfields():
     eigenvalues = Bo105Reference(80).eigenvalues()
     real = eigenvalues[np.abs(eigenvalues.imag) < 1e-9].real
-    # Tolerances: half a unit in the last digit of the eigenvalues quoted in docs/vehicles.md (-13.7, -4.25, -0.565 +/- 2.641j).
+    # Tolerances: half a unit in the last digit of the eigenvalues quoted in docs/vehicles.md
+    # (-13.7, -4.25, -0.565 +/- 2.641j).
     assert np.min(np.abs(real - (-13.7))) < 0.05, "roll subsidence"
     assert np.min(np.abs(real - (-4.25))) < 0.005, "pitch subsidence"
     dutch_roll = eigenvalues[np.argmin(np.abs(eigenvalues - (-0.565 + 2.641j)))]
