@@ -55,7 +55,7 @@ the frame of ``gps[0]``, where GP ``a`` has training inputs ``(s_a X_a + mu_a - 
 length scales ``l_a s_a / s_0``; for a :class:`~gp_model.PerOutputGP` all scalers are equal and
 this is every GP's own frame, bit for bit. Outputs map back as ``y = mu_y + s_y f``.
 
-This module needs numpy only: :mod:`fmu_src.builder` copies it into every GP-NARX FMU, whose
+This module needs numpy only, so that a GP-NARX FMU can carry a copy of it (docs/fmus.md); its
 free-run mode propagates its bounds with :class:`MomentMatcher` and :func:`narx_belief_step`
 (a simulator host has no flightgp). :mod:`gp_model._moment_matching` builds the frames from
 fitted :class:`~gp_model.GaussianProcess` objects.

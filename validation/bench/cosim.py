@@ -29,8 +29,7 @@ def run(*, seed: int = 0, progress: bool = True) -> dict:
     from dataclasses import replace
     from pathlib import Path
 
-    from fmu_src.builder import build_bo105_reference_fmu, build_rate_predictor_fmu
-    from fmu_src.native import build_native_rate_predictor_fmu
+    from fmu_src import build_bo105_reference_fmu, build_native_rate_predictor_fmu, build_rate_predictor_fmu
     from validation.cosim.cosimulation import cosimulate, simulate
     from validation.models.narx import save_trained, train_narx
     from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211

@@ -13,7 +13,8 @@ NATIVE_GOAL_RATIO, NATIVE_GOAL_US = 10.0, 10.0
 
 
 #: ``bench fmu``'s blimp RKGP model: seconds of blimp-flight (20 Hz, true states) under random
-#: piecewise-constant commands held for ``BLIMP_HOLD`` frames, as tests/test_fmu.py trains it.
+#: piecewise-constant commands held for ``BLIMP_HOLD`` frames (the blimp RKGP FMU tests train
+#: theirs the same way).
 BLIMP_SECONDS, BLIMP_HOLD = 10.0, 10
 
 
@@ -114,7 +115,7 @@ def run(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> dict:
     import tempfile
     from pathlib import Path
 
-    from fmu_src.builder import build_rate_predictor_fmu
+    from fmu_src import build_rate_predictor_fmu
     from validation.models.narx import save_trained, train_narx
     from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
 
@@ -166,7 +167,7 @@ NATIVE_MODELS = (
 
 def _native_rows(scratch, paper_model, paper_gp_s: float, inputs, outputs, *, n_steps: int, step: float,
                  seed: int, progress: bool) -> list:
-    """Per-step cost of native rate-predictor FMUs (:mod:`fmu_src.native`) next to the pythonfmu
+    """Per-step cost of native rate-predictor FMUs (:mod:`fmu_src.rate_predictor.native`) next to the pythonfmu
     FMU of the same model: the paper's model (``paper_model``, whose pythonfmu FMU took
     ``paper_gp_s`` per step) and :data:`NATIVE_MODELS`. The native FMU is timed in fmpy (the same
     ``setReal`` + ``doStep`` + ``getReal`` through ctypes as the pythonfmu FMUs) and in the plain C
@@ -181,8 +182,7 @@ def _native_rows(scratch, paper_model, paper_gp_s: float, inputs, outputs, *, n_
     """
     from dataclasses import replace
 
-    from fmu_src.builder import build_rate_predictor_fmu
-    from fmu_src.native import build_native_rate_predictor_fmu
+    from fmu_src import build_native_rate_predictor_fmu, build_rate_predictor_fmu
     from validation.cosim.hosts import simulate_in_c_host
     from validation.models.narx import load_trained, save_trained, train_narx
     from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
@@ -219,9 +219,9 @@ def _native_rows(scratch, paper_model, paper_gp_s: float, inputs, outputs, *, n_
 
 
 def blimp_rkgp_row(scratch, *, n_steps: int, seed: int = 0) -> dict:
-    """Per-step cost of the native blimp RKGP FMU (:func:`fmu_src.native_blimp.build_native_blimp_rkgp_fmu`)
-    against the pythonfmu blimp RKGP FMU (:func:`fmu_src.builder.build_blimp_rkgp_fmu`), both built
-    in ``scratch`` from one small grey-box model trained here as tests/test_fmu.py does:
+    """Per-step cost of the native blimp RKGP FMU (:func:`fmu_src.build_native_blimp_rkgp_fmu`)
+    against the pythonfmu blimp RKGP FMU (:func:`fmu_src.build_blimp_rkgp_fmu`), both built
+    in ``scratch`` from one small grey-box model trained here as the FMU tests do:
     :data:`BLIMP_SECONDS` of ``blimp-flight`` (mocap off, 20 Hz) under random commands, a shared GP
     on the RK4 physics leaving out position and yaw (200 training pairs, maximum likelihood
     without restarts: about a second). Timed by :func:`time_blimp_rkgp_fmus` on the training
@@ -234,8 +234,7 @@ def blimp_rkgp_row(scratch, *, n_steps: int, seed: int = 0) -> dict:
     """
     from pathlib import Path
 
-    from fmu_src.builder import build_blimp_rkgp_fmu
-    from fmu_src.native_blimp import build_native_blimp_rkgp_fmu
+    from fmu_src import build_blimp_rkgp_fmu, build_native_blimp_rkgp_fmu
     from gp_model import GreyBoxGP, save_model
     from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
     from validation.vehicles.blimp import BlimpParameters

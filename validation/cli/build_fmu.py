@@ -5,8 +5,7 @@ FMI 2.0 co-simulation FMU of a trained model (a GP-NARX model: the rate predicto
 :mod:`fmu_src.bo105_reference`; ``jsbsim:<aircraft>``: :mod:`fmu_src.jsbsim_aircraft`).
 
 With ``--native``, a trained model's FMU is built as C compiled with the system gcc, with the
-same interface and numbers and no Python at run time: the rate predictor by
-:mod:`fmu_src.native`, the blimp RKGP by :mod:`fmu_src.native_blimp`."""
+same interface and numbers and no Python at run time (docs/fmus.md, "Native FMUs")."""
 from __future__ import annotations
 
 import argparse
@@ -37,7 +36,7 @@ def register(subparsers) -> None:
     parser.add_argument("--native", action="store_true",
                         help="build MODEL_FILE's FMU (the GP-NARX rate predictor or the blimp RKGP) as "
                              "a native FMU: C compiled with the system gcc, no Python at run time "
-                             "(fmu_src/native.py, fmu_src/native_blimp.py)")
+                             "(fmu_src/rate_predictor/native.py, fmu_src/blimp_rkgp/native.py)")
     parser.add_argument("--name", help="FMU name and model identifier (letters, digits, underscores; "
                                        "default: the model file's name, bo105_<V>kt_reference or "
                                        "jsbsim_<aircraft>)")
@@ -45,33 +44,17 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fmu_src.builder import build_model_fmu, build_reference_fmu
+    from fmu_src import build_model_fmu, build_reference_fmu
 
     if (args.model is None) == (args.reference is None):
         raise BadInputError("give either MODEL_FILE (a trained GP-NARX or blimp grey-box model) or "
                             "--reference NAME (bo105-<V>kt or jsbsim:<aircraft>), not both or neither")
-    if args.native:
-        path = _build_native(args)
-    elif args.reference is not None:
-        path = build_reference_fmu(args.reference, args.out, name=args.name)
-    else:
-        path = build_model_fmu(args.model, args.out, name=args.name)
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
-    return 0
-
-
-def _build_native(args: argparse.Namespace) -> Path:
-    """``--native``: the native FMU of a model file, by its type: a blimp grey-box ``GreyBoxGP``
-    gives the native blimp RKGP, anything else the native GP-NARX rate predictor (which says when
-    the file is not a GP-NARX model)."""
-    from fmu_src.native import build_native_rate_predictor_fmu
-    from fmu_src.native_blimp import build_native_blimp_rkgp_fmu
-    from gp_model import read_header
-
-    if args.reference is not None:
+    if args.reference is not None and args.native:
         raise BadInputError("--native builds the FMU of a trained MODEL_FILE (GP-NARX rate predictor or "
                             "blimp RKGP); reference FMUs have no native build (drop --native)")
-    if read_header(args.model).get("type") == "GreyBoxGP":
-        return build_native_blimp_rkgp_fmu(args.model, args.out, name=args.name)
-    return build_native_rate_predictor_fmu(args.model, args.out, name=args.name)
-
+    if args.reference is not None:
+        path = build_reference_fmu(args.reference, args.out, name=args.name)
+    else:
+        path = build_model_fmu(args.model, args.out, name=args.name, native=args.native)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0

@@ -2,8 +2,8 @@
 
 fmpy is flightgp's main host; running every FMU in libcosim as well checks that nothing depends
 on fmpy's habits (call order, step handling, logging). libcosim's times and step sizes are
-integer nanoseconds (DESIGN.md, "FMU rules"), so the step grid ``k * step`` is converted once
-with rounding, never accumulated.
+integer nanoseconds (libcosim's ``cosim::duration``), so the step grid ``k * step`` is converted
+once with rounding, never accumulated.
 """
 from __future__ import annotations
 
@@ -118,7 +118,7 @@ def simulate_in_c_host(fmu_path, *, step_size: float, n_steps: int, inputs: dict
 
     from fmpy import extract, read_model_description
 
-    from fmu_src.native import fmi_headers
+    from fmu_src import fmi_headers
 
     description = read_model_description(str(fmu_path))
     variables = {v.name: v for v in description.modelVariables}

@@ -38,7 +38,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from validation.core.errors import BadInputError
-from validation.vehicles.blimp import INPUT_NAMES, MAX_STEP, STATE_NAMES, BlimpParameters, blimp_dynamics
+from validation.vehicles.blimp import INPUT_NAMES, MAX_STEP, STATE_NAMES, BlimpParameters
+from validation.vehicles.blimp_equations import rk4_advance
 
 IDENTIFIED_PARAMETERS = (
     "quadratic_drag_x", "quadratic_drag_y", "quadratic_drag_z", "added_mass_x", "rotational_damping_z",
@@ -55,25 +56,16 @@ def physics_step(params: BlimpParameters, *, max_step: float = MAX_STEP):
     """The blimp ODE over one recorded frame interval, as a vectorised step callable.
 
     Returns ``step(states, inputs) -> next_states`` with ``states`` (n, 12) and ``inputs``
-    (n, 4) = ``u_gondola, mu, u_tail, dt`` (commands held over the interval of ``dt`` seconds);
-    each row is cut into equal RK4 steps no longer than ``max_step`` (as
-    :class:`~validation.vehicles.blimp.BlimpReference` does), so it matches the reference's RK4
-    simulation to rounding. This is the ``physics_step`` of :class:`gp_model.GreyBoxGP`.
+    (n, 4) = ``u_gondola, mu, u_tail, dt`` (commands held over the interval of ``dt`` seconds):
+    :func:`validation.vehicles.blimp_equations.rk4_advance`, each row in equal RK4 steps no
+    longer than ``max_step`` (as :class:`~validation.vehicles.blimp.BlimpReference` steps, so it
+    matches the reference's RK4 simulation to rounding). This is the ``physics_step`` of
+    :class:`gp_model.GreyBoxGP`, and the blimp RKGP FMU steps with the same function.
     """
     def step(states, inputs):
-        states = np.asarray(states, dtype=float)
         inputs = np.asarray(inputs, dtype=float)
-        commands, dt = inputs[..., :3], inputs[..., 3:4]
-        n_sub = np.maximum(1, np.ceil(dt / max_step - 1e-9))
-        h = dt / n_sub
-        for i in range(int(n_sub.max())):
-            active = i < n_sub  # rows that still have substeps to take
-            k1 = blimp_dynamics(states, commands, params)
-            k2 = blimp_dynamics(states + 0.5 * h * k1, commands, params)
-            k3 = blimp_dynamics(states + 0.5 * h * k2, commands, params)
-            k4 = blimp_dynamics(states + h * k3, commands, params)
-            states = np.where(active, states + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), states)
-        return states
+        return rk4_advance(np.asarray(states, dtype=float), inputs[..., :3], inputs[..., 3], params,
+                           max_step=max_step)
 
     return step
 
@@ -240,8 +232,30 @@ def identify_parameters(recordings, *, names=IDENTIFIED_PARAMETERS, initial: Bli
     jacobian = solution.jac.toarray() if hasattr(solution.jac, "toarray") else np.asarray(solution.jac)
     residual = solution.fun
     n_residuals = residual.size
-    # Parameter block of (J^T J)^-1 by the Schur complement over the per-segment start states;
-    # per-segment scores J_g,s^T r_s (their start-state part is zero at the optimum).
+    information, sandwich = _parameter_information(jacobian, residual, n_parameters=n_parameters,
+                                                   n_segments=n_segments)
+    sigma2 = residual @ residual / max(n_residuals - n_parameters - 12 * n_segments, 1)
+    covariance = sandwich * np.outer(units, units)
+    x = solution.x
+    return IdentificationResult(
+        params=parameters(x), names=tuple(names), values=base[index] + units * x[:n_parameters],
+        standard_errors=np.sqrt(np.diag(covariance)),
+        standard_errors_iid=np.sqrt(np.diag(sigma2 * information)) * units,
+        initial_values=base[index], covariance=covariance,
+        rms_residual=float(np.sqrt(np.mean(residual**2))), n_segments=n_segments, n_residuals=n_residuals)
+
+
+def _parameter_information(jacobian: np.ndarray, residual: np.ndarray, *, n_parameters: int,
+                           n_segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """The parameter block of ``(J^T J)^-1`` and the cluster-robust sandwich covariance (module
+    docstring), both (p, p) in the scaled optimisation variable.
+
+    ``jacobian`` (S * rows, p + 12 S) and ``residual`` (S * rows,) hold the S segments' rows in
+    turn; columns: the p parameters, then each segment's 12 start-state offsets. The parameter
+    block of ``(J^T J)^-1`` comes from the Schur complement over the per-segment start states;
+    the per-segment scores are ``J_g,s^T r_s`` (their start-state part is zero at the optimum).
+    """
+    rows_per_segment = len(residual) // n_segments
     schur = np.zeros((n_parameters, n_parameters))
     scores = np.empty((n_segments, n_parameters))
     for segment in range(n_segments):
@@ -253,15 +267,7 @@ def identify_parameters(recordings, *, names=IDENTIFIED_PARAMETERS, initial: Bli
         scores[segment] = j_global.T @ residual[rows]
     information = np.linalg.inv(schur)
     sandwich = information @ (scores.T @ scores) @ information * n_segments / max(n_segments - 1, 1)
-    sigma2 = residual @ residual / max(n_residuals - n_parameters - 12 * n_segments, 1)
-    covariance = sandwich * np.outer(units, units)
-    x = solution.x
-    return IdentificationResult(
-        params=parameters(x), names=tuple(names), values=base[index] + units * x[:n_parameters],
-        standard_errors=np.sqrt(np.diag(covariance)),
-        standard_errors_iid=np.sqrt(np.diag(sigma2 * information)) * units,
-        initial_values=base[index], covariance=covariance,
-        rms_residual=float(np.sqrt(np.mean(residual**2))), n_segments=n_segments, n_residuals=n_residuals)
+    return information, sandwich
 
 
 #: The ``kind`` of the physics description of a blimp grey-box model (its model file's header).

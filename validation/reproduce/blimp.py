@@ -52,7 +52,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from scipy.integrate import solve_ivp
 
-from fmu_src.builder import build_blimp_rkgp_fmu
+from fmu_src import build_blimp_rkgp_fmu
 from gp_model import GreyBoxGP, save_model
 from validation.core.files import write_atomically, write_json
 from validation.core.plots import png_bytes
@@ -580,7 +580,7 @@ def _save_rkgp_model(out_dir: Path, fitted: _FittedModels) -> dict:
 
 
 def _comparisons(table: dict) -> dict:
-    """Which of the issue's headline comparisons hold, per state group."""
+    """Which of the paper's headline comparisons (Ko et al. 2007, Table I) hold, per state group."""
     return {f"{better}_beats_{worse}": {g: bool(table[better][g] < table[worse][g]) for g in GROUPS}
             for better, worse in (("RKGP", "RK"), ("RKGP", "GPonly"), ("ODEGP", "ODE"))}
 

@@ -47,7 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from validation.vehicles.blimp import SAMPLE_TIME, euler_rates
+from validation.vehicles.blimp import SAMPLE_TIME
+from validation.vehicles.blimp_equations import euler_rates
 from validation.vehicles.blimp_flight import (
     ATTITUDE_NOISE_STD,
     BlimpFlightTest,

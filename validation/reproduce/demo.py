@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fmu_src.builder import build_bo105_reference_fmu, build_rate_predictor_fmu
+from fmu_src import build_bo105_reference_fmu, build_rate_predictor_fmu
 from validation.core.files import write_atomically
 from validation.cosim.cosimulation import cosimulate
 from validation.reproduce.bo105 import format_results, reproduce_bo105

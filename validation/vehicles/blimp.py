@@ -1,35 +1,16 @@
 """Ko-type indoor blimp: the physics reference ``blimp`` and the flight-test stand-in ``blimp-flight``.
 
-Conventions (DESIGN.md, "Conventions" and "Vehicles and reference names"): earth axes NED, body
-axes x forward, y right, z down, origin at the centre of buoyancy (CB). States
+Conventions (docs/conventions.md, "Units and axes"; docs/vehicles.md, "Blimp"): earth axes NED,
+body axes x forward, y right, z down, origin at the centre of buoyancy (CB). States
 ``x, y, z, phi, theta, psi, U, V, W, P, Q, R`` (earth position, m; ZYX Euler angles, rad; body
 velocities, m/s; body rates, rad/s). Inputs ``u_gondola`` (-1..1, positive pushes forward),
 ``mu`` (rad, gondola thrust angle, positive tilts the thrust up), ``u_tail`` (-1..1, positive
 yaws the nose right).
 
-Equations of motion
--------------------
-Ko, Klein, Fox & Haehnel, "Gaussian processes and reinforcement learning for identification and
-control of an autonomous blimp", ICRA 2007, sec. III: rigid body with added mass, gravity,
-buoyancy, drag, gondola thrust at vectoring angle ``mu``, tail motor and rotational drag. We
-write it in Fossen's matrix form (Fossen, *Handbook of Marine Craft Hydrodynamics and Motion
-Control*, 2011), the form in which Zufferey et al. (2006) give the EPFL blimp model::
-
-    eta_dot = J(eta) nu                                  (Fossen 2011, sec. 2.2.1)
-    M nu_dot + C(nu) nu + D(nu) nu + g(eta) = tau_thrust
-
-with ``M = M_RB + M_A`` (rigid body about the CB with the CG at ``r_g``, Fossen 2011 eq. 3.44,
-plus diagonal added mass), ``C`` from ``M`` by Fossen 2011 Theorem 3.2 (Sagatun & Fossen 1991;
-it includes Munk's moment ``v x p``), linear and quadratic translational drag and linear
-rotational drag (Zufferey et al. 2006), weight at the CG and buoyancy at the CB (Fossen 2011,
-sec. 4.1), and quasi-steady tail-fin lift. Ko et al. write ``v_dot = M^-1 (F - w x M v)``,
-``w_dot = J^-1 (T - w x J w)``: this model with ``r_g = 0``, no fins and no Munk moment. We keep
-Munk's moment because without it the added-mass Coriolis force does work
-(``-v . (w x M v) != 0`` for unequal added masses), so energy would not be conserved. With it a
-finless hull is directionally unstable (straight flight at 0.84 m/s diverges in yaw at about
-1.1 /s with these numbers), which is why real blimps carry tail fins; the fin term (size
-assumed, see :class:`BlimpParameters`) restores weathercock stability (slowest yaw/sway
-eigenvalue about -0.25 /s at 0.84 m/s).
+The equations of motion (Ko et al., ICRA 2007, sec. III, in Fossen's 2011 matrix form) live in
+:mod:`validation.vehicles.blimp_equations`, which the blimp RKGP FMU carries; this module adds
+what a vehicle needs around them: the parameters, argument checks (:class:`BadInputError`), the
+hanging start and the integrators of :class:`BlimpReference`.
 
 The flight-test stand-in :class:`~validation.vehicles.blimp_flight.BlimpFlightTest` adds what
 this ODE leaves out (motor lag, dead band, tail asymmetry, CG offset, buoyancy drift,
@@ -39,7 +20,7 @@ docstring.
 Parameters: scaling the EPFL blimp to Ko's blimp
 ------------------------------------------------
 Zufferey, Guanella, Beyeler & Floreano (2006, EPFL LIS) identified a 0.184 kg indoor blimp
-(numbers in DESIGN.md, "Physics facts"). Ko et al.'s blimp weighs about 0.35 kg with a 1.7 m
+(its numbers are in the :class:`BlimpParameters` docstring). Ko et al.'s blimp weighs about 0.35 kg with a 1.7 m
 envelope. We scale by Froude similarity (same g and air): mass ratio
 ``s_m = 0.35 / 0.184 = 1.902``; both float neutrally in the same air, so mass is proportional
 to envelope volume and the length ratio is ``s_L = s_m ** (1/3) = 1.239``; then time scales as
@@ -63,7 +44,6 @@ The tail arm (0.85 m, half of Ko's 1.7 m envelope) and the gondola arm (0.35 m: 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from dataclasses import dataclass
 
@@ -73,21 +53,15 @@ from scipy.integrate import solve_ivp
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history, sampling_metadata
-
-#: State names, in the order of the last axis of every state array.
-STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "U", "V", "W", "P", "Q", "R")
-#: Input names, in the order of the last axis of every input array.
-INPUT_NAMES = ("u_gondola", "mu", "u_tail")
-
-#: Standard gravity, m/s^2 (ISO 80000-3).
-STANDARD_GRAVITY = 9.80665
+from validation.vehicles import blimp_equations
+from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES, rk4_advance, substep_count
 
 #: Mass ratio Ko blimp / EPFL blimp: 0.35 kg (Ko et al. 2007) / 0.184 kg (Zufferey et al. 2006).
 MASS_RATIO = 0.35 / 0.184
 #: Length ratio at equal mean density (mass ~ length**3), see the module docstring.
 LENGTH_RATIO = MASS_RATIO ** (1.0 / 3.0)
 
-SAMPLE_TIME = 0.05  # s, mocap at about 20 Hz (Ko et al. 2007, via DESIGN.md)
+SAMPLE_TIME = 0.05  # s, motion capture at about 20 Hz (Ko et al. 2007)
 MAX_STEP = 0.01  # s, RK4 step; 0.05 rad per step at the 4.8 rad/s roll pendulum frequency
 ADAPTIVE_RTOL = 1e-8  # solve_ivp tolerances for the adaptive ("ODE") integrator
 ADAPTIVE_ATOL = 1e-10
@@ -119,7 +93,7 @@ class BlimpParameters:
         Added mass in surge, sway, heave, kg (positive numbers). EPFL [0.033, 0.129, 0.129] * s_m.
     inertia : (3,) tuple
         Principal moments of inertia about the CB, kg m^2. EPFL [0.0095, 0.0193, 0.0193]
-        * s_m s_L^2. DESIGN.md lists no separate added inertia, so these stand for rigid plus
+        * s_m s_L^2. Zufferey et al. list no separate added inertia, so these stand for rigid plus
         added inertia.
     added_inertia : (3,) tuple
         Added moments of inertia in roll, pitch, yaw, kg m^2; default 0 (see ``inertia``).
@@ -137,7 +111,7 @@ class BlimpParameters:
         Buoyancy minus weight, N; positive rises. 0: neutrally buoyant.
     gondola_thrust_forward, gondola_thrust_backward : float
         Thrust of both gondola fans per unit ``u_gondola``, N, for positive / negative commands.
-        EPFL 0.04 N * s_m = 0.076 N; DESIGN.md gives only the forward value, so symmetric.
+        EPFL 0.04 N * s_m = 0.076 N; Zufferey et al. give only the forward value, so symmetric.
     gondola_arm : float
         Distance of the gondola fan shaft below the CB, m (module docstring).
     tail_thrust_positive, tail_thrust_negative : float
@@ -220,61 +194,6 @@ class BlimpParameters:
         return cls(**values)
 
 
-@functools.lru_cache(maxsize=64)
-def mass_matrix(mass, added_mass, inertia, added_inertia, cg_position) -> tuple[np.ndarray, np.ndarray]:
-    """System inertia matrix ``M = M_RB + M_A`` (6, 6) about the CB and its inverse.
-
-    ``M_RB = [[m I, -m S(r_g)], [m S(r_g), I_o]]`` (Fossen 2011, eq. 3.44; ``S(a) b = a x b``),
-    ``M_A = diag(added_mass, added_inertia)`` (diagonal, as identified by Zufferey et al. 2006).
-    """
-    rx, ry, rz = cg_position
-    skew = np.array([[0.0, -rz, ry], [rz, 0.0, -rx], [-ry, rx, 0.0]])
-    matrix = np.zeros((6, 6))
-    matrix[:3, :3] = mass * np.eye(3)
-    matrix[:3, 3:] = -mass * skew
-    matrix[3:, :3] = mass * skew
-    matrix[3:, 3:] = np.diag(inertia)
-    matrix += np.diag(np.concatenate([added_mass, added_inertia]))
-    return matrix, np.linalg.inv(matrix)
-
-
-def rotation_body_to_earth(angles: np.ndarray) -> np.ndarray:
-    """ZYX Euler rotation matrix body -> earth (Fossen 2011, sec. 2.2.1); angles (..., 3) -> (..., 3, 3)."""
-    sf, cf = np.sin(angles[..., 0]), np.cos(angles[..., 0])
-    st, ct = np.sin(angles[..., 1]), np.cos(angles[..., 1])
-    sp, cp = np.sin(angles[..., 2]), np.cos(angles[..., 2])
-    entries = [cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st,
-               sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf,
-               -st, ct * sf, ct * cf]
-    return np.stack(entries, axis=-1).reshape(angles.shape[:-1] + (3, 3))
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` over the last axis (3), broadcasting; several times faster than ``np.cross`` on small arrays."""
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
-
-
-def euler_rates(angles: np.ndarray, rates: np.ndarray) -> np.ndarray:
-    """Euler angle rates from body rates, ``Theta_dot = T(Theta) omega`` (Fossen 2011, sec. 2.2.1).
-
-    Singular at ``theta = +-90 deg``, which a pendulum-stabilised blimp does not reach.
-    """
-    sf, cf = np.sin(angles[..., 0]), np.cos(angles[..., 0])
-    ct, tt = np.cos(angles[..., 1]), np.tan(angles[..., 1])
-    p, q, r = rates[..., 0], rates[..., 1], rates[..., 2]
-    return np.stack([p + sf * tt * q + cf * tt * r, cf * q - sf * r, (sf * q + cf * r) / ct], axis=-1)
-
-
-def body_rates(angles: np.ndarray, euler_rates: np.ndarray) -> np.ndarray:
-    """Body rates from Euler angle rates, ``omega = T(Theta)^-1 Theta_dot`` (inverse of :func:`euler_rates`)."""
-    sf, cf = np.sin(angles[..., 0]), np.cos(angles[..., 0])
-    st, ct = np.sin(angles[..., 1]), np.cos(angles[..., 1])
-    df, dt, dp = euler_rates[..., 0], euler_rates[..., 1], euler_rates[..., 2]
-    return np.stack([df - st * dp, cf * dt + sf * ct * dp, -sf * dt + cf * ct * dp], axis=-1)
-
-
 def _check_last_axis(array: np.ndarray, size: int, what: str, names) -> None:
     if array.ndim == 0 or array.shape[-1] != size:
         raise BadInputError(
@@ -282,7 +201,8 @@ def _check_last_axis(array: np.ndarray, size: int, what: str, names) -> None:
 
 
 def blimp_dynamics(state, inputs, params: BlimpParameters) -> np.ndarray:
-    """Time derivative of the blimp state (Ko et al. 2007, sec. III, in Fossen's form).
+    """:func:`validation.vehicles.blimp_equations.blimp_dynamics`, the time derivative of the
+    blimp state, after checking the arguments' shapes.
 
     Parameters
     ----------
@@ -298,98 +218,16 @@ def blimp_dynamics(state, inputs, params: BlimpParameters) -> np.ndarray:
     ndarray, shape (broadcast leading axes, 12)
         ``d state / dt`` in the units of ``state`` per second.
 
-    Notes
-    -----
-    Forces and moments on ``nu = [v, w]`` (body velocity, body rate):
-
-    - inertia: ``p = M11 v + M12 w``, ``h = M21 v + M22 w`` and ``C(nu) nu = [w x p, v x p + w x h]``
-      (Fossen 2011, Theorem 3.2; ``nu' C nu = 0``, so it does no work);
-    - gravity and buoyancy: with ``n = R' e_z = [-sin theta, cos theta sin phi, cos theta cos phi]``
-      the earth down direction in body axes, force ``-net_lift n`` and moment
-      ``r_g x (m g n)`` (Fossen 2011, sec. 4.1, buoyancy at the origin);
-    - drag: ``-(linear_drag v + quadratic_drag |v| v)`` and ``-rotational_damping w``
-      (Zufferey et al. 2006);
-    - gondola: thrust ``T = k u`` (k forward or backward gain) along ``[cos mu, 0, -sin mu]``
-      acting ``gondola_arm`` below the CB, so pitch moment ``gondola_arm T cos mu``;
-    - tail: thrust ``T_t`` pushing the tail left (force ``[0, -T_t, 0]``) ``tail_arm`` behind
-      the CB, so yaw moment ``tail_arm T_t``;
-    - tail fins, ``l = tail_arm`` behind the CB, where the body moves through the air with
-      cross-flow ``c = [V - l R, W + l Q]``: quasi-steady lift ``-fin_lift |U| c`` in y and z,
-      so moments ``M = -l fin_lift |U| (W + l Q)`` and ``N = l fin_lift |U| (V - l R)``
-      (weathercock stability and damping; it only dissipates energy).
+    Raises
+    ------
+    BadInputError
+        ``state`` or ``inputs`` has the wrong last axis.
     """
     state = np.asarray(state, dtype=float)
     inputs = np.asarray(inputs, dtype=float)
-    _check_last_axis(state, 12, "state", STATE_NAMES)
-    _check_last_axis(inputs, 3, "inputs", INPUT_NAMES)
-    angles, nu = state[..., 3:6], state[..., 6:12]
-    v, w = nu[..., :3], nu[..., 3:]
-    matrix, inverse = mass_matrix(params.mass, params.added_mass, params.inertia,
-                                   params.added_inertia, params.cg_position)
-
-    position_dot = np.einsum("...ij,...j->...i", rotation_body_to_earth(angles), v)
-    angles_dot = euler_rates(angles, w)
-
-    generalised_momentum = nu @ matrix.T  # [p, h] = M nu
-    momentum, angular_momentum = generalised_momentum[..., :3], generalised_momentum[..., 3:]
-    down = np.stack([-np.sin(angles[..., 1]),
-                     np.cos(angles[..., 1]) * np.sin(angles[..., 0]),
-                     np.cos(angles[..., 1]) * np.cos(angles[..., 0])], axis=-1)
-    weight = params.mass * STANDARD_GRAVITY
-
-    u_gondola, mu, u_tail = inputs[..., 0], inputs[..., 1], inputs[..., 2]
-    gondola = u_gondola * np.where(u_gondola >= 0, params.gondola_thrust_forward,
-                                   params.gondola_thrust_backward)
-    tail = u_tail * np.where(u_tail >= 0, params.tail_thrust_positive, params.tail_thrust_negative)
-    thrust_force = np.stack([gondola * np.cos(mu), -tail, -gondola * np.sin(mu)], axis=-1)
-    thrust_moment = np.stack([np.zeros_like(gondola), params.gondola_arm * gondola * np.cos(mu),
-                              params.tail_arm * tail], axis=-1)
-    fin_gain = params.fin_lift * np.abs(v[..., 0])
-    fin_side = -fin_gain * (v[..., 1] - params.tail_arm * w[..., 2])
-    fin_normal = -fin_gain * (v[..., 2] + params.tail_arm * w[..., 1])
-    fin_force = np.stack([np.zeros_like(fin_side), fin_side, fin_normal], axis=-1)
-    fin_moment = np.stack([np.zeros_like(fin_side), params.tail_arm * fin_normal,
-                           -params.tail_arm * fin_side], axis=-1)
-
-    force = (thrust_force + fin_force - params.net_lift * down
-             - np.asarray(params.linear_drag) * v - np.asarray(params.quadratic_drag) * np.abs(v) * v
-             - _cross(w, momentum))
-    moment = (thrust_moment + fin_moment + _cross(np.asarray(params.cg_position), weight * down)
-              - np.asarray(params.rotational_damping) * w
-              - _cross(v, momentum) - _cross(w, angular_momentum))
-    nu_dot = np.concatenate([force, moment], axis=-1) @ inverse.T
-    kinematics = np.concatenate([position_dot, angles_dot], axis=-1)
-    kinematics = np.broadcast_to(kinematics, nu_dot.shape[:-1] + (6,))
-    return np.concatenate([kinematics, nu_dot], axis=-1)
-
-
-def rk4(derivative, state: np.ndarray, dt: float) -> np.ndarray:
-    """One classical fourth-order Runge-Kutta step of ``state_dot = derivative(state)``."""
-    k1 = derivative(state)
-    k2 = derivative(state + 0.5 * dt * k1)
-    k3 = derivative(state + 0.5 * dt * k2)
-    k4 = derivative(state + dt * k3)
-    return state + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
-
-def rk4_step(state, inputs, dt: float, params: BlimpParameters) -> np.ndarray:
-    """Advance the blimp by one classical RK4 step with the inputs held.
-
-    Parameters
-    ----------
-    state : array_like, shape (..., 12)
-    inputs : array_like, shape (..., 3), broadcasting against ``state``
-    dt : float
-        Step, s.
-    params : BlimpParameters
-
-    Returns
-    -------
-    ndarray, shape (broadcast leading axes, 12)
-        The state ``dt`` seconds later.
-    """
-    inputs = np.asarray(inputs, dtype=float)
-    return rk4(lambda s: blimp_dynamics(s, inputs, params), np.asarray(state, dtype=float), dt)
+    _check_last_axis(state, len(STATE_NAMES), "state", STATE_NAMES)
+    _check_last_axis(inputs, len(INPUT_NAMES), "inputs", INPUT_NAMES)
+    return blimp_equations.blimp_dynamics(state, inputs, params)
 
 
 def checked_max_step(max_step: float) -> float:
@@ -399,8 +237,9 @@ def checked_max_step(max_step: float) -> float:
 
 
 def rk4_substeps(time: np.ndarray, max_step: float) -> np.ndarray:
-    """Number of equal RK4 steps for each interval of ``time`` so that none exceeds ``max_step``."""
-    return np.maximum(1, np.ceil(np.diff(time) / max_step - 1e-9)).astype(int)
+    """Number of equal RK4 steps for each interval of ``time`` (n,), s, so that none exceeds
+    ``max_step`` (:func:`validation.vehicles.blimp_equations.substep_count`); shape (n - 1,)."""
+    return substep_count(np.diff(time), max_step)
 
 
 def check_command_history(time, inputs, *, min_samples: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -502,10 +341,8 @@ class BlimpReference:
     def _rk4_states(self, time, inputs, state) -> np.ndarray:
         states = np.empty((len(time), len(STATE_NAMES)))
         states[0] = state
-        for k, n_steps in enumerate(rk4_substeps(time, self.max_step)):
-            step = (time[k + 1] - time[k]) / n_steps
-            for _ in range(n_steps):
-                state = rk4_step(state, inputs[k], step, self.params)
+        for k in range(len(time) - 1):
+            state = rk4_advance(state, inputs[k], time[k + 1] - time[k], self.params, max_step=self.max_step)
             states[k + 1] = state
         return states
 
@@ -517,7 +354,7 @@ class BlimpReference:
         states[0] = state
         for start, stop in zip(edges[:-1], edges[1:]):
             held = inputs[start]
-            solution = solve_ivp(lambda _t, y: blimp_dynamics(y, held, self.params),
+            solution = solve_ivp(lambda _t, y, held=held: blimp_dynamics(y, held, self.params),
                                  (time[start], time[stop]), states[start], method="RK45",
                                  t_eval=time[start:stop + 1], rtol=ADAPTIVE_RTOL, atol=ADAPTIVE_ATOL)
             if not solution.success:

@@ -61,11 +61,10 @@ from validation.vehicles.blimp import (
     SAMPLE_TIME,
     STATE_NAMES,
     BlimpReference,
-    blimp_dynamics,
     check_command_history,
     hanging_state,
-    mass_matrix,
 )
+from validation.vehicles.blimp_equations import blimp_dynamics, mass_matrix
 from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_STD
 from validation.vehicles.effects import TARGET_KEYS, Hypothesis
 

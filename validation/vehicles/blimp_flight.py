@@ -19,15 +19,12 @@ from validation.vehicles.blimp import (
     SAMPLE_TIME,
     STATE_NAMES,
     BlimpParameters,
-    blimp_dynamics,
-    body_rates,
     check_command_history,
     checked_max_step,
     hanging_state,
-    rk4,
     rk4_substeps,
-    rotation_body_to_earth,
 )
+from validation.vehicles.blimp_equations import blimp_dynamics, body_rates, rk4, rotation_body_to_earth
 
 _REFERENCE_PARAMETERS = BlimpParameters()
 

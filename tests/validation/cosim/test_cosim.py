@@ -5,7 +5,7 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from fmu_src.builder import build_rate_predictor_fmu
+from fmu_src import build_rate_predictor_fmu
 from validation.cli import main
 from validation.core.recordings import write_recording
 from validation.cosim.cosimulation import cosimulate
@@ -98,7 +98,7 @@ def test_ci_guard_3211_rmse_of_the_fmu_against_the_flight_test(case, tmp_path):
     """The CI check of docs/fmus.md: build the Bo105 rate-predictor FMU, co-simulate the 80 kt 3-2-1-1 in
     fmpy, and keep its per-axis RMSE against the flight-test stand-in below the guard and below
     the physics reference FMU's."""
-    from fmu_src.builder import build_bo105_reference_fmu
+    from fmu_src import build_bo105_reference_fmu
 
     folder, recording, _, gp_fmu = case
     reference_fmu = build_bo105_reference_fmu(80, tmp_path, name="guard_reference")

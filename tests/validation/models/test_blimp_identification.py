@@ -1,4 +1,4 @@
-"""Tests of blimp parameter identification (validation/blimp_identification.py).
+"""Tests of blimp parameter identification (validation/models/blimp_identification.py).
 
 Identification recovers known parameters from noise-free reference data, and on noisy data its
 standard errors cover the truth. RK4 at one step per 0.05 s frame keeps the tests fast; the
@@ -17,13 +17,14 @@ from validation.models.blimp_identification import (
     physics_step,
     recording_arrays,
 )
-from validation.vehicles.blimp import STATE_NAMES, BlimpParameters, BlimpReference, rk4_step
+from validation.vehicles.blimp import STATE_NAMES, BlimpParameters, BlimpReference
+from validation.vehicles.blimp_equations import blimp_dynamics, rk4
 
 STEP = 0.05  # s: frame interval and RK4 step of these tests
 TRUTH = BlimpParameters()
 NAMES = BlimpParameters.vector_names()
 INDEX = [NAMES.index(n) for n in IDENTIFIED_PARAMETERS]
-#: Noise of the blimp-flight stand-in's mocap (validation/blimp.py): 1 mm, 0.5 deg, and the
+#: Noise of the blimp-flight stand-in's mocap (validation/vehicles/blimp_flight.py): 1 mm, 0.5 deg, and the
 #: differentiated velocities' 6 mm/s and 0.055 rad/s.
 NOISE_STD = np.array([1e-3] * 3 + [math.radians(0.5)] * 3 + [6e-3] * 3 + [0.055] * 3)
 
@@ -51,7 +52,7 @@ def test_physics_step_matches_the_reference_rk4():
     stepped = physics_step(TRUTH, max_step=0.01)(states[:-1], inputs[:-1])
     expected = states[:-1]
     for _ in range(5):
-        expected = rk4_step(expected, inputs[:-1, :3], 0.01, TRUTH)
+        expected = rk4(lambda s: blimp_dynamics(s, inputs[:-1, :3], TRUTH), expected, 0.01)
     np.testing.assert_allclose(stepped, expected, rtol=0, atol=1e-12)
 
 

@@ -185,7 +185,7 @@ def test_quick_reproduction_writes_table3_with_finite_values(quick):
 
 
 def test_reproduction_builds_the_blimp_rkgp_fmu_from_its_model(quick):
-    """Issue 6: the blimp RKGP FMU built from this model (the contract suite covers the FMU
+    """The blimp RKGP FMU built from this model (the contract suite covers the FMU
     type; here: this model's FMU validates and reproduces the model's rollout)."""
     import fmpy
     from fmpy.validation import validate_fmu

@@ -1,4 +1,5 @@
-"""Tests of the blimp reference and its flight-test stand-in (validation/blimp.py).
+"""Tests of the blimp reference and its flight-test stand-in (validation/vehicles/blimp.py,
+its equations in validation/vehicles/blimp_equations.py).
 
 Properties, not only numbers: equilibria, hand-computed force balances, the small-angle
 pendulum formula, energy dissipation, vectorisation, and each documented stand-in effect.
@@ -11,7 +12,8 @@ import pytest
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
 from validation.vehicles import get_vehicle
-from validation.vehicles.blimp import STANDARD_GRAVITY, BlimpParameters, BlimpReference, blimp_dynamics, rk4_step
+from validation.vehicles.blimp import BlimpParameters, BlimpReference, blimp_dynamics
+from validation.vehicles.blimp_equations import STANDARD_GRAVITY, rk4_advance
 from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS, BlimpFlightTest
 
 PARAMS = BlimpParameters()
@@ -201,15 +203,15 @@ def test_vectorised_dynamics_and_rk4_equal_the_per_sample_loop():
     states = rng.normal(0.0, 0.5, (5, 4, 12))
     inputs = np.column_stack([rng.uniform(-1, 1, 4), rng.uniform(-1, 1, 4), rng.uniform(-1, 1, 4)])
     batched = blimp_dynamics(states, inputs, PARAMS)  # inputs (4, 3) broadcast over axis 0
-    stepped = rk4_step(states, inputs, 0.02, PARAMS)
+    stepped = rk4_advance(states, inputs, 0.02, PARAMS, max_step=0.02)  # one RK4 step
     assert batched.shape == stepped.shape == (5, 4, 12)
     for i in range(5):
         for j in range(4):
             # Same arithmetic per element; matrix products may sum in another order (1 ulp).
             np.testing.assert_allclose(batched[i, j], blimp_dynamics(states[i, j], inputs[j], PARAMS),
                                        rtol=1e-13, atol=1e-15)
-            np.testing.assert_allclose(stepped[i, j], rk4_step(states[i, j], inputs[j], 0.02, PARAMS),
-                                       rtol=1e-13, atol=1e-15)
+            one = rk4_advance(states[i, j], inputs[j], 0.02, PARAMS, max_step=0.02)
+            np.testing.assert_allclose(stepped[i, j], one, rtol=1e-13, atol=1e-15)
 
 
 def test_parameter_vector_round_trip_and_replace():
@@ -267,7 +269,7 @@ def test_bad_shapes_in_dynamics_and_parameters_raise():
     with pytest.raises(BadInputError, match=r"state must have shape \(\.\.\., 12\)"):
         blimp_dynamics(np.zeros(11), np.zeros(3), PARAMS)
     with pytest.raises(BadInputError, match=r"inputs must have shape \(\.\.\., 3\)"):
-        rk4_step(np.zeros(12), np.zeros(2), 0.01, PARAMS)
+        blimp_dynamics(np.zeros(12), np.zeros(2), PARAMS)
     with pytest.raises(BadInputError, match="added_mass needs 3 numbers"):
         dataclasses.replace(PARAMS, added_mass=(0.1, 0.2))
     with pytest.raises(BadInputError, match="net_lift must be finite"):

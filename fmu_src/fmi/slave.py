@@ -1,10 +1,11 @@
-"""The one base of every flightgp FMU: lifecycle, variable table, logging, status policy, state
-save/restore and the sampling convention (DESIGN.md, "FMU rules"; STYLE.md, Modelica
-Reference-FMUs: the FMI plumbing lives once here, each FMU only declares its variables, as
-data, and its equations).
+"""The one base of every flightgp pythonfmu FMU: lifecycle, variable table, logging, status
+policy, state save/restore and the sampling convention (docs/fmus.md, "Sampling, status and
+state"; docs/conventions.md, "FMU sampling convention"). As in the Modelica Reference-FMUs, the
+FMI plumbing lives once, here (and in C in ``fmi2_slave.c`` for the native FMUs); each FMU only
+declares its variables, as data, and its equations.
 
-This file is copied into every FMU (``resources/<package>/_base.py``, the package name unique to
-the FMU), so it imports only pythonfmu, numpy and the standard library.
+Every pythonfmu FMU carries a copy of this file, under a name unique to the FMU
+(:mod:`fmu_src.fmi.pythonfmu`), so it imports only pythonfmu, numpy and the standard library.
 
 Sampling convention
 -------------------
@@ -88,8 +89,11 @@ UNITS = {
 #: Relative tolerance on the communication point and step, as a fraction of the step.
 TIME_TOLERANCE = 1e-6
 
-#: Models loaded once per process and FMU package (this module is copied into each FMU's own
-#: package), keyed by model-file path; read-only, so every instance shares them.
+#: The model file in the FMU's package folder under ``resources/`` (numpy arrays, no pickle).
+MODEL_FILE = "model.npz"
+
+#: Models loaded once per process and FMU (each FMU carries its own copy of this module), keyed
+#: by model-file path; read-only, so every instance shares them.
 _SHARED_MODELS: dict = {}
 
 _STATE_FORMAT = "flightgp-fmu-state-1"
@@ -199,6 +203,9 @@ class FlightgpSlave(Fmi2Slave):
     --------------------------------
     description : str
         One line for the model description.
+    PACKAGE : str
+        The FMU's package folder under ``resources/``, which holds its code and
+        :data:`MODEL_FILE` (set by the class the build generates, :mod:`fmu_src.fmi.pythonfmu`).
     VARIABLES : tuple of Variable
         The variable table (value references in this order).
     STEP_SIZE : float or None
@@ -230,6 +237,7 @@ class FlightgpSlave(Fmi2Slave):
         When ``STEP_SIZE`` is None: why steps of ``h`` s are impossible, or None.
     """
 
+    PACKAGE = ""
     VARIABLES: tuple = ()
     STEP_SIZE: float | None = None
     DEFAULT_STEP_SIZE: float | None = None
@@ -270,12 +278,12 @@ class FlightgpSlave(Fmi2Slave):
         self._own_attributes = (set(vars(self)) | {"_own_attributes"}) - set(self._BASE_STATE)
 
     # -- model description --------------------------------------------------------------------
-    def to_xml(self, model_options=dict()):
+    def to_xml(self, model_options=None):
         """pythonfmu's model description plus ``UnitDefinitions`` (FMI 2.0 schema order: after
         ``CoSimulation``, before ``LogCategories``)."""
         from xml.etree.ElementTree import Element, SubElement
 
-        root = super().to_xml(model_options)
+        root = super().to_xml({} if model_options is None else model_options)
         definitions = Element("UnitDefinitions")
         for name in sorted({v.unit for v in self.VARIABLES if v.unit is not None}):
             base, display = UNITS[name]
@@ -462,6 +470,10 @@ class FlightgpSlave(Fmi2Slave):
         self._mode = "terminated" if self._mode != "failed" else "failed"
 
     # -- helpers for subclasses ---------------------------------------------------------------
+    def model_file(self) -> Path:
+        """The path of the FMU's model file, :data:`MODEL_FILE` in its package folder."""
+        return Path(self.resources) / self.PACKAGE / MODEL_FILE
+
     def shared_model(self, load, path, what: str):
         """The model file at ``path``, loaded by ``load(path)`` once per process and logged;
         the loaded object must be read-only (every instance of the FMU shares it) and have a

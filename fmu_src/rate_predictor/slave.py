@@ -1,14 +1,15 @@
 """The GP-NARX rate predictor FMU (Bo105 GP-NARX paper, AHS 74th Forum, 2018): control inputs
 and the previous rates in, predicted rates and their confidence bounds out.
 
-This file is copied into every rate predictor FMU (``resources/<package>/rate_predictor.py``),
-so it imports only the FMU runtime (:mod:`._base`, :mod:`._runtime`), numpy and the standard
-library. The per-FMU slave script that :mod:`fmu_src.builder` generates subclasses
+Every rate predictor FMU carries a copy of this file (:mod:`fmu_src.fmi.pythonfmu`), so it
+imports only the FMI layer (:mod:`fmu_src.fmi.slave`), the GP-NARX prediction
+(:mod:`fmu_src.rate_predictor.predictor`), numpy and the standard library. The per-FMU slave
+script that :func:`fmu_src.rate_predictor.build.build_rate_predictor_fmu` generates subclasses
 :class:`RatePredictor` with the FMU's variable table (:func:`rate_predictor_variables`), its
-package name and its NARX step.
+package name and its NARX step. docs/fmus.md, "GP-NARX rate predictor", lists the variables.
 
-Timing (the sampling convention of :mod:`._base`, with ``h`` = the NARX step)
--------------------------------------------------------------------------------
+Timing (docs/conventions.md, "FMU sampling convention", with ``h`` = the NARX step)
+-----------------------------------------------------------------------------------
 The host must step with ``h`` equal to the model's NARX step (e.g. 0.1 s; declared as the default
 experiment's step size; ``canHandleVariableCommunicationStepSize=false``); any other step or
 communication point is refused with a logged Error and ``fmi2Discard``. At ``t_k`` the host sets
@@ -44,16 +45,12 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from pathlib import Path
 from statistics import NormalDist
 
 import numpy as np
 
-from ._base import FlightgpSlave, Variable
-from ._runtime import NarxPredictor
-
-#: The model file inside the FMU's package folder.
-MODEL_FILE = "model.npz"
+from fmu_src.fmi.slave import FlightgpSlave, Variable
+from fmu_src.rate_predictor.predictor import NarxPredictor
 
 
 def rate_predictor_variables(*, inputs, outputs) -> tuple:
@@ -63,7 +60,7 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
     ----------
     inputs, outputs : sequence of (name, unit, limit, phrase)
         The model's control inputs and predicted outputs: name, unit (a key of
-        :data:`._base.UNITS`), largest plausible magnitude (None: unbounded) and a phrase saying
+        :data:`fmu_src.fmi.slave.UNITS`), largest plausible magnitude (None: unbounded) and a phrase saying
         what it is (e.g. ``"longitudinal cyclic"``).
 
     Returns
@@ -103,10 +100,9 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
 
 
 class RatePredictor(FlightgpSlave):
-    """GP-NARX rate predictor (the generated subclass sets the class attributes below)."""
+    """GP-NARX rate predictor (the class the build generates sets its description, PACKAGE,
+    VARIABLES and STEP_SIZE)."""
 
-    #: The FMU's package folder under ``resources/`` (holds this code and the model file).
-    PACKAGE = ""
     STATE_ATTRIBUTES = ("_input_history", "_output_history", "_outside_envelope", "_belief")
     CONSTANT_ATTRIBUTES = ("_predictor", "_input_names", "_output_names")
 
@@ -152,8 +148,7 @@ class RatePredictor(FlightgpSlave):
 
     # -- helpers ------------------------------------------------------------------------------
     def _load_predictor(self) -> NarxPredictor:
-        predictor = self.shared_model(NarxPredictor.load, Path(self.resources) / self.PACKAGE / MODEL_FILE,
-                                      "GP-NARX model")
+        predictor = self.shared_model(NarxPredictor.load, self.model_file(), "GP-NARX model")
         declared = {v.name for v in self.VARIABLES}
         missing = [n for n in predictor.input_names + predictor.output_names if n not in declared]
         if missing:

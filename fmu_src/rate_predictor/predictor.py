@@ -1,10 +1,10 @@
-"""GP-NARX prediction inside an FMU: numpy and the standard library only.
+"""GP-NARX prediction inside the rate predictor FMU: numpy and the standard library only.
 
-This file is copied into every GP-NARX FMU (``resources/<package>/_runtime.py``, the package
-name unique to the FMU; DESIGN.md, "Layout and layers"), so it must never import flightgp or
-validation: a simulator host has none of them. Its one import from gp_model is the numpy-only
-moment-matching module, which the builder copies into the package next to this file and points
-the import at.
+Every rate predictor FMU (pythonfmu) carries a copy of this file and of what it imports, the
+shared FMU runtime (:mod:`fmu_src.fmi.runtime`) and the numpy-only moment matching of
+:mod:`gp_model.uncertain_input`, under names unique to the FMU (:mod:`fmu_src.fmi.pythonfmu`):
+a simulator host has no flightgp. The native rate predictor evaluates the same formulas in C
+(``narx_model.c``).
 
 Model file (``model.npz``, written by :func:`pack_model`, read without pickle)
 ------------------------------------------------------------------------------
@@ -27,7 +27,8 @@ point hyperparameters), every array in the GP's standardised units:
 
 These are :class:`gp_model.PredictiveForm` s (one per sample) plus the kernel and noise
 hyperparameters and the scalers. The free run (:meth:`NarxPredictor.free_run_step`) matches
-the moments of the same mixture (sample ``s`` of every output forms model ``s``). :meth:`NarxPredictor.predict` reproduces
+the moments of the same mixture (sample ``s`` of every output forms model ``s``).
+:meth:`NarxPredictor.predict` reproduces
 ``GaussianProcess.predict(X, return_var=True, include_noise=True)`` exactly (same mixture over
 samples: mean ``E_s[mu_s]``, variance ``E_s[var_s + mu_s^2] - mean^2``, law of total variance),
 up to rounding.
@@ -41,7 +42,16 @@ import json
 
 import numpy as np
 
-# The builder rewrites this import to the copy of gp_model/uncertain_input.py in the FMU's package.
+from fmu_src.fmi.runtime import (
+    Envelope,
+    ModelFormatError,
+    check_header,
+    freeze,
+    kernel_rows,
+    model_header,
+    read_model_file,
+    read_part,
+)
 from gp_model.uncertain_input import MomentMatcher, frame_gp, narx_belief_start, narx_belief_step
 
 FORMAT = "flightgp-fmu-narx"
@@ -52,60 +62,6 @@ PER_OUTPUT = {"basis": 2, "weights": 2, "variance_factor": 3, "kernel_weights": 
               "log_signal_variance": 1, "noise_variance": 1, "input_mean": 1, "input_scale": 1,
               "output_mean": 0, "output_scale": 0}
 
-#: A regressor counts as outside the training envelope when it leaves the training range by
-#: more than this fraction of the range on either side.
-ENVELOPE_MARGIN = 0.1
-
-
-class ModelFormatError(ValueError):
-    """The model file is not a flightgp FMU model of this version, or is inconsistent."""
-
-
-def kernel_rows(xs: np.ndarray, basis: np.ndarray, kernel_weights: np.ndarray,
-                log_signal_variance: np.ndarray) -> np.ndarray:
-    """``k_r(x, b) = sigma_f,r^2 exp(-sum_i w_r,i (x_i - b_i)^2)`` for each hyperparameter row r.
-
-    Parameters
-    ----------
-    xs : ndarray, shape (d,)
-        Standardised input.
-    basis : ndarray, shape (m, d)
-    kernel_weights : ndarray, shape (R, d)
-    log_signal_variance : ndarray, shape (R,)
-
-    Returns
-    -------
-    ndarray, shape (R, m)
-    """
-    squared = (xs - basis) ** 2  # (m, d)
-    return np.exp(log_signal_variance[:, None] - kernel_weights @ squared.T)
-
-
-class Envelope:
-    """The training range of a model's inputs, widened by :data:`ENVELOPE_MARGIN` of the range
-    on each side; an FMU warns when an input leaves it.
-
-    Parameters
-    ----------
-    low, high : ndarray, shape (d,)
-        Training range of each input, physical units.
-    names : sequence of str
-        Input names, for messages.
-    """
-
-    def __init__(self, low, high, names) -> None:
-        self.low, self.high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
-        self.names = tuple(names)
-        margin = ENVELOPE_MARGIN * (self.high - self.low)
-        self.lower, self.upper = self.low - margin, self.high + margin
-        for value in (self.low, self.high, self.lower, self.upper):
-            value.flags.writeable = False  # shared by every instance of the FMU in a process
-
-    def outside(self, x: np.ndarray) -> list[str]:
-        """One phrase per input of ``x`` outside the envelope (empty if inside)."""
-        return [f"{self.names[i]} = {x[i]:.6g} (trained on {self.low[i]:.6g} .. {self.high[i]:.6g})"
-                for i in np.flatnonzero((x < self.lower) | (x > self.upper))]
-
 
 def pack_model(*, step: float, input_names, output_names, input_lags, output_lags,
                envelope_low, envelope_high, outputs) -> dict:
@@ -113,11 +69,17 @@ def pack_model(*, step: float, input_names, output_names, input_lags, output_lag
 
     Parameters
     ----------
+    step : float
+        NARX step, s.
+    input_names, output_names : sequence of str
+    input_lags, output_lags : sequence of int
+        Lags in NARX steps.
+    envelope_low, envelope_high : array_like, shape (d,)
+        Training range of each regressor, physical units.
     outputs : list of dict
         One dict per output with the arrays of :data:`PER_OUTPUT`.
     """
-    arrays = {"format": np.array(FORMAT), "version": np.array(VERSION), "step": np.array(float(step)),
-
+    arrays = {**model_header(FORMAT, VERSION), "step": np.array(float(step)),
               "input_names": np.array(list(input_names), dtype=str),
               "output_names": np.array(list(output_names), dtype=str),
               "input_lags": np.array(list(input_lags), dtype=np.int64),
@@ -130,12 +92,9 @@ def pack_model(*, step: float, input_names, output_names, input_lags, output_lag
     return arrays
 
 
-def _read_part(arrays: dict, prefix: str, n_regressors: int) -> dict:
+def _read_output(arrays: dict, prefix: str, n_regressors: int) -> dict:
     """One output's arrays (:data:`PER_OUTPUT`), checked for shape and finiteness."""
-    a = {name: np.array(arrays[prefix + name], dtype=float, order="C") for name in PER_OUTPUT}
-    for name, ndim in PER_OUTPUT.items():
-        if a[name].ndim != ndim:
-            raise ModelFormatError(f"{prefix}{name} has {a[name].ndim} dimensions, expected {ndim}")
+    a = read_part(arrays, prefix, PER_OUTPUT)
     m, d = a["basis"].shape
     S = len(a["weights"])
     expected = {"weights": (S, m), "variance_factor": (S, m, m), "kernel_weights": (S, d),
@@ -147,8 +106,8 @@ def _read_part(arrays: dict, prefix: str, n_regressors: int) -> dict:
     if d != n_regressors:
         raise ModelFormatError(f"{prefix}basis has {d} columns but the NARX structure has "
                                f"{n_regressors} regressors")
-    if not all(np.isfinite(v).all() for v in a.values()) or np.any(a["input_scale"] <= 0):
-        raise ModelFormatError(f"{prefix}: non-finite arrays or non-positive input scales")
+    if np.any(a["input_scale"] <= 0):
+        raise ModelFormatError(f"{prefix}input_scale holds non-positive scales")
     return a
 
 
@@ -172,8 +131,7 @@ class _Block:
         self.counts = counts.astype(float)
         self.output_mean = np.array([float(p["output_mean"]) for p in parts])
         self.output_scale = np.array([float(p["output_scale"]) for p in parts])
-        for value in vars(self).values():
-            value.flags.writeable = False  # shared by every instance of the FMU in a process
+        freeze(vars(self).values())
 
     def predict(self, x: np.ndarray) -> tuple:
         """Mean and variance (noise included) of the block's outputs at regressor ``x`` (d,), in
@@ -202,9 +160,7 @@ def _moment_matcher(parts: list) -> MomentMatcher:
                        output_scale=p["output_scale"], frame_mean=frame_mean, frame_scale=frame_scale)
               for p in parts]
     for frame in frames:
-        for value in vars(frame).values():
-            if isinstance(value, np.ndarray):
-                value.flags.writeable = False
+        freeze(vars(frame).values())
     return MomentMatcher(frames, input_mean=frame_mean, input_scale=frame_scale)
 
 
@@ -228,11 +184,7 @@ class NarxPredictor:
 
     def __init__(self, arrays: dict) -> None:
         try:
-            if str(arrays["format"]) != FORMAT:
-                raise ModelFormatError(f"not a {FORMAT} model file (format {str(arrays['format'])!r})")
-            if int(arrays["version"]) != VERSION:
-                raise ModelFormatError(f"model file version {int(arrays['version'])}; this FMU reads "
-                                       f"version {VERSION}")
+            check_header(arrays, format_name=FORMAT, version=VERSION)
             self.step = float(arrays["step"])
             self.input_names = tuple(str(n) for n in arrays["input_names"])
             self.output_names = tuple(str(n) for n in arrays["output_names"])
@@ -253,7 +205,7 @@ class NarxPredictor:
             self.envelope = Envelope(arrays["envelope_low"], arrays["envelope_high"], self.regressor_names)
             if self.envelope.low.shape != (d,) or self.envelope.high.shape != (d,):
                 raise ModelFormatError(f"training envelope must have {d} entries")
-            parts = [_read_part(arrays, f"{j}/", d) for j in range(len(self.output_names))]
+            parts = [_read_output(arrays, f"{j}/", d) for j in range(len(self.output_names))]
         except KeyError as error:
             raise ModelFormatError(f"model file lacks the array {error}") from None
         if len({len(part["weights"]) for part in parts}) != 1:
@@ -277,8 +229,7 @@ class NarxPredictor:
     @classmethod
     def load(cls, path) -> NarxPredictor:
         """Read ``path`` (an ``.npz`` written from :func:`pack_model`; never unpickles)."""
-        with np.load(path, allow_pickle=False) as npz:
-            return cls({name: npz[name] for name in npz.files})
+        return cls(read_model_file(path))
 
     def known_regressors(self, input_history: np.ndarray) -> np.ndarray:
         """The input part of the next sample's regressor (every input at every input lag).

@@ -1,30 +1,21 @@
-"""The Python-free native blimp RKGP FMU: RK4 blimp physics plus GP residual (Ko et al., ICRA
-2007, sec. IV-B) as C, compiled into a shared library (runs in the flightgp environment, not
-inside an FMU).
+"""The native (C, Python-free) blimp RKGP FMU: RK4 blimp physics plus GP residual (Ko et al.,
+ICRA 2007, sec. IV-B) in C (runs in the flightgp environment, not inside an FMU; docs/fmus.md,
+"Native FMUs").
 
 :func:`build_native_blimp_rkgp_fmu` writes an FMI 2.0 co-simulation FMU with the interface of
-the pythonfmu blimp RKGP FMU (:mod:`fmu_src.blimp_rkgp`: the same variable table, value
+the pythonfmu blimp RKGP FMU (:mod:`fmu_src.blimp_rkgp.slave`: the same variable table, value
 references, units, descriptions, start values, bounds, default experiment, sampling convention
 and step policy, since its ``modelDescription.xml`` is written by the same class) and its
-numbers (the formulas of :func:`fmu_src.blimp_rkgp.blimp_dynamics`, ``physics_step`` and
-``RKGPModel.residual`` in the same order, so the states and standard deviations agree to
-rounding), but whose binary needs only the C library and libm. The FMI layer, the packaging and
-the compiler call are those of the native rate predictor (:mod:`fmu_src.native`).
+numbers (``blimp_model.c``: the formulas of :mod:`validation.vehicles.blimp_equations` and of
+:meth:`fmu_src.blimp_rkgp.model.RKGPModel.residual` in the same order, so the states and
+standard deviations agree to rounding), packaged by :mod:`fmu_src.fmi.native`.
 
-What the FMU holds
-------------------
-- ``modelDescription.xml``: the pythonfmu blimp RKGP FMU's, with ``needsExecutionTool="false"``,
-  its own GUID and ``<SourceFiles>`` (:data:`C_SOURCES`).
-- ``binaries/linux64/<name>.so``: compiled with the system gcc against fmpy's FMI 2.0 headers.
-- ``sources/``: ``fmi2_slave.c`` (the FMI layer), ``blimp_model.c`` (RK4 physics and GP
-  residual), ``model.h`` and the generated ``model_config.h`` (GUID, variable table, value
-  references, the step range, the physics parameters with the mass matrix and its inverse, the
-  GP structure and the training envelope).
-- ``resources/model.bin``: every GP part's arrays (layout in ``blimp_model.c``).
-
-The step is fixed by the first ``fmi2DoStep`` and refused outside the training range of the
-frame interval ``dt`` (plus the envelope margin), as the pythonfmu FMU
-(:meth:`fmu_src.blimp_rkgp.RKGPModel.step_range`).
+``model_config.h`` holds the GUID, variable table, value references, the step range, the
+physics parameters with the mass matrix and its inverse, the GP structure and the training
+envelope; ``resources/model.bin`` every GP part's arrays (layout in ``blimp_model.c``). The step
+is fixed by the first ``fmi2DoStep`` and refused outside the training range of the frame
+interval ``dt`` (plus the envelope margin), as the pythonfmu FMU
+(:meth:`fmu_src.blimp_rkgp.model.RKGPModel.step_range`).
 """
 from __future__ import annotations
 
@@ -33,24 +24,28 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _base, _runtime
-from .blimp_rkgp import INPUT_NAMES, STANDARD_GRAVITY, STATE_NAMES, BlimpRKGP, RKGPModel, blimp_rkgp_variables
-from .native import (
+from fmu_src.blimp_rkgp.build import blimp_rkgp_parts
+from fmu_src.blimp_rkgp.model import RKGPModel
+from fmu_src.blimp_rkgp.slave import BlimpRKGP, blimp_rkgp_variables
+from fmu_src.fmi.native import (
     DATA_FILE,
     c_array,
     c_number,
     c_string,
     check_platform,
+    config_header,
+    envelope_lines,
     lower_triangular,
     package_native_fmu,
     variable_table,
 )
+from validation.vehicles.blimp_equations import INPUT_NAMES, STANDARD_GRAVITY, STATE_NAMES, mass_matrix
 
-#: The C sources compiled into every native blimp RKGP FMU (``fmu_src/native_c``).
-C_SOURCES = ("fmi2_slave.c", "blimp_model.c")
+#: The model's C file, compiled with the FMI layer.
+MODEL_SOURCE = Path(__file__).with_name("blimp_model.c")
 
 _DATA_MAGIC = b"FGPBLMP1"
-#: Scalar physics parameters (``BlimpParameterSet`` attribute -> C macro).
+#: Scalar physics parameters (the ``BlimpParameters`` fields, C macros in capitals).
 _SCALARS = ("mass", "net_lift", "gondola_thrust_forward", "gondola_thrust_backward", "gondola_arm",
             "tail_thrust_positive", "tail_thrust_negative", "tail_arm", "fin_lift")
 _TRIPLES = ("linear_drag", "quadratic_drag", "rotational_damping", "cg_position")
@@ -63,7 +58,7 @@ def build_native_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None)
     ----------
     model_path : path
         A ``GreyBoxGP`` with ``blimp_rk4`` physics, as for
-        :func:`fmu_src.builder.build_blimp_rkgp_fmu`.
+        :func:`fmu_src.blimp_rkgp.build.build_blimp_rkgp_fmu`.
     out_dir : path
         Folder for the FMU (created if missing).
     name : str, optional
@@ -79,13 +74,11 @@ def build_native_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None)
     gp_model.ModelFileError
         Missing, corrupt or not a grey-box model file.
     validation.core.errors.BadInputError
-        As :func:`fmu_src.builder.build_blimp_rkgp_fmu` (other physics, hyperparameter samples, a
+        As :func:`fmu_src.blimp_rkgp.build.build_blimp_rkgp_fmu` (other physics, hyperparameter samples, a
         bad ``name`` or ``out_dir``); also no ``gcc`` or a platform other than Linux x86-64.
     RuntimeError
         gcc failed to compile the generated sources (a bug: the message holds its output).
     """
-    from .builder import blimp_rkgp_parts
-
     check_platform()
     target, arrays, interface, description, nominal_step = blimp_rkgp_parts(model_path, out_dir, name=name)
     model = RKGPModel(arrays)  # checks the arrays' shapes, as the pythonfmu FMU does at load
@@ -93,7 +86,7 @@ def build_native_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None)
     slave_class = type(target.stem, (BlimpRKGP,), {
         "description": description + "; native C (no Python at run time)", "VARIABLES": variables,
         "DEFAULT_STEP_SIZE": nominal_step})
-    return package_native_fmu(target, slave_class=slave_class, c_sources=C_SOURCES,
+    return package_native_fmu(target, slave_class=slave_class, model_source=MODEL_SOURCE,
                               config=lambda guid: _blimp_config(guid, target.stem, variables, model),
                               data=_blimp_data(model))
 
@@ -102,25 +95,18 @@ def _blimp_config(guid: str, name: str, variables: tuple, model: RKGPModel) -> s
     """``model_config.h``: identity, variable table, step range, physics and GP structure."""
     reference = {v.name: vr for vr, v in enumerate(variables)}
     P = model.params
+    matrix, inverse = mass_matrix(P.mass, P.added_mass, P.inertia, P.added_inertia, P.cg_position)
     low, high = model.step_range()
     parts = model.parts
-    lines = [
-        f"/* {name}: generated by flightgp (fmu_src/native_blimp.py); do not edit. */",
-        "#ifndef FLIGHTGP_MODEL_CONFIG_H", "#define FLIGHTGP_MODEL_CONFIG_H", "",
-        "#include <float.h>", '#include "model.h"', "",
-        "/* Identity (modelDescription.xml) */",
-        f"#define MODEL_IDENTIFIER {c_string(name)}",
-        f"#define MODEL_GUID {c_string(guid)}",
+    return config_header(name, guid, generator="fmu_src/blimp_rkgp/native.py", body=[
         "/* Communication step: fixed by the first fmi2DoStep (STEP_SIZE 0), inside the training range",
-        "   of dt plus the envelope margin (blimp_rkgp.py, RKGPModel.step_range), s; relative time",
-        "   tolerance (fmu_src/_base.py) */",
+        "   of dt plus the envelope margin (fmu_src/blimp_rkgp/model.py, RKGPModel.step_range), s */",
         "#define STEP_SIZE 0.0",
         f"#define MIN_STEP_SIZE {c_number(low)}",
         f"#define MAX_STEP_SIZE {c_number(high)}",
         '#define STEP_RANGE_REASON "the frame intervals the GP residual was trained on (plus 10 %); step '
-        'with the default experiment\'s step size"',
-        f"#define TIME_TOLERANCE {c_number(_base.TIME_TOLERANCE)}", "",
-        *variable_table(variables, "fmu_src/blimp_rkgp.py, blimp_rkgp_variables"),
+        'with the default experiment\'s step size"', "",
+        *variable_table(variables, "fmu_src/blimp_rkgp/slave.py, blimp_rkgp_variables"),
         f"#define N_STATES {len(STATE_NAMES)}",
         "/* Hidden state: the 12 states, then the envelope flag (blimp_model.c) */",
         "#define MODEL_STATE_SIZE (N_STATES + 1)",
@@ -129,14 +115,15 @@ def _blimp_config(guid: str, name: str, variables: tuple, model: RKGPModel) -> s
         c_array("unsigned", "STATE_VR", [reference[n] for n in STATE_NAMES]).rstrip(),
         c_array("unsigned", "SD_VR", [reference[f"{n}_sd"] for n in STATE_NAMES]).rstrip(),
         c_array("unsigned", "START_VR", [reference[f"{n}_start"] for n in STATE_NAMES]).rstrip(), "",
-        "/* Physics (blimp_rkgp.py, BlimpParameterSet; SI units) and the longest RK4 substep, s */",
+        "/* Physics (validation/vehicles/blimp_equations.py; SI units) and the longest RK4 substep, s */",
         f"#define MAX_STEP {c_number(model.max_step)}",
         f"#define STANDARD_GRAVITY {c_number(STANDARD_GRAVITY)}",
         *(f"#define {field.upper()} {c_number(getattr(P, field))}" for field in _SCALARS),
         *(c_array("double", field.upper(), getattr(P, field), c_number).rstrip() for field in _TRIPLES),
-        "/* M = M_RB + M_A about the centre of buoyancy (Fossen 2011, eq. 3.44) and M^-1, by rows */",
-        c_array("double", "MASS_MATRIX", P.matrix.ravel(), c_number).rstrip(),
-        c_array("double", "INVERSE_MASS_MATRIX", P.inverse.ravel(), c_number).rstrip(), "",
+        "/* M = M_RB + M_A about the centre of buoyancy (Fossen 2011, eq. 3.44) and M^-1, by rows",
+        "   (validation/vehicles/blimp_equations.py, mass_matrix) */",
+        c_array("double", "MASS_MATRIX", matrix.ravel(), c_number).rstrip(),
+        c_array("double", "INVERSE_MASS_MATRIX", inverse.ravel(), c_number).rstrip(), "",
         "/* GP: inputs [states[STATE_COLUMNS], u_gondola, mu, u_tail, dt]; parts (one shared, or one per state) */",
         f"#define N_STATE_COLUMNS {len(model.state_columns)}",
         f"#define N_GP_INPUTS {len(model.input_names)}",
@@ -145,16 +132,10 @@ def _blimp_config(guid: str, name: str, variables: tuple, model: RKGPModel) -> s
         c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
         c_array("int", "PART_OUTPUTS", [p["weights"].shape[1] for p in parts]).rstrip(),
         c_array("int", "LOWER_TRIANGULAR", [int(lower_triangular(p["variance_factor"])) for p in parts]).rstrip(),
-        "/* Training envelope of each GP input (physical units) and its margin */",
-        c_array("char *const", "GP_INPUT_NAMES", model.input_names, c_string).rstrip(),
-        c_array("double", "ENVELOPE_LOW", model.envelope.low, c_number).rstrip(),
-        c_array("double", "ENVELOPE_HIGH", model.envelope.high, c_number).rstrip(),
-        f"#define ENVELOPE_MARGIN {c_number(_runtime.ENVELOPE_MARGIN)}", "",
+        *envelope_lines("GP_INPUT_NAMES", model.envelope), "",
         f"/* GP arrays in resources/{DATA_FILE} (layout: blimp_model.c) */",
         f"#define DATA_FILE {c_string(DATA_FILE)}",
-        f"#define DATA_DOUBLES {len(_blimp_doubles(model))}",
-        "", "#endif", ""]
-    return "\n".join(lines)
+        f"#define DATA_DOUBLES {len(_blimp_doubles(model))}"])
 
 
 def _blimp_doubles(model: RKGPModel) -> np.ndarray:

@@ -1,14 +1,16 @@
 """The JSBSim aircraft FMU: one of the aircraft that ship with the ``jsbsim`` package, flown by
-JSBSim inside the FMU from a steady starting condition (``jsbsim:<aircraft>``, DESIGN.md).
+JSBSim inside the FMU from a steady starting condition (``jsbsim:<aircraft>``; docs/fmus.md,
+"JSBSim aircraft", lists the variables).
 
 The host's Python needs the ``jsbsim`` package (1.3.x; it brings the aircraft) besides numpy and
-pythonfmu. This file is copied into every JSBSim FMU (``resources/<package>/jsbsim_aircraft.py``),
-so it imports only :mod:`._base`, numpy, the standard library and ``jsbsim`` (at
-initialisation, so that a host without it gets a logged Error, not a failed instantiation).
+pythonfmu. Every JSBSim FMU carries a copy of this file (:mod:`fmu_src.fmi.pythonfmu`), so it
+imports only the FMI layer (:mod:`fmu_src.fmi.slave`), the shared FMU runtime, numpy, the
+standard library and ``jsbsim`` (at initialisation, so that a host without it gets a logged
+Error, not a failed instantiation).
 
 Starting condition (the recipe of :class:`validation.vehicles.jsbsim.JSBSimVehicle`, whose
-numbers travel in ``resources/<package>/model.npz``, written by :func:`pack_model`)
-----------------------------------------------------------------------------------------------
+numbers travel in the FMU's model file, written by :func:`pack_model`)
+---------------------------------------------------------------------------------------
 - ``start = "trim"`` (fixed-wing, e.g. ``c172x``): ``load_model``, JSBSim step 0.01 s, the
   initial conditions (100 kt calibrated, 4000 ft, level, heading east), ``run_ic``, engines
   running, ``do_trim(1)`` (full trim: all six accelerations to zero).
@@ -20,8 +22,8 @@ Inputs are normalised stick and pedal commands (``fcs/<control>-cmd-norm``) as p
 from their values at the starting condition; outputs are JSBSim's body velocities (m/s), body
 rates (rad/s) and Euler angles (rad), absolute values, in SI.
 
-Timing (the sampling convention of :mod:`._base`)
---------------------------------------------------
+Timing (docs/conventions.md, "FMU sampling convention")
+-------------------------------------------------------
 JSBSim integrates with a fixed step of 0.01 s. The communication step ``h`` must be a whole
 multiple ``n`` of it (0.01 s in the default experiment); the first ``fmi2DoStep`` fixes it until
 reset. ``fmi2DoStep(t_k, h)`` sets the commands to trim + the inputs at ``t_k``, holds them over
@@ -48,12 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ._base import FlightgpSlave, ModelFailure, Variable
+from fmu_src.fmi.runtime import check_header, model_header, read_model_file
+from fmu_src.fmi.slave import FlightgpSlave, ModelFailure, Variable
 
 FORMAT = "flightgp-fmu-jsbsim"
 VERSION = 1
-#: The model file inside the FMU's package folder.
-MODEL_FILE = "model.npz"
 #: JSBSim's integration step, s (validation.vehicles.jsbsim.JSBSimVehicle.sample_time).
 JSBSIM_STEP = 0.01
 #: Relative tolerance on "the step is a whole multiple of JSBSIM_STEP".
@@ -89,7 +90,7 @@ def pack_model(*, aircraft: str, start: str, jsbsim_version: str, controls, stat
                           np.array([float(r[1]) for r in rows], dtype=float))
     ic_names, ic_values = pairs(initial_conditions)
     after_names, after_values = pairs(after_start)
-    return {"format": np.array(FORMAT), "version": np.array(VERSION), "aircraft": np.array(aircraft),
+    return {**model_header(FORMAT, VERSION), "aircraft": np.array(aircraft),
             "start": np.array(start), "jsbsim_version": np.array(jsbsim_version),
             "input_names": np.array([c[0] for c in controls], dtype=str),
             "control_properties": np.array([c[1] for c in controls], dtype=str),
@@ -132,10 +133,9 @@ def jsbsim_variables(*, inputs, states) -> tuple:
 
 
 class JSBSimAircraft(FlightgpSlave):
-    """A JSBSim aircraft (the generated subclass sets the class attributes)."""
+    """A JSBSim aircraft (the class the build generates sets its description, PACKAGE and
+    VARIABLES)."""
 
-    #: The FMU's package folder under ``resources/`` (holds this code and the model file).
-    PACKAGE = ""
     DEFAULT_STEP_SIZE = JSBSIM_STEP
     CAN_GET_AND_SET_FMU_STATE = False
     CONSTANT_ATTRIBUTES = ("_jsbsim", "_model", "_log_sink")
@@ -149,11 +149,8 @@ class JSBSimAircraft(FlightgpSlave):
         except (ImportError, AttributeError):
             raise ImportError("this FMU runs JSBSim inside: install the jsbsim package, version 1.3 or "
                               "later (pip install jsbsim), in the host's Python") from None
-        path = Path(self.resources) / self.PACKAGE / MODEL_FILE
-        with np.load(path, allow_pickle=False) as npz:
-            model = {name: npz[name] for name in npz.files}
-        if str(model.get("format")) != FORMAT or int(model.get("version", -1)) != VERSION:
-            raise ValueError(f"{path.name} is not a {FORMAT} model file of version {VERSION}")
+        model = read_model_file(self.model_file())
+        check_header(model, format_name=FORMAT, version=VERSION)
         declared = {v.name for v in self.VARIABLES}
         missing = [str(n) for n in (*model["input_names"], *model["state_names"]) if str(n) not in declared]
         if missing:

@@ -1,7 +1,7 @@
 /* FMI 2.0 co-simulation interface of a flightgp native FMU: the call-sequence state machine,
  * the variable table, logging, the status policy and FMU state save/restore/serialisation.
- * The model (model.h) supplies the equations; model_config.h (generated per FMU by
- * fmu_src/native.py) the identity, the variable table and the structure.
+ * The model (model.h) supplies the equations; model_config.h (generated per FMU by the model's
+ * native builder, fmu_src/<model>/native.py) the identity, the variable table and the structure.
  *
  * References are to the FMI 2.0.4 specification (Modelica Association, 2022):
  *   2.1.5  logging (the logger's message is a printf format; we pass "%s" and the text),
@@ -15,7 +15,7 @@
  *   4.2.2  computation (fmi2DoStep), 4.2.3 retrieving the slave status,
  *   4.2.4  the state machine of calling sequences (which function is legal in which state).
  *
- * Status policy (the same as the pythonfmu FMUs, fmu_src/_base.py):
+ * Status policy (the same as the pythonfmu FMUs, fmu_src/fmi/slave.py):
  *   - A function called in a state where FMI 2.0 does not allow it returns fmi2Error with a
  *     logged message naming the state; the instance stays in its state.
  *   - Setters store values and check them at the next fmi2DoStep. Setting an output, a fixed
@@ -72,7 +72,7 @@ typedef enum {
 
 #define STATE_SLOTS (MODEL_STATE_SIZE > 0 ? MODEL_STATE_SIZE : 1)
 
-/* The communication step (fmu_src/_base.py, "Sampling convention"): STEP_SIZE if positive (the
+/* The communication step (fmu_src/fmi/slave.py, "Sampling convention"): STEP_SIZE if positive (the
  * model's own step, e.g. the NARX step); if STEP_SIZE is 0, the step of the first fmi2DoStep
  * after initialisation, which must lie in MIN_STEP_SIZE .. MAX_STEP_SIZE (STEP_RANGE_REASON says
  * why; FlightgpSlave.step_problem) and is then kept until fmi2Reset. A model_config.h with a
@@ -398,7 +398,7 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
 }
 
 /* Problems of the current input and parameter values (NaN, inf, outside min/max), joined by
- * "; ", or NULL if none (the messages of fmu_src/_base.py, Variable.problem). */
+ * "; ", or NULL if none (the messages of fmu_src/fmi/slave.py, Variable.problem). */
 static char *input_problems(const Slave *slave) {
     char *problems = NULL;
     for (size_t vr = 0; vr < N_VARIABLES; vr++) {
@@ -563,7 +563,7 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* -- computation (FMI 2.0.4, 4.2.2) ---------------------------------------------------------- */
 /* Why fmi2DoStep(t, h) cannot be taken now, or NULL (the order and the messages of
- * fmu_src/_base.py, FlightgpSlave._step_refusal); *step is set to the step to take. */
+ * fmu_src/fmi/slave.py, FlightgpSlave._step_refusal); *step is set to the step to take. */
 static char *step_refusal(Slave *slave, double t, double h, double *step) {
     if (slave->refused != NULL) {
         char *message = format_message("a value was refused since the last step: %s", slave->refused);

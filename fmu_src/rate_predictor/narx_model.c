@@ -1,11 +1,11 @@
 /* GP-NARX rate predictor (Bo105 GP-NARX paper, AHS 74th Forum, 2018) for a native FMU: the
- * same formulas, in the same order where it matters, as fmu_src/_runtime.py (NarxPredictor)
- * and fmu_src/rate_predictor.py (RatePredictor), whose docstrings define the timing, the
+ * same formulas, in the same order where it matters, as fmu_src/rate_predictor/predictor.py
+ * (NarxPredictor) and fmu_src/rate_predictor/slave.py (RatePredictor), whose docstrings define the timing, the
  * regressor order, the mixture over hyperparameter samples, the bounds and the envelope.
  *
  * Model constants. The structure (signals, lags, value references, training envelope, array
  * sizes) is compiled in from model_config.h; the GP arrays are read at fmi2Instantiate from
- * resources/DATA_FILE, written by fmu_src/native.py:
+ * resources/DATA_FILE, written by fmu_src/rate_predictor/native.py:
  *
  *   8 bytes  "FGPNARX1"
  *   8 bytes  number of doubles that follow (uint64, native byte order)
@@ -138,7 +138,7 @@ static Model *fail(Model *model, char **error, char *message) {
     return NULL;
 }
 
-/* The free run's constants and scratch (fmu_src/_runtime.py, _moment_matcher): every output's
+/* The free run's constants and scratch (fmu_src/rate_predictor/predictor.py, _moment_matcher): every output's
  * GP in output 0's input frame, z_0 = (s_a z_a + mu_a - mu_0) / s_0 (frame_gp: basis * ratio +
  * offset, precision 2 w / ratio^2), and A_s = V_s^T V_s from the stored variance factors (by
  * columns, packed if lower triangular). Returns 0 if out of memory. */
@@ -270,7 +270,7 @@ static void lower_triangular_product(const double *factor, const double *k, int 
 }
 
 /* Mean and variance (measurement noise included) of output gp at regressor x (physical
- * units): the mixture over its hyperparameter samples (_runtime._Block.predict). */
+ * units): the mixture over its hyperparameter samples (predictor.py, _Block.predict). */
 static void predict_output(const Model *model, const OutputGP *gp, const double x[N_REGRESSORS],
                            double *mean_out, double *var_out) {
     const int m = gp->m, d = N_REGRESSORS;

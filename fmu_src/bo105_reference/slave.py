@@ -2,16 +2,17 @@
 
 ``x_dot = A x + B u`` with ``x = (u, w, q, theta, v, p, phi, r)`` and
 ``u = (theta_0, theta_1s, theta_1c, theta_0T)``, perturbations from trim in SI units
-(G. D. Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007; DESIGN.md, "Vehicles and reference
-names"), exactly as :class:`validation.vehicles.bo105.Bo105Reference`. ``A`` and ``B`` travel in the FMU
-(``resources/<package>/model.npz``, written by :func:`pack_model`); the run time needs numpy
-only.
+(G. D. Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007; docs/vehicles.md, "Bo105"),
+exactly as :class:`validation.vehicles.bo105.Bo105Reference`. ``A`` and ``B`` travel in the FMU's
+model file (written by :func:`pack_model`); the run time needs numpy only. docs/fmus.md, "Bo105
+reference", lists the variables.
 
-This file is copied into every Bo105 reference FMU (``resources/<package>/bo105_reference.py``),
-so it imports only :mod:`._base`, numpy and the standard library.
+Every Bo105 reference FMU carries a copy of this file (:mod:`fmu_src.fmi.pythonfmu`), so it
+imports only the FMI layer (:mod:`fmu_src.fmi.slave`), the shared FMU runtime, the
+discretisation (:mod:`fmu_src.bo105_reference.discretisation`), numpy and the standard library.
 
-Timing (the sampling convention of :mod:`._base`)
---------------------------------------------------
+Timing (docs/conventions.md, "FMU sampling convention")
+-------------------------------------------------------
 The host chooses the communication step ``h`` (any positive step; 0.01 s in the default
 experiment); the first ``fmi2DoStep`` fixes it until reset, and a different step later is
 refused (logged Error, ``fmi2Discard``). The model is discretised exactly for ``h`` with a
@@ -26,18 +27,16 @@ parameters.
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from ._base import FlightgpSlave, Variable
+from fmu_src.bo105_reference.discretisation import zero_order_hold
+from fmu_src.fmi.runtime import ModelFormatError, check_header, model_header, read_model_file
+from fmu_src.fmi.slave import FlightgpSlave, Variable
 
 FORMAT = "flightgp-fmu-linear"
 VERSION = 1
-#: The model file inside the FMU's package folder.
-MODEL_FILE = "model.npz"
 
-#: Padfield's state and input order (DESIGN.md).
+#: Padfield's state and input order (validation.vehicles.bo105).
 STATE_NAMES = ("u", "w", "q", "theta", "v", "p", "phi", "r")
 INPUT_NAMES = ("theta_0", "theta_1s", "theta_1c", "theta_0T")
 
@@ -45,8 +44,7 @@ INPUT_NAMES = ("theta_0", "theta_1s", "theta_1c", "theta_0T")
 def pack_model(*, A, B, speed_kt: int, source: str) -> dict:
     """Arrays of the FMU's model file: ``A`` (8, 8) in 1/s, ``B`` (8, 4) in state units per rad
     per s, the trim speed (kt), state and input names, and where the numbers come from."""
-    return {"format": np.array(FORMAT), "version": np.array(VERSION),
-            "A": np.asarray(A, dtype=float), "B": np.asarray(B, dtype=float),
+    return {**model_header(FORMAT, VERSION), "A": np.asarray(A, dtype=float), "B": np.asarray(B, dtype=float),
             "speed_kt": np.array(int(speed_kt)), "source": np.array(source),
             "state_names": np.array(STATE_NAMES), "input_names": np.array(INPUT_NAMES)}
 
@@ -57,7 +55,7 @@ def bo105_reference_variables(*, inputs, states) -> tuple:
     Parameters
     ----------
     inputs, states : sequence of (name, unit, limit, phrase)
-        Controls and states in Padfield's order: name, unit (a key of :data:`._base.UNITS`),
+        Controls and states in Padfield's order: name, unit (a key of :data:`fmu_src.fmi.slave.UNITS`),
         largest plausible magnitude (None: unbounded) and a phrase saying what it is.
 
     Returns
@@ -82,25 +80,22 @@ def bo105_reference_variables(*, inputs, states) -> tuple:
 
 
 class Bo105ReferenceSlave(FlightgpSlave):
-    """Padfield's linear Bo105 model (the generated subclass sets the class attributes)."""
+    """Padfield's linear Bo105 model (the class the build generates sets its description,
+    PACKAGE and VARIABLES)."""
 
-    #: The FMU's package folder under ``resources/`` (holds this code and the model file).
-    PACKAGE = ""
     DEFAULT_STEP_SIZE = 0.01
     STATE_ATTRIBUTES = ("_state", "_transition", "_input_matrix")
     CONSTANT_ATTRIBUTES = ("_A", "_B")
 
     def load_constants(self) -> None:
-        path = Path(self.resources) / self.PACKAGE / MODEL_FILE
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {name: npz[name] for name in npz.files}
-        if str(arrays.get("format")) != FORMAT or int(arrays.get("version", -1)) != VERSION:
-            raise ValueError(f"{path.name} is not a {FORMAT} model file of version {VERSION}")
+        path = self.model_file()
+        arrays = read_model_file(path)
+        check_header(arrays, format_name=FORMAT, version=VERSION)
         if (tuple(arrays["state_names"]) != STATE_NAMES or tuple(arrays["input_names"]) != INPUT_NAMES
                 or arrays["A"].shape != (8, 8) or arrays["B"].shape != (8, 4)
                 or not (np.isfinite(arrays["A"]).all() and np.isfinite(arrays["B"]).all())):
-            raise ValueError(f"{path.name}: A must be 8 x 8 and B 8 x 4, finite, for states "
-                             f"{STATE_NAMES} and inputs {INPUT_NAMES}")
+            raise ModelFormatError(f"{path.name}: A must be 8 x 8 and B 8 x 4, finite, for states "
+                                   f"{STATE_NAMES} and inputs {INPUT_NAMES}")
         self._A, self._B = arrays["A"], arrays["B"]
         self.log_info(f"loaded {path.name}: Bo105, {str(arrays['source'])}")
 
@@ -126,44 +121,3 @@ class Bo105ReferenceSlave(FlightgpSlave):
     def _set_outputs(self, state: np.ndarray) -> None:
         for name, value in zip(STATE_NAMES, state.tolist()):
             self.values[name] = value
-
-
-def zero_order_hold(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact ZOH discretisation ``(Phi, Gamma)`` of ``x_dot = A x + B u`` at step ``h``.
-
-    ``expm([[A, B], [0, 0]] h) = [[Phi, Gamma], [0, I]]`` (Van Loan, IEEE TAC 23(3), 1978).
-    """
-    n, m = B.shape
-    augmented = np.zeros((n + m, n + m))
-    augmented[:n, :n], augmented[:n, n:] = A, B
-    transition = _expm(augmented * h)
-    return transition[:n, :n], transition[:n, n:]
-
-
-# Higham (2005), "The scaling and squaring method for the matrix exponential revisited",
-# SIAM J. Matrix Anal. Appl. 26(4), 1179-1193: Table 2.3 (theta_13) and eq. (2.1)-(2.3), the
-# [13/13] Pade approximant (the algorithm scipy.linalg.expm implements; numpy only here).
-_THETA_13 = 5.371920351148152
-_PADE_13 = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
-            129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0,
-            40840800.0, 960960.0, 16380.0, 182.0, 1.0)
-
-
-def _expm(M: np.ndarray) -> np.ndarray:
-    """Matrix exponential by scaling and squaring with the [13/13] Pade approximant
-    (Higham 2005, Algorithm 2.3 with m = 13 throughout): ``expm(M) = r_13(M / 2^s)^(2^s)``,
-    ``s`` the least with ``||M / 2^s||_1 <= theta_13``."""
-    norm = np.linalg.norm(M, 1)
-    s = max(0, int(np.ceil(np.log2(norm / _THETA_13)))) if norm > 0 else 0
-    X = M / 2.0**s
-    b = _PADE_13
-    I = np.eye(len(M))  # noqa: E741
-    X2 = X @ X
-    X4 = X2 @ X2
-    X6 = X4 @ X2
-    U = X @ (X6 @ (b[13] * X6 + b[11] * X4 + b[9] * X2) + b[7] * X6 + b[5] * X4 + b[3] * X2 + b[1] * I)
-    V = X6 @ (b[12] * X6 + b[10] * X4 + b[8] * X2) + b[6] * X6 + b[4] * X4 + b[2] * X2 + b[0] * I
-    R = np.linalg.solve(V - U, V + U)
-    for _ in range(s):
-        R = R @ R
-    return R

@@ -1,16 +1,18 @@
 /* Blimp RKGP (Ko, Klein, Fox and Haehnel, ICRA 2007, sec. IV-B) for a native FMU: the blimp ODE
  * integrated by RK4 plus the mean of a GP on its one-step residual, and the GP's one-step
- * standard deviation. The same formulas, in the same order, as fmu_src/blimp_rkgp.py
- * (blimp_dynamics, physics_step, RKGPModel.residual, BlimpRKGP), whose module docstring defines
- * the timing, the GP inputs, the standard deviations and the envelope; the ODE's equations and
- * their sources are those of validation/blimp.py (blimp_dynamics: Fossen's rigid body with added
- * mass about the centre of buoyancy, gravity, buoyancy, drag, gondola and tail thrust, fin lift).
+ * standard deviation. The same formulas, in the same order, as the pythonfmu blimp RKGP FMU:
+ * validation/vehicles/blimp_equations.py (blimp_dynamics and rk4_advance: Fossen's rigid body
+ * with added mass about the centre of buoyancy, gravity, buoyancy, drag, gondola and tail thrust,
+ * fin lift; the equations and their sources are there), fmu_src/blimp_rkgp/model.py
+ * (RKGPModel.residual) and fmu_src/blimp_rkgp/slave.py (BlimpRKGP), whose module docstrings
+ * define the timing, the GP inputs, the standard deviations and the envelope.
  *
  * Model constants. The physics (parameters, the mass matrix M = M_RB + M_A and its inverse,
- * computed by fmu_src/blimp_rkgp.py, BlimpParameterSet, so that both FMUs use the same doubles),
+ * computed by validation/vehicles/blimp_equations.py, mass_matrix, so that both FMUs use the same
+ * doubles),
  * the GP structure, value references and training envelope are compiled in from model_config.h;
  * the GP arrays are read at fmi2Instantiate from resources/DATA_FILE, written by
- * fmu_src/native_blimp.py:
+ * fmu_src/blimp_rkgp/native.py:
  *
  *   8 bytes  "FGPBLMP1"
  *   8 bytes  number of doubles that follow (uint64, little-endian, as the doubles)
@@ -117,7 +119,7 @@ static void residual(const Model *model, const double x[D], double mean[N_STATES
         const int m = part->m, q = part->q;
         double xs[D];
         for (int c = 0; c < D; c++) xs[c] = (x[c] - part->input_mean[c]) / part->input_scale[c];
-        /* k_i = exp(log sigma_f^2 - sum_c w_c (xs_c - b_ic)^2) (_runtime.kernel_rows) */
+        /* k_i = exp(log sigma_f^2 - sum_c w_c (xs_c - b_ic)^2) (fmu_src/fmi/runtime.py, kernel_rows) */
         for (int i = 0; i < m; i++) {
             const double *b = part->basis + (size_t)i * D;
             double sum = 0.0;
@@ -157,7 +159,7 @@ static void cross(const double a[3], const double b[3], double out[3]) {
     out[2] = a[0] * b[1] - a[1] * b[0];
 }
 
-/* d state / dt (blimp_rkgp.py, blimp_dynamics; validation/blimp.py, blimp_dynamics, Ko et al.
+/* d state / dt (validation/vehicles/blimp_equations.py, blimp_dynamics; Ko et al.
  * 2007 sec. III in Fossen's form). state: x, y, z, phi, theta, psi, U, V, W, P, Q, R;
  * commands: u_gondola, mu, u_tail. */
 static void dynamics(const double state[N_STATES], const double commands[3], double out[N_STATES]) {
@@ -217,8 +219,8 @@ static void dynamics(const double state[N_STATES], const double commands[3], dou
     }
 }
 
-/* RK4 over dt in equal substeps no longer than MAX_STEP, commands held (blimp_rkgp.py,
- * physics_step). */
+/* RK4 over dt in equal substeps no longer than MAX_STEP, commands held
+ * (validation/vehicles/blimp_equations.py, rk4_advance; the 1e-9 is its SUBSTEP_ROUNDING). */
 static void physics_step(const double start[N_STATES], const double commands[3], double dt,
                          double state[N_STATES]) {
     double n_sub = ceil(dt / MAX_STEP - 1e-9);

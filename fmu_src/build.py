@@ -1,0 +1,66 @@
+"""Which FMU a model file or a reference name gives (what ``flightgp build-fmu`` runs; runs in
+the flightgp environment, not inside an FMU; docs/fmus.md, "Building")."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from fmu_src.blimp_rkgp.build import build_blimp_rkgp_fmu
+from fmu_src.blimp_rkgp.native import build_native_blimp_rkgp_fmu
+from fmu_src.bo105_reference.build import build_bo105_reference_fmu
+from fmu_src.jsbsim_aircraft.build import build_jsbsim_fmu
+from fmu_src.rate_predictor.build import build_rate_predictor_fmu
+from fmu_src.rate_predictor.native import build_native_rate_predictor_fmu
+from gp_model import read_header
+from validation.core.errors import BadInputError
+from validation.vehicles.bo105 import BO105_SPEEDS_KT
+
+
+def build_model_fmu(model_path, out_dir, *, name: str | None = None, native: bool = False) -> Path:
+    """The FMU of a trained model file, by its type: a ``GreyBoxGP`` (blimp physics) gives the
+    blimp RKGP FMU, anything else the GP-NARX rate predictor (which says when the file is not a
+    GP-NARX model).
+
+    Parameters
+    ----------
+    model_path, out_dir, name
+        As :func:`fmu_src.rate_predictor.build.build_rate_predictor_fmu`.
+    native : bool
+        Build the native FMU (C, no Python at run time): :func:`build_native_blimp_rkgp_fmu` or
+        :func:`build_native_rate_predictor_fmu`; else :func:`build_blimp_rkgp_fmu` or
+        :func:`build_rate_predictor_fmu`.
+
+    Returns
+    -------
+    Path
+        ``out_dir/<name>.fmu``.
+    """
+    if read_header(model_path).get("type") == "GreyBoxGP":
+        build = build_native_blimp_rkgp_fmu if native else build_blimp_rkgp_fmu
+    else:
+        build = build_native_rate_predictor_fmu if native else build_rate_predictor_fmu
+    return build(model_path, out_dir, name=name)
+
+
+def reference_fmu_names() -> list[str]:
+    """The names :func:`build_reference_fmu` accepts (``jsbsim:<aircraft>`` as a pattern)."""
+    return [f"bo105-{v}kt" for v in BO105_SPEEDS_KT] + ["jsbsim:<aircraft>"]
+
+
+def build_reference_fmu(reference: str, out_dir, *, name: str | None = None) -> Path:
+    """Build the FMU of a physics reference by its vehicle name (docs/conventions.md, "Vehicle
+    and reference names"): ``bo105-<V>kt`` (:func:`build_bo105_reference_fmu`) or
+    ``jsbsim:<aircraft>`` (:func:`build_jsbsim_fmu`).
+
+    Raises
+    ------
+    validation.core.errors.BadInputError
+        Any other name (the message lists the valid ones), or what the builder raises.
+    """
+    match = re.fullmatch(r"bo105-(\d+)kt", reference)
+    if match and int(match.group(1)) in BO105_SPEEDS_KT:
+        return build_bo105_reference_fmu(int(match.group(1)), out_dir, name=name)
+    if reference.startswith("jsbsim:") and reference != "jsbsim:":
+        return build_jsbsim_fmu(reference.split(":", 1)[1], out_dir, name=name)
+    raise BadInputError(f"no reference FMU {reference!r}; valid: {', '.join(reference_fmu_names())} "
+                        "(e.g. jsbsim:c172x, jsbsim:ah1s; flight-test stand-ins and the blimp have none)")

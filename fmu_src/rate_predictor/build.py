@@ -1,0 +1,129 @@
+"""Build the pythonfmu GP-NARX rate predictor FMU of a trained model file, and what the native
+one is built from too (runs in the flightgp environment, not inside an FMU)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from fmu_src.fmi.naming import default_name, fmu_target
+from fmu_src.fmi.pythonfmu import build_pythonfmu
+from fmu_src.fmi.signals import signal
+from fmu_src.rate_predictor.predictor import pack_model
+from fmu_src.rate_predictor.slave import RatePredictor, rate_predictor_variables
+from validation.core.errors import BadInputError
+from validation.models.narx import load_trained
+
+
+def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
+    """Build the GP-NARX rate predictor FMU of a trained model file.
+
+    Parameters
+    ----------
+    model_path : path
+        A model file written by :func:`validation.models.narx.save_trained` (``flightgp train``).
+    out_dir : path
+        Folder for the FMU (created if missing).
+    name : str, optional
+        The FMU's model identifier and file name (``<name>.fmu``): a letter, then letters,
+        digits or underscores. Default: the model file's stem, made into such a name.
+
+    Returns
+    -------
+    Path
+        ``out_dir/<name>.fmu``.
+
+    Raises
+    ------
+    gp_model.ModelFileError
+        The model file is missing, corrupt or not a GP-NARX model.
+    validation.core.errors.BadInputError
+        Bad ``name``; a model the FMU cannot run (an input lag 0, a signal without a known unit);
+        ``out_dir`` is a file.
+    """
+    target, trained, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
+    return build_pythonfmu(target, slave_class=RatePredictor, variables=(rate_predictor_variables, interface),
+                           attributes={"STEP_SIZE": float(trained.step)}, description=description,
+                           arrays=arrays)
+
+
+def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
+    """What every rate-predictor FMU (pythonfmu or native) is built from.
+
+    Returns
+    -------
+    target : Path
+        ``out_dir/<name>.fmu`` (name checked; default the model file's stem made into a name).
+    trained : validation.models.narx.TrainedNarx
+    arrays : dict
+        :func:`export_narx_arrays` of the model.
+    interface : dict
+        ``inputs`` and ``outputs`` for :func:`fmu_src.rate_predictor.slave.rate_predictor_variables`.
+    description : str
+        The FMU's one-line description.
+
+    Raises
+    ------
+    As :func:`build_rate_predictor_fmu`.
+    """
+    model_path = Path(model_path)
+    target = fmu_target(out_dir, default_name(model_path.stem) if name is None else name)
+    trained = load_trained(model_path)
+    arrays = export_narx_arrays(trained)
+    description = (f"GP-NARX predictor of {', '.join(trained.config.outputs)} with confidence bounds "
+                   f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
+                   f"{trained.step:g} s; {len(arrays['0/basis'])} basis points, "
+                   f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}")
+    return target, trained, arrays, _interface(trained.config), description
+
+
+def export_narx_arrays(trained) -> dict:
+    """The FMU model file's arrays (:mod:`fmu_src.rate_predictor.predictor`) of a
+    :class:`validation.models.narx.TrainedNarx`: every output's predictive forms (one per
+    hyperparameter sample, as ``GaussianProcess.predict`` mixes them), kernel weights, signal
+    and noise variances, scalers, the NARX structure and step, and the training envelope.
+
+    Raises
+    ------
+    validation.core.errors.BadInputError
+        The model has an input lag 0 (direct feedthrough, which an FMU output cannot have).
+    """
+    structure = trained.model.structure
+    if 0 in structure.input_lags:
+        raise BadInputError(f"the model uses input lag 0 (direct feedthrough: y(k) from u(k)); an FMU "
+                            f"output cannot depend on the input set at the same communication point. "
+                            f"Retrain with input lags >= 1 (got {structure.input_lags})")
+    outputs = []
+    for gp in trained.model.model.gps:
+        forms = gp.predictive_forms(use_samples=True)
+        thetas = np.array([form.theta for form in forms])
+        basis = forms[0].basis
+        if any(not np.array_equal(form.basis, basis) for form in forms):
+            raise ValueError("the hyperparameter samples of one GP must share its basis points")
+        outputs.append({
+            "basis": basis,
+            "weights": np.array([form.weights for form in forms]),
+            "variance_factor": np.array([form.variance_factor for form in forms]),
+            "kernel_weights": np.array([gp.kernel.weights(theta[:-1]) for theta in thetas]),
+            "log_signal_variance": thetas[:, 0],
+            "noise_variance": np.exp(thetas[:, -1]),
+            "input_mean": gp.input_scaler_.mean_, "input_scale": gp.input_scaler_.scale_,
+            "output_mean": gp.output_scaler_.mean_[0], "output_scale": gp.output_scaler_.scale_[0],
+        })
+    first = trained.model.model.gps[0]
+    training = first.input_scaler_.inverse_transform(first.X_train_)
+    return pack_model(step=trained.step, input_names=structure.input_names, output_names=structure.output_names,
+                      input_lags=structure.input_lags, output_lags=structure.output_lags,
+                      envelope_low=training.min(axis=0), envelope_high=training.max(axis=0), outputs=outputs)
+
+
+def _interface(config) -> dict:
+    """(name, unit, limit, phrase) of every input and output, from the recording conventions."""
+    inputs = tuple(signal(n, "input") for n in config.inputs)
+    outputs = tuple(signal(n, "output") for n in config.outputs)
+    generated = {f"{n}{suffix}" for n in config.outputs for suffix in ("_prev", "_lower", "_upper")}
+    reserved = generated | {"confidence_level", "free_run"}
+    clash = sorted((set(config.inputs) | set(config.outputs)) & reserved)
+    if clash:
+        raise BadInputError(f"signal name(s) {', '.join(clash)} clash with the FMU's generated variables")
+    return {"inputs": inputs, "outputs": outputs}

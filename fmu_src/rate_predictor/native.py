@@ -1,0 +1,156 @@
+"""The native (C, Python-free) GP-NARX rate predictor FMU (runs in the flightgp environment, not
+inside an FMU; docs/fmus.md, "Native FMUs").
+
+:func:`build_native_rate_predictor_fmu` writes an FMI 2.0 co-simulation FMU with the interface
+of the pythonfmu rate predictor (:mod:`fmu_src.rate_predictor.slave`: the same variable table,
+value references, units, descriptions, parameters, start values, default experiment and
+sampling convention, since its ``modelDescription.xml`` is written by the same class) and the
+same numbers (``narx_model.c``: the formulas of
+:class:`fmu_src.rate_predictor.predictor.NarxPredictor`, free-run mode included: the belief over
+the lagged outputs propagated by moment matching over the hyperparameter mixture, eqs. (1)-(6)
+of :mod:`gp_model.uncertain_input`), packaged by :mod:`fmu_src.fmi.native`.
+
+The FMU state holds the lag histories and the free-run belief (mean vector and covariance
+matrix). ``resources/model.bin`` holds the GP arrays (every output's basis points, and per
+hyperparameter sample its mean weights, kernel weights, signal and noise variance and variance
+factor; layout in ``narx_model.c``). They are read at run time rather than compiled in because
+the paper's model holds 400 x 3 variance factors of 32 x 32 (10 MB): as C initialisers they take
+gcc long to compile, and the binary would not be rebuildable from small sources.
+"""
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from fmu_src.fmi.native import (
+    DATA_FILE,
+    c_array,
+    c_number,
+    c_string,
+    check_platform,
+    config_header,
+    envelope_lines,
+    lower_triangular,
+    package_native_fmu,
+    variable_table,
+)
+from fmu_src.rate_predictor.build import rate_predictor_parts
+from fmu_src.rate_predictor.predictor import PER_OUTPUT, NarxPredictor
+from fmu_src.rate_predictor.slave import RatePredictor, rate_predictor_variables
+
+#: The model's C file, compiled with the FMI layer.
+MODEL_SOURCE = Path(__file__).with_name("narx_model.c")
+
+_DATA_MAGIC = b"FGPNARX1"
+
+
+def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
+    """Build the native (C, Python-free) GP-NARX rate predictor FMU of a trained model file.
+
+    Parameters
+    ----------
+    model_path : path
+        A model file written by :func:`validation.models.narx.save_trained` (``flightgp train``).
+    out_dir : path
+        Folder for the FMU (created if missing).
+    name : str, optional
+        The FMU's model identifier and file name (``<name>.fmu``): a letter, then letters,
+        digits or underscores. Default: the model file's stem, made into such a name.
+
+    Returns
+    -------
+    Path
+        ``out_dir/<name>.fmu``.
+
+    Raises
+    ------
+    gp_model.ModelFileError
+        The model file is missing, corrupt or not a GP-NARX model.
+    validation.core.errors.BadInputError
+        As :func:`fmu_src.rate_predictor.build.build_rate_predictor_fmu`; also no ``gcc`` on the
+        path or a platform other than Linux x86-64.
+    RuntimeError
+        gcc failed to compile the generated sources (a bug: the message holds its output).
+    """
+    check_platform()
+    target, _, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
+    predictor = NarxPredictor(arrays)  # checks shapes and finiteness
+    variables = rate_predictor_variables(**interface)
+    slave_class = type(target.stem, (RatePredictor,), {
+        "description": description + "; native C (no Python at run time)", "VARIABLES": variables,
+        "STEP_SIZE": float(predictor.step)})
+    return package_native_fmu(
+        target, slave_class=slave_class, model_source=MODEL_SOURCE,
+        config=lambda guid: _narx_config(guid, target.stem, variables, predictor, arrays),
+        data=_narx_data(arrays, len(predictor.output_names)))
+
+
+def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredictor, arrays: dict) -> str:
+    """``model_config.h``: identity, variable table and NARX structure of one FMU."""
+    reference = {v.name: vr for vr, v in enumerate(variables)}
+    outputs = predictor.output_names
+    parts = [_part(arrays, j) for j in range(len(outputs))]
+    return config_header(name, guid, generator="fmu_src/rate_predictor/native.py", body=[
+        "/* Communication step = NARX step, s */",
+        f"#define STEP_SIZE {c_number(predictor.step)}", "",
+        *variable_table(variables, "fmu_src/rate_predictor/slave.py, rate_predictor_variables"),
+        "/* NARX structure (fmu_src/rate_predictor/predictor.py): regressors = every input at every",
+        "   input lag, then every output at every output lag */",
+        f"#define N_INPUTS {len(predictor.input_names)}",
+        f"#define N_OUTPUTS {len(outputs)}",
+        f"#define N_INPUT_LAGS {len(predictor.input_lags)}",
+        f"#define N_OUTPUT_LAGS {len(predictor.output_lags)}",
+        f"#define MAX_LAG {predictor.max_lag}",
+        f"#define N_REGRESSORS {len(predictor.regressor_names)}",
+        f"#define MAX_OUTPUT_LAG {max(predictor.output_lags)}",
+        "/* Hidden state: lag histories, envelope flag, free-run belief mean and covariance (narx_model.c) */",
+        "#define BELIEF_SIZE (MAX_OUTPUT_LAG * N_OUTPUTS)",
+        "#define MODEL_STATE_SIZE (MAX_LAG * (N_INPUTS + N_OUTPUTS) + 1 + BELIEF_SIZE * (BELIEF_SIZE + 1))",
+        c_array("int", "INPUT_LAGS", predictor.input_lags).rstrip(),
+        c_array("int", "OUTPUT_LAGS", predictor.output_lags).rstrip(),
+        "/* Value references: controls, *_prev inputs, means, lower and upper bounds, parameters */",
+        c_array("unsigned", "CONTROL_VR", [reference[n] for n in predictor.input_names]).rstrip(),
+        c_array("unsigned", "PREVIOUS_VR", [reference[f"{n}_prev"] for n in outputs]).rstrip(),
+        c_array("unsigned", "MEAN_VR", [reference[n] for n in outputs]).rstrip(),
+        c_array("unsigned", "LOWER_VR", [reference[f"{n}_lower"] for n in outputs]).rstrip(),
+        c_array("unsigned", "UPPER_VR", [reference[f"{n}_upper"] for n in outputs]).rstrip(),
+        f"#define CONFIDENCE_LEVEL_VR {reference['confidence_level']}",
+        f"#define FREE_RUN_VR {reference['free_run']}", "",
+        *envelope_lines("REGRESSOR_NAMES", predictor.envelope), "",
+        f"/* GP arrays in resources/{DATA_FILE} (layout: narx_model.c) */",
+        f"#define DATA_FILE {c_string(DATA_FILE)}",
+        f"#define DATA_DOUBLES {sum(_part_size(p) for p in parts)}",
+        c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
+        c_array("int", "HYPERPARAMETER_SAMPLES", [len(p["weights"]) for p in parts]).rstrip(),
+        c_array("int", "LOWER_TRIANGULAR", [int(lower_triangular(p["variance_factor"])) for p in parts]).rstrip()])
+
+
+def _part(arrays: dict, j: int) -> dict:
+    return {key: np.asarray(arrays[f"{j}/{key}"], dtype=float) for key in PER_OUTPUT}
+
+
+def _part_size(part: dict) -> int:
+    (m, d), S = part["basis"].shape, len(part["weights"])
+    factor = m * (m + 1) // 2 if lower_triangular(part["variance_factor"]) else m * m
+    return 2 * d + 2 + m * d + S * (m + d + 2 + factor)
+
+
+def _narx_data(arrays: dict, n_outputs: int) -> bytes:
+    """``model.bin``: magic, count, and the doubles of every output in the layout of
+    ``narx_model.c`` (little-endian)."""
+    chunks = []
+    for j in range(n_outputs):
+        p = _part(arrays, j)
+        m = len(p["basis"])
+        # columns of V_s; of a lower triangular one only rows c .. m - 1 of column c
+        columns = (np.triu_indices(m)[::-1] if lower_triangular(p["variance_factor"])
+                   else tuple(np.indices((m, m)).reshape(2, -1)[::-1]))
+        chunks += [p["input_mean"], p["input_scale"], [p["output_mean"], p["output_scale"]], p["basis"].ravel()]
+        for s in range(len(p["weights"])):
+            chunks += [p["weights"][s], p["kernel_weights"][s],
+                       [p["log_signal_variance"][s], p["noise_variance"][s]],
+                       p["variance_factor"][s][columns]]
+    data = np.concatenate([np.ravel(np.asarray(c, dtype="<f8")) for c in chunks])
+    return _DATA_MAGIC + struct.pack("<Q", len(data)) + data.tobytes()

@@ -1,0 +1,127 @@
+"""Fixtures of the FMU tests: the trained models and built FMUs (session scope: each is made once
+per test process), and, on a test module's ``case`` (tests/fmu_src/contract.py), the unzipped
+FMU and a host instance."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fmpy import extract
+
+from fmu_src import (
+    build_blimp_rkgp_fmu,
+    build_bo105_reference_fmu,
+    build_jsbsim_fmu,
+    build_native_blimp_rkgp_fmu,
+    build_native_rate_predictor_fmu,
+    build_rate_predictor_fmu,
+)
+from gp_model import GreyBoxGP, save_model
+from tests.fmu_src.blimp_rkgp.contract import BLIMP_HOLD
+from tests.fmu_src.contract import Host
+from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
+from validation.models.narx import save_trained, train_narx
+from validation.reproduce.bo105 import PAPER_CONFIG, fly_3211
+from validation.vehicles.blimp import BlimpParameters
+from validation.vehicles.blimp_flight import BlimpFlightTest
+
+
+# -- the Bo105 GP-NARX rate predictor ------------------------------------------------------------
+@pytest.fixture(scope="session")
+def bo105_flights():
+    """The paper's 3-2-1-1 (training) and an unseen one, Bo105 80 kt flight-test stand-in."""
+    fly = lambda seed, amplitude, step_time: fly_3211(  # noqa: E731
+        "bo105-80kt-flight", input_name="theta_1s", amplitude=np.radians(amplitude),
+        step_time=step_time, start=1.0, duration=8.0, seed=seed)
+    return {"training": fly(0, 1.0, 0.4), "unseen": fly(1, 1.3, 0.3)}
+
+
+@pytest.fixture(scope="session")
+def bo105_trained(bo105_flights):
+    """The paper's configuration: 32 training points, annealing with 400 hyperparameter samples
+    (about 2 s), so the FMU's mixture over samples is exercised as in production."""
+    return train_narx([bo105_flights["training"]], PAPER_CONFIG, seed=0)
+
+
+@pytest.fixture(scope="session")
+def bo105_model_file(tmp_path_factory, bo105_trained):
+    return save_trained(tmp_path_factory.mktemp("model") / "bo105_gp_narx.npz", bo105_trained)
+
+
+@pytest.fixture(scope="session")
+def rate_predictor_fmu(bo105_model_file, tmp_path_factory):
+    return build_rate_predictor_fmu(bo105_model_file, tmp_path_factory.mktemp("fmu"),
+                                    name="bo105_rate_predictor")
+
+
+@pytest.fixture(scope="session")
+def native_rate_predictor_fmu(bo105_model_file, tmp_path_factory):
+    return build_native_rate_predictor_fmu(bo105_model_file, tmp_path_factory.mktemp("native"),
+                                           name="bo105_native_rate_predictor")
+
+
+# -- the physics references -------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def bo105_speed_kt():
+    """Trim speed of the Bo105 reference FMU, kt."""
+    return 80
+
+
+@pytest.fixture(scope="session")
+def bo105_reference_fmu(bo105_speed_kt, tmp_path_factory):
+    return build_bo105_reference_fmu(bo105_speed_kt, tmp_path_factory.mktemp("fmu"))
+
+
+@pytest.fixture(scope="session")
+def jsbsim_fmu(tmp_path_factory):
+    return build_jsbsim_fmu("c172x", tmp_path_factory.mktemp("fmu"))
+
+
+# -- the blimp RKGP (RK4 physics plus GP residual) ----------------------------------------------------
+@pytest.fixture(scope="session")
+def blimp_trained():
+    """10 s of blimp-flight under random piecewise-constant commands (many levels, so maximum
+    likelihood finds no degenerate length scale for a command seen at two or three values), and a
+    shared-GP RKGP on the reference's RK4 physics, leaving out position and yaw (Ko et al.):
+    200 training pairs, about 1 s. Motion capture is off (true states, frames every 0.05 s): on
+    the differentiated, noisy mocap velocities the maximum-likelihood GP interpolates the noise
+    (noise variance at its lower bound) and its variance is at the prior's along any free run,
+    so there would be nothing to widen outside the envelope. The other blimp-flight effects
+    (motor lag, dead band, tail asymmetry, CG offset, buoyancy drift) are the residual it learns."""
+    time = np.arange(201) * BlimpFlightTest.sample_time
+    rng = np.random.default_rng(0)
+    levels = lambda low, high: np.repeat(rng.uniform(low, high, 21), BLIMP_HOLD)[:len(time)]  # noqa: E731
+    commands = np.column_stack([levels(0.2, 0.8), levels(-0.2, 0.4), levels(-0.6, 0.6)])
+    states, inputs = recording_arrays(BlimpFlightTest(mocap=False).simulate(time, commands, seed=0))
+    params = BlimpParameters()
+    model = GreyBoxGP(state_columns=(3, 4, 6, 7, 8, 9, 10, 11), n_restarts=0).fit_trajectories(
+        [(states, inputs)], physics_step(params))
+    return {"model": model, "params": params, "states": states, "commands": commands}
+
+
+@pytest.fixture(scope="session")
+def blimp_model_file(tmp_path_factory, blimp_trained):
+    return save_model(tmp_path_factory.mktemp("model") / "blimp_rkgp.npz", blimp_trained["model"],
+                      physics=blimp_physics_description(blimp_trained["params"]))
+
+
+@pytest.fixture(scope="session")
+def blimp_rkgp_fmu(blimp_model_file, tmp_path_factory):
+    return build_blimp_rkgp_fmu(blimp_model_file, tmp_path_factory.mktemp("fmu"))
+
+
+@pytest.fixture(scope="session")
+def native_blimp_rkgp_fmu(blimp_model_file, tmp_path_factory):
+    return build_native_blimp_rkgp_fmu(blimp_model_file, tmp_path_factory.mktemp("native"), name="blimp_native")
+
+
+# -- on the test module's case ----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def unzipdir(case, tmp_path_factory):
+    return extract(str(case.path), unzipdir=str(tmp_path_factory.mktemp("unzipped")))
+
+
+@pytest.fixture
+def host(unzipdir):
+    instance = Host(unzipdir)
+    yield instance
+    instance.close()

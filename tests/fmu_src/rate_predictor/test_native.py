@@ -1,0 +1,268 @@
+"""The native (C, Python-free) GP-NARX rate predictor FMU (fmu_src/rate_predictor/native.py).
+
+It passes the native FMU contract (tests/fmu_src/contract.py: the FMU contract, with the check
+that the Python code inside is self-contained replaced by its native counterpart, plus the
+native FMU's own checks) and the rate predictor's, with the case of the pythonfmu rate
+predictor of the same model (same inputs, Python reference and tolerance).
+
+Then what is particular to the native rate predictor: the same outputs as the pythonfmu FMU in
+both modes (one step; free run by moment matching over the hyperparameter mixture, for the
+paper's 400-sample model, a sparse one and ones whose output lags skip a lag), the free-run
+belief in the FMU state, a corrupt belief refused as by the pythonfmu FMU, and bad start values.
+"""
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import replace
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+from fmpy import extract, simulate_fmu
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import fmi2Discard, fmi2Error
+
+from fmu_src import build_native_rate_predictor_fmu, build_rate_predictor_fmu
+from fmu_src.fmi.native import compile_shared_library
+from fmu_src.rate_predictor.native import MODEL_SOURCE
+from tests.fmu_src.contract import FMI_FATAL, Host, NativeFmuContract, check_state_save_restore
+from tests.fmu_src.rate_predictor.contract import RatePredictorContract, rate_predictor_case
+from validation.models.narx import NarxConfig, one_step, save_trained, train_narx
+
+OUTPUTS = [f"{axis}{suffix}" for axis in "pqr" for suffix in ("", "_lower", "_upper")]
+
+
+@pytest.fixture(scope="module")
+def case(native_rate_predictor_fmu, rate_predictor_fmu, bo105_trained, bo105_flights):
+    """The case of the pythonfmu rate predictor, with the native FMU in its place: same inputs,
+    same Python reference, same tolerance (1e-9 rad/s: the C code evaluates the formulas of
+    NarxPredictor in another summation order; measured 1e-13)."""
+    return replace(rate_predictor_case(rate_predictor_fmu, bo105_trained, bo105_flights["training"]),
+                   path=native_rate_predictor_fmu, native_of=rate_predictor_fmu, model_source=MODEL_SOURCE)
+
+
+class TestNativeRatePredictorFmu(NativeFmuContract, RatePredictorContract):
+    """The native FMU contract and the rate predictor's, on the native rate predictor."""
+
+
+def _run_fmpy(path, recording_inputs, *, free_run: bool):
+    n = len(next(iter(recording_inputs.values())))
+    signal = np.zeros(n, dtype=[("time", float)] + [(name, float) for name in recording_inputs])
+    signal["time"] = np.arange(n) * 0.1
+    for name, values in recording_inputs.items():
+        signal[name] = values
+    result = simulate_fmu(str(path), input=signal, start_values={"free_run": free_run}, stop_time=(n - 1) * 0.1,
+                          step_size=0.1, output_interval=0.1)
+    return np.column_stack([result[name] for name in OUTPUTS])
+
+
+@pytest.mark.parametrize("flight", ["training", "unseen"])
+def test_outputs_equal_the_pythonfmu_fmu(case, bo105_flights, flight):
+    """Over a whole 3-2-1-1 (the training one, and an unseen one that leaves the envelope), in
+    both modes, every output (means and bounds) equals the pythonfmu FMU's. Free run: both
+    propagate the belief by moment matching over the 400-sample mixture (the contract's
+    test_free_run_mode_equals_the_python_moment_matching_free_run compares the native FMU with
+    GPNarx's moment-matching free run). Tolerance 1e-9 rad/s as the contract: one step measured
+    1e-13; free run 2e-11, since eq. 4 subtracts tr(A Q) from s2 with A = V^T V summed in another
+    order, and the entries of A are up to the inverse of K's smallest eigenvalue."""
+    recording = bo105_flights[flight]
+    u = recording.input("theta_1s")[::10]
+    inputs = {"theta_1s": u, **{f"{a}_prev": recording.output(a)[::10] for a in "pqr"}}
+    outputs = {}
+    for free_run in (False, True):
+        native, python = (_run_fmpy(p, inputs, free_run=free_run) for p in (case.path, case.native_of))
+        np.testing.assert_allclose(native, python, rtol=0, atol=1e-9)
+        outputs[free_run] = native
+    assert np.abs(outputs[True] - outputs[False]).max() > 1e-3  # the modes differ
+
+
+def test_free_run_belief_is_part_of_the_fmu_state(case, unzipdir, host):
+    """The contract's save / step / restore / serialise check, in free-run mode: the belief (mean
+    vector and covariance matrix over the lagged outputs) is saved, restored and serialised with
+    the lag histories, also into a fresh instance."""
+    check_state_save_restore(replace(case, parameters={**case.parameters, "free_run": True}), unzipdir, host)
+
+
+def test_a_sparse_model_with_a_full_variance_factor_equals_the_python_model(bo105_flights, tmp_path):
+    """A sparse GP's variance factor is not triangular: the native FMU then multiplies the full
+    matrix (narx_model.c, full_product), and its free run uses A = V^T V (K_mm^-1 - Sigma).
+    One-step outputs equal GPNarx's, free-run outputs GPNarx's moment-matching free run, to
+    1e-9 rad/s (measured 1e-13 and 5e-11; the free run's eq. 4 cancels as in the test above)."""
+    recording = bo105_flights["training"]
+    # Two restarts: from the first start alone, maximum likelihood ends at a constant model
+    # (signal variance e^-15) whose free run would test nothing.
+    trained = train_narx([recording], NarxConfig(hyperparameters="maximum_likelihood", stride=5, n_inducing=20),
+                         seed=0, n_restarts=2)
+    path = build_native_rate_predictor_fmu(save_trained(tmp_path / "sparse.npz", trained), tmp_path)
+    with zipfile.ZipFile(path) as archive:
+        assert "LOWER_TRIANGULAR[3] = {0, 0, 0}" in archive.read("sources/model_config.h").decode()
+    inputs = {"theta_1s": recording.input("theta_1s")[::10], **{f"{a}_prev": recording.output(a)[::10] for a in "pqr"}}
+    outputs = _run_fmpy(path, inputs, free_run=False)
+    prediction = one_step(trained, recording)
+    first = prediction.first
+    np.testing.assert_allclose(outputs[first:, [OUTPUTS.index(a) for a in "pqr"]], prediction.mean[first:],
+                               rtol=0, atol=1e-9)
+    z = NormalDist().inv_cdf(0.975)
+    np.testing.assert_allclose(outputs[first:, [OUTPUTS.index(f"{a}_upper") for a in "pqr"]],
+                               prediction.mean[first:] + z * np.sqrt(prediction.var[first:]), rtol=0, atol=1e-9)
+    # Free run from rest, against GPNarx's moment-matching free run from the same rest (the
+    # padded start of RatePredictorContract.test_free_run_mode_equals_the_python_moment_matching_free_run).
+    u = recording.input("theta_1s")[::10, None]
+    free = _run_fmpy(path, {"theta_1s": u[:, 0]}, free_run=True)
+    means, upper = free[:, [OUTPUTS.index(a) for a in "pqr"]], free[:, [OUTPUTS.index(f"{a}_upper") for a in "pqr"]]
+    lag = trained.model.structure.max_lag
+    padded = np.vstack([np.repeat(u[:1], lag - 1, axis=0), u])
+    python = trained.model.free_run(padded, np.tile(means[0], (lag, 1)), method="moment_matching", use_samples=True)
+    np.testing.assert_allclose(means[1:], python.mean[lag:], rtol=0, atol=1e-9)
+    np.testing.assert_allclose((upper - means)[1:] / z, np.sqrt(python.var[lag:]), rtol=0, atol=1e-9)
+    assert np.ptp(means[1:], axis=0).min() > 1e-3  # the free run moves: a real test
+
+
+@pytest.fixture(scope="module", params=[(2,), (1, 3)], ids=["output_lags_2", "output_lags_1_3"])
+def skipped_lags(request, bo105_flights, tmp_path_factory):
+    """A model whose output lags skip a lag (maximum likelihood, no restarts: a few seconds), its
+    native and its pythonfmu FMU."""
+    lags = request.param
+    trained = train_narx([bo105_flights["training"]],
+                         NarxConfig(hyperparameters="maximum_likelihood", output_lags=lags), seed=0, n_restarts=0)
+    folder = tmp_path_factory.mktemp("skipped_lags")
+    path = save_trained(folder / "skip.npz", trained)
+    name = "skip_" + "_".join(map(str, lags))
+    return (trained, build_native_rate_predictor_fmu(path, folder, name=f"{name}_native"),
+            build_rate_predictor_fmu(path, folder, name=f"{name}_python"))
+
+
+def test_output_lags_that_skip_a_lag_equal_the_pythonfmu_fmu_and_the_python_model(skipped_lags, bo105_flights):
+    """Output lags (2,) or (1, 3): a lagged output that is not a regressor (y(k-1), resp. y(k-2))
+    gets its covariance with the prediction from the linear-Gaussian projection of
+    _cross_covariance_of_lagged_outputs (pinv by cyclic Jacobi in C). Over a 3-2-1-1, in both
+    modes, the native FMU's outputs equal the pythonfmu FMU's, the one-step means GPNarx's and
+    the free run GPNarx's moment-matching free run, to 1e-9 rad/s (measured: one step 2e-14,
+    free run 2e-12 for (2,) and 5e-11 for (1, 3), where leaving the projection out would move
+    the free-run means by 2e-3 and the sds by 2e-2 rad/s; with (2,) the even and odd samples
+    are independent chains, so the projection is exactly zero)."""
+    trained, native_path, python_path = skipped_lags
+    recording = bo105_flights["training"]
+    inputs = {"theta_1s": recording.input("theta_1s")[::10], **{f"{a}_prev": recording.output(a)[::10] for a in "pqr"}}
+    means, uppers = [OUTPUTS.index(a) for a in "pqr"], [OUTPUTS.index(f"{a}_upper") for a in "pqr"]
+    for free_run in (False, True):
+        native, python = (_run_fmpy(p, inputs, free_run=free_run) for p in (native_path, python_path))
+        np.testing.assert_allclose(native, python, rtol=0, atol=1e-9)
+    prediction = one_step(trained, recording)
+    first = prediction.first
+    np.testing.assert_allclose(_run_fmpy(native_path, inputs, free_run=False)[first:, means], prediction.mean[first:],
+                               rtol=0, atol=1e-9)
+    # Free run from rest against GPNarx's from the same rest (as the sparse model's test above).
+    u = recording.input("theta_1s")[::10, None]
+    free = _run_fmpy(native_path, {"theta_1s": u[:, 0]}, free_run=True)
+    lag = trained.model.structure.max_lag
+    padded = np.vstack([np.repeat(u[:1], lag - 1, axis=0), u])
+    python = trained.model.free_run(padded, np.tile(free[0, means], (lag, 1)), method="moment_matching")
+    np.testing.assert_allclose(free[1:, means], python.mean[lag:], rtol=0, atol=1e-9)
+    z = NormalDist().inv_cdf(0.975)
+    np.testing.assert_allclose((free[:, uppers] - free[:, means])[1:] / z, np.sqrt(python.var[lag:]), rtol=0,
+                               atol=1e-9)
+    assert np.ptp(free[1:, means], axis=0).min() > 1e-2  # the free run moves: a real test
+    # The projection's code, compiled in only here (narx_model.c: N_Z < BELIEF_SIZE), is
+    # warning-free too.
+    with zipfile.ZipFile(native_path) as archive:
+        sources = {n.split("/", 1)[1]: archive.read(n) for n in archive.namelist() if n.startswith("sources/")}
+    assert compile_shared_library(sources, "pedantic_skip", extra_flags=("-pedantic", "-Werror"))
+
+
+def _corrupt_belief_covariance(serialised: bytes, belief_size: int, corrupt, *, native: bool) -> bytes:
+    """A serialised FMU state with ``corrupt(cov)`` applied (in place) to its free-run belief
+    covariance. Native: the covariance is the last block of the model state, which ends the
+    serialised SlaveState, followed only by the refused message's length (0 here:
+    fmi2_slave.c, serialised layout). pythonfmu: the JSON of fmu_src/fmi/slave.py, attribute _belief."""
+    if native:
+        data = bytearray(serialised)
+        assert data[-8:] == bytes(8)  # no refused message follows
+        block = slice(len(data) - 8 - 8 * belief_size**2, len(data) - 8)
+        cov = np.frombuffer(bytes(data[block]), dtype=float).reshape(belief_size, belief_size).copy()
+        corrupt(cov)
+        data[block] = cov.tobytes()
+        return bytes(data)
+    state = json.loads(serialised.decode())
+    entry = state["hidden"]["_belief"][1]
+    cov = np.array(entry["ndarray"], dtype=float)
+    assert cov.shape == (belief_size, belief_size)
+    corrupt(cov)
+    entry["ndarray"] = cov.tolist()
+    return json.dumps(state).encode()
+
+
+def _break_symmetry(cov):
+    cov[0, 1] += 1e-3 * np.abs(cov).max()
+
+
+def _break_definiteness(cov):
+    cov[0, 0] = -cov[0, 0]
+
+
+@pytest.mark.parametrize("corrupt, phrase", [(_break_symmetry, "not symmetric"),
+                                             (_break_definiteness, "not positive semi-definite")])
+@pytest.mark.parametrize("fmu", ["native", "pythonfmu"])
+def test_a_corrupt_free_run_belief_is_a_logged_discard_as_in_the_pythonfmu_fmu(
+        fmu, corrupt, phrase, case, bo105_trained, bo105_flights, tmp_path):
+    """The free run checks the regressor covariance as MomentMatcher._standardise does (finite,
+    symmetric and positive semi-definite to COVARIANCE_TOLERANCE = 1e-10 relative, in the
+    standardised frame; narx_model.c: covariance_problem, eigenvalues by cyclic Jacobi). A belief
+    covariance that fails (set from outside through a deserialised FMU state) makes the step a
+    logged Error and fmi2Discard in both FMUs (the pythonfmu FMU: MomentMatcher raises, the base
+    refuses the step), and changes nothing: the state is the corrupt one still, and restoring the
+    good state, the run goes on as if the step had never been tried."""
+    path = case.path if fmu == "native" else case.native_of
+    host = Host(extract(str(path), unzipdir=str(tmp_path / "u")))
+    u = bo105_flights["training"].input("theta_1s")[::10]
+    free = lambda k: {"theta_1s": u[k]}  # noqa: E731
+    step, k = case.step, 5
+    belief_size = max(bo105_trained.model.structure.output_lags) * 3
+    try:
+        host.set({"free_run": True})
+        host.start(case, free(0))
+        expected = host.run(case, 0, k + 3, inputs=free)
+        host.fmu.reset()
+        host.set({"free_run": True})
+        host.start(case, free(0))
+        host.run(case, 0, k, inputs=free)
+        good = host.fmu.getFMUstate()
+        corrupted = _corrupt_belief_covariance(host.fmu.serializeFMUstate(good), belief_size, corrupt,
+                                               native=fmu == "native")
+        bad = host.fmu.deSerializeFMUstate(corrupted)
+        host.fmu.setFMUstate(bad)
+        before = host.get()
+        for _ in range(2):  # refused, and refused again on retry: the corrupt state was kept
+            host.set(free(k))
+            with pytest.raises(FMICallException) as refused:
+                host.fmu.doStep(currentCommunicationPoint=k * step, communicationStepSize=step)
+            assert refused.value.status == fmi2Discard
+            errors = [message for status, _, message in host.messages if status == fmi2Error]
+            assert errors and phrase in errors[-1] and "Discard" in errors[-1], host.messages[-3:]
+            np.testing.assert_array_equal(host.get(), before)
+        host.fmu.setFMUstate(good)
+        np.testing.assert_array_equal(host.run(case, k, k + 3, inputs=free), expected[k:])
+        host.fmu.freeFMUstate(good)
+        host.fmu.freeFMUstate(bad)
+    finally:
+        host.close()
+    assert FMI_FATAL not in host.statuses()
+
+
+def test_bad_start_value_fails_initialisation_with_an_error_until_reset(case, unzipdir):
+    host = Host(unzipdir, name="bad_start")
+    try:
+        with pytest.raises(FMICallException) as refused:
+            host.start(case, {**case.inputs(0), "q_prev": float("nan")})
+        assert refused.value.status == fmi2Error
+        assert "initialisation refused" in host.messages[-1][2] and "q_prev" in host.messages[-1][2]
+        with pytest.raises(FMICallException):  # in the error state only reset helps
+            host.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=case.step)
+        host.fmu.reset()
+        host.start(case)
+        host.run(case, 0, 3)
+    finally:
+        host.close()
+    assert FMI_FATAL not in host.statuses()
+
