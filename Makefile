@@ -1,6 +1,6 @@
 # Two commands do all set-up on a fresh machine (see README):
 #   make demo   create .venv, install flightgp, run `flightgp demo`
-#   make test   create .venv, install flightgp with test extras, run the test suite
+#   make test   create .venv, install flightgp with test extras, lint (ruff), run the test suite
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -18,12 +18,15 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/flightgp demo
 
-# Two pytest workers on two cores: one BLAS thread each, or they fight over the cores.
+# Lint first (ruff, configured in pyproject.toml), then two pytest workers on two cores: one
+# BLAS thread each, or they fight over the cores.
 test: $(STAMP)
+	$(BIN)/ruff check gp_model validation fmu_src tests
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 $(PYTEST_ARGS)
 
 # Local shortcut: skip the end-to-end tests marked slow.
 test-fast: $(STAMP)
+	$(BIN)/ruff check gp_model validation fmu_src tests
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -m "not slow" $(PYTEST_ARGS)
 
 clean:
