@@ -9,7 +9,7 @@ reference", lists the variables.
 
 Every Bo105 reference FMU carries a copy of this file (:mod:`fmu_src.fmi.pythonfmu`), so it
 imports only the FMI layer (:mod:`fmu_src.fmi.slave`), the shared FMU runtime, the
-discretisation (:mod:`fmu_src.bo105_reference.discretisation`), numpy and the standard library.
+discretisation (:mod:`validation.vehicles.linear_discretisation`), numpy and the standard library.
 
 Timing (docs/conventions.md, "FMU sampling convention")
 -------------------------------------------------------
@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from fmu_src.bo105_reference.discretisation import zero_order_hold
 from fmu_src.fmi.runtime import ModelFormatError, check_header, model_header, read_model_file
 from fmu_src.fmi.slave import FlightgpSlave, Variable
+from validation.vehicles.linear_discretisation import zero_order_hold
 
 FORMAT = "flightgp-fmu-linear"
 VERSION = 1

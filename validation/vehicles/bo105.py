@@ -20,11 +20,11 @@ from functools import cache
 from importlib.resources import files
 
 import numpy as np
-from scipy import linalg
 
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history
+from validation.vehicles.linear_discretisation import zero_order_hold
 
 STATE_NAMES = ("u", "w", "q", "theta", "v", "p", "phi", "r")
 INPUT_NAMES = ("theta_0", "theta_1s", "theta_1c", "theta_0T")
@@ -67,20 +67,10 @@ def padfield_condition(speed_kt) -> dict:
                         f"{', '.join(map(str, BO105_SPEEDS_KT))} kt")
 
 
-def zero_order_hold(A: np.ndarray, B: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation ``(Phi, Gamma)`` of ``x_dot = A x + B u`` over
-    ``step`` s: ``expm([[A, B], [0, 0]] step) = [[Phi, Gamma], [0, I]]`` (Van Loan, IEEE TAC
-    23(3), 1978). ``A`` (n, n), ``B`` (n, m); returns shapes (n, n) and (n, m)."""
-    n, m = B.shape
-    augmented = np.zeros((n + m, n + m))
-    augmented[:n, :n], augmented[:n, n:] = A, B
-    transition = linalg.expm(augmented * step)
-    return transition[:n, :n], transition[:n, n:]
-
-
 def cached_zero_order_hold(cache: dict, A: np.ndarray, B: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`zero_order_hold` at ``step`` rounded to 1e-12 s, kept in ``cache`` (one dict per
-    system, so a vehicle discretises once per sample interval)."""
+    """:func:`~validation.vehicles.linear_discretisation.zero_order_hold` at ``step`` rounded to
+    1e-12 s, kept in ``cache`` (one dict per system, so a vehicle discretises once per sample
+    interval)."""
     key = round(step, 12)
     if key not in cache:
         cache[key] = zero_order_hold(A, B, key)

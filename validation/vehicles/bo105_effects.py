@@ -38,10 +38,10 @@ from validation.vehicles.bo105 import (
     STATE_NAMES,
     Bo105Reference,
     propagate,
-    zero_order_hold,
 )
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
 from validation.vehicles.effects import Hypothesis
+from validation.vehicles.linear_discretisation import zero_order_hold
 
 _ACCELERATION_UNITS = {"m/s": "m/s^2", "rad/s": "rad/s^2"}
 

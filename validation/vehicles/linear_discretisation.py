@@ -1,5 +1,11 @@
-"""Exact zero-order-hold discretisation of a linear model, numpy only (the Bo105 reference FMU
-carries a copy of this file, :mod:`fmu_src.fmi.pythonfmu`)."""
+"""Exact zero-order-hold discretisation of a linear model, numpy and the standard library only:
+the Bo105 reference (:mod:`validation.vehicles.bo105`), the effects added to it and the Bo105
+reference FMU, which carries a copy of this file (docs/fmus.md), discretise with this code.
+
+The matrix exponential is Higham's scaling and squaring with the [13/13] Pade approximant, the
+algorithm ``scipy.linalg.expm`` implements, written here with numpy alone so that an FMU needs
+no scipy.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -27,7 +33,7 @@ def zero_order_hold(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray,
     n, m = B.shape
     augmented = np.zeros((n + m, n + m))
     augmented[:n, :n], augmented[:n, n:] = A, B
-    transition = _expm(augmented * h)
+    transition = expm(augmented * h)
     return transition[:n, :n], transition[:n, n:]
 
 
@@ -40,10 +46,10 @@ _PADE_13 = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 118735
             40840800.0, 960960.0, 16380.0, 182.0, 1.0)
 
 
-def _expm(M: np.ndarray) -> np.ndarray:
-    """Matrix exponential by scaling and squaring with the [13/13] Pade approximant
-    (Higham 2005, Algorithm 2.3 with m = 13 throughout): ``expm(M) = r_13(M / 2^s)^(2^s)``,
-    ``s`` the least with ``||M / 2^s||_1 <= theta_13``."""
+def expm(M: np.ndarray) -> np.ndarray:
+    """Matrix exponential of ``M`` (n, n) by scaling and squaring with the [13/13] Pade
+    approximant (Higham 2005, Algorithm 2.3 with m = 13 throughout):
+    ``expm(M) = r_13(M / 2^s)^(2^s)``, ``s`` the least with ``||M / 2^s||_1 <= theta_13``."""
     norm = np.linalg.norm(M, 1)
     s = max(0, int(np.ceil(np.log2(norm / _THETA_13)))) if norm > 0 else 0
     X = M / 2.0**s
