@@ -6,20 +6,23 @@ import math
 import numpy as np
 
 
-def rmse(measured: np.ndarray, predicted: np.ndarray) -> float:
+def rmse(measured: np.ndarray, predicted: np.ndarray, *, axis: int | None = None):
     """Root-mean-square error ``sqrt(mean((y - y_hat)^2))``.
 
     Parameters
     ----------
     measured, predicted : ndarray, same shape
-        In one unit (the signal's).
+        In one unit (the signal's, or one per column).
+    axis : int, optional
+        The axis to average over (``0``: one RMSE per column of an (n, k) array); default all.
 
     Returns
     -------
-    float
+    float, or ndarray with ``axis`` removed
         In the signal's unit.
     """
-    return float(np.sqrt(np.mean((measured - predicted) ** 2)))
+    error = np.sqrt(np.mean((np.asarray(measured) - np.asarray(predicted)) ** 2, axis=axis))
+    return float(error) if axis is None else error
 
 
 def theil_inequality(measured: np.ndarray, predicted: np.ndarray) -> float:

@@ -25,6 +25,7 @@ from matplotlib.figure import Figure
 
 from validation.core.errors import BadInputError
 from validation.core.files import write_files_atomically
+from validation.core.metrics import rmse
 from validation.core.plots import png_bytes
 from validation.core.recordings import Recording
 
@@ -133,8 +134,8 @@ class CosimResult:
     def rmse(self) -> dict:
         """RMSE per axis against the recording, from the first predicted step on (rad/s)."""
         def rmse_of(values):
-            error = np.column_stack(values)[1:] - self.measured[1:]
-            return {axis: float(v) for axis, v in zip(self.axes, np.sqrt(np.mean(error**2, axis=0)))}
+            per_axis = rmse(self.measured[1:], np.column_stack(values)[1:], axis=0)
+            return {axis: float(v) for axis, v in zip(self.axes, per_axis)}
 
         table = {"gp": rmse_of([self.gp.outputs[a] for a in self.axes])}
         if self.reference is not None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from gp_model import GPNarx, NarxStructure, load_model, read_header, save_model
 from validation.core.errors import BadInputError
+from validation.core.metrics import rmse
 from validation.core.progress import progress_bar
 from validation.core.recordings import Recording
 
@@ -135,8 +136,7 @@ class NarxPrediction:
 
     def rmse(self) -> np.ndarray:
         """RMSE per output over the predicted rows, shape (n_outputs,)."""
-        error = self.mean[self.first:] - self.measured[self.first:]
-        return np.sqrt(np.mean(error**2, axis=0))
+        return rmse(self.measured[self.first:], self.mean[self.first:], axis=0)
 
     def coverage(self, *, z: float = 1.96) -> np.ndarray:
         """Fraction of predicted rows whose measurement lies inside ``mean +/- z sd``."""

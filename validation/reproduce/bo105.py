@@ -27,6 +27,7 @@ from matplotlib.figure import Figure
 
 from validation.core.files import write_atomically, write_json
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
+from validation.core.metrics import rmse
 from validation.core.plots import png_bytes
 from validation.core.recordings import Recording, column_unit, write_recording
 from validation.models.narx import NarxConfig, NarxPrediction, free_run, one_step, save_trained, train_narx
@@ -69,10 +70,6 @@ def _reference_one_step(reference, recording: Recording, config: NarxConfig) -> 
     inputs = np.column_stack([recording.input(n) for n in reference.input_names])[rows]
     predicted = np.vstack([states[:1], states[:-1] @ phi.T + inputs[:-1] @ gamma.T])
     return predicted[:, [reference.state_names.index(a) for a in config.outputs]]
-
-
-def _rmse(prediction: np.ndarray, measured: np.ndarray, first: int) -> np.ndarray:
-    return np.sqrt(np.mean((prediction[first:] - measured[first:]) ** 2, axis=0))
 
 
 def _by_axis(values, axes=AXES) -> dict:
@@ -128,13 +125,15 @@ def reproduce_bo105(out_dir, *, seed: int = 0, n_runs: int = 1000, beyond: bool 
                  "coverage95 as a fraction of samples inside the 95 % band",
         "config": {**config.to_json(), "training_points": int(len(trained.model.model.gps[0].X_train_)),
                    "n_runs": n_runs, "seed": seed, "training_s": training_s},
-        "osap": {"gp": _by_axis(osap.rmse()), "reference": _by_axis(_rmse(ref_osap, osap.measured, first))},
-        "fmp": {"gp": _by_axis(fmp.rmse()), "reference": _by_axis(_rmse(ref_fmp, fmp.measured, first))},
+        "osap": {"gp": _by_axis(osap.rmse()),
+                 "reference": _by_axis(rmse(osap.measured[first:], ref_osap[first:], axis=0))},
+        "fmp": {"gp": _by_axis(fmp.rmse()),
+                "reference": _by_axis(rmse(fmp.measured[first:], ref_fmp[first:], axis=0))},
         "coverage95": _by_axis(fmp.coverage()),
         "unseen": {
             "manoeuvre": UNSEEN_MANOEUVRE,
             "fmp": {"gp": _by_axis(fmp_unseen.rmse()),
-                    "reference": _by_axis(_rmse(ref_unseen, fmp_unseen.measured, first))},
+                    "reference": _by_axis(rmse(fmp_unseen.measured[first:], ref_unseen[first:], axis=0))},
             "coverage95": _by_axis(fmp_unseen.coverage()),
         },
         "relevance": trained.model.relevance(),
@@ -204,7 +203,7 @@ def beyond_the_paper(out_dir: Path, *, seed: int, n_runs: int, progress: bool) -
         "test": "unseen multi-axis doublets on theta_1s, theta_1c, theta_0T",
         "fmp": {"gp_all_controls": _by_axis(prediction.rmse()),
                 "gp_longitudinal_only": _by_axis(paper_prediction.rmse()),
-                "reference": _by_axis(_rmse(ref, prediction.measured, prediction.first))},
+                "reference": _by_axis(rmse(prediction.measured[prediction.first:], ref[prediction.first:], axis=0))},
         "coverage95": _by_axis(prediction.coverage()),
     }
     write_atomically(out_dir / "fmp_multi_axis.png", png_bytes(paper_figure(
@@ -236,9 +235,9 @@ def _jsbsim_ah1s(out_dir: Path, *, seed: int, n_runs: int, progress: bool) -> di
     for name, recording in flights.items():
         prediction = free_run(trained, recording, n_runs=n_runs, seed=seed, progress=progress)
         rms = prediction.measured[prediction.first:, :3].std(axis=0)
-        rmse = prediction.rmse()[:3]
-        results[name] = {"fmp_rmse": _by_axis(rmse), "rate_rms": _by_axis(rms),
-                         "explained": _by_axis(1.0 - (rmse / rms) ** 2),
+        rates_rmse = prediction.rmse()[:3]
+        results[name] = {"fmp_rmse": _by_axis(rates_rmse), "rate_rms": _by_axis(rms),
+                         "explained": _by_axis(1.0 - (rates_rmse / rms) ** 2),
                          "coverage95": _by_axis(prediction.coverage()[:3])}
         if name == "unseen":
             write_atomically(out_dir / "fmp_ah1s_unseen.png", png_bytes(paper_figure(
@@ -305,14 +304,14 @@ def _lag_selection(*, seed: int, n_runs: int, progress: bool) -> dict:
                         if max(relevance[o][f"{a}(k-{lag})"] for o in AXES for a in AXES) >= threshold)
     chosen = replace(wide, input_lags=kept_input or (1,), output_lags=kept_output or (1,))
     trained_chosen = train_narx([training], chosen, seed=seed, progress=progress)
-    rmse = {}
+    unseen_rmse = {}
     for name, trained in (("wide", trained_wide), ("chosen", trained_chosen)):
-        rmse[name] = _by_axis(free_run(trained, unseen, n_runs=n_runs, seed=seed).rmse())
+        unseen_rmse[name] = _by_axis(free_run(trained, unseen, n_runs=n_runs, seed=seed).rmse())
     return {"threshold": threshold, "candidate_lags": {"input": list(wide.input_lags),
                                                        "output": list(wide.output_lags)},
             "relevance": relevance,
             "chosen_lags": {"input": list(chosen.input_lags), "output": list(chosen.output_lags)},
-            "unseen_fmp_rmse": rmse}
+            "unseen_fmp_rmse": unseen_rmse}
 
 
 def format_results(results: dict) -> str:
