@@ -12,7 +12,7 @@ with one non-negative weight ``w_i`` per input dimension:
   ``k = sigma_f^2 prod_i alpha_i^(4 (x_i - x'_i)^2)``, alpha_i in (0, 1), so
   ``w_i = -4 ln alpha_i``.
 
-Equating the weights gives the relation between the two (tested in ``tests/test_kernels.py``):
+Equating the weights gives the relation between the two (tested in ``tests/gp_model/test_kernels.py``):
 
     alpha_i = exp(-1 / (8 l_i^2)),      l_i = 1 / sqrt(-8 ln alpha_i).                  (2)
 

@@ -11,10 +11,10 @@ Grey-box models (:class:`~gp_model.GreyBoxGP`, type ``"GreyBoxGP"``) store their
 parts (one when shared, else one per state), their structure (``state_columns``, ``shared``,
 ``n_states``, ``n_inputs``, ``noise_variance``, ``n_restarts``) under ``"structure"``, and under
 ``"physics"`` a JSON description of the physics step they were trained with: at least ``"kind"``
-(e.g. ``"blimp_rk4"``: :func:`validation.blimp_identification.blimp_physics_description`) and whatever numbers
-rebuild the step. The physics callable itself is never stored; whoever loads the model rebuilds
-it from that description. Files are written to a
-temporary file in the target folder and renamed, so a crash never leaves half a model behind.
+(e.g. ``"blimp_rk4"``, the blimp's, docs/gp_model.md) and whatever numbers rebuild the step.
+The physics callable itself is never stored; whoever loads the model rebuilds it from that
+description. Files are written to a temporary file in the target folder and renamed, so a crash
+never leaves half a model behind.
 """
 from __future__ import annotations
 

@@ -490,7 +490,7 @@ class NativeFmuContract(FmuContract):
         assert shipped == {*c_sources, MODEL_HEADER.name, CONFIG_HEADER}
 
     def test_runs_in_a_plain_c_host_without_python(self, case, host):
-        """validation/native_host.c: dlopen, fmi2Instantiate, the case's parameters and start values
+        """validation/cosim/native_host.c: dlopen, fmi2Instantiate, the case's parameters and start values
         (e.g. the blimp's start state), fmi2SetupExperiment, fmi2Enter/ExitInitializationMode, then
         fmi2SetReal + fmi2DoStep + fmi2GetReal per step, in a subprocess with no Python; outputs
         identical to fmpy's (the same binary, parameters and inputs: bit for bit)."""

@@ -184,7 +184,7 @@ def run(*, n_runs: int = 1000, n_steps: int = 800, loop_runs: int = 10, seed: in
             f"{max_abs_difference:.3g} (tolerance {NARX_AGREEMENT_TOLERANCE:g}) on runs "
             f"0-{len(runs) - 1}; either "
             "GPNarx.free_run now consumes its random numbers in another order (update "
-            "_monte_carlo_draws in validation/benchmarks.py) or one of the two is wrong")
+            "_monte_carlo_draws in validation/bench/narx.py) or one of the two is wrong")
     loop_s_estimated = loop_setup_s + loop_s_per_run * n_runs
     speedup = loop_s_estimated / vectorised_s
     goal_met = (speedup >= NARX_GOAL_SPEEDUP and vectorised_s <= NARX_GOAL_SECONDS

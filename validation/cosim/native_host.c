@@ -1,4 +1,4 @@
-/* A minimal C host for FMI 2.0 co-simulation FMUs (validation/hosts.py, simulate_in_c_host):
+/* A minimal C host for FMI 2.0 co-simulation FMUs (validation/cosim/hosts.py, simulate_in_c_host):
  * dlopen the FMU's binary, then fmi2Instantiate, fmi2SetupExperiment, fmi2Enter/
  * ExitInitializationMode, and per step fmi2SetReal (inputs), fmi2DoStep, fmi2GetReal
  * (outputs); fmi2Terminate, fmi2FreeInstance. No Python is in this process: it proves a native

@@ -380,7 +380,7 @@ def _table3(model: GreyBoxGP, rk, params, setup: Table3Setup, seed: int, progres
         **asdict(setup), "task": asdict(task), "turn_deg": 90.0,
         "controller": "u_tail = clip(tanh(k s), -1, 1), s = e - sign(r) d_stop(r), "
                       "d_stop(r) = |r|/a - (b/a^2) ln(1 + a|r|/b), b = b_minus if r > 0 else b_plus "
-                      "(validation/blimp_control.py); 4 Hz; gondola off (u_gondola = 0, mu = 0)",
+                      "(validation/reproduce/blimp_control.py); 4 Hz; gondola off (u_gondola = 0, mu = 0)",
         "parameter_units": dict(zip(blimp_control.PARAMETER_NAMES, blimp_control.PARAMETER_UNITS)),
         "initial_parameters": dict(zip(blimp_control.PARAMETER_NAMES,
                                        map(float, blimp_control.INITIAL_PARAMETERS))),

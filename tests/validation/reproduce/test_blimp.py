@@ -1,4 +1,4 @@
-"""Tests of the blimp RKGP Tables I, II and III reproduction (validation/reproduce_blimp.py) and its command.
+"""Tests of the blimp RKGP Tables I, II and III reproduction (validation/reproduce/blimp.py) and its command.
 
 The quick reproduction (one 30 s training flight, 20 start states, about 10 s) runs end to end;
 the assertions are the properties that hold by construction or by physics, not the paper's
@@ -119,7 +119,7 @@ def test_rk_and_ode_agree_and_physics_beats_gp_only_on_position(quick):
 
 def test_identification_sees_the_stand_ins_tail_asymmetry(quick):
     parameters = quick[1]["identification"]["parameters"]
-    # The stand-in's tail fan is 40 % weaker for u_tail < 0 (validation/blimp.py).
+    # The stand-in's tail fan is 40 % weaker for u_tail < 0 (validation/vehicles/blimp_flight.py).
     assert parameters["tail_thrust_negative"]["value"] < parameters["tail_thrust_positive"]["value"]
 
 

@@ -1,4 +1,4 @@
-"""Tests of the Table III yaw controller and its PEGASUS policy search (validation/blimp_control.py)."""
+"""Tests of the Table III yaw controller and its PEGASUS policy search (validation/reproduce/blimp_control.py)."""
 import math
 
 import numpy as np
