@@ -92,29 +92,50 @@ _MAX_HEADING = 4 * math.pi     # heading may be unwrapped; two full turns is sti
 _MAX_RATE = 10.0               # rad/s = 573 deg/s, beyond aerobatic roll rates (~400 deg/s)
 _MAX_BLADE_PITCH = 0.5         # rad = 29 deg, more than a helicopter's whole control travel
 _MAX_THRUST_ANGLE = 2 * math.pi  # the blimp's gondola fans may point anywhere in a full turn
-_COLUMNS = {
-    "time": ("s", None),
+_COLUMNS = {  # name: (unit, largest plausible magnitude or None, what it is)
+    "time": ("s", None, "time"),
     # Bo105 (Padfield 2007) states and inputs; the blimp and JSBSim share phi, theta, psi.
-    "u": ("m/s", None), "v": ("m/s", None), "w": ("m/s", None),
-    "p": ("rad/s", _MAX_RATE), "q": ("rad/s", _MAX_RATE), "r": ("rad/s", _MAX_RATE),
-    "phi": ("rad", _MAX_ATTITUDE), "theta": ("rad", _MAX_ATTITUDE), "psi": ("rad", _MAX_HEADING),
-    "theta_0": ("rad", _MAX_BLADE_PITCH), "theta_1s": ("rad", _MAX_BLADE_PITCH),
-    "theta_1c": ("rad", _MAX_BLADE_PITCH), "theta_0T": ("rad", _MAX_BLADE_PITCH),
-    # Blimp (Ko et al. 2007): position, body velocities and rates, gondola angle mu.
-    "x": ("m", None), "y": ("m", None), "z": ("m", None),
-    "U": ("m/s", None), "V": ("m/s", None), "W": ("m/s", None),
-    "P": ("rad/s", _MAX_RATE), "Q": ("rad/s", _MAX_RATE), "R": ("rad/s", _MAX_RATE),
-    "u_gondola": ("1", None), "mu": ("rad", _MAX_THRUST_ANGLE), "u_tail": ("1", None),
+    "u": ("m/s", None, "forward velocity"), "v": ("m/s", None, "lateral velocity"),
+    "w": ("m/s", None, "vertical velocity (positive down)"),
+    "p": ("rad/s", _MAX_RATE, "roll rate"), "q": ("rad/s", _MAX_RATE, "pitch rate"),
+    "r": ("rad/s", _MAX_RATE, "yaw rate"),
+    "phi": ("rad", _MAX_ATTITUDE, "roll angle"), "theta": ("rad", _MAX_ATTITUDE, "pitch angle"),
+    "psi": ("rad", _MAX_HEADING, "heading"),
+    "theta_0": ("rad", _MAX_BLADE_PITCH, "main-rotor collective pitch"),
+    "theta_1s": ("rad", _MAX_BLADE_PITCH, "longitudinal cyclic pitch"),
+    "theta_1c": ("rad", _MAX_BLADE_PITCH, "lateral cyclic pitch"),
+    "theta_0T": ("rad", _MAX_BLADE_PITCH, "tail-rotor collective pitch (pedals)"),
+    # Blimp (Ko et al. 2007): NED position, body velocities and rates, gondola angle mu.
+    "x": ("m", None, "north position"), "y": ("m", None, "east position"),
+    "z": ("m", None, "down position"),
+    "U": ("m/s", None, "forward body velocity"), "V": ("m/s", None, "rightward body velocity"),
+    "W": ("m/s", None, "downward body velocity"),
+    "P": ("rad/s", _MAX_RATE, "roll rate"), "Q": ("rad/s", _MAX_RATE, "pitch rate"),
+    "R": ("rad/s", _MAX_RATE, "yaw rate"),
+    "u_gondola": ("1", None, "gondola fan command (positive pushes forward)"),
+    "mu": ("rad", _MAX_THRUST_ANGLE, "gondola thrust angle (positive tilts the thrust up)"),
+    "u_tail": ("1", None, "tail fan command (positive yaws the nose right)"),
     # JSBSim (validation.vehicles.jsbsim): normalised stick and pedal commands.
-    "elevator": ("1", None), "aileron": ("1", None), "rudder": ("1", None),
-    "collective": ("1", None), "longitudinal_cyclic": ("1", None),
-    "lateral_cyclic": ("1", None), "pedal": ("1", None),
+    "elevator": ("1", None, "elevator (pitch stick) command"),
+    "aileron": ("1", None, "aileron (roll stick) command"), "rudder": ("1", None, "rudder pedal command"),
+    "collective": ("1", None, "collective lever command"),
+    "longitudinal_cyclic": ("1", None, "longitudinal cyclic stick command"),
+    "lateral_cyclic": ("1", None, "lateral cyclic stick command"),
+    "pedal": ("1", None, "tail rotor pedal command"),
 }
+_UNKNOWN_COLUMN = ("?", None, None)
 
 
 def column_unit(name: str) -> str:
     """SI unit of column ``name`` (``"1"``: normalised command; ``"?"``: not a known column)."""
-    return _COLUMNS.get(name, ("?", None))[0]
+    return _COLUMNS.get(name, _UNKNOWN_COLUMN)[0]
+
+
+def column_phrase(name: str) -> str:
+    """What column ``name`` is, in words (``"pitch rate"``, ``"longitudinal cyclic pitch"``): the
+    one phrase FMU variable descriptions, reports and plots use; the name itself for an unknown
+    column."""
+    return _COLUMNS.get(name, _UNKNOWN_COLUMN)[2] or name
 
 
 def column_limit(name: str) -> float | None:
@@ -123,7 +144,7 @@ def column_limit(name: str) -> float | None:
     Angles use the limits of the degrees check; normalised commands (unit ``1``) span full
     travel, so 1.
     """
-    unit, limit = _COLUMNS.get(name, ("?", None))
+    unit, limit, _ = _COLUMNS.get(name, _UNKNOWN_COLUMN)
     return 1.0 if unit == "1" else limit
 
 
@@ -412,7 +433,7 @@ def _check_time(path: Path, time: np.ndarray, line_numbers: list[int], *, uneven
 def _check_radians(path: Path, header: list[str], table: np.ndarray, line_numbers: list[int]) -> None:
     """Angle and rate columns whose magnitude is implausible in rad (rad/s) look like degrees."""
     for column, name in enumerate(header):
-        unit, limit = _COLUMNS.get(name, ("?", None))
+        unit, limit, _ = _COLUMNS.get(name, _UNKNOWN_COLUMN)
         if limit is None:
             continue
         beyond = np.flatnonzero(abs(table[:, column]) > limit)
