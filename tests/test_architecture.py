@@ -6,10 +6,17 @@ dependency). The rules:
 1. Imports point one way, down the layers of :data:`LAYERS`: a module imports only modules of
    its own layer or of lower ones (``gp_model`` imports nothing of the other two packages).
 2. No cycle between modules, within a layer either.
-3. No module imports another module's private name (``from a import _b``), nor a private module
-   (``_m``) of another top-level package.
-4. ``gp_model`` is mathematics: numpy, scipy and the standard library only.
-5. ``validation`` keeps at most a dozen top-level modules; the rest lives in subpackages.
+3. No module imports another module's private name (``from a import _b``) or reaches one
+   through an imported module (``import gp_model`` then ``gp_model._gp``), and a private module
+   (``a/b/_m.py``) is imported only from inside its own package (``a.b``).
+4. No import by string (``importlib.import_module``, ``__import__``): every dependency is an
+   import statement this test can read.
+5. ``gp_model`` is mathematics: numpy, scipy and the standard library only.
+6. ``validation`` keeps at most a dozen top-level modules; the rest lives in subpackages.
+
+A package's ``__init__`` re-exports from its own submodules; importing ``a.b.c`` also runs
+``a/b/__init__``, which is not counted as a dependency (it would make every package that
+re-exports its submodules a cycle).
 """
 from __future__ import annotations
 
@@ -119,16 +126,58 @@ def test_no_import_cycles():
             visit(name)
 
 
+def _private(part: str) -> bool:
+    return part.startswith("_") and not part.startswith("__")
+
+
+def _tree(name: str) -> ast.Module:
+    return ast.parse(MODULES[name].read_text(encoding="utf-8"), filename=str(MODULES[name]))
+
+
 @pytest.mark.parametrize("name", sorted(MODULES))
 def test_no_private_names_from_other_modules(name):
     bad = []
     for module, imported, line in _imports(name):
-        if imported.startswith("_") and module != name:
+        if _private(imported) and module != name:
             bad.append(f"{imported} from {module} (line {line})")
-        private = [part for part in module.split(".")[1:] if part.startswith("_") and part != "__init__"]
-        if private and module.split(".")[0] != name.split(".")[0]:
-            bad.append(f"private module {module} (line {line})")
+        parts = module.split(".")
+        for depth, part in enumerate(parts[1:], start=1):
+            owner = ".".join(parts[:depth])  # the package the private module belongs to
+            if _private(part) and not (name == owner or name.startswith(owner + ".")):
+                bad.append(f"private module {module} of {owner} (line {line})")
     assert not bad, f"{name} imports private names: {', '.join(bad)}"
+
+
+@pytest.mark.parametrize("name", sorted(MODULES))
+def test_no_private_names_reached_through_imported_modules(name):
+    """``import gp_model`` then ``gp_model._gp.GaussianProcess`` is a private import too."""
+    tree = _tree(name)
+    bound = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] in PACKAGES:
+                    bound[alias.asname or alias.name.split(".")[0]] = alias.name
+    bad = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and _private(node.attr):
+            root = node.value
+            while isinstance(root, ast.Attribute):
+                root = root.value
+            if isinstance(root, ast.Name) and root.id in bound:
+                bad.append(f"{ast.unparse(node)} (line {node.lineno})")
+    assert not bad, f"{name} reaches private names of other modules: {', '.join(bad)}"
+
+
+@pytest.mark.parametrize("name", sorted(MODULES))
+def test_no_imports_by_string(name):
+    bad = []
+    for node in ast.walk(_tree(name)):
+        if isinstance(node, ast.Call):
+            called = ast.unparse(node.func)
+            if called in ("__import__", "importlib.import_module", "import_module"):
+                bad.append(f"{called}(...) (line {node.lineno})")
+    assert not bad, f"{name} imports by string, which the layer and cycle checks cannot see: {', '.join(bad)}"
 
 
 def test_gp_model_is_mathematics_only():

@@ -3,25 +3,35 @@
 Each subcommand lives in its own module, which exposes ``register(subparsers)``; that function
 adds the subparser and sets ``func`` (called with the parsed arguments, returns an exit code).
 
-Exit codes (docs/conventions.md, "Exit codes"): 0 success, 2 bad input or usage (one line on stderr, no
-traceback), 1 internal error.
+Exit codes (docs/conventions.md, "Exit codes"): 0 success, 2 bad input or usage (one line on
+stderr, no traceback), 1 internal error.
 """
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import os
 import sys
 
 from gp_model import ModelFileError
+from validation.cli import (
+    bench,
+    build_fmu,
+    cosim,
+    demo,
+    diagnose,
+    diagnose_bench,
+    inspect,
+    predict,
+    record,
+    reproduce,
+    train,
+)
 from validation.core.errors import BadInputError
 
-#: Modules that each register one or more subcommands, in the order ``--help`` lists them.
-COMMAND_MODULES = tuple(f"validation.cli.{name}" for name in (
-    "demo", "record", "inspect", "train", "predict", "reproduce", "cosim", "bench", "build_fmu",
-    "diagnose", "diagnose_bench",
-))
+#: The command modules, in the order ``--help`` lists their commands.
+COMMAND_MODULES = (demo, record, inspect, train, predict, reproduce, cosim, bench, build_fmu, diagnose,
+                   diagnose_bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,8 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module_name in COMMAND_MODULES:
-        importlib.import_module(module_name).register(subparsers)
+    for module in COMMAND_MODULES:
+        module.register(subparsers)
     return parser
 
 
