@@ -5,6 +5,7 @@ illustrations use another fence (```text, ```sh). Relative links between the pag
 files and headings that exist.
 """
 import re
+import shlex
 from pathlib import Path
 
 import pytest
@@ -58,3 +59,29 @@ def test_relative_links_point_at_existing_files_and_headings(page):
         elif anchor and target.suffix == ".md" and anchor not in _anchors(target.read_text(encoding="utf-8")):
             broken.append(f"{link} (no such heading)")
     assert not broken, f"{page.name}: broken links: {broken}"
+
+
+_SHELL_BLOCK = re.compile(r"^```sh\n(.*?)^```", flags=re.S | re.M)
+#: Marks of a synopsis (``flightgp bench [gp] ...``, ``RECORDING...``, ``bo105-<V>kt|blimp``),
+#: which describes a command rather than being one.
+_SYNOPSIS = re.compile(r"\[|\.\.\.|\||<")
+
+
+def _commands():
+    for page in PAGES:
+        for block in _SHELL_BLOCK.findall(page.read_text(encoding="utf-8")):
+            for line in block.replace("\\\n", " ").splitlines():
+                command = " ".join(shlex.split(line, comments=True))
+                if command.startswith("flightgp ") and not _SYNOPSIS.search(command):
+                    yield pytest.param(command, id=f"{page.relative_to(ROOT)}: {command[:60]}")
+
+
+@pytest.mark.parametrize("command", list(_commands()))
+def test_shell_examples_are_valid_flightgp_command_lines(command):
+    """Every ``flightgp`` line of a ```sh block parses with today's options (it is not run)."""
+    from validation.cli.main import build_parser
+
+    try:
+        build_parser().parse_args(shlex.split(command)[1:])
+    except SystemExit as exit_:
+        pytest.fail(f"`{command}` does not parse (exit {exit_.code})")
