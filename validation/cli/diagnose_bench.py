@@ -3,12 +3,12 @@ concealed-effect benchmark of ``flightgp diagnose`` (:mod:`validation.diagnose.b
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from validation.cli.arguments import seed
 from validation.core.errors import BadInputError
-from validation.core.files import check_output_folder
+from validation.core.files import check_output_folder, json_text, write_files_atomically
+from validation.core.progress import progress_bar
 
 
 def register(subparsers) -> None:
@@ -35,8 +35,6 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.core.files import write_files_atomically
-    from validation.core.progress import progress_bar
     from validation.diagnose.bench import (
         concealed_cases,
         format_scorecard,
@@ -68,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         tables.append(format_seed_summary(result["summary"]))
     table = "\n\n".join(tables)
     print(table)
-    written = write_files_atomically({args.out / "scorecard.json": json.dumps(result, indent=2) + "\n",
+    written = write_files_atomically({args.out / "scorecard.json": json_text(result),
                                       args.out / "scorecard.txt": table + "\n"})
     print(f"written {', '.join(str(path) for path in written)}")
     return 0

@@ -72,6 +72,11 @@ def write_atomically(path, data: str | bytes) -> Path:
     return write_files_atomically({path: data})[0]
 
 
+def json_text(data) -> str:
+    """``data`` as the project's JSON files hold it: indented by two spaces, a final newline."""
+    return json.dumps(data, indent=2) + "\n"
+
+
 def write_json(path, data) -> Path:
-    """Write ``data`` as indented JSON, atomically; returns the path."""
-    return write_atomically(path, json.dumps(data, indent=2) + "\n")
+    """Write ``data`` as indented JSON (:func:`json_text`), atomically; returns the path."""
+    return write_atomically(path, json_text(data))

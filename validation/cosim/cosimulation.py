@@ -15,7 +15,6 @@ compare them.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,7 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from validation.core.errors import BadInputError
-from validation.core.files import write_files_atomically
+from validation.core.files import json_text, write_files_atomically
 from validation.core.metrics import rmse
 from validation.core.plots import png_bytes
 from validation.core.recordings import Recording
@@ -213,7 +212,7 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
         summary = {"step_s": step, "axes": list(axes), "rmse": result.rmse(),
                    "coverage": result.coverage(), "gp_fmu": str(gp_fmu),
                    "reference_fmu": str(reference_fmu) if reference_fmu else None}
-        files[out_dir / "cosim.json"] = json.dumps(summary, indent=2) + "\n"
+        files[out_dir / "cosim.json"] = json_text(summary)
         files[out_dir / "cosim.png"] = png_bytes(_figure(result))
         write_files_atomically(files)
     return result

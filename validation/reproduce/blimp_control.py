@@ -116,7 +116,7 @@ class TurnTask:
         return int(round(self.horizon_s / SAMPLE_TIME))
 
 
-def scenarios(task: TurnTask, start_state, seeds, n_states: int = 12):
+def scenarios(task: TurnTask, start_state, seeds, *, n_states: int = 12):
     """Start states (n, 12) and per-step standard normals (n, frames, n_states) of each seed.
 
     Seed i draws ``default_rng(seeds[i])``: start yaw, start yaw rate (added to ``R``), then
