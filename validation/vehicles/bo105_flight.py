@@ -112,6 +112,7 @@ from validation.vehicles.bo105 import (
     padfield_table,
     propagate,
 )
+from validation.vehicles.linear_discretisation import expm
 
 _STATE = {name: i for i, name in enumerate(STATE_NAMES)}
 _INPUT = {name: i for i, name in enumerate(INPUT_NAMES)}
@@ -240,7 +241,7 @@ def _dryden_discretisation(advection_speed: float, step: float):
     """
     F, G, C = _dryden_filter(advection_speed)
     n = len(F)
-    E = linalg.expm(np.block([[-F, G @ G.T], [np.zeros((n, n)), F.T]]) * step)
+    E = expm(np.block([[-F, G @ G.T], [np.zeros((n, n)), F.T]]) * step)
     transition = E[n:, n:].T
     process_noise = linalg.cholesky(transition @ E[:n, n:], lower=True)
     stationary = linalg.cholesky(linalg.solve_continuous_lyapunov(F, -G @ G.T), lower=True)
