@@ -33,6 +33,10 @@ from validation.vehicles.bo105_flight import Bo105FlightTest
 
 
 class Vehicle(Protocol):
+    """What every vehicle of the registry is (module docstring): a name, its input and state
+    names, a default recording interval, s, and ``simulate(time, inputs, *, seed=0)`` returning
+    a :class:`~validation.core.recordings.Recording` (``time`` (n,), s; ``inputs`` (n, n_inputs))."""
+
     name: str
     input_names: tuple[str, ...]
     state_names: tuple[str, ...]
