@@ -1,5 +1,5 @@
 """Which FMU a model file or a reference name gives (what ``flightgp build-fmu`` runs; runs in
-the flightgp environment, not inside an FMU; docs/fmus.md, "Building")."""
+the flightgp environment, not inside an FMU; docs/fmus.md, "Building: `flightgp build-fmu`")."""
 from __future__ import annotations
 
 import re

@@ -19,14 +19,15 @@
  *   doubles  per GP part p (d = N_GP_INPUTS, m = BASIS_POINTS[p], q = PART_OUTPUTS[p]; all in
  *            standardised units): input_mean (d), input_scale (d), output_mean (q),
  *            output_scale (q), kernel_weights (d), log_signal_variance, basis (m x d, by rows),
- *            weights (m x q, by rows), variance factor V = L^-1 by rows: if LOWER_TRIANGULAR[p],
- *            row i holds columns 0 .. i only (m (m + 1) / 2 doubles in all), else 0 .. m - 1.
+ *            weights (m x q, by rows), variance factor V = L^-1 stored as gp_predict.h says (by
+ *            columns, packed if LOWER_TRIANGULAR[p]).
  *
  * A shared GP is one part with q = 12; one GP per state is twelve parts with q = 1, in state
  * order. Each instance reads its own copy (no memory shared between instances).
  *
  * Residual of part p at GP input x = [s[STATE_COLUMNS], u_gondola, mu, u_tail, h]
- * (R&W 2006, Alg. 2.1, lines 4-6, in standardised units):
+ * (R&W 2006, Alg. 2.1, lines 4-6, in standardised units; the kernel row, means and latent
+ * variance by the FMI layer's gp_predict.c):
  *   xs = (x - input_mean) / input_scale,  k_i = sigma_f^2 exp(-sum_c w_c (xs_c - basis_i,c)^2)
  *   mean_j = k . weights_j,  latent = max(sigma_f^2 - |V k|^2, 0),
  *   var_j = max((latent + mean_j^2) - mean_j^2, 0)   (GaussianProcess.predict's one-component
@@ -42,6 +43,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "gp_predict.h"
 #include "model.h"
 #include "model_config.h"
 
@@ -58,19 +60,22 @@ typedef struct {
     double log_signal_variance, signal_variance;
     const double *basis;                     /* (m, d) */
     const double *weights;                   /* (m, q) */
-    const double *variance_factor;           /* rows, packed if lower triangular */
+    const double *variance_factor;           /* by columns, packed if lower triangular (gp_predict.h) */
 } GPPart;
 
 struct Model {
     double *data;
     GPPart part[N_PARTS];
-    double *k;                  /* scratch (m_max,) */
+    double *squared;            /* scratch (m_max, d) */
+    double *k, *v;              /* scratch (m_max,) */
 };
 
 void model_free(Model *model) {
     if (model == NULL) return;
     free(model->data);
+    free(model->squared);
     free(model->k);
+    free(model->v);
     free(model);
 }
 
@@ -103,51 +108,34 @@ Model *model_load(const char *resources_dir, char **error) {
         part->signal_variance = exp(part->log_signal_variance);
         part->basis = p, p += m * D;
         part->weights = p, p += m * q;
-        part->variance_factor = p, p += part->lower_triangular ? m * (m + 1) / 2 : m * m;
+        part->variance_factor = p, p += gp_factor_size(part->m, part->lower_triangular);
         if (part->m > m_max) m_max = part->m;
     }
+    model->squared = malloc(sizeof(double) * (size_t)m_max * D);
     model->k = malloc(sizeof(double) * (size_t)m_max);
-    if (model->k == NULL) return fail(model, error, NULL);
+    model->v = malloc(sizeof(double) * (size_t)m_max);
+    if (model->squared == NULL || model->k == NULL || model->v == NULL) return fail(model, error, NULL);
     return model;
 }
 
-/* Latent mean and variance of the 12 residuals at GP input x (RKGPModel.residual). */
+/* Latent mean and variance of the 12 residuals at GP input x (RKGPModel.residual): per part the
+ * kernel row, its latent variance and, per output, the mean and GaussianProcess.predict's
+ * one-component mixture variance max((latent + mean^2) - mean^2, 0) (gp_predict.c). */
 static void residual(const Model *model, const double x[D], double mean[N_STATES], double var[N_STATES]) {
     int out = 0;
     for (int j = 0; j < N_PARTS; j++) {
         const GPPart *part = &model->part[j];
         const int m = part->m, q = part->q;
         double xs[D];
-        for (int c = 0; c < D; c++) xs[c] = (x[c] - part->input_mean[c]) / part->input_scale[c];
-        /* k_i = exp(log sigma_f^2 - sum_c w_c (xs_c - b_ic)^2) (fmu_src/fmi/runtime.py, kernel_rows) */
-        for (int i = 0; i < m; i++) {
-            const double *b = part->basis + (size_t)i * D;
-            double sum = 0.0;
-            for (int c = 0; c < D; c++) {
-                double difference = xs[c] - b[c];
-                sum += part->kernel_weights[c] * (difference * difference);
-            }
-            model->k[i] = exp(part->log_signal_variance - sum);
-        }
-        /* v = V k, V by rows (packed: row i has columns 0 .. i) */
-        const double *row = part->variance_factor;
-        double vv = 0.0;
-        for (int i = 0; i < m; i++) {
-            const int columns = part->lower_triangular ? i + 1 : m;
-            double value = 0.0;
-            for (int c = 0; c < columns; c++) value += row[c] * model->k[c];
-            row += columns;
-            vv += value * value;
-        }
-        double latent = part->signal_variance - vv;
-        if (!(latent > 0.0)) latent = 0.0;
+        gp_standardise(D, x, part->input_mean, part->input_scale, xs);
+        gp_squared_distances(m, D, xs, part->basis, model->squared);
+        gp_kernel_row(m, D, model->squared, part->kernel_weights, part->log_signal_variance, model->k);
+        const double latent = gp_latent_variance(m, part->variance_factor, part->lower_triangular, model->k,
+                                                 part->signal_variance, model->v);
         for (int o = 0; o < q; o++) {
-            double mu = 0.0;
-            for (int i = 0; i < m; i++) mu += model->k[i] * part->weights[(size_t)i * q + o];
-            double spread = (latent + mu * mu) - mu * mu;
-            if (!(spread > 0.0)) spread = 0.0;
+            const double mu = gp_mean(m, model->k, part->weights + o, q);
             mean[out] = mu * part->output_scale[o] + part->output_mean[o];
-            var[out] = spread * (part->output_scale[o] * part->output_scale[o]);
+            var[out] = gp_spread(latent + mu * mu, mu) * (part->output_scale[o] * part->output_scale[o]);
             out++;
         }
     }

@@ -2,6 +2,7 @@
 is built from too (runs in the flightgp environment, not inside an FMU)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,17 +16,6 @@ from gp_model import GreyBoxGP, ModelFileError, load_model, read_header
 from validation.core.errors import BadInputError
 from validation.models.blimp_identification import blimp_physics_from_description
 from validation.vehicles.blimp import INPUT_NAMES, STATE_NAMES, hanging_state
-
-#: What the blimp's signals are (docs/conventions.md, "Units and axes": NED earth, body axes).
-BLIMP_PHRASES = {
-    "u_gondola": "gondola fan command (positive pushes forward)",
-    "mu": "gondola thrust angle (positive tilts the thrust up)",
-    "u_tail": "tail fan command (positive yaws the nose right)",
-    "x": "north position", "y": "east position", "z": "down position",
-    "phi": "roll angle", "theta": "pitch angle", "psi": "heading",
-    "U": "forward body velocity", "V": "rightward body velocity", "W": "downward body velocity",
-    "P": "roll rate", "Q": "pitch rate", "R": "yaw rate",
-}
 
 
 def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
@@ -54,20 +44,21 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
     validation.core.errors.BadInputError
         Other physics than ``blimp_rk4``; hyperparameter samples; a bad ``name`` or ``out_dir``.
     """
-    target, arrays, interface, description, nominal_step = blimp_rkgp_parts(model_path, out_dir, name=name)
-    return build_pythonfmu(target, slave_class=BlimpRKGP, variables=(blimp_rkgp_variables, interface),
-                           attributes={"DEFAULT_STEP_SIZE": nominal_step}, description=description,
-                           arrays=arrays)
+    parts = blimp_rkgp_parts(model_path, out_dir, name=name)
+    return build_pythonfmu(parts.target, slave_class=BlimpRKGP, variables=(blimp_rkgp_variables, parts.interface),
+                           attributes={"DEFAULT_STEP_SIZE": parts.nominal_step}, description=parts.description,
+                           arrays=parts.arrays)
 
 
-def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
+@dataclass(frozen=True)
+class BlimpRKGPParts:
     """What every blimp RKGP FMU (pythonfmu or native) is built from.
 
-    Returns
-    -------
+    Attributes
+    ----------
     target : Path
         ``out_dir/<name>.fmu`` (name checked; default the model file's stem made into a name).
-    arrays : dict
+    arrays : dict of str -> ndarray
         The FMU model file's arrays (:func:`fmu_src.blimp_rkgp.model.pack_model`): the physics
         parameters, the longest RK4 substep, the GP inputs and their training envelope, and per
         GP part (one shared, or one per state) its point-hyperparameter predictive form.
@@ -77,6 +68,18 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
         The FMU's one-line description.
     nominal_step : float
         The default experiment's step: the median training frame interval, s.
+    """
+
+    target: Path
+    arrays: dict
+    interface: dict
+    description: str
+    nominal_step: float
+
+
+def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> BlimpRKGPParts:
+    """What every blimp RKGP FMU (pythonfmu or native) is built from, for the grey-box model file
+    ``model_path``, ``out_dir`` and ``name`` of :func:`build_blimp_rkgp_fmu`.
 
     Raises
     ------
@@ -102,16 +105,16 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
         envelope_low=X.min(axis=0), envelope_high=X.max(axis=0), parts=[_gp_part(gp) for gp in gps])
     nominal_step = float(np.median(X[:, -1]))
     start = hanging_state(params)
-    inputs = tuple((n, *signal(n, "input")[1:3], BLIMP_PHRASES[n]) for n in INPUT_NAMES)
-    states = tuple((n, *signal(n, "state")[1:3], BLIMP_PHRASES[n], float(s))
-                   for n, s in zip(STATE_NAMES, start))
+    inputs = tuple(signal(n, "input").row() for n in INPUT_NAMES)
+    states = tuple((*signal(n, "state").row(), float(s)) for n, s in zip(STATE_NAMES, start))
     gp_inputs = [STATE_NAMES[c] for c in model.state_columns_] + [*INPUT_NAMES, "dt"]
     description = (f"Blimp RKGP (Ko et al. 2007): RK4 blimp ODE plus a GP residual "
                    f"({'shared' if model.shared else 'one GP per state'}, {len(X)} points, inputs "
                    f"{', '.join(gp_inputs)}); commands u_gondola, mu, u_tail in, the 12 states and their "
                    f"one-step standard deviations out; communication step = frame interval dt "
                    f"(trained {X[:, -1].min():.4g} .. {X[:, -1].max():.4g} s); model {model_path.name}")
-    return target, arrays, {"inputs": inputs, "states": states}, description, nominal_step
+    return BlimpRKGPParts(target=target, arrays=arrays, interface={"inputs": inputs, "states": states},
+                          description=description, nominal_step=nominal_step)
 
 
 def _gp_part(gp) -> dict:

@@ -52,7 +52,7 @@ from fmu_src.fmi.runtime import (
     read_part,
 )
 from fmu_src.fmi.slave import TIME_TOLERANCE
-from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES, rk4_advance
+from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES, parameters_from_vector, rk4_advance
 
 FORMAT = "flightgp-fmu-blimp-rkgp"
 VERSION = 1
@@ -60,8 +60,6 @@ VERSION = 1
 PER_PART = {"basis": 2, "weights": 2, "variance_factor": 2, "kernel_weights": 1,
             "log_signal_variance": 0, "input_mean": 1, "input_scale": 1, "output_mean": 1,
             "output_scale": 1}
-#: Suffixes of the entries of a parameter vector that make one (x, y, z) triple.
-_AXES = ("_x", "_y", "_z")
 
 
 def pack_model(*, parameter_names, parameters, max_step: float, state_columns, envelope_low,
@@ -95,28 +93,15 @@ def pack_model(*, parameter_names, parameters, max_step: float, state_columns, e
     return arrays
 
 
-def blimp_parameters(names, values) -> SimpleNamespace:
-    """The physics parameters as :mod:`validation.vehicles.blimp_equations` reads them, from the
-    model file's named vector: entries ``<field>_x``, ``<field>_y``, ``<field>_z`` become the
-    (x, y, z) tuple ``<field>``, every other entry the float ``<field>``."""
-    vector = dict(zip((str(n) for n in names), (float(v) for v in values)))
-    fields = {}
-    for name, value in vector.items():
-        if name.endswith(_AXES):
-            field = name[:-len(_AXES[0])]
-            fields[field] = tuple(vector[field + axis] for axis in _AXES)
-        else:
-            fields[name] = value
-    return SimpleNamespace(**fields)
-
-
 class RKGPModel:
     """A blimp RKGP model loaded from an FMU model file (module docstring).
 
     Attributes
     ----------
     params : types.SimpleNamespace
-        The physics parameters (:func:`blimp_parameters`).
+        The physics parameters, fields as :class:`validation.vehicles.blimp.BlimpParameters`'s
+        (:func:`validation.vehicles.blimp_equations.parameters_from_vector` of the model file's
+        named vector).
     max_step : float
         Longest RK4 substep, s.
     state_columns : ndarray of int
@@ -132,7 +117,7 @@ class RKGPModel:
     def __init__(self, arrays: dict) -> None:
         check_header(arrays, format_name=FORMAT, version=VERSION)
         try:
-            self.params = blimp_parameters(arrays["parameter_names"], arrays["parameters"])
+            self.params = SimpleNamespace(**parameters_from_vector(arrays["parameter_names"], arrays["parameters"]))
             self.max_step = float(arrays["max_step"])
             self.state_columns = np.asarray(arrays["state_columns"], dtype=int)
             envelope_low, envelope_high = arrays["envelope_low"], arrays["envelope_high"]

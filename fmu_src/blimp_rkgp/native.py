@@ -1,6 +1,6 @@
 """The native (C, Python-free) blimp RKGP FMU: RK4 blimp physics plus GP residual (Ko et al.,
 ICRA 2007, sec. IV-B) in C (runs in the flightgp environment, not inside an FMU; docs/fmus.md,
-"Native FMUs").
+"Native FMUs (no Python in the host)").
 
 :func:`build_native_blimp_rkgp_fmu` writes an FMI 2.0 co-simulation FMU with the interface of
 the pythonfmu blimp RKGP FMU (:mod:`fmu_src.blimp_rkgp.slave`: the same variable table, value
@@ -37,6 +37,7 @@ from fmu_src.fmi.native import (
     envelope_lines,
     lower_triangular,
     package_native_fmu,
+    packed_variance_factor,
     variable_table,
 )
 from validation.vehicles.blimp_equations import INPUT_NAMES, STANDARD_GRAVITY, STATE_NAMES, mass_matrix
@@ -80,14 +81,15 @@ def build_native_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None)
         gcc failed to compile the generated sources (a bug: the message holds its output).
     """
     check_platform()
-    target, arrays, interface, description, nominal_step = blimp_rkgp_parts(model_path, out_dir, name=name)
-    model = RKGPModel(arrays)  # checks the arrays' shapes, as the pythonfmu FMU does at load
-    variables = blimp_rkgp_variables(**interface)
-    slave_class = type(target.stem, (BlimpRKGP,), {
-        "description": description + "; native C (no Python at run time)", "VARIABLES": variables,
-        "DEFAULT_STEP_SIZE": nominal_step})
-    return package_native_fmu(target, slave_class=slave_class, model_source=MODEL_SOURCE,
-                              config=lambda guid: _blimp_config(guid, target.stem, variables, model),
+    parts = blimp_rkgp_parts(model_path, out_dir, name=name)
+    model = RKGPModel(parts.arrays)  # checks the arrays' shapes, as the pythonfmu FMU does at load
+    variables = blimp_rkgp_variables(**parts.interface)
+    identifier = parts.target.stem
+    slave_class = type(identifier, (BlimpRKGP,), {
+        "description": parts.description + "; native C (no Python at run time)", "VARIABLES": variables,
+        "DEFAULT_STEP_SIZE": parts.nominal_step})
+    return package_native_fmu(parts.target, slave_class=slave_class, model_source=MODEL_SOURCE,
+                              config=lambda guid: _blimp_config(guid, identifier, variables, model),
                               data=_blimp_data(model))
 
 
@@ -143,10 +145,9 @@ def _blimp_doubles(model: RKGPModel) -> np.ndarray:
     chunks = []
     for p in model.parts:
         factor = p["variance_factor"]
-        # by rows; of a lower triangular V only columns 0 .. i of row i
-        packed = factor[np.tril_indices(len(factor))] if lower_triangular(factor) else factor.ravel()
         chunks += [p["input_mean"], p["input_scale"], p["output_mean"], p["output_scale"], p["kernel_weights"],
-                   [p["log_signal_variance"]], p["basis"].ravel(), p["weights"].ravel(), packed]
+                   [p["log_signal_variance"]], p["basis"].ravel(), p["weights"].ravel(),
+                   packed_variance_factor(factor, triangular=lower_triangular(factor))]
     return np.concatenate([np.ravel(np.asarray(c, dtype="<f8")) for c in chunks])
 
 

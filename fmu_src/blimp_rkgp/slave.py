@@ -98,12 +98,12 @@ class BlimpRKGP(FlightgpSlave):
                     "default experiment's step size")
         return None
 
-    def start_model(self, t0: float) -> None:
+    def start_model(self) -> None:
         self._state = np.array([self.values[f"{name}_start"] for name in STATE_NAMES])
         self._outside_envelope = False
         self._set_outputs(self._state, np.zeros(len(STATE_NAMES)))
 
-    def advance_model(self, k: int, t: float, h: float) -> None:
+    def advance_model(self, t: float, h: float) -> None:
         commands = np.array([self.values[name] for name in INPUT_NAMES])
         state, var, x = self._model.step(self._state, commands, h)
         if not (np.isfinite(state).all() and np.isfinite(var).all()):

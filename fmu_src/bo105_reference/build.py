@@ -54,8 +54,8 @@ def build_bo105_reference_fmu(speed_kt: int, out_dir, *, name: str | None = None
         f"{key} = {reference.derivative(key):.6g}" for key in derivatives)
     source = f"Padfield (2007) linear 6-DOF model at {reference.speed_kt} kt{changed}"
     arrays = pack_model(A=reference.A, B=reference.B, speed_kt=reference.speed_kt, source=source)
-    interface = {"inputs": tuple(signal(n, "input") for n in INPUT_NAMES),
-                 "states": tuple(signal(n, "state") for n in STATE_NAMES)}
+    interface = {"inputs": tuple(signal(n, "input").row() for n in INPUT_NAMES),
+                 "states": tuple(signal(n, "state").row() for n in STATE_NAMES)}
     description = (f"Bo105 physics reference: {source}, exact zero-order-hold discretisation at the "
                    "host's step; inputs theta_0, theta_1s, theta_1c, theta_0T, outputs u, w, q, theta, "
                    "v, p, phi, r (perturbations from trim)")

@@ -99,12 +99,12 @@ class Bo105ReferenceSlave(FlightgpSlave):
         self._A, self._B = arrays["A"], arrays["B"]
         self.log_info(f"loaded {path.name}: Bo105, {str(arrays['source'])}")
 
-    def start_model(self, t0: float) -> None:
+    def start_model(self) -> None:
         self._state = np.array([self.values[f"{name}_start"] for name in STATE_NAMES])
         self._transition = self._input_matrix = None  # discretised at the first step
         self._set_outputs(self._state)
 
-    def advance_model(self, k: int, t: float, h: float) -> None:
+    def advance_model(self, t: float, h: float) -> None:
         if self._transition is None:
             transition, input_matrix = zero_order_hold(self._A, self._B, h)
             if not (np.isfinite(transition).all() and np.isfinite(input_matrix).all()):

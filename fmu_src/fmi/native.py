@@ -1,5 +1,6 @@
 """Python-free native FMUs: compile a model's C with the FMI layer into a shared library and
-package it (runs in the flightgp environment, not inside an FMU; docs/fmus.md, "Native FMUs").
+package it (runs in the flightgp environment, not inside an FMU; docs/fmus.md, "Native FMUs (no
+Python in the host)").
 
 pythonfmu FMUs need the host's Python; C and C++ simulator hosts load only FMUs whose binary
 has no such dependency. A native FMU has the interface of the pythonfmu FMU of the same model
@@ -12,9 +13,10 @@ native FMU holds (:func:`package_native_fmu`):
 - ``binaries/linux64/<name>.so``: compiled here with the system ``gcc`` (:data:`COMPILE_FLAGS`)
   against the FMI 2.0 headers that fmpy ships (:func:`fmi_headers`);
 - ``sources/``: ``fmi2_slave.c`` (this layer in C: call-sequence state machine, variables,
-  logging, status policy, FMU state), the model's C file, ``model.h`` (their interface) and the
-  generated ``model_config.h`` (the FMU's GUID, variable table and the model's structure and
-  constants, :func:`config_header`);
+  logging, status policy, FMU state), ``gp_predict.c`` and ``gp_predict.h`` (GP prediction at one
+  input: kernel row, mean, latent variance, for every model's GPs), the model's C file,
+  ``model.h`` (the interface between layer and model) and the generated ``model_config.h`` (the
+  FMU's GUID, variable table and the model's structure and constants, :func:`config_header`);
 - ``resources/model.bin``: the model's arrays, read by each instance at ``fmi2Instantiate``
   (layout in the model's C file).
 """
@@ -38,8 +40,12 @@ from validation.core.files import write_atomically
 
 #: The FMI 2.0 layer in C, compiled into every native FMU.
 FMI_SOURCE = Path(__file__).with_name("fmi2_slave.c")
+#: GP prediction at one input (kernel row, mean, latent variance), compiled into every native FMU.
+GP_SOURCE = Path(__file__).with_name("gp_predict.c")
 #: The interface between the FMI layer and a model's C file.
 MODEL_HEADER = Path(__file__).with_name("model.h")
+#: The headers of this layer every native FMU's sources carry.
+LAYER_HEADERS = (MODEL_HEADER, Path(__file__).with_name("gp_predict.h"))
 #: The generated header and the data file.
 CONFIG_HEADER, DATA_FILE = "model_config.h", "model.bin"
 #: Flags of the system gcc for the shared library (``-fvisibility=hidden``: only the FMI
@@ -51,10 +57,10 @@ PLATFORM_FOLDER = "linux64"
 _KINDS = {"Real": "KIND_REAL", "Boolean": "KIND_BOOLEAN"}
 
 
-def compiled_sources(model_source: Path) -> tuple[Path, Path]:
+def compiled_sources(model_source: Path) -> tuple[Path, ...]:
     """The C files compiled into a native FMU of the model whose C is ``model_source``, in the
     order its ``modelDescription.xml`` lists them."""
-    return FMI_SOURCE, model_source
+    return FMI_SOURCE, GP_SOURCE, model_source
 
 
 def check_platform() -> None:
@@ -77,7 +83,7 @@ def package_native_fmu(target: Path, *, slave_class, model_source: Path, config,
         The pythonfmu slave class of the same FMU (variable table, description, step), whose
         ``modelDescription.xml`` the native FMU declares.
     model_source : Path
-        The model's C file, compiled with :data:`FMI_SOURCE`.
+        The model's C file, compiled with :data:`FMI_SOURCE` and :data:`GP_SOURCE`.
     config : callable
         ``config(guid) -> str``: the FMU's ``model_config.h`` (:func:`config_header`).
     data : bytes
@@ -90,7 +96,7 @@ def package_native_fmu(target: Path, *, slave_class, model_source: Path, config,
     """
     c_files = compiled_sources(model_source)
     xml, guid = _model_description(slave_class, [path.name for path in c_files])
-    sources = {path.name: path.read_bytes() for path in (*c_files, MODEL_HEADER)}
+    sources = {path.name: path.read_bytes() for path in (*c_files, *LAYER_HEADERS)}
     sources[CONFIG_HEADER] = config(guid).encode()
     binary = compile_shared_library(sources, target.stem)
     buffer = io.BytesIO()
@@ -247,3 +253,12 @@ def c_array(c_type: str, name: str, values, form=str) -> str:
 def lower_triangular(factors: np.ndarray) -> bool:
     """Whether every variance factor (..., m, m) is zero above its diagonal (an exact GP's L^-1)."""
     return not np.any(np.triu(factors, k=1))
+
+
+def packed_variance_factor(factor: np.ndarray, *, triangular: bool) -> np.ndarray:
+    """A variance factor ``V`` (m, m) as the native models read it (``gp_predict.h``): by columns;
+    if ``triangular`` (``V`` lower triangular, :func:`lower_triangular`), column ``c`` only from
+    row ``c`` on (m (m + 1) / 2 doubles), else whole (m m doubles)."""
+    m = len(factor)
+    rows, columns = np.triu_indices(m)[::-1] if triangular else np.indices((m, m)).reshape(2, -1)[::-1]
+    return factor[rows, columns]

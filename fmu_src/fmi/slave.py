@@ -226,10 +226,12 @@ class FlightgpSlave(Fmi2Slave):
     load_constants()
         Load what the model needs (:attr:`CONSTANT_ATTRIBUTES`); called before ``start_model``
         and when a state is restored into an instance that has not loaded it.
-    start_model(t0)
-        Set the hidden state and the outputs at ``t0``.
-    advance_model(k, t, h)
-        One step from ``t = t_k`` to ``t + h``: read inputs, update state, set outputs. If it
+    start_model()
+        Set the hidden state and the outputs at the start time, from the inputs and parameters
+        (already checked).
+    advance_model(t, h)
+        One step from ``t = t_k`` to ``t + h`` (s; ``t`` for messages): read inputs, update
+        state, set outputs. If it
         raises, it must leave the state as it was (compute first, commit last): the step is
         then refused and may be retried; if it cannot (the state has already moved), it raises
         :class:`ModelFailure`.
@@ -410,7 +412,7 @@ class FlightgpSlave(Fmi2Slave):
             self._step_size = self.STEP_SIZE
             self._refused = None
             self.load_constants()
-            self.start_model(self._start_time)
+            self.start_model()
             self._mode = "stepping"
         except Exception as error:  # noqa: BLE001 - would be fmi2Fatal
             self._log_exception("fmi2ExitInitializationMode", error)
@@ -423,7 +425,7 @@ class FlightgpSlave(Fmi2Slave):
                 self._log_error(f"fmi2DoStep at t = {current_time:.16g} s refused (fmi2Discard): {refusal}")
                 return False
             h = float(step_size) if self._step_size is None else self._step_size
-            self.advance_model(self._step_count, float(current_time), h)
+            self.advance_model(float(current_time), h)
             self._step_size = h
             self._step_count += 1
             return True
@@ -504,10 +506,10 @@ class FlightgpSlave(Fmi2Slave):
         when ``STEP_SIZE`` is None; the step is then fixed until reset)."""
         return None
 
-    def start_model(self, t0: float) -> None:
+    def start_model(self) -> None:
         raise NotImplementedError
 
-    def advance_model(self, k: int, t: float, h: float) -> None:
+    def advance_model(self, t: float, h: float) -> None:
         raise NotImplementedError
 
     # -- state --------------------------------------------------------------------------------

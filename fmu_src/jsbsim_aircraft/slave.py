@@ -4,19 +4,19 @@ JSBSim inside the FMU from a steady starting condition (``jsbsim:<aircraft>``; d
 
 The host's Python needs the ``jsbsim`` package (1.3.x; it brings the aircraft) besides numpy and
 pythonfmu. Every JSBSim FMU carries a copy of this file (:mod:`fmu_src.fmi.pythonfmu`), so it
-imports only the FMI layer (:mod:`fmu_src.fmi.slave`), the shared FMU runtime, numpy, the
-standard library and ``jsbsim`` (at initialisation, so that a host without it gets a logged
-Error, not a failed instantiation).
+imports only the FMI layer (:mod:`fmu_src.fmi.slave`), the shared FMU runtime, JSBSim's
+starting procedure (:mod:`validation.vehicles.jsbsim_start`), numpy, the standard library and
+``jsbsim`` (at initialisation, so that a host without it gets a logged Error, not a failed
+instantiation).
 
-Starting condition (the recipe of :class:`validation.vehicles.jsbsim.JSBSimVehicle`, whose
-numbers travel in the FMU's model file, written by :func:`pack_model`)
----------------------------------------------------------------------------------------
-- ``start = "trim"`` (fixed-wing, e.g. ``c172x``): ``load_model``, JSBSim step 0.01 s, the
-  initial conditions (100 kt calibrated, 4000 ft, level, heading east), ``run_ic``, engines
-  running, ``do_trim(1)`` (full trim: all six accelerations to zero).
-- ``start = "script"`` (``ah1s``): the aircraft's own flight-test script, run to the hover at
-  its ``script_time``; then properties such as ``simulation/test-variant = 0`` (no later script
-  event fires).
+Starting condition
+------------------
+The recipe of :class:`validation.vehicles.jsbsim.JSBSimVehicle`
+(:class:`validation.vehicles.jsbsim_start.StartingRecipe`: fixed-wing aircraft, e.g. ``c172x``,
+trimmed in level flight at 100 kt calibrated, 4000 ft, heading east; the ``ah1s`` flown by its
+own flight-test script to the hover) travels in the FMU's model file (:func:`pack_model`), and
+the FMU reaches it with the vehicle's own function
+(:func:`validation.vehicles.jsbsim_start.start_fdm`) at JSBSim's step of 0.01 s.
 
 Inputs are normalised stick and pedal commands (``fcs/<control>-cmd-norm``) as perturbations
 from their values at the starting condition; outputs are JSBSim's body velocities (m/s), body
@@ -43,65 +43,46 @@ it would print on standard output, go to the FMI logger: the FMU never prints.
 """
 from __future__ import annotations
 
-import contextlib
 import weakref
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from fmu_src.fmi.runtime import check_header, model_header, read_model_file
 from fmu_src.fmi.slave import FlightgpSlave, ModelFailure, Variable
+from validation.vehicles.jsbsim_start import StartingRecipe, message_buffer, routed_messages, start_fdm
 
 FORMAT = "flightgp-fmu-jsbsim"
-VERSION = 1
+VERSION = 2
 #: JSBSim's integration step, s (validation.vehicles.jsbsim.JSBSimVehicle.sample_time).
 JSBSIM_STEP = 0.01
 #: Relative tolerance on "the step is a whole multiple of JSBSIM_STEP".
 _MULTIPLE_TOLERANCE = 1e-6
 
 
-def pack_model(*, aircraft: str, start: str, jsbsim_version: str, controls, states,
-               initial_conditions=(), script: str = "", script_time: float = 0.0,
-               after_start=()) -> dict:
+def pack_model(*, recipe: StartingRecipe, jsbsim_version: str, controls, states) -> dict:
     """Arrays of the FMU's model file (strings as numpy unicode arrays; no pickle).
 
     Parameters
     ----------
-    aircraft : str
-        Folder under ``jsbsim.get_default_root_dir()/aircraft``.
-    start : {"trim", "script"}
-        How the starting condition is reached (module docstring).
+    recipe : validation.vehicles.jsbsim_start.StartingRecipe
+        How JSBSim reaches the starting condition (stored as its JSON,
+        :meth:`~validation.vehicles.jsbsim_start.StartingRecipe.to_json`).
     jsbsim_version : str
         The version the recipe was checked with at build time.
     controls : sequence of (input name, property, low, high)
         Each input, the JSBSim command it perturbs and that command's travel.
     states : sequence of (output name, property, factor to SI)
-    initial_conditions : sequence of (property, value)
-        ``start = "trim"``: set before ``run_ic``.
-    script, script_time : str, float
-        ``start = "script"``: the script (relative to the JSBSim root) and the time, s, to run it to.
-    after_start : sequence of (property, value)
-        Set once the starting condition is reached.
     """
-    if start not in ("trim", "script"):
-        raise ValueError(f"start must be 'trim' or 'script', got {start!r}")
-    pairs = lambda rows: (np.array([r[0] for r in rows], dtype=str),  # noqa: E731
-                          np.array([float(r[1]) for r in rows], dtype=float))
-    ic_names, ic_values = pairs(initial_conditions)
-    after_names, after_values = pairs(after_start)
-    return {**model_header(FORMAT, VERSION), "aircraft": np.array(aircraft),
-            "start": np.array(start), "jsbsim_version": np.array(jsbsim_version),
+    return {**model_header(FORMAT, VERSION), "recipe": np.array(recipe.to_json()),
+            "jsbsim_version": np.array(jsbsim_version),
             "input_names": np.array([c[0] for c in controls], dtype=str),
             "control_properties": np.array([c[1] for c in controls], dtype=str),
             "control_low": np.array([c[2] for c in controls], dtype=float),
             "control_high": np.array([c[3] for c in controls], dtype=float),
             "state_names": np.array([s[0] for s in states], dtype=str),
             "state_properties": np.array([s[1] for s in states], dtype=str),
-            "state_factors": np.array([s[2] for s in states], dtype=float),
-            "ic_names": ic_names, "ic_values": ic_values,
-            "script": np.array(script), "script_time": np.array(float(script_time)),
-            "after_start_names": after_names, "after_start_values": after_values}
+            "state_factors": np.array([s[2] for s in states], dtype=float)}
 
 
 def jsbsim_variables(*, inputs, states) -> tuple:
@@ -138,7 +119,7 @@ class JSBSimAircraft(FlightgpSlave):
 
     DEFAULT_STEP_SIZE = JSBSIM_STEP
     CAN_GET_AND_SET_FMU_STATE = False
-    CONSTANT_ATTRIBUTES = ("_jsbsim", "_model", "_log_sink")
+    CONSTANT_ATTRIBUTES = ("_jsbsim", "_model", "_recipe", "_log_sink")
     STATE_ATTRIBUTES = ("_fdm", "_trim")  # not savable: see the module docstring
 
     def load_constants(self) -> None:
@@ -156,43 +137,21 @@ class JSBSimAircraft(FlightgpSlave):
         if missing:
             raise ValueError(f"the model file's signals {missing} have no FMU variables")
         self._jsbsim, self._model = jsbsim, model
-        self._log_sink = _fmi_logger(jsbsim, self)
+        self._recipe = StartingRecipe.from_json(str(model["recipe"]))
+        self._log_sink = message_buffer(_fmi_log_of(self))
         built_with = str(model["jsbsim_version"])
         if jsbsim.__version__ != built_with:
             self.log_warning(f"this FMU was built and checked with JSBSim {built_with}; the host has "
                              f"{jsbsim.__version__}: the starting condition and response may differ")
 
-    def start_model(self, t0: float) -> None:
-        model = self._model
-        aircraft = str(model["aircraft"])
+    def start_model(self) -> None:
+        model, aircraft = self._model, self._recipe.aircraft
         root = Path(self._jsbsim.get_default_root_dir())
         if not (root / "aircraft" / aircraft / f"{aircraft}.xml").is_file():
             raise FileNotFoundError(f"the host's JSBSim ({root}) has no aircraft {aircraft!r}")
         self._fdm = None  # until started: input_problems checks no travel against an old trim
-        with self._messages_to_fmi_log():
-            fdm = self._jsbsim.FGFDMExec(str(root))
-            fdm.set_debug_level(0)
-            if str(model["start"]) == "script":
-                fdm.load_script(str(model["script"]))
-                fdm.disable_output()
-                fdm.set_dt(JSBSIM_STEP)  # overrides the script's own step
-                fdm.run_ic()
-                for _ in range(int(round(float(model["script_time"]) / JSBSIM_STEP))):
-                    fdm.run()
-            else:
-                fdm.load_model(aircraft)
-                fdm.disable_output()
-                fdm.set_dt(JSBSIM_STEP)
-                for name, value in zip(model["ic_names"], model["ic_values"]):
-                    fdm[str(name)] = float(value)
-                fdm.run_ic()
-                fdm["propulsion/set-running"] = -1  # -1: all engines
-                try:
-                    fdm.do_trim(1)  # 1 = tFull: all six accelerations to zero
-                except self._jsbsim.TrimFailureError:
-                    raise RuntimeError(f"JSBSim cannot trim {aircraft} at the starting condition") from None
-            for name, value in zip(model["after_start_names"], model["after_start_values"]):
-                fdm[str(name)] = float(value)
+        with routed_messages(self._log_sink):
+            fdm = start_fdm(self._recipe, dt=JSBSIM_STEP)
             trim = np.array([fdm[str(name)] for name in model["control_properties"]])
         self.log_info(f"JSBSim {self._jsbsim.__version__}, {aircraft} at its starting condition: "
                       + ", ".join(f"{n} trim {v:.6g}" for n, v in zip(model["input_names"], trim.tolist()))
@@ -222,12 +181,12 @@ class JSBSimAircraft(FlightgpSlave):
                             f"{model['control_low'][i]:g}..{model['control_high'][i]:g}")
         return problems
 
-    def advance_model(self, k: int, t: float, h: float) -> None:
+    def advance_model(self, t: float, h: float) -> None:
         fdm, model = self._fdm, self._model
         substeps = round(h / JSBSIM_STEP)
         commands = self._commands()
         try:
-            with self._messages_to_fmi_log():
+            with routed_messages(self._log_sink):
                 for name, value in zip(model["control_properties"], commands.tolist()):
                     fdm[str(name)] = value
                 for _ in range(substeps):
@@ -254,47 +213,16 @@ class JSBSimAircraft(FlightgpSlave):
             self.values[str(name)] = float(value)
         return True
 
-    @contextlib.contextmanager
-    def _messages_to_fmi_log(self):
-        """Route JSBSim's messages to the FMI logger for the duration (JSBSim's logger is per
-        thread, and a host may call the FMU from any thread)."""
-        jsbsim = self._jsbsim
-        previous = jsbsim.get_logger()
-        jsbsim.set_logger(self._log_sink)
-        try:
-            yield
-        finally:
-            jsbsim.set_logger(previous)
 
+def _fmi_log_of(slave: FlightgpSlave):
+    """The ``deliver`` of :func:`validation.vehicles.jsbsim_start.message_buffer` that hands each
+    JSBSim message to ``slave``'s FMI log on one line: warnings and errors as Warnings, the rest
+    (banner, notices) as information. It holds ``slave`` weakly (the slave holds the buffer)."""
+    owner = weakref.ref(slave)
 
-def _fmi_logger(jsbsim, slave: FlightgpSlave):
-    """A ``jsbsim.FGLogger`` that hands each JSBSim message to ``slave``'s FMI log: warnings and
-    errors as Warnings, the rest (banner, notices) as information. It holds ``slave`` weakly (the
-    slave holds it)."""
-    return _logger_class(jsbsim)(weakref.ref(slave))
+    def deliver(text: str, *, important: bool) -> None:
+        slave = owner()
+        if slave is not None:
+            (slave.log_warning if important else slave.log_info)(f"JSBSim: {' '.join(text.split())}")
 
-
-@lru_cache(maxsize=1)
-def _logger_class(jsbsim):
-    class FmiLogger(jsbsim.FGLogger):
-        def __init__(self, slave_ref) -> None:
-            super().__init__()
-            self._slave_ref = slave_ref
-            self._warning = False
-            self._parts: list[str] = []
-
-        def set_level(self, level) -> None:
-            self._warning = jsbsim.LogLevel.WARN <= level <= jsbsim.LogLevel.FATAL
-            self._parts = []
-
-        def message(self, message: str) -> None:
-            self._parts.append(message)
-
-        def flush(self) -> None:
-            text = " ".join("".join(self._parts).split())
-            self._parts = []
-            owner = self._slave_ref()
-            if text and owner is not None:
-                (owner.log_warning if self._warning else owner.log_info)(f"JSBSim: {text}")
-
-    return FmiLogger
+    return deliver

@@ -2,6 +2,7 @@
 one is built from too (runs in the flightgp environment, not inside an FMU)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,26 +42,41 @@ def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) ->
         Bad ``name``; a model the FMU cannot run (an input lag 0, a signal without a known unit);
         ``out_dir`` is a file.
     """
-    target, trained, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
-    return build_pythonfmu(target, slave_class=RatePredictor, variables=(rate_predictor_variables, interface),
-                           attributes={"STEP_SIZE": float(trained.step)}, description=description,
-                           arrays=arrays)
+    parts = rate_predictor_parts(model_path, out_dir, name=name)
+    return build_pythonfmu(parts.target, slave_class=RatePredictor,
+                           variables=(rate_predictor_variables, parts.interface),
+                           attributes={"STEP_SIZE": parts.step}, description=parts.description,
+                           arrays=parts.arrays)
 
 
-def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> tuple:
+@dataclass(frozen=True)
+class RatePredictorParts:
     """What every rate-predictor FMU (pythonfmu or native) is built from.
 
-    Returns
-    -------
+    Attributes
+    ----------
     target : Path
         ``out_dir/<name>.fmu`` (name checked; default the model file's stem made into a name).
-    trained : validation.models.narx.TrainedNarx
-    arrays : dict
+    arrays : dict of str -> ndarray
         :func:`export_narx_arrays` of the model.
     interface : dict
         ``inputs`` and ``outputs`` for :func:`fmu_src.rate_predictor.slave.rate_predictor_variables`.
     description : str
         The FMU's one-line description.
+    step : float
+        The NARX step, s: the FMU's communication step.
+    """
+
+    target: Path
+    arrays: dict
+    interface: dict
+    description: str
+    step: float
+
+
+def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> RatePredictorParts:
+    """What every rate-predictor FMU (pythonfmu or native) is built from, for the trained model
+    file ``model_path``, ``out_dir`` and ``name`` of :func:`build_rate_predictor_fmu`.
 
     Raises
     ------
@@ -74,7 +90,8 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> tup
                    f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
                    f"{trained.step:g} s; {len(arrays['0/basis'])} basis points, "
                    f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}")
-    return target, trained, arrays, _interface(trained.config), description
+    return RatePredictorParts(target=target, arrays=arrays, interface=_interface(trained.config),
+                              description=description, step=float(trained.step))
 
 
 def export_narx_arrays(trained) -> dict:
@@ -119,8 +136,8 @@ def export_narx_arrays(trained) -> dict:
 
 def _interface(config) -> dict:
     """(name, unit, limit, phrase) of every input and output, from the recording conventions."""
-    inputs = tuple(signal(n, "input") for n in config.inputs)
-    outputs = tuple(signal(n, "output") for n in config.outputs)
+    inputs = tuple(signal(n, "input").row() for n in config.inputs)
+    outputs = tuple(signal(n, "output").row() for n in config.outputs)
     generated = {f"{n}{suffix}" for n in config.outputs for suffix in ("_prev", "_lower", "_upper")}
     reserved = generated | {"confidence_level", "free_run"}
     clash = sorted((set(config.inputs) | set(config.outputs)) & reserved)

@@ -13,23 +13,24 @@
  *              input_mean (d), input_scale (d), output_mean, output_scale, basis (m x d),
  *              then per hyperparameter sample s:
  *                weights (m), kernel_weights (d), log_signal_variance, noise_variance,
- *                variance factor V_s by columns: if LOWER_TRIANGULAR[j], column c holds rows
- *                c .. m - 1 only (m (m + 1) / 2 doubles in all), else rows 0 .. m - 1 (m x m).
+ *                variance factor V_s stored as gp_predict.h says (by columns, packed if
+ *                LOWER_TRIANGULAR[j]).
  *
  * Each instance reads its own copy (no memory shared between instances) and computes its own
  * free-run constants from it (prepare_free_run; A_s is S m^2 doubles per output, 10 MB for the
  * paper's 400-sample model).
  *
- * Prediction of output j at regressor x (all GP arrays in standardised units):
+ * Prediction of output j at regressor x (all GP arrays in standardised units; each sample's
+ * kernel row, mean and latent variance by the FMI layer's gp_predict.c):
  *   xs = (x - input_mean) / input_scale
  *   k_s,i = exp(log_signal_variance_s - sum_c w_s,c (xs_c - basis_i,c)^2)
  *   mu_s = k_s . weights_s,  var_s = max(sigma_f,s^2 - |V_s k_s|^2, 0) + noise_variance_s
  *   mean = E_s[mu_s], spread = max(E_s[var_s + mu_s^2] - mean^2, 0)   (law of total variance)
  *   output: mean * output_scale + output_mean, variance spread * output_scale^2.
  * V_s = L_s^-1 is lower triangular for an exact GP (LOWER_TRIANGULAR[j]); it is then stored and
- * multiplied without the zeros above the diagonal (adding 0 k_c changes nothing). The step's
- * cost is dominated by streaming the S variance factors from memory (the paper's model: 1200
- * factors of 32 x 32, 5 MB packed), so halving them halves the time.
+ * multiplied without the zeros above the diagonal. The step's cost is dominated by streaming
+ * the S variance factors from memory (the paper's model: 1200 factors of 32 x 32, 5 MB packed),
+ * so halving them halves the time.
  *
  * Free run (free_run = true): a Gaussian belief over the lagged outputs, propagated by exact
  * moment matching over the hyperparameter mixture, as NarxPredictor.free_run_step: eqs. (1)-(6)
@@ -51,6 +52,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "gp_predict.h"
 #include "model.h"
 #include "model_config.h"
 
@@ -212,7 +214,7 @@ Model *model_load(const char *resources_dir, char **error) {
         gp->S = HYPERPARAMETER_SAMPLES[j];
         gp->lower_triangular = LOWER_TRIANGULAR[j];
         size_t m = (size_t)gp->m;
-        gp->sample_size = m + N_REGRESSORS + 2 + (gp->lower_triangular ? m * (m + 1) / 2 : m * m);
+        gp->sample_size = m + N_REGRESSORS + 2 + gp_factor_size(gp->m, gp->lower_triangular);
         gp->input_mean = p, p += N_REGRESSORS;
         gp->input_scale = p, p += N_REGRESSORS;
         gp->output_mean = *p++;
@@ -233,83 +235,31 @@ Model *model_load(const char *resources_dir, char **error) {
     return model;
 }
 
-/* v = V k for V (m x m) stored by columns, four columns at a time (rows are independent: no
- * long dependency chain, and v is loaded and stored once per four columns). */
-static void full_product(const double *factor, const double *k, int m, double *v) {
-    int c = 0;
-    for (int i = 0; i < m; i++) v[i] = 0.0;
-    for (; c + 4 <= m; c += 4) {
-        const double *c0 = factor + (size_t)c * m, *c1 = c0 + m, *c2 = c1 + m, *c3 = c2 + m;
-        const double k0 = k[c], k1 = k[c + 1], k2 = k[c + 2], k3 = k[c + 3];
-        for (int i = 0; i < m; i++) v[i] += c0[i] * k0 + c1[i] * k1 + c2[i] * k2 + c3[i] * k3;
-    }
-    for (; c < m; c++)
-        for (int i = 0; i < m; i++) v[i] += factor[(size_t)c * m + i] * k[c];
-}
-
-/* v = V k for a lower triangular V stored by packed columns (column c: rows c .. m - 1). */
-static void lower_triangular_product(const double *factor, const double *k, int m, double *v) {
-    const double *column = factor; /* column c */
-    int c = 0;
-    for (int i = 0; i < m; i++) v[i] = 0.0;
-    for (; c + 4 <= m; c += 4) {
-        /* columns c .. c + 3 start at rows c .. c + 3: entry of row i is cj[i - c - j] */
-        const double *c0 = column, *c1 = c0 + (m - c), *c2 = c1 + (m - c - 1), *c3 = c2 + (m - c - 2);
-        const double k0 = k[c], k1 = k[c + 1], k2 = k[c + 2], k3 = k[c + 3];
-        v[c] += c0[0] * k0;
-        v[c + 1] += c0[1] * k0 + c1[0] * k1;
-        v[c + 2] += c0[2] * k0 + c1[1] * k1 + c2[0] * k2;
-        const double *r0 = c0 + 3, *r1 = c1 + 2, *r2 = c2 + 1, *r3 = c3; /* row c + 3 */
-        for (int i = 0; i < m - c - 3; i++) v[c + 3 + i] += r0[i] * k0 + r1[i] * k1 + r2[i] * k2 + r3[i] * k3;
-        column = c3 + (m - c - 3);
-    }
-    for (; c < m; c++) {
-        for (int i = c; i < m; i++) v[i] += column[i - c] * k[c];
-        column += m - c;
-    }
-}
-
 /* Mean and variance (measurement noise included) of output gp at regressor x (physical
- * units): the mixture over its hyperparameter samples (predictor.py, _Block.predict). */
+ * units): the mixture over its hyperparameter samples (predictor.py, _Block.predict), each
+ * sample's mean and latent variance by gp_predict.c. */
 static void predict_output(const Model *model, const OutputGP *gp, const double x[N_REGRESSORS],
                            double *mean_out, double *var_out) {
     const int m = gp->m, d = N_REGRESSORS;
     double xs[N_REGRESSORS];
-    for (int c = 0; c < d; c++) xs[c] = (x[c] - gp->input_mean[c]) / gp->input_scale[c];
-    double *squared = model->squared, *k = model->k, *v = model->v;
-    for (int i = 0; i < m; i++)
-        for (int c = 0; c < d; c++) {
-            double difference = xs[c] - gp->basis[i * d + c];
-            squared[i * d + c] = difference * difference;
-        }
+    gp_standardise(d, x, gp->input_mean, gp->input_scale, xs);
+    gp_squared_distances(m, d, xs, gp->basis, model->squared);
     double sum_mean = 0.0, sum_second = 0.0;
     for (int s = 0; s < gp->S; s++) {
         const double *sample = gp->samples + (size_t)s * gp->sample_size;
         const double *weights = sample, *kernel_weights = sample + m;
         const double log_signal_variance = sample[m + d], noise_variance = sample[m + d + 1];
         const double *factor = sample + m + d + 2;
-        /* kernel vector and mean */
-        double mu = 0.0;
-        for (int i = 0; i < m; i++) {
-            double exponent = 0.0;
-            for (int c = 0; c < d; c++) exponent += kernel_weights[c] * squared[i * d + c];
-            k[i] = exp(log_signal_variance - exponent);
-            mu += k[i] * weights[i];
-        }
-        if (gp->lower_triangular) lower_triangular_product(factor, k, m, v);
-        else full_product(factor, k, m, v);
-        double explained = 0.0;
-        for (int i = 0; i < m; i++) explained += v[i] * v[i];
-        double latent = gp->signal_variance[s] - explained;
-        double variance = (latent > 0.0 ? latent : 0.0) + noise_variance;
+        gp_kernel_row(m, d, model->squared, kernel_weights, log_signal_variance, model->k);
+        const double mu = gp_mean(m, model->k, weights, 1);
+        const double variance = gp_latent_variance(m, factor, gp->lower_triangular, model->k,
+                                                   gp->signal_variance[s], model->v) + noise_variance;
         sum_mean += mu;
         sum_second += variance + mu * mu;
     }
-    double mean = sum_mean / gp->S, second = sum_second / gp->S;
-    double spread = second - mean * mean;
-    if (!(spread > 0.0)) spread = spread != spread ? spread : 0.0; /* max(., 0), NaN kept */
+    const double mean = sum_mean / gp->S;
     *mean_out = mean * gp->output_scale + gp->output_mean;
-    *var_out = spread * gp->output_scale * gp->output_scale;
+    *var_out = gp_spread(sum_second / gp->S, mean) * gp->output_scale * gp->output_scale;
 }
 
 /* -- free run: moment matching (gp_model/uncertain_input.py) ----------------------------- */
@@ -504,113 +454,101 @@ static char *cholesky_failure(void) {
                           "I + T, eq. 6 of gp_model/uncertain_input.py, failed); please report");
 }
 
-/* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance
- * (N_OUTPUTS x N_OUTPUTS, row-major) and input-output cross-covariance (d x N_OUTPUTS) of the
- * mixture over the S hyperparameter samples (sample s of every output forms model s) at a
- * regressor x ~ N(x_mean, x_cov) (raw units). Returns 0 and sets *problem (a malloc'd message;
- * NULL if out of memory) if x_cov fails the checks of covariance_problem or a Cholesky factor of
- * eq. 6 fails. */
-static int moment_match(Model *model, const double x_mean[D], const double x_cov[D * D], double out_mean[N_OUTPUTS],
-                        double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS], char **problem) {
-    double m[D], S[D * D];
-    int failed;
-    /* MomentMatcher._standardise: into the common frame, checked, S symmetrised */
-    *problem = covariance_problem(model, x_mean, x_cov, S, &failed);
-    if (failed) return 0;
-    for (int i = 0; i < D; i++) m[i] = (x_mean[i] - model->frame_mean[i]) / model->frame_scale[i];
-    const int n_samples = model->gp[0].S;
-    double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
-    for (int s = 0; s < n_samples; s++) {
-        /* Per output: u_ai, M_a, ln|I + T_a| and q_a (eq. 1 in the Woodbury form
-           -1/2 nu^T (S + Lambda)^-1 nu = -1/2 nu^T u + 1/2 u^T M_a u); E[f_a] = beta_a^T q_a (eq. 1);
-           Cov[x, f_a] = M_a sum_i u_ai beta_ai q_ai (eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i). */
-        for (int a = 0; a < N_OUTPUTS; a++) {
-            OutputGP *gp = &model->gp[a];
-            const double *sample = gp->samples + (size_t)s * gp->sample_size;
-            const double *precision = gp->precision + (size_t)s * D;
-            const double *beta = sample, log_signal_variance = sample[gp->m + D];
-            if (!woodbury_terms(&model->woodbury, precision, S, gp->M, &gp->log_det)) {
-                *problem = cholesky_failure();
-                return 0;
-            }
-            double mean = 0.0, sum_u[D] = {0.0};
-            for (int i = 0; i < gp->m; i++) {
-                double *u = gp->u + (size_t)i * D, nu_u = 0.0;
-                for (int c = 0; c < D; c++) {
-                    double nu = gp->frame_basis[(size_t)i * D + c] - m[c];
-                    u[c] = nu * precision[c];
-                    nu_u += nu * u[c];
-                }
-                gp->q[i] = exp(log_signal_variance - 0.5 * gp->log_det - 0.5 * nu_u + 0.5 * quadratic_form(u, gp->M));
-                gp->weighted[i] = beta[i] * gp->q[i];
-                mean += gp->weighted[i];
-                for (int c = 0; c < D; c++) sum_u[c] += u[c] * gp->weighted[i];
-            }
-            model->sample_means[(size_t)s * N_OUTPUTS + a] = gp->output_mean + gp->output_scale * mean;
+/* Eqs. 1 and 2 of sample s, every output a (MomentMatcher.__call__, singles, mean_s, cross_s): u_ai,
+ * M_a, ln|I + T_a| and q_a (eq. 1 in the Woodbury form -1/2 nu^T (S + Lambda)^-1 nu =
+ * -1/2 nu^T u + 1/2 u^T M_a u), kept in the OutputGP scratch for sample_pair_covariance;
+ * E[f_a] = beta_a^T q_a (eq. 1) into model->sample_means in raw units; Cov[x, f_a] =
+ * M_a sum_i u_ai beta_ai q_ai (eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i) added to
+ * cross_sum (standardised input, standardised output). m: the standardised input mean, S its
+ * covariance. Returns 0 if a Cholesky factor of eq. 6 fails. */
+static int sample_means_and_cross_covariances(Model *model, int s, const double m[D], const double S[D * D],
+                                              double cross_sum[D * N_OUTPUTS]) {
+    for (int a = 0; a < N_OUTPUTS; a++) {
+        OutputGP *gp = &model->gp[a];
+        const double *sample = gp->samples + (size_t)s * gp->sample_size;
+        const double *precision = gp->precision + (size_t)s * D;
+        const double *beta = sample, log_signal_variance = sample[gp->m + D];
+        if (!woodbury_terms(&model->woodbury, precision, S, gp->M, &gp->log_det)) return 0;
+        double mean = 0.0, sum_u[D] = {0.0};
+        for (int i = 0; i < gp->m; i++) {
+            double *u = gp->u + (size_t)i * D, nu_u = 0.0;
             for (int c = 0; c < D; c++) {
-                double value = 0.0;
-                for (int e = 0; e < D; e++) value += gp->M[c * D + e] * sum_u[e];
-                cross_sum[c * N_OUTPUTS + a] += value;
+                double nu = gp->frame_basis[(size_t)i * D + c] - m[c];
+                u[c] = nu * precision[c];
+                nu_u += nu * u[c];
             }
+            gp->q[i] = exp(log_signal_variance - 0.5 * gp->log_det - 0.5 * nu_u + 0.5 * quadratic_form(u, gp->M));
+            gp->weighted[i] = beta[i] * gp->q[i];
+            mean += gp->weighted[i];
+            for (int c = 0; c < D; c++) sum_u[c] += u[c] * gp->weighted[i];
         }
-        /* Cov[f_a, f_b] (eqs. 3-6): beta_a^T (Q^ab - q_a q_b^T) beta_b with
-           Q^ab_ij - q_ai q_bj = q_ai q_bj expm1(D_ij) (eq. 6), z^T M_ab z expanded over z_ij = u_ai + u_bj. */
-        for (int a = 0; a < N_OUTPUTS; a++) {
-            const OutputGP *ga = &model->gp[a];
-            const double *precision_a = ga->precision + (size_t)s * D;
-            for (int b = a; b < N_OUTPUTS; b++) {
-                const OutputGP *gb = &model->gp[b];
-                const double *precision_b = gb->precision + (size_t)s * D;
-                double precision_ab[D], log_det_ab;
-                for (int c = 0; c < D; c++) precision_ab[c] = precision_a[c] + precision_b[c];
-                if (!woodbury_terms(&model->woodbury, precision_ab, S, model->M_ab, &log_det_ab)) {
-                    *problem = cholesky_failure();
-                    return 0;
-                }
-                const double constant = -0.5 * (log_det_ab - ga->log_det - gb->log_det);
-                /* half_a_i = 1/2 u_ai^T (M_ab - M_a) u_ai + the constant; half_b_j likewise; u_M = u_a M_ab */
-                for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - ga->M[c];
-                for (int i = 0; i < ga->m; i++) {
-                    const double *u = ga->u + (size_t)i * D;
-                    model->half_a[i] = 0.5 * quadratic_form(u, model->M_diff) + constant;
-                    for (int c = 0; c < D; c++) {
-                        double value = 0.0;
-                        for (int e = 0; e < D; e++) value += u[e] * model->M_ab[e * D + c];
-                        model->u_M[(size_t)i * D + c] = value;
-                    }
-                }
-                for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - gb->M[c];
-                for (int j = 0; j < gb->m; j++)
-                    model->half_b[j] = 0.5 * quadratic_form(gb->u + (size_t)j * D, model->M_diff);
-                const double *K_inv = ga->K_inv + (size_t)s * ga->m * ga->m;
-                double covariance = 0.0, trace = 0.0; /* trace: tr(K_inv Q^aa) (eq. 4), a == b only */
-                for (int i = 0; i < ga->m; i++) {
-                    const double *u_M = model->u_M + (size_t)i * D;
-                    double row = 0.0, row_trace = 0.0;
-                    for (int j = 0; j < gb->m; j++) {
-                        const double *u_b = gb->u + (size_t)j * D;
-                        double exponent = model->half_a[i] + model->half_b[j];
-                        for (int c = 0; c < D; c++) exponent += u_M[c] * u_b[c];
-                        double excess = expm1(exponent);
-                        row += excess * gb->weighted[j];
-                        if (a == b) row_trace += K_inv[(size_t)i * ga->m + j] * (ga->q[j] * (1.0 + excess));
-                    }
-                    covariance += ga->weighted[i] * row;
-                    trace += ga->q[i] * row_trace;
-                }
-                if (a == b) {
-                    /* Eq. 4, clipped at zero as GaussianProcess.predict; eq. 5 adds it and the noise. */
-                    const double *sample = ga->samples + (size_t)s * ga->sample_size;
-                    double expected_var = ga->signal_variance[s] - trace;
-                    covariance += (expected_var > 0.0 ? expected_var : 0.0) + sample[ga->m + D + 1];
-                }
-                cov_sum[a * N_OUTPUTS + b] += covariance;
-                if (b != a) cov_sum[b * N_OUTPUTS + a] += covariance;
-            }
+        model->sample_means[(size_t)s * N_OUTPUTS + a] = gp->output_mean + gp->output_scale * mean;
+        for (int c = 0; c < D; c++) {
+            double value = 0.0;
+            for (int e = 0; e < D; e++) value += gp->M[c * D + e] * sum_u[e];
+            cross_sum[c * N_OUTPUTS + a] += value;
         }
     }
-    /* The mixture (MomentMatcher class docstring), centred so that S = 1 adds exact zeros:
-       E[f] = E_s[m_s], Cov[f] = E_s[C_s] + Cov_s[m_s], Cov[x, f] = E_s[Cov_s[x, f]], in raw units. */
+    return 1;
+}
+
+/* Eqs. 3-6 of sample s for the outputs a <= b (MomentMatcher.__call__, cov_s), from the scratch of
+ * sample_means_and_cross_covariances: Cov[f_a, f_b] = beta_a^T (Q^ab - q_a q_b^T) beta_b with
+ * Q^ab_ij - q_ai q_bj = q_ai q_bj expm1(D_ij) (eq. 6), z^T M_ab z expanded over z_ij = u_ai + u_bj;
+ * for a == b plus the expected variance (eq. 4, clipped at zero as GaussianProcess.predict) and
+ * the noise (eq. 5). Standardised output units. Returns 0 if a Cholesky factor of eq. 6 fails. */
+static int sample_pair_covariance(Model *model, int s, int a, int b, const double S[D * D], double *covariance) {
+    const OutputGP *ga = &model->gp[a], *gb = &model->gp[b];
+    const double *precision_a = ga->precision + (size_t)s * D, *precision_b = gb->precision + (size_t)s * D;
+    double precision_ab[D], log_det_ab;
+    for (int c = 0; c < D; c++) precision_ab[c] = precision_a[c] + precision_b[c];
+    if (!woodbury_terms(&model->woodbury, precision_ab, S, model->M_ab, &log_det_ab)) return 0;
+    const double constant = -0.5 * (log_det_ab - ga->log_det - gb->log_det);
+    /* half_a_i = 1/2 u_ai^T (M_ab - M_a) u_ai + the constant; half_b_j likewise; u_M = u_a M_ab */
+    for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - ga->M[c];
+    for (int i = 0; i < ga->m; i++) {
+        const double *u = ga->u + (size_t)i * D;
+        model->half_a[i] = 0.5 * quadratic_form(u, model->M_diff) + constant;
+        for (int c = 0; c < D; c++) {
+            double value = 0.0;
+            for (int e = 0; e < D; e++) value += u[e] * model->M_ab[e * D + c];
+            model->u_M[(size_t)i * D + c] = value;
+        }
+    }
+    for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - gb->M[c];
+    for (int j = 0; j < gb->m; j++) model->half_b[j] = 0.5 * quadratic_form(gb->u + (size_t)j * D, model->M_diff);
+    const double *K_inv = ga->K_inv + (size_t)s * ga->m * ga->m;
+    double sum = 0.0, trace = 0.0; /* trace: tr(K_inv Q^aa) (eq. 4), a == b only */
+    for (int i = 0; i < ga->m; i++) {
+        const double *u_M = model->u_M + (size_t)i * D;
+        double row = 0.0, row_trace = 0.0;
+        for (int j = 0; j < gb->m; j++) {
+            const double *u_b = gb->u + (size_t)j * D;
+            double exponent = model->half_a[i] + model->half_b[j];
+            for (int c = 0; c < D; c++) exponent += u_M[c] * u_b[c];
+            double excess = expm1(exponent);
+            row += excess * gb->weighted[j];
+            if (a == b) row_trace += K_inv[(size_t)i * ga->m + j] * (ga->q[j] * (1.0 + excess));
+        }
+        sum += ga->weighted[i] * row;
+        trace += ga->q[i] * row_trace;
+    }
+    if (a == b) {
+        const double *sample = ga->samples + (size_t)s * ga->sample_size;
+        double expected_var = ga->signal_variance[s] - trace;
+        sum += (expected_var > 0.0 ? expected_var : 0.0) + sample[ga->m + D + 1];
+    }
+    *covariance = sum;
+    return 1;
+}
+
+/* The mixture over the n_samples models (MomentMatcher class docstring), centred so that S = 1
+ * adds exact zeros: E[f] = E_s[m_s], Cov[f] = E_s[C_s] + Cov_s[m_s], Cov[x, f] = E_s[Cov_s[x, f]],
+ * in raw units, from the per-sample means (model->sample_means) and the sums over the samples of
+ * the covariances (cov_sum) and cross-covariances (cross_sum) in standardised units. */
+static void mixture_moments(const Model *model, int n_samples, const double cov_sum[N_OUTPUTS * N_OUTPUTS],
+                            const double cross_sum[D * N_OUTPUTS], double out_mean[N_OUTPUTS],
+                            double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS]) {
     for (int a = 0; a < N_OUTPUTS; a++) {
         double total = 0.0;
         for (int s = 0; s < n_samples; s++) total += model->sample_means[(size_t)s * N_OUTPUTS + a];
@@ -630,6 +568,43 @@ static int moment_match(Model *model, const double x_mean[D], const double x_cov
         for (int a = 0; a < N_OUTPUTS; a++)
             cross_cov[c * N_OUTPUTS + a] = cross_sum[c * N_OUTPUTS + a] / n_samples * model->frame_scale[c]
                                            * model->gp[a].output_scale;
+}
+
+/* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance
+ * (N_OUTPUTS x N_OUTPUTS, row-major) and input-output cross-covariance (d x N_OUTPUTS) of the
+ * mixture over the S hyperparameter samples (sample s of every output forms model s) at a
+ * regressor x ~ N(x_mean, x_cov) (raw units): the input standardised and checked
+ * (covariance_problem), then per sample eqs. 1-2 (sample_means_and_cross_covariances) and
+ * eqs. 3-6 (sample_pair_covariance), then the mixture (mixture_moments). Returns 0 and sets
+ * *problem (a malloc'd message; NULL if out of memory) if x_cov fails the checks of
+ * covariance_problem or a Cholesky factor of eq. 6 fails. */
+static int moment_match(Model *model, const double x_mean[D], const double x_cov[D * D], double out_mean[N_OUTPUTS],
+                        double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS], char **problem) {
+    double m[D], S[D * D];
+    int failed;
+    /* MomentMatcher._standardise: into the common frame, checked, S symmetrised */
+    *problem = covariance_problem(model, x_mean, x_cov, S, &failed);
+    if (failed) return 0;
+    for (int i = 0; i < D; i++) m[i] = (x_mean[i] - model->frame_mean[i]) / model->frame_scale[i];
+    const int n_samples = model->gp[0].S;
+    double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
+    for (int s = 0; s < n_samples; s++) {
+        if (!sample_means_and_cross_covariances(model, s, m, S, cross_sum)) {
+            *problem = cholesky_failure();
+            return 0;
+        }
+        for (int a = 0; a < N_OUTPUTS; a++)
+            for (int b = a; b < N_OUTPUTS; b++) {
+                double covariance;
+                if (!sample_pair_covariance(model, s, a, b, S, &covariance)) {
+                    *problem = cholesky_failure();
+                    return 0;
+                }
+                cov_sum[a * N_OUTPUTS + b] += covariance;
+                if (b != a) cov_sum[b * N_OUTPUTS + a] += covariance;
+            }
+    }
+    mixture_moments(model, n_samples, cov_sum, cross_sum, out_mean, out_cov, cross_cov);
     return 1;
 }
 

@@ -1,5 +1,5 @@
 """The native (C, Python-free) GP-NARX rate predictor FMU (runs in the flightgp environment, not
-inside an FMU; docs/fmus.md, "Native FMUs").
+inside an FMU; docs/fmus.md, "Native FMUs (no Python in the host)").
 
 :func:`build_native_rate_predictor_fmu` writes an FMI 2.0 co-simulation FMU with the interface
 of the pythonfmu rate predictor (:mod:`fmu_src.rate_predictor.slave`: the same variable table,
@@ -34,6 +34,7 @@ from fmu_src.fmi.native import (
     envelope_lines,
     lower_triangular,
     package_native_fmu,
+    packed_variance_factor,
     variable_table,
 )
 from fmu_src.rate_predictor.build import rate_predictor_parts
@@ -75,16 +76,17 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
         gcc failed to compile the generated sources (a bug: the message holds its output).
     """
     check_platform()
-    target, _, arrays, interface, description = rate_predictor_parts(model_path, out_dir, name=name)
-    predictor = NarxPredictor(arrays)  # checks shapes and finiteness
-    variables = rate_predictor_variables(**interface)
-    slave_class = type(target.stem, (RatePredictor,), {
-        "description": description + "; native C (no Python at run time)", "VARIABLES": variables,
-        "STEP_SIZE": float(predictor.step)})
+    parts = rate_predictor_parts(model_path, out_dir, name=name)
+    predictor = NarxPredictor(parts.arrays)  # checks shapes and finiteness
+    variables = rate_predictor_variables(**parts.interface)
+    identifier = parts.target.stem
+    slave_class = type(identifier, (RatePredictor,), {
+        "description": parts.description + "; native C (no Python at run time)", "VARIABLES": variables,
+        "STEP_SIZE": parts.step})
     return package_native_fmu(
-        target, slave_class=slave_class, model_source=MODEL_SOURCE,
-        config=lambda guid: _narx_config(guid, target.stem, variables, predictor, arrays),
-        data=_narx_data(arrays, len(predictor.output_names)))
+        parts.target, slave_class=slave_class, model_source=MODEL_SOURCE,
+        config=lambda guid: _narx_config(guid, identifier, variables, predictor, parts.arrays),
+        data=_narx_data(parts.arrays, len(predictor.output_names)))
 
 
 def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredictor, arrays: dict) -> str:
@@ -143,14 +145,12 @@ def _narx_data(arrays: dict, n_outputs: int) -> bytes:
     chunks = []
     for j in range(n_outputs):
         p = _part(arrays, j)
-        m = len(p["basis"])
-        # columns of V_s; of a lower triangular one only rows c .. m - 1 of column c
-        columns = (np.triu_indices(m)[::-1] if lower_triangular(p["variance_factor"])
-                   else tuple(np.indices((m, m)).reshape(2, -1)[::-1]))
+        # one storage for every sample: packed when all of them are lower triangular
+        triangular = lower_triangular(p["variance_factor"])
         chunks += [p["input_mean"], p["input_scale"], [p["output_mean"], p["output_scale"]], p["basis"].ravel()]
         for s in range(len(p["weights"])):
             chunks += [p["weights"][s], p["kernel_weights"][s],
                        [p["log_signal_variance"][s], p["noise_variance"][s]],
-                       p["variance_factor"][s][columns]]
+                       packed_variance_factor(p["variance_factor"][s], triangular=triangular)]
     data = np.concatenate([np.ravel(np.asarray(c, dtype="<f8")) for c in chunks])
     return _DATA_MAGIC + struct.pack("<Q", len(data)) + data.tobytes()

@@ -111,7 +111,7 @@ class RatePredictor(FlightgpSlave):
         self._input_names = self._predictor.input_names
         self._output_names = self._predictor.output_names
 
-    def start_model(self, t0: float) -> None:
+    def start_model(self) -> None:
         predictor = self._predictor
         u0 = self._controls()
         y0 = self._previous_outputs()
@@ -121,7 +121,7 @@ class RatePredictor(FlightgpSlave):
         self._belief = list(predictor.free_run_start(y0)) if self.values["free_run"] else None
         self._set_outputs(y0, np.zeros_like(y0))
 
-    def advance_model(self, k: int, t: float, h: float) -> None:
+    def advance_model(self, t: float, h: float) -> None:
         predictor = self._predictor
         if self.values["free_run"]:
             y = np.array([self.values[name] for name in self._output_names])

@@ -43,7 +43,7 @@ from fmpy.fmi2 import (
 from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
-from fmu_src.fmi.native import CONFIG_HEADER, MODEL_HEADER, PLATFORM_FOLDER, compile_shared_library, compiled_sources
+from fmu_src.fmi.native import CONFIG_HEADER, LAYER_HEADERS, PLATFORM_FOLDER, compile_shared_library, compiled_sources
 from validation.cosim.hosts import simulate_in_c_host, simulate_in_libcosim
 
 #: fmi2Fatal, which no flightgp FMU may ever return.
@@ -93,7 +93,8 @@ class FmuCase:
     native_of : Path or None
         A native FMU: the pythonfmu FMU of the same model, whose interface it declares.
     model_source : Path or None
-        A native FMU: its model's C file (compiled with the FMI layer's ``fmi2_slave.c``).
+        A native FMU: its model's C file (compiled with the FMI layer's ``fmi2_slave.c`` and
+        ``gp_predict.c``).
     """
 
     path: Path
@@ -180,6 +181,36 @@ class Host:
 
     def statuses(self) -> set:
         return {status for status, _, _ in self.messages}
+
+
+def run_in_fmpy(path, inputs: dict, *, step: float, outputs, start_values=None) -> np.ndarray:
+    """One run of fmpy's ``simulate_fmu``: the inputs set at ``t_k = k step`` and held over the
+    step, the outputs at every communication point.
+
+    Parameters
+    ----------
+    path : Path
+        The FMU.
+    inputs : dict of str -> ndarray, shape (n,)
+        Real inputs by name, value ``k`` at ``t_k``; the run takes n - 1 steps.
+    step : float
+        Communication step, s.
+    outputs : sequence of str
+    start_values : dict, optional
+        Parameters and start values set before initialisation.
+
+    Returns
+    -------
+    ndarray, shape (n, len(outputs))
+    """
+    n = len(next(iter(inputs.values())))
+    signal = np.zeros(n, dtype=[("time", float)] + [(name, float) for name in inputs])
+    signal["time"] = np.arange(n) * step
+    for name, values in inputs.items():
+        signal[name] = values
+    result = simulate_fmu(str(path), input=signal, start_values=start_values or {}, stop_time=(n - 1) * step,
+                          step_size=step, output_interval=step, output=list(outputs))
+    return np.column_stack([result[name] for name in outputs])
 
 
 def standard_run(case: FmuCase, host: Host) -> np.ndarray:
@@ -487,7 +518,7 @@ class NativeFmuContract(FmuContract):
         assert native.buildConfigurations[0].sourceFileSets[0].sourceFiles == c_sources
         with zipfile.ZipFile(case.path) as archive:
             shipped = {n.split("/", 1)[1] for n in archive.namelist() if n.startswith("sources/")}
-        assert shipped == {*c_sources, MODEL_HEADER.name, CONFIG_HEADER}
+        assert shipped == {*c_sources, *(path.name for path in LAYER_HEADERS), CONFIG_HEADER}
 
     def test_runs_in_a_plain_c_host_without_python(self, case, host):
         """validation/cosim/native_host.c: dlopen, fmi2Instantiate, the case's parameters and start values

@@ -54,7 +54,14 @@ from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history, sampling_metadata
 from validation.vehicles import blimp_equations
-from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES, rk4_advance, substep_count
+from validation.vehicles.blimp_equations import (
+    INPUT_NAMES,
+    STATE_NAMES,
+    parameter_names,
+    parameter_vector,
+    parameters_from_vector,
+    rk4_advance,
+)
 
 #: Mass ratio Ko blimp / EPFL blimp: 0.35 kg (Ko et al. 2007) / 0.184 kg (Zufferey et al. 2006).
 MASS_RATIO = 0.35 / 0.184
@@ -166,32 +173,26 @@ class BlimpParameters:
     @classmethod
     def vector_names(cls) -> tuple[str, ...]:
         """Names of the entries of :meth:`to_vector`: scalars by field name, triples as
-        ``<field>_x``, ``<field>_y``, ``<field>_z``."""
-        names = []
-        for field in dataclasses.fields(cls):
-            names += [f"{field.name}_{axis}" for axis in "xyz"] if _field_width(field) == 3 else [field.name]
-        return tuple(names)
+        ``<field>_x``, ``<field>_y``, ``<field>_z``
+        (:func:`validation.vehicles.blimp_equations.parameter_names`)."""
+        return parameter_names({field.name: field.default for field in dataclasses.fields(cls)})
 
     def to_vector(self) -> np.ndarray:
-        """All parameters as one flat array, shape (n_parameters,), in :meth:`vector_names` order."""
-        return np.concatenate([np.atleast_1d(getattr(self, f.name)) for f in dataclasses.fields(self)])
+        """All parameters as one flat array, shape (n_parameters,), in :meth:`vector_names` order
+        (:func:`validation.vehicles.blimp_equations.parameter_vector`)."""
+        return parameter_vector({field.name: getattr(self, field.name) for field in dataclasses.fields(self)})
 
     @classmethod
     def from_vector(cls, vector) -> BlimpParameters:
-        """Inverse of :meth:`to_vector`; ``vector`` has shape (n_parameters,)."""
+        """Inverse of :meth:`to_vector`; ``vector`` has shape (n_parameters,)
+        (:func:`validation.vehicles.blimp_equations.parameters_from_vector`)."""
         vector = np.asarray(vector, dtype=float)
         names = cls.vector_names()
         if vector.shape != (len(names),):
             raise BadInputError(
                 f"a BlimpParameters vector has {len(names)} entries ({', '.join(names)}), "
                 f"got shape {vector.shape}")
-        values, index = {}, 0
-        for field in dataclasses.fields(cls):
-            width = _field_width(field)
-            chunk = vector[index:index + width]
-            values[field.name] = tuple(chunk) if width == 3 else chunk[0]
-            index += width
-        return cls(**values)
+        return cls(**parameters_from_vector(names, vector))
 
 
 def _check_last_axis(array: np.ndarray, size: int, what: str, names) -> None:
@@ -231,15 +232,16 @@ def blimp_dynamics(state, inputs, params: BlimpParameters) -> np.ndarray:
 
 
 def checked_max_step(max_step: float) -> float:
+    """``max_step``, the longest RK4 substep, s, as a float.
+
+    Raises
+    ------
+    BadInputError
+        ``max_step`` is not a positive finite number.
+    """
     if not (np.isfinite(max_step) and max_step > 0):
         raise BadInputError(f"max_step must be a positive number of seconds, got {max_step}")
     return float(max_step)
-
-
-def rk4_substeps(time: np.ndarray, max_step: float) -> np.ndarray:
-    """Number of equal RK4 steps for each interval of ``time`` (n,), s, so that none exceeds
-    ``max_step`` (:func:`validation.vehicles.blimp_equations.substep_count`); shape (n - 1,)."""
-    return substep_count(np.diff(time), max_step)
 
 
 def check_command_history(time, inputs, *, min_samples: int = 2) -> tuple[np.ndarray, np.ndarray]:

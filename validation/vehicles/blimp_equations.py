@@ -17,7 +17,9 @@ yaws the nose right).
 
 Parameters: any object with the fields of :class:`validation.vehicles.blimp.BlimpParameters`
 (SI units; scalars as floats, the (x, y, z) triples as tuples of three floats, which
-:func:`mass_matrix` needs hashable).
+:func:`mass_matrix` needs hashable). As one named vector (identification, model files, the FMU's
+model file): :func:`parameter_names`, :func:`parameter_vector` and :func:`parameters_from_vector`,
+a scalar field ``f`` as the entry ``f``, a triple as ``f_x, f_y, f_z``.
 
 Equations of motion
 -------------------
@@ -56,9 +58,62 @@ INPUT_NAMES = ("u_gondola", "mu", "u_tail")
 #: Standard gravity, m/s^2 (ISO 80000-3).
 STANDARD_GRAVITY = 9.80665
 
+#: Suffixes of the three entries of a parameter vector that hold one (x, y, z) triple.
+AXIS_SUFFIXES = ("_x", "_y", "_z")
+
 #: An interval counts as a whole number n of ``max_step`` substeps when it exceeds n ``max_step``
 #: by less than this fraction of ``max_step`` (the rounding of a frame time, not a longer frame).
 SUBSTEP_ROUNDING = 1e-9
+
+
+def parameter_names(fields) -> tuple[str, ...]:
+    """Names of the entries of :func:`parameter_vector`.
+
+    Parameters
+    ----------
+    fields : mapping of str -> float or tuple of 3 floats
+        Parameter name -> value, in the vector's order.
+
+    Returns
+    -------
+    tuple of str
+        A scalar ``f`` as ``f``, a triple ``f`` as ``f_x, f_y, f_z`` (:data:`AXIS_SUFFIXES`).
+    """
+    names = []
+    for name, value in fields.items():
+        names += [name + axis for axis in AXIS_SUFFIXES] if isinstance(value, tuple) else [name]
+    return tuple(names)
+
+
+def parameter_vector(fields) -> np.ndarray:
+    """The values of ``fields`` (as :func:`parameter_names`) as one flat array, shape
+    (n_entries,), SI units, in :func:`parameter_names` order."""
+    return np.concatenate([np.atleast_1d(np.asarray(value, dtype=float)) for value in fields.values()])
+
+
+def parameters_from_vector(names, vector) -> dict:
+    """Inverse of :func:`parameter_vector`: parameter name -> value, in order.
+
+    Parameters
+    ----------
+    names : sequence of str
+        :func:`parameter_names` of the vector: three consecutive entries ``f_x, f_y, f_z`` make
+        the triple ``f``, any other entry the scalar of its name.
+    vector : array_like, shape (len(names),)
+
+    Returns
+    -------
+    dict of str -> float or tuple of 3 floats
+    """
+    names, values = [str(name) for name in names], [float(value) for value in vector]
+    fields, i = {}, 0
+    while i < len(names):
+        stem = names[i][:-len(AXIS_SUFFIXES[0])]
+        if tuple(names[i:i + 3]) == tuple(stem + axis for axis in AXIS_SUFFIXES):
+            fields[stem], i = tuple(values[i:i + 3]), i + 3
+        else:
+            fields[names[i]], i = values[i], i + 1
+    return fields
 
 
 @functools.lru_cache(maxsize=64)

@@ -22,9 +22,14 @@ from validation.vehicles.blimp import (
     check_command_history,
     checked_max_step,
     hanging_state,
-    rk4_substeps,
 )
-from validation.vehicles.blimp_equations import blimp_dynamics, body_rates, rk4, rotation_body_to_earth
+from validation.vehicles.blimp_equations import (
+    blimp_dynamics,
+    body_rates,
+    rk4,
+    rotation_body_to_earth,
+    substep_count,
+)
 
 _REFERENCE_PARAMETERS = BlimpParameters()
 
@@ -70,7 +75,8 @@ def local_derivative(time: np.ndarray, signal: np.ndarray) -> np.ndarray:
 
 
 class BlimpFlightTest:
-    """The ``blimp-flight`` stand-in: Ko's blimp with what :class:`BlimpReference` leaves out.
+    """The ``blimp-flight`` stand-in: Ko's blimp with what
+    :class:`~validation.vehicles.blimp.BlimpReference` leaves out.
 
     Effects (each switchable by a keyword-only option; numbers assumed where not cited):
 
@@ -233,7 +239,7 @@ class StandInFlight:
             jitter = np.clip(jitter_rng.normal(0.0, MOCAP_JITTER_STD, len(nominal_time)), -limit, limit)
             jitter[0] = 0.0
             self.time = nominal_time + jitter
-        self._substeps = rk4_substeps(self.time, vehicle.max_step)
+        self._substeps = substep_count(np.diff(self.time), vehicle.max_step)
         self._step_lengths = np.repeat(np.diff(self.time) / self._substeps, self._substeps)
         self._lift = _buoyancy_drift(self._step_lengths, vehicle.buoyancy_drift, drift_rng)
         self._state = np.concatenate([hanging_state(vehicle.params), np.zeros(2)])

@@ -34,14 +34,16 @@ one step per sample; the input at ``time[k]`` is applied for the step from ``tim
 ``time[k+1]``, and the states at ``time[k]`` are those before that step. JSBSim is
 deterministic (no turbulence), so ``seed`` is accepted and ignored.
 
-JSBSim's messages (banner, script notifications, trim reports), which its default logger prints
-to standard output, go to the Python logger ``validation.vehicles.jsbsim`` instead, at DEBUG
-level (JSBSim warnings and errors at INFO, so ``flightgp -v`` shows them), through JSBSim 1.3's
-``jsbsim.set_logger`` (installed only while a simulation runs, then the previous logger is back).
+The starting condition is reached by :func:`validation.vehicles.jsbsim_start.start_fdm` from
+the aircraft's :func:`starting_recipe`, the code and data the JSBSim aircraft FMU starts with
+too. JSBSim's messages (banner, script notifications, trim reports), which its default logger
+prints to standard output, go to the Python logger ``validation.vehicles.jsbsim`` instead, at
+DEBUG level (JSBSim warnings and errors at INFO, so ``flightgp -v`` shows them), through JSBSim
+1.3's ``jsbsim.set_logger`` (:func:`validation.vehicles.jsbsim_start.routed_messages`, only while
+a simulation runs, then the previous logger is back).
 """
 from __future__ import annotations
 
-import contextlib
 import difflib
 import logging
 import tempfile
@@ -53,6 +55,13 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history
+from validation.vehicles.jsbsim_start import (
+    StartingRecipe,
+    TrimFailure,
+    message_buffer,
+    routed_messages,
+    start_fdm,
+)
 
 #: Level-flight trim condition of fixed-wing aircraft: calibrated airspeed, kt ...
 CRUISE_AIRSPEED_KT = 100.0
@@ -109,6 +118,14 @@ class JSBSimVehicle:
     ------
     BadInputError
         If JSBSim has no such aircraft (the message lists similar or example names).
+
+    Attributes
+    ----------
+    recipe : validation.vehicles.jsbsim_start.StartingRecipe
+        How JSBSim reaches the steady starting condition (:func:`starting_recipe`).
+    control_properties : dict of str -> str
+        Input name -> JSBSim command property (:data:`FIXED_WING_CONTROLS` or
+        :data:`HELICOPTER_CONTROLS`).
     """
 
     sample_time = 0.01
@@ -125,8 +142,9 @@ class JSBSimVehicle:
             )
         self.aircraft = aircraft
         self.name = f"jsbsim:{aircraft}"
-        self._controls = HELICOPTER_CONTROLS if aircraft in HOVER_SCRIPTS else FIXED_WING_CONTROLS
-        self.input_names = tuple(self._controls)
+        self.recipe = starting_recipe(aircraft)
+        self.control_properties = HELICOPTER_CONTROLS if aircraft in HOVER_SCRIPTS else FIXED_WING_CONTROLS
+        self.input_names = tuple(self.control_properties)
 
     def simulate(self, time: np.ndarray, inputs: np.ndarray, *, seed: int = 0) -> Recording:
         """Fly the input perturbations ``inputs`` from the steady starting condition.
@@ -156,7 +174,8 @@ class JSBSimVehicle:
         time, inputs, step = check_history(time, inputs, self.input_names)
         # Aircraft files may ask for CSV output files (c172x: JSBout172B.csv, in the current folder
         # by default); they go to a scratch folder that is deleted afterwards.
-        with _messages_to_python_log(), tempfile.TemporaryDirectory(prefix="flightgp-jsbsim-") as scratch:
+        with (routed_messages(message_buffer(_to_python_log)),
+              tempfile.TemporaryDirectory(prefix="flightgp-jsbsim-") as scratch):
             states, trim, condition = self._fly(step, inputs, output_dir=scratch)
         diverged = np.flatnonzero(~np.all(np.isfinite(states), axis=1))
         if len(diverged):
@@ -179,7 +198,7 @@ class JSBSimVehicle:
     def _fly(self, step: float, inputs: np.ndarray, *, output_dir: str) -> tuple[np.ndarray, np.ndarray, dict]:
         """States, shape (n, n_states), control trim values, shape (n_inputs,), start condition."""
         fdm = self._start(step, output_dir=output_dir)
-        properties = list(self._controls.values())
+        properties = list(self.control_properties.values())
         trim = np.array([fdm[name] for name in properties])
         condition = {
             "airspeed_kt": fdm["velocities/vc-kts"],
@@ -197,75 +216,37 @@ class JSBSimVehicle:
     def _start(self, step: float, *, output_dir: str):
         """A JSBSim instance at the steady starting condition, time step ``step`` s, whose
         output files (if the aircraft or script asks for any) go to ``output_dir``."""
-        fdm = jsbsim.FGFDMExec(_root_dir())
-        fdm.set_debug_level(0)
-        fdm.set_output_path(output_dir)
-        if self.aircraft in HOVER_SCRIPTS:
-            script, hover_time = HOVER_SCRIPTS[self.aircraft]
-            fdm.load_script(script)
-            fdm.disable_output()
-            fdm.set_dt(step)  # overrides the script's own step (0.0075 s)
-            fdm.run_ic()
-            for _ in range(int(round(hover_time / step))):
-                fdm.run()
-            fdm["simulation/test-variant"] = 0  # no later test event (fly-off at 120 s) fires
-            return fdm
-        fdm.load_model(self.aircraft)
-        fdm.disable_output()
-        fdm.set_dt(step)
-        fdm["ic/h-sl-ft"] = CRUISE_ALTITUDE_FT
-        fdm["ic/vc-kts"] = CRUISE_AIRSPEED_KT
-        fdm["ic/gamma-deg"] = 0.0
-        fdm["ic/psi-true-deg"] = 90.0
-        fdm.run_ic()
-        fdm["propulsion/set-running"] = -1  # -1: all engines
         try:
-            fdm.do_trim(1)  # 1 = tFull: all six accelerations to zero
-        except jsbsim.TrimFailureError:
+            return start_fdm(self.recipe, dt=step, output_dir=output_dir)
+        except TrimFailure:
             raise BadInputError(
                 f"JSBSim cannot trim {self.name} in level flight at {CRUISE_AIRSPEED_KT:g} kt, "
                 f"{CRUISE_ALTITUDE_FT:g} ft; flightgp supports fixed-wing aircraft that cruise "
                 "there (e.g. jsbsim:c172x) and the hovering jsbsim:ah1s"
             ) from None
-        return fdm
+
+
+def starting_recipe(aircraft: str) -> StartingRecipe:
+    """The recipe of ``aircraft``'s steady starting condition (module docstring): a helicopter
+    of :data:`HOVER_SCRIPTS` flown by its script to the hover, where ``simulation/test-variant``
+    is set to 0 (no later test event fires); any other aircraft trimmed in level flight at
+    :data:`CRUISE_AIRSPEED_KT` and :data:`CRUISE_ALTITUDE_FT`, heading east."""
+    if aircraft in HOVER_SCRIPTS:
+        script, hover_time = HOVER_SCRIPTS[aircraft]
+        return StartingRecipe(aircraft=aircraft, method="script", script=script, script_time=hover_time,
+                              after_start=(("simulation/test-variant", 0.0),))
+    return StartingRecipe(aircraft=aircraft, method="trim", initial_conditions=(
+        ("ic/h-sl-ft", CRUISE_ALTITUDE_FT), ("ic/vc-kts", CRUISE_AIRSPEED_KT), ("ic/gamma-deg", 0.0),
+        ("ic/psi-true-deg", 90.0)))
 
 
 def _root_dir() -> str:
     return jsbsim.get_default_root_dir()
 
 
-class _PythonLog(jsbsim.FGLogger):
-    """JSBSim log records -> Python logging (JSBSim builds a record from several messages)."""
-
-    def __init__(self):
-        super().__init__()
-        self._level = logging.DEBUG
-        self._parts: list[str] = []
-
-    def set_level(self, level) -> None:
-        important = level >= jsbsim.LogLevel.WARN and level != jsbsim.LogLevel.STDOUT
-        self._level = logging.INFO if important else logging.DEBUG
-        self._parts = []
-
-    def message(self, message: str) -> None:
-        self._parts.append(message)
-
-    def flush(self) -> None:
-        text = "".join(self._parts).strip()
-        if text:
-            _LOG.log(self._level, "JSBSim: %s", text)
-        self._parts = []
-
-
 _LOG = logging.getLogger(__name__)
 
 
-@contextlib.contextmanager
-def _messages_to_python_log():
-    """Route JSBSim's messages to :data:`_LOG` for the duration (the logger is per thread)."""
-    previous = jsbsim.get_logger()
-    jsbsim.set_logger(_PythonLog())
-    try:
-        yield
-    finally:
-        jsbsim.set_logger(previous)
+def _to_python_log(text: str, *, important: bool) -> None:
+    """One JSBSim message to :data:`_LOG`: warnings and errors at INFO, the rest at DEBUG."""
+    _LOG.log(logging.INFO if important else logging.DEBUG, "JSBSim: %s", text)

@@ -19,7 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from fmpy import extract, simulate_fmu
+from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Error
 
@@ -28,7 +28,7 @@ from fmu_src.blimp_rkgp import native
 from fmu_src.blimp_rkgp.native import MODEL_SOURCE
 from gp_model import GreyBoxGP, save_model
 from tests.fmu_src.blimp_rkgp.contract import BLIMP_HOLD, BlimpRkgpContract, blimp_rkgp_case
-from tests.fmu_src.contract import FMI_FATAL, Host, NativeFmuContract, standard_run
+from tests.fmu_src.contract import FMI_FATAL, Host, NativeFmuContract, run_in_fmpy, standard_run
 from validation.bench.fmu import time_blimp_rkgp_fmus
 from validation.models.blimp_identification import blimp_physics_description, physics_step
 from validation.vehicles.blimp import INPUT_NAMES as BLIMP_INPUTS
@@ -54,15 +54,10 @@ class TestNativeBlimpRkgpFmu(NativeFmuContract, BlimpRkgpContract):
 
 
 def _run_fmpy(path, commands: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Outputs at every communication point (n + 1, 24) of fmpy's simulate_fmu, commands (n + 1, 3)."""
-    signal = np.zeros(len(commands), dtype=[("time", float)] + [(n, float) for n in BLIMP_INPUTS])
-    signal["time"] = np.arange(len(commands)) * STEP
-    for i, name in enumerate(BLIMP_INPUTS):
-        signal[name] = commands[:, i]
-    result = simulate_fmu(str(path), input=signal, start_values={f"{s}_start": v for s, v in zip(BLIMP_STATES, start)},
-                          stop_time=(len(commands) - 1) * STEP, step_size=STEP, output_interval=STEP,
-                          output=OUTPUTS)
-    return np.column_stack([result[name] for name in OUTPUTS])
+    """Outputs at every communication point (n + 1, 24) of fmpy's simulate_fmu, commands (n + 1, 3)
+    from the start state (12,)."""
+    return run_in_fmpy(path, dict(zip(BLIMP_INPUTS, commands.T)), step=STEP, outputs=OUTPUTS,
+                       start_values={f"{s}_start": v for s, v in zip(BLIMP_STATES, start)})
 
 
 def _python_reference(model, params, commands: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -165,7 +160,7 @@ def test_a_step_outside_the_trained_dt_range_is_a_logged_discard_and_changes_not
 def test_bench_times_both_blimp_fmus(case, blimp_trained):
     """validation.bench.fmu.time_blimp_rkgp_fmus (``flightgp bench fmu``'s blimp row): the
     report's structure, finite positive times and ratios that are their quotients (no speed
-    asserted: speed goals live in the benchmark, README "Benchmarks")."""
+    asserted: speed goals live in the benchmark, docs/fmus.md, "Cost per step")."""
     row = time_blimp_rkgp_fmus(case.native_of, case.path, blimp_trained["commands"], blimp_trained["states"][0],
                                n_steps=10)
     assert set(row) == {"steps", "pythonfmu_us_per_step", "native_us_per_step", "native_c_host_us_per_step",

@@ -19,18 +19,19 @@ from statistics import NormalDist
 
 import numpy as np
 import pytest
-from fmpy import extract, simulate_fmu
+from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Error
 
 from fmu_src import build_native_rate_predictor_fmu, build_rate_predictor_fmu
 from fmu_src.fmi.native import compile_shared_library
 from fmu_src.rate_predictor.native import MODEL_SOURCE
-from tests.fmu_src.contract import FMI_FATAL, Host, NativeFmuContract, check_state_save_restore
+from tests.fmu_src.contract import FMI_FATAL, Host, NativeFmuContract, check_state_save_restore, run_in_fmpy
 from tests.fmu_src.rate_predictor.contract import RatePredictorContract, rate_predictor_case
 from validation.models.narx import NarxConfig, one_step, save_trained, train_narx
 
 OUTPUTS = [f"{axis}{suffix}" for axis in "pqr" for suffix in ("", "_lower", "_upper")]
+STEP = 0.1  # the NARX step of the models here, s
 
 
 @pytest.fixture(scope="module")
@@ -46,15 +47,10 @@ class TestNativeRatePredictorFmu(NativeFmuContract, RatePredictorContract):
     """The native FMU contract and the rate predictor's, on the native rate predictor."""
 
 
-def _run_fmpy(path, recording_inputs, *, free_run: bool):
-    n = len(next(iter(recording_inputs.values())))
-    signal = np.zeros(n, dtype=[("time", float)] + [(name, float) for name in recording_inputs])
-    signal["time"] = np.arange(n) * 0.1
-    for name, values in recording_inputs.items():
-        signal[name] = values
-    result = simulate_fmu(str(path), input=signal, start_values={"free_run": free_run}, stop_time=(n - 1) * 0.1,
-                          step_size=0.1, output_interval=0.1)
-    return np.column_stack([result[name] for name in OUTPUTS])
+def _run_fmpy(path, inputs: dict, *, free_run: bool) -> np.ndarray:
+    """Every output of :data:`OUTPUTS` at every communication point of fmpy's simulate_fmu, the
+    inputs (name -> (n,)) at the NARX step, in one-step or free-run mode."""
+    return run_in_fmpy(path, inputs, step=STEP, outputs=OUTPUTS, start_values={"free_run": free_run})
 
 
 @pytest.mark.parametrize("flight", ["training", "unseen"])
@@ -86,7 +82,7 @@ def test_free_run_belief_is_part_of_the_fmu_state(case, unzipdir, host):
 
 def test_a_sparse_model_with_a_full_variance_factor_equals_the_python_model(bo105_flights, tmp_path):
     """A sparse GP's variance factor is not triangular: the native FMU then multiplies the full
-    matrix (narx_model.c, full_product), and its free run uses A = V^T V (K_mm^-1 - Sigma).
+    matrix (gp_predict.c, full_product), and its free run uses A = V^T V (K_mm^-1 - Sigma).
     One-step outputs equal GPNarx's, free-run outputs GPNarx's moment-matching free run, to
     1e-9 rad/s (measured 1e-13 and 5e-11; the free run's eq. 4 cancels as in the test above)."""
     recording = bo105_flights["training"]

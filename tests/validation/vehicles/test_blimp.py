@@ -13,7 +13,12 @@ from validation.core.errors import BadInputError
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
 from validation.vehicles import get_vehicle
 from validation.vehicles.blimp import BlimpParameters, BlimpReference, blimp_dynamics
-from validation.vehicles.blimp_equations import STANDARD_GRAVITY, rk4_advance
+from validation.vehicles.blimp_equations import (
+    STANDARD_GRAVITY,
+    parameter_names,
+    parameters_from_vector,
+    rk4_advance,
+)
 from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS, BlimpFlightTest
 
 PARAMS = BlimpParameters()
@@ -225,6 +230,17 @@ def test_parameter_vector_round_trip_and_replace():
     assert params.mass == PARAMS.mass  # replace changed only what it was asked to
     with pytest.raises(BadInputError, match="30 entries"):
         BlimpParameters.from_vector(vector[:-1])
+
+
+def test_the_numpy_only_decoding_gives_the_fields_of_the_parameters():
+    """blimp_equations.parameters_from_vector, which the blimp FMU decodes its model file's named
+    vector with, gives every field of BlimpParameters as the dataclass holds it (triples as
+    tuples), so the shipped equations read the same numbers."""
+    params = dataclasses.replace(PARAMS, net_lift=0.01, cg_position=(0.01, 0.0, 0.2))
+    fields = parameters_from_vector(BlimpParameters.vector_names(), params.to_vector())
+    assert fields == dataclasses.asdict(params)
+    assert list(fields) == [field.name for field in dataclasses.fields(BlimpParameters)]
+    assert parameter_names(fields) == BlimpParameters.vector_names()
 
 
 def test_default_parameters_follow_the_documented_scaling():

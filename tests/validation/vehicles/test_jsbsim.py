@@ -1,11 +1,15 @@
 """JSBSim vehicles: c172x trimmed cruise, ah1s hover, errors, silence, determinism."""
+import logging
+
+import jsbsim
 import numpy as np
 import pytest
 
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import manoeuvre, time_grid
 from validation.vehicles import get_vehicle
-from validation.vehicles.jsbsim import JSBSimVehicle
+from validation.vehicles.jsbsim import JSBSimVehicle, starting_recipe
+from validation.vehicles.jsbsim_start import StartingRecipe
 
 KT = 0.514444  # m/s per kt
 
@@ -96,6 +100,24 @@ def test_deterministic_and_seed_ignored(c172x):
 def test_jsbsim_prints_nothing(capfd, ah1s):
     _fly(ah1s, duration=0.5)  # the script's notify events print a lot without the redirect
     assert capfd.readouterr().out == ""
+
+
+def test_jsbsim_messages_go_to_the_python_log(caplog, ah1s):
+    """Whole messages (validation.vehicles.jsbsim_start.message_buffer), one log record each."""
+    before = jsbsim.get_logger()
+    with caplog.at_level(logging.DEBUG, logger="validation.vehicles.jsbsim"):
+        _fly(ah1s, duration=0.1)
+    messages = [record.getMessage() for record in caplog.records if record.name == "validation.vehicles.jsbsim"]
+    assert messages and all(m.startswith("JSBSim: ") and m == m.strip() for m in messages)
+    assert jsbsim.get_logger() is before  # only while the simulation ran
+
+
+@pytest.mark.parametrize("aircraft, method", [("c172x", "trim"), ("ah1s", "script")])
+def test_starting_recipe_is_data_that_survives_json(aircraft, method):
+    """The recipe the JSBSim FMU stores in its model file reads back equal (floats exact)."""
+    recipe = starting_recipe(aircraft)
+    assert recipe.method == method and recipe.aircraft == aircraft
+    assert StartingRecipe.from_json(recipe.to_json()) == recipe
 
 
 def test_jsbsim_writes_no_files(tmp_path, monkeypatch, c172x):
