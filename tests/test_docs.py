@@ -85,3 +85,30 @@ def test_shell_examples_are_valid_flightgp_command_lines(command):
         build_parser().parse_args(shlex.split(command)[1:])
     except SystemExit as exit_:
         pytest.fail(f"`{command}` does not parse (exit {exit_.code})")
+
+
+#: A code comment or docstring citing a docs section: docs/page.md, "Heading" (or ("Heading")).
+_CITATION = re.compile(r"docs/([\w-]+\.md)[,\s(]+\"([^\"]+)\"")
+
+
+def _headings(page: Path) -> set:
+    text = _FENCED.sub("", page.read_text(encoding="utf-8"))
+    return {h.strip().replace("`", "") for h in re.findall(r"^#{1,6} (.+)$", text, flags=re.M)}
+
+
+def test_code_cites_docs_sections_that_exist():
+    sources = [path for package in ("gp_model", "validation", "fmu_src", "tests")
+               for pattern in ("*.py", "*.c", "*.h") for path in (ROOT / package).rglob(pattern)
+               if path != Path(__file__).resolve()]
+    broken = []
+    for source in sources:
+        text = source.read_text(encoding="utf-8")
+        for page, heading in _CITATION.findall(text):
+            # A citation may wrap onto the next comment or docstring line.
+            heading = re.sub(r"\s*\n\s*(?:#:?|//|\*)?\s*", " ", heading)
+            target = ROOT / "docs" / page
+            if not target.exists():
+                broken.append(f"{source.relative_to(ROOT)}: docs/{page} does not exist")
+            elif heading.replace("`", "") not in _headings(target):
+                broken.append(f"{source.relative_to(ROOT)}: docs/{page} has no heading {heading!r}")
+    assert not broken, "\n".join(broken)

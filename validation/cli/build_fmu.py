@@ -5,7 +5,7 @@ FMI 2.0 co-simulation FMU of a trained model (a GP-NARX model: the rate predicto
 :mod:`fmu_src.bo105_reference`; ``jsbsim:<aircraft>``: :mod:`fmu_src.jsbsim_aircraft`).
 
 With ``--native``, a trained model's FMU is built as C compiled with the system gcc, with the
-same interface and numbers and no Python at run time (docs/fmus.md, "Native FMUs")."""
+same interface and numbers and no Python at run time (docs/fmus.md, "Native FMUs (no Python in the host)")."""
 from __future__ import annotations
 
 import argparse
