@@ -19,7 +19,7 @@ from scipy import linalg, stats
 from scipy.linalg import lapack
 
 from ._errors import GPNumericalError
-from ._kernels import StationaryKernel
+from ._kernels import KERNELS, StationaryKernel
 from ._linalg import robust_cholesky
 from ._priors import IndependentPrior
 from ._scaling import Standardizer
@@ -83,8 +83,22 @@ def mixture_moments(means: np.ndarray, variances: np.ndarray):
     return mean, np.maximum(var, 0.0)
 
 
-class GaussianProcess:
-    """Exact GP regression with a stationary kernel and Gaussian noise.
+class BaseGaussianProcess:
+    """What exact and sparse GP regression share: the hyperparameter vector and its prior, the
+    data checks and standardisation of :meth:`fit`, :meth:`set_hyperparameters`, the mixture
+    prediction of :meth:`predict`, and the portable state of model files (:meth:`to_arrays`,
+    :meth:`from_arrays`).
+
+    Not used directly: :class:`GaussianProcess` and :class:`~gp_model.SparseGaussianProcess`
+    derive from it. They are siblings, not parent and child, so code that needs an exact GP's
+    Cholesky factor ``L_`` refuses a sparse GP instead of misreading it. A subclass provides
+    ``log_marginal_likelihood``, ``predictive_forms`` and the two steps prediction takes:
+
+    - ``_posterior_at(theta)``: what prediction needs at one hyperparameter vector (a
+      *posterior*; its ``theta`` and ``jitter`` fields are read here);
+    - ``_predict_one(posterior, Xs, want, include_noise)``: the standardised mean, shape (k, m),
+      and for ``want`` ``"var"`` the variance, shape (k,), or for ``"cov"`` the covariance,
+      shape (k, k), at standardised inputs ``Xs`` (k, d).
 
     Parameters
     ----------
@@ -103,8 +117,8 @@ class GaussianProcess:
         Hyperparameter samples; when set, predictions are the mixture over them.
     X_train_, Y_train_ : ndarray, shapes (n, d), (n, m)
         Standardised training data.
-    L_, alpha_ : ndarray
-        Cholesky factor and weights for ``theta_`` (Rasmussen & Williams, Alg. 2.1).
+    input_scaler_, output_scaler_ : Standardizer
+        The standardisation of the inputs (d columns) and outputs (m columns).
     """
 
     def __init__(self, kernel: StationaryKernel, *, noise_variance: float = 1e-2,
@@ -134,8 +148,13 @@ class GaussianProcess:
         noise = IndependentPrior([stats.norm(np.log(1e-2), 2.5)], ["ln_noise_variance"])
         return self.kernel.prior() + noise
 
+    @property
+    def jitter_(self) -> float:
+        """Jitter added to the diagonal of the factorised kernel matrix for ``theta_``."""
+        return self._posterior.jitter
+
     # -- fitting ------------------------------------------------------------------------------
-    def fit(self, X, y, *, theta=None) -> GaussianProcess:
+    def fit(self, X, y, *, theta=None):
         """Condition on training data with fixed hyperparameters.
 
         Parameters
@@ -146,6 +165,10 @@ class GaussianProcess:
             Training targets.
         theta : ndarray, shape (p,), optional
             Hyperparameters; defaults to :attr:`theta` (the configured kernel and noise).
+
+        Returns
+        -------
+        self
 
         Raises
         ------
@@ -170,30 +193,203 @@ class GaussianProcess:
         self.output_scaler_ = Standardizer(enabled=self.normalize_outputs).fit(Y)
         self.X_train_ = self.input_scaler_.transform(X)
         self.Y_train_ = self.output_scaler_.transform(Y)
-        self.set_hyperparameters(self.theta if theta is None else theta)
-        return self
+        return self.set_hyperparameters(self.theta if theta is None else theta)
 
-    def set_hyperparameters(self, theta, *, samples=None) -> GaussianProcess:
+    def set_hyperparameters(self, theta, *, samples=None):
         """Use ``theta`` (shape (p,)) and optionally a sample set (shape (S, p)) for the mixture.
 
         The configured ``kernel`` and ``noise_variance`` are updated to match ``theta``.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValueError
+            On other shapes.
+        GPNumericalError
+            If the kernel matrix cannot be factorised at ``theta``; the GP is then unchanged.
         """
+        theta, samples = self._checked_hyperparameters(theta, samples)
+        posterior = self._posterior_at(theta)  # first: if it fails, the GP stays as it was
+        self.kernel = self.kernel.clone_with_theta(theta[:-1])
+        self.noise_variance = float(np.exp(theta[-1]))
+        self._posterior = posterior
+        self.theta_ = theta
+        self.theta_samples_ = samples
+        self._sample_posteriors = None
+        return self
+
+    def _checked_hyperparameters(self, theta, samples) -> tuple[np.ndarray, np.ndarray | None]:
+        """``theta`` as an array of shape (p,) and ``samples`` as one of shape (S, p) or None;
+        raises ValueError on other shapes."""
         theta = np.asarray(theta, dtype=float)
         if theta.shape != (len(self.theta),):
             raise ValueError(f"theta must have shape ({len(self.theta)},), got {theta.shape}")
-        self.kernel = self.kernel.clone_with_theta(theta[:-1])
-        self.noise_variance = float(np.exp(theta[-1]))
-        posterior, _ = self._factorise(theta)
-        self.theta_ = theta
-        self.L_, self.alpha_, self.jitter_ = posterior.L, posterior.alpha, posterior.jitter
-        self._posterior = posterior
         if samples is not None:
             samples = np.atleast_2d(np.asarray(samples, dtype=float))
             if samples.shape[1] != len(theta):
                 raise ValueError(f"samples must have shape (S, {len(theta)}), got {samples.shape}")
-        self.theta_samples_ = samples
-        self._sample_posteriors = None
-        return self
+        return theta, samples
+
+    # -- prediction ---------------------------------------------------------------------------
+    def predict(self, X, *, return_var: bool = False, return_cov: bool = False,
+                include_noise: bool = False, use_samples: bool = True):
+        """Predictive distribution at ``X``.
+
+        Parameters
+        ----------
+        X : ndarray, shape (k, d)
+        return_var : bool
+            Also return the marginal variances.
+        return_cov : bool
+            Also return the full covariance (not with ``return_var``).
+        include_noise : bool, default False
+            Predict a noisy observation ``y`` instead of the latent ``f``.
+        use_samples : bool, default True
+            When ``theta_samples_`` is set, return the mixture over the samples: mean
+            ``E_s[mu_s]`` and (co)variance ``E_s[Sigma_s + mu_s mu_s^T] - mu mu^T`` (law of total
+            variance), so hyperparameter uncertainty reaches the bounds.
+
+        Returns
+        -------
+        mean : ndarray, shape (k,) or (k, m)
+        var : ndarray, shape like ``mean``; or cov, shape (k, k) or (k, k, m)
+        """
+        if return_var and return_cov:
+            raise ValueError("ask for return_var or return_cov, not both")
+        Xs = self.input_scaler_.transform(np.atleast_2d(np.asarray(X, dtype=float)))
+        posteriors = self._posteriors() if use_samples else [self._posterior]
+        want = "cov" if return_cov else "var" if return_var else None
+        means, spreads = zip(*(self._predict_one(p, Xs, want, include_noise) for p in posteriors))
+        mean = np.mean(means, axis=0)  # (k, m)
+        scale = self.output_scaler_.scale_
+        out_mean = self.output_scaler_.inverse_transform(mean)
+        if want is None:
+            return out_mean[:, 0] if self._y_1d else out_mean
+        if want == "var":
+            _, spread = mixture_moments(np.array(means), np.array(spreads)[:, :, None])
+            spread = spread * scale**2  # (k, m)
+            return (out_mean[:, 0], spread[:, 0]) if self._y_1d else (out_mean, spread)
+        second = np.mean([s[:, :, None] + mu[:, None, :] * mu[None, :, :]
+                          for s, mu in zip(spreads, means)], axis=0)
+        cov = (second - mean[:, None, :] * mean[None, :, :]) * scale**2  # (k, k, m)
+        return (out_mean[:, 0], cov[:, :, 0]) if self._y_1d else (out_mean, cov)
+
+    def _posteriors(self) -> list:
+        """The posterior of every hyperparameter sample (factorised once), or ``theta_``'s."""
+        if self.theta_samples_ is None:
+            return [self._posterior]
+        if self._sample_posteriors is None:
+            self._sample_posteriors = [self._posterior_at(t) for t in self.theta_samples_]
+        return self._sample_posteriors
+
+    # -- portable state (one part of a model file, gp_model._model_file) ---------------------
+    def to_arrays(self) -> tuple[dict, dict]:
+        """JSON-safe metadata and named arrays that fully describe the fitted GP; the inverse
+        is :meth:`from_arrays`. :func:`~gp_model.save_model` writes them.
+
+        Returns
+        -------
+        meta : dict
+            ``kernel`` (its kind), ``normalize_inputs``, ``normalize_outputs``, ``y_1d`` (whether
+            ``y`` was one-dimensional), ``theta_names``.
+        arrays : dict of ndarray
+            ``X_train`` (n, d), ``Y_train`` (n, m), ``theta`` (p,), ``input_mean``,
+            ``input_scale`` (d,), ``output_mean``, ``output_scale`` (m,), and ``theta_samples``
+            (S, p) when set.
+        """
+        meta = {"kernel": self.kernel.kind, "normalize_inputs": self.normalize_inputs,
+                "normalize_outputs": self.normalize_outputs, "y_1d": bool(self._y_1d),
+                "theta_names": self.theta_names}
+        arrays = {"X_train": self.X_train_, "Y_train": self.Y_train_, "theta": self.theta_,
+                  "input_mean": self.input_scaler_.mean_, "input_scale": self.input_scaler_.scale_,
+                  "output_mean": self.output_scaler_.mean_, "output_scale": self.output_scaler_.scale_}
+        if self.theta_samples_ is not None:
+            arrays["theta_samples"] = self.theta_samples_
+        return meta, arrays
+
+    @classmethod
+    def from_arrays(cls, meta: dict, arrays: dict):
+        """The fitted GP that :meth:`to_arrays` described, factorised again from the stored
+        training data; :func:`~gp_model.load_model` reads them.
+
+        Raises
+        ------
+        KeyError, ValueError
+            On missing or inconsistent content.
+        GPNumericalError
+            If the stored GP cannot be factorised.
+        """
+        theta = np.asarray(arrays["theta"], dtype=float)
+        X_train, Y_train = np.asarray(arrays["X_train"], float), np.asarray(arrays["Y_train"], float)
+        if theta.ndim != 1 or X_train.ndim != 2 or Y_train.ndim != 2 or len(X_train) != len(Y_train):
+            raise ValueError("inconsistent array shapes")
+        if theta.size != X_train.shape[1] + 2:
+            raise ValueError(f"theta has {theta.size} entries, expected {X_train.shape[1] + 2}")
+        kernel = KERNELS[meta["kernel"]](1.0, np.full(X_train.shape[1], 0.5)).clone_with_theta(theta[:-1])
+        gp = cls(kernel, noise_variance=float(np.exp(theta[-1])),
+                 normalize_inputs=bool(meta["normalize_inputs"]),
+                 normalize_outputs=bool(meta["normalize_outputs"]), **cls._settings_from_meta(meta))
+        gp._restore_training_data(meta, arrays, X_train, Y_train)
+        return gp.set_hyperparameters(theta, samples=arrays.get("theta_samples"))
+
+    @classmethod
+    def _settings_from_meta(cls, meta: dict) -> dict:
+        """Constructor options, beyond the kernel, noise and standardisation, that
+        :meth:`to_arrays` stored in ``meta``: none here."""
+        return {}
+
+    def _restore_training_data(self, meta: dict, arrays: dict, X_train: np.ndarray,
+                               Y_train: np.ndarray) -> None:
+        """The state :meth:`fit` learns before :meth:`set_hyperparameters`, from a model file:
+        the standardised training data (checked by :meth:`from_arrays`), the scalers and whether
+        ``y`` was one-dimensional."""
+        self._y_1d = bool(meta["y_1d"])
+        self.input_scaler_ = Standardizer.from_arrays(arrays["input_mean"], arrays["input_scale"])
+        self.output_scaler_ = Standardizer.from_arrays(arrays["output_mean"], arrays["output_scale"])
+        self.X_train_, self.Y_train_ = X_train, Y_train
+
+
+class GaussianProcess(BaseGaussianProcess):
+    """Exact GP regression with a stationary kernel and Gaussian noise.
+
+    Parameters
+    ----------
+    kernel : StationaryKernel
+        Covariance function; its ``theta`` is the starting point for hyperparameter inference.
+    noise_variance : float, default 1e-2
+        ``sigma_n^2`` of the (standardised) outputs.
+    normalize_inputs, normalize_outputs : bool, default True
+        Standardise each input / output column to zero mean and unit variance before fitting.
+
+    Attributes
+    ----------
+    theta_ : ndarray, shape (p,)
+        Hyperparameters in use (after :meth:`fit`).
+    theta_samples_ : ndarray, shape (S, p) or None
+        Hyperparameter samples; when set, predictions are the mixture over them.
+    X_train_, Y_train_ : ndarray, shapes (n, d), (n, m)
+        Standardised training data.
+    L_, alpha_ : ndarray, shapes (n, n), (n, m)
+        Cholesky factor and weights for ``theta_`` (Rasmussen & Williams, Alg. 2.1).
+    jitter_ : float
+        Jitter added to the diagonal of ``K + sigma_n^2 I`` for ``theta_``.
+    """
+
+    @property
+    def L_(self) -> np.ndarray:
+        """Lower Cholesky factor of ``K + (sigma_n^2 + jitter_) I`` for ``theta_``, shape (n, n)."""
+        return self._posterior.L
+
+    @property
+    def alpha_(self) -> np.ndarray:
+        """``(K + sigma_n^2 I)^-1 Y_train_`` for ``theta_``, shape (n, m)."""
+        return self._posterior.alpha
+
+    def _posterior_at(self, theta) -> _Posterior:
+        return self._factorise(theta)[0]
 
     def _factorise(self, theta, *, quiet: bool = False) -> tuple[_Posterior, np.ndarray]:
         """The posterior at ``theta`` and the noise-free kernel matrix, shape (n, n)."""
@@ -250,49 +446,6 @@ class GaussianProcess:
         return float(lml), gradient
 
     # -- prediction ---------------------------------------------------------------------------
-    def predict(self, X, *, return_var: bool = False, return_cov: bool = False,
-                include_noise: bool = False, use_samples: bool = True):
-        """Predictive distribution at ``X``.
-
-        Parameters
-        ----------
-        X : ndarray, shape (k, d)
-        return_var : bool
-            Also return the marginal variances.
-        return_cov : bool
-            Also return the full covariance (not with ``return_var``).
-        include_noise : bool, default False
-            Predict a noisy observation ``y`` instead of the latent ``f``.
-        use_samples : bool, default True
-            When ``theta_samples_`` is set, return the mixture over the samples: mean
-            ``E_s[mu_s]`` and (co)variance ``E_s[Sigma_s + mu_s mu_s^T] - mu mu^T`` (law of total
-            variance), so hyperparameter uncertainty reaches the bounds.
-
-        Returns
-        -------
-        mean : ndarray, shape (k,) or (k, m)
-        var : ndarray, shape like ``mean``; or cov, shape (k, k) or (k, k, m)
-        """
-        if return_var and return_cov:
-            raise ValueError("ask for return_var or return_cov, not both")
-        Xs = self.input_scaler_.transform(np.atleast_2d(np.asarray(X, dtype=float)))
-        posteriors = self._posteriors() if use_samples else [self._posterior]
-        want = "cov" if return_cov else "var" if return_var else None
-        means, spreads = zip(*(self._predict_one(p, Xs, want, include_noise) for p in posteriors))
-        mean = np.mean(means, axis=0)  # (k, m)
-        scale = self.output_scaler_.scale_
-        out_mean = self.output_scaler_.inverse_transform(mean)
-        if want is None:
-            return out_mean[:, 0] if self._y_1d else out_mean
-        if want == "var":
-            _, spread = mixture_moments(np.array(means), np.array(spreads)[:, :, None])
-            spread = spread * scale**2  # (k, m)
-            return (out_mean[:, 0], spread[:, 0]) if self._y_1d else (out_mean, spread)
-        second = np.mean([s[:, :, None] + mu[:, None, :] * mu[None, :, :]
-                          for s, mu in zip(spreads, means)], axis=0)
-        cov = (second - mean[:, None, :] * mean[None, :, :]) * scale**2  # (k, k, m)
-        return (out_mean[:, 0], cov[:, :, 0]) if self._y_1d else (out_mean, cov)
-
     def _predict_one(self, post: _Posterior, Xs, want, include_noise):
         """Standardised mean (k, m) and latent/noisy variance (k,) or covariance (k, k)."""
         Ks = self.kernel(Xs, self.X_train_, theta=post.theta[:-1])
@@ -321,13 +474,6 @@ class GaussianProcess:
         return [PredictiveForm(p.theta, self.X_train_, p.alpha[:, 0] if single else p.alpha,
                                linalg.solve_triangular(p.L, eye, lower=True, check_finite=False))
                 for p in posteriors]
-
-    def _posteriors(self) -> list[_Posterior]:
-        if self.theta_samples_ is None:
-            return [self._posterior]
-        if self._sample_posteriors is None:
-            self._sample_posteriors = [self._factorise(t)[0] for t in self.theta_samples_]
-        return self._sample_posteriors
 
     def __repr__(self) -> str:
         return f"GaussianProcess({self.kernel!r}, noise_variance={self.noise_variance:.4g})"
@@ -361,39 +507,3 @@ class PerOutputGP:
         if not return_var:
             return np.column_stack(results)
         return np.column_stack([r[0] for r in results]), np.column_stack([r[1] for r in results])
-
-
-# -- portable state (used by gp_model._model_file) -----------------------------------------------
-def gp_to_arrays(gp: GaussianProcess) -> tuple[dict, dict]:
-    """JSON-safe metadata and named arrays that fully describe a fitted GP."""
-    meta = {"kernel": gp.kernel.kind, "normalize_inputs": gp.normalize_inputs,
-            "normalize_outputs": gp.normalize_outputs, "y_1d": bool(gp._y_1d),
-            "theta_names": gp.theta_names}
-    arrays = {"X_train": gp.X_train_, "Y_train": gp.Y_train_, "theta": gp.theta_,
-              "input_mean": gp.input_scaler_.mean_, "input_scale": gp.input_scaler_.scale_,
-              "output_mean": gp.output_scaler_.mean_, "output_scale": gp.output_scaler_.scale_}
-    if gp.theta_samples_ is not None:
-        arrays["theta_samples"] = gp.theta_samples_
-    return meta, arrays
-
-
-def gp_from_arrays(meta: dict, arrays: dict) -> GaussianProcess:
-    """Inverse of :func:`gp_to_arrays`; raises KeyError/ValueError on inconsistent content."""
-    from ._kernels import KERNELS
-
-    kernel_class = KERNELS[meta["kernel"]]
-    theta = np.asarray(arrays["theta"], dtype=float)
-    X_train, Y_train = np.asarray(arrays["X_train"], float), np.asarray(arrays["Y_train"], float)
-    if theta.ndim != 1 or X_train.ndim != 2 or Y_train.ndim != 2 or len(X_train) != len(Y_train):
-        raise ValueError("inconsistent array shapes")
-    if theta.size != X_train.shape[1] + 2:
-        raise ValueError(f"theta has {theta.size} entries, expected {X_train.shape[1] + 2}")
-    kernel = kernel_class(1.0, np.full(X_train.shape[1], 0.5)).clone_with_theta(theta[:-1])
-    gp = GaussianProcess(kernel, noise_variance=float(np.exp(theta[-1])),
-                         normalize_inputs=bool(meta["normalize_inputs"]),
-                         normalize_outputs=bool(meta["normalize_outputs"]))
-    gp._y_1d = bool(meta["y_1d"])
-    gp.input_scaler_ = Standardizer.from_arrays(arrays["input_mean"], arrays["input_scale"])
-    gp.output_scaler_ = Standardizer.from_arrays(arrays["output_mean"], arrays["output_scale"])
-    gp.X_train_, gp.Y_train_ = X_train, Y_train
-    return gp.set_hyperparameters(theta, samples=arrays.get("theta_samples"))

@@ -27,19 +27,17 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import GPNumericalError, ModelFileError
-from ._gp import GaussianProcess, PerOutputGP, gp_from_arrays, gp_to_arrays
+from ._gp import GaussianProcess, PerOutputGP
 from ._greybox import GreyBoxGP, greybox_from_parts, greybox_to_parts
 from ._narx import GPNarx, NarxStructure
-from ._sparse_gp import SparseGaussianProcess, sparse_gp_from_arrays, sparse_gp_to_arrays
+from ._sparse_gp import SparseGaussianProcess
 
 FORMAT = "flightgp-model"
 VERSION = 1
 
-#: Kinds of GP part: ``gp_type`` -> (class, writer, reader).
-PART_TYPES = {
-    "exact": (GaussianProcess, gp_to_arrays, gp_from_arrays),
-    "sparse_vfe": (SparseGaussianProcess, sparse_gp_to_arrays, sparse_gp_from_arrays),
-}
+#: Kinds of GP part: ``gp_type`` -> class. Each class writes a part with its ``to_arrays`` and
+#: reads one back with its ``from_arrays``.
+PART_TYPES = {"exact": GaussianProcess, "sparse_vfe": SparseGaussianProcess}
 
 
 def save_model(path, model, *, meta: dict | None = None, physics: dict | None = None) -> Path:
@@ -74,10 +72,10 @@ def save_model(path, model, *, meta: dict | None = None, physics: dict | None = 
         raise ValueError(f"physics is only stored with a GreyBoxGP, not a {type(model).__name__}")
     parts, arrays = [], {}
     for i, gp in enumerate(gps):
-        gp_type = next((name for name, (cls, _, _) in PART_TYPES.items() if type(gp) is cls), None)
+        gp_type = next((name for name, cls in PART_TYPES.items() if type(gp) is cls), None)
         if gp_type is None:
             raise TypeError(f"cannot save a {type(gp).__name__} as part of a model")
-        part_meta, part_arrays = PART_TYPES[gp_type][1](gp)
+        part_meta, part_arrays = gp.to_arrays()
         parts.append({"gp_type": gp_type, **part_meta})
         arrays.update({f"gp{i}/{name}": value for name, value in part_arrays.items()})
     header = {"format": FORMAT, "version": VERSION, "type": type(model).__name__,
@@ -126,7 +124,7 @@ def load_model(path):
                 raise ModelFileError(f"{path}: part {i} is a GP of unknown type {gp_type!r}; this "
                                      f"flightgp reads {', '.join(PART_TYPES)}. Use the flightgp "
                                      "release that wrote it.")
-            gps.append(PART_TYPES[gp_type][2](part_meta, part))
+            gps.append(PART_TYPES[gp_type].from_arrays(part_meta, part))
         if header["type"] in ("GaussianProcess", "SparseGaussianProcess"):
             kinds = [type(gp).__name__ for gp in gps]
             if kinds != [header["type"]]:

@@ -96,10 +96,9 @@ from scipy import linalg
 from scipy.linalg import lapack
 
 from ._errors import GPNumericalError
-from ._gp import LOG_2PI, GaussianProcess, PredictiveForm, gp_to_arrays
-from ._kernels import KERNELS, StationaryKernel
+from ._gp import LOG_2PI, BaseGaussianProcess, PredictiveForm
+from ._kernels import StationaryKernel
 from ._linalg import robust_cholesky
-from ._scaling import Standardizer
 
 logger = logging.getLogger(__name__)
 
@@ -137,7 +136,7 @@ class _Factors:
     jitter: float
 
 
-class SparseGaussianProcess:
+class SparseGaussianProcess(BaseGaussianProcess):
     """Sparse GP regression with the variational free energy of Titsias (2009).
 
     Same interface as :class:`~gp_model.GaussianProcess` (hyperparameters, likelihood, prediction,
@@ -192,31 +191,20 @@ class SparseGaussianProcess:
     def __init__(self, kernel: StationaryKernel, *, n_inducing: int = 50,
                  noise_variance: float = 1e-2, normalize_inputs: bool = True,
                  normalize_outputs: bool = True, inducing_seed: int = 0) -> None:
-        if not noise_variance > 0:
-            raise ValueError(f"noise_variance must be positive, got {noise_variance}")
+        super().__init__(kernel, noise_variance=noise_variance, normalize_inputs=normalize_inputs,
+                         normalize_outputs=normalize_outputs)
         if int(n_inducing) != n_inducing or n_inducing < 1:
             raise ValueError(f"n_inducing must be a positive integer, got {n_inducing}")
-        self.kernel = kernel
         self.n_inducing = int(n_inducing)
-        self.noise_variance = float(noise_variance)
-        self.normalize_inputs = normalize_inputs
-        self.normalize_outputs = normalize_outputs
         self.inducing_seed = int(inducing_seed)
-        self.theta_samples_ = None
-        self._sample_posteriors = None
 
-    # Hyperparameter vector, names, prior and the mixture prediction are exactly those of the
-    # exact GP: shared, not copied. The class is deliberately not a GaussianProcess subclass, so
-    # code that reads an exact GP's L_ / alpha_ (moment matching, gp_to_arrays' inverse) refuses
-    # a sparse GP instead of misreading it. GaussianProcess.predict needs _posteriors(),
-    # _posterior, _predict_one(), the scalers and _y_1d, all provided below.
-    theta = GaussianProcess.theta
-    theta_names = GaussianProcess.theta_names
-    prior = GaussianProcess.prior
-    predict = GaussianProcess.predict
+    @property
+    def weights_(self) -> np.ndarray:
+        """Predictive-mean weights ``w`` of eq. (3) for ``theta_``, shape (m, n_outputs)."""
+        return self._posterior.weights
 
     # -- fitting ------------------------------------------------------------------------------
-    def fit(self, X, y, *, theta=None) -> SparseGaussianProcess:
+    def fit(self, X, y, *, theta=None):
         """Select the inducing inputs and condition on training data with fixed hyperparameters.
 
         Parameters
@@ -229,6 +217,10 @@ class SparseGaussianProcess:
             Hyperparameters, also those of the inducing-input selection; defaults to
             :attr:`theta` (the configured kernel and noise).
 
+        Returns
+        -------
+        self
+
         Raises
         ------
         ValueError
@@ -237,32 +229,22 @@ class SparseGaussianProcess:
             If ``K_mm`` cannot be factorised even with jitter.
         """
         self.inducing_inputs_ = None  # selected by set_hyperparameters, at theta
-        # The exact GP's fit validates the data, standardises it and calls set_hyperparameters.
-        return GaussianProcess.fit(self, X, y, theta=theta)
+        return super().fit(X, y, theta=theta)
 
-    def set_hyperparameters(self, theta, *, samples=None) -> SparseGaussianProcess:
+    def set_hyperparameters(self, theta, *, samples=None):
         """Use ``theta`` (shape (p,)) and optionally a sample set (shape (S, p)) for the mixture.
 
         The configured ``kernel`` and ``noise_variance`` are updated to match ``theta``. The
-        inducing inputs stay as they are (they are selected by :meth:`fit`).
+        inducing inputs stay as they are (they are selected by :meth:`fit`, at its ``theta``).
+
+        Returns
+        -------
+        self
         """
-        theta = np.asarray(theta, dtype=float)
-        if theta.shape != (len(self.theta),):
-            raise ValueError(f"theta must have shape ({len(self.theta)},), got {theta.shape}")
-        if samples is not None:
-            samples = np.atleast_2d(np.asarray(samples, dtype=float))
-            if samples.shape[1] != len(theta):
-                raise ValueError(f"samples must have shape (S, {len(theta)}), got {samples.shape}")
-        self.kernel = self.kernel.clone_with_theta(theta[:-1])
-        self.noise_variance = float(np.exp(theta[-1]))
+        theta, samples = self._checked_hyperparameters(theta, samples)
         if self.inducing_inputs_ is None:
             self.inducing_inputs_ = self.X_train_[self._select_inducing(theta)]
-        self._posterior = _posterior(self._factorise(theta))
-        self.theta_ = theta
-        self.weights_, self.jitter_ = self._posterior.weights, self._posterior.jitter
-        self.theta_samples_ = samples
-        self._sample_posteriors = None
-        return self
+        return super().set_hyperparameters(theta, samples=samples)
 
     def _select_inducing(self, theta) -> np.ndarray:
         """Indices of the inducing inputs in ``X_train_``, shape (m,): greedy maximum-variance
@@ -283,6 +265,9 @@ class SparseGaussianProcess:
                 break
             pivots, scale = more, 2.0 * scale
         return np.array(pivots)
+
+    def _posterior_at(self, theta) -> _SparsePosterior:
+        return _posterior(self._factorise(theta))
 
     def _factorise(self, theta) -> _Factors:
         """Eq. (2)'s factors at ``theta``; raises GPNumericalError if K_mm cannot be factorised."""
@@ -388,12 +373,30 @@ class SparseGaussianProcess:
         return [PredictiveForm(p.theta, self.inducing_inputs_, p.weights[:, 0] if single else p.weights,
                                p.variance_factor) for p in posteriors]
 
-    def _posteriors(self) -> list[_SparsePosterior]:
-        if self.theta_samples_ is None:
-            return [self._posterior]
-        if self._sample_posteriors is None:
-            self._sample_posteriors = [_posterior(self._factorise(t)) for t in self.theta_samples_]
-        return self._sample_posteriors
+    # -- portable state (one part of a model file, gp_model._model_file) ---------------------
+    def to_arrays(self) -> tuple[dict, dict]:
+        """JSON-safe metadata and named arrays that fully describe the fitted sparse GP: those
+        of :meth:`BaseGaussianProcess.to_arrays`, plus the selection settings ``n_inducing`` and
+        ``inducing_seed`` in ``meta`` and the array ``inducing_inputs`` (m, d). The inverse is
+        :meth:`from_arrays`, which uses the stored inducing inputs as they are (no re-selection).
+        """
+        meta, arrays = super().to_arrays()
+        meta.update(n_inducing=self.n_inducing, inducing_seed=self.inducing_seed)
+        arrays["inducing_inputs"] = self.inducing_inputs_
+        return meta, arrays
+
+    @classmethod
+    def _settings_from_meta(cls, meta: dict) -> dict:
+        return {"n_inducing": int(meta["n_inducing"]), "inducing_seed": int(meta["inducing_seed"])}
+
+    def _restore_training_data(self, meta: dict, arrays: dict, X_train: np.ndarray,
+                               Y_train: np.ndarray) -> None:
+        Z = np.asarray(arrays["inducing_inputs"], dtype=float)
+        if Z.ndim != 2 or Z.shape[1] != X_train.shape[1] or not 0 < len(Z) <= len(X_train):
+            raise ValueError(f"inducing inputs have shape {Z.shape}, expected (m, {X_train.shape[1]}) "
+                             f"with 0 < m <= {len(X_train)}")
+        super()._restore_training_data(meta, arrays, X_train, Y_train)
+        self.inducing_inputs_ = Z
 
     def __repr__(self) -> str:
         return (f"SparseGaussianProcess({self.kernel!r}, n_inducing={self.n_inducing}, "
@@ -431,40 +434,3 @@ def _posterior(f: _Factors) -> _SparsePosterior:
     L_inv = linalg.solve_triangular(f.L, np.eye(m), lower=True, check_finite=False)
     R = np.sqrt(eigenvalues / (1.0 + eigenvalues))[:, None] * (U.T @ L_inv)
     return _SparsePosterior(f.theta, weights, R, f.jitter)
-
-
-# -- portable state (used by gp_model._model_file) -----------------------------------------------
-def sparse_gp_to_arrays(gp: SparseGaussianProcess) -> tuple[dict, dict]:
-    """JSON-safe metadata and named arrays that fully describe a fitted sparse GP: those of
-    :func:`~gp_model._gp.gp_to_arrays` plus the inducing inputs and the selection settings."""
-    meta, arrays = gp_to_arrays(gp)
-    meta.update(n_inducing=gp.n_inducing, inducing_seed=gp.inducing_seed)
-    arrays["inducing_inputs"] = gp.inducing_inputs_
-    return meta, arrays
-
-
-def sparse_gp_from_arrays(meta: dict, arrays: dict) -> SparseGaussianProcess:
-    """Inverse of :func:`sparse_gp_to_arrays`; raises KeyError/ValueError on inconsistent
-    content. The stored inducing inputs are used as they are (no re-selection)."""
-    kernel_class = KERNELS[meta["kernel"]]
-    theta = np.asarray(arrays["theta"], dtype=float)
-    X_train, Y_train = np.asarray(arrays["X_train"], float), np.asarray(arrays["Y_train"], float)
-    Z = np.asarray(arrays["inducing_inputs"], dtype=float)
-    if theta.ndim != 1 or X_train.ndim != 2 or Y_train.ndim != 2 or len(X_train) != len(Y_train):
-        raise ValueError("inconsistent array shapes")
-    if theta.size != X_train.shape[1] + 2:
-        raise ValueError(f"theta has {theta.size} entries, expected {X_train.shape[1] + 2}")
-    if Z.ndim != 2 or Z.shape[1] != X_train.shape[1] or not 0 < len(Z) <= len(X_train):
-        raise ValueError(f"inducing inputs have shape {Z.shape}, expected (m, {X_train.shape[1]}) "
-                         f"with 0 < m <= {len(X_train)}")
-    kernel = kernel_class(1.0, np.full(X_train.shape[1], 0.5)).clone_with_theta(theta[:-1])
-    gp = SparseGaussianProcess(kernel, n_inducing=int(meta["n_inducing"]),
-                               noise_variance=float(np.exp(theta[-1])),
-                               normalize_inputs=bool(meta["normalize_inputs"]),
-                               normalize_outputs=bool(meta["normalize_outputs"]),
-                               inducing_seed=int(meta["inducing_seed"]))
-    gp._y_1d = bool(meta["y_1d"])
-    gp.input_scaler_ = Standardizer.from_arrays(arrays["input_mean"], arrays["input_scale"])
-    gp.output_scaler_ = Standardizer.from_arrays(arrays["output_mean"], arrays["output_scale"])
-    gp.X_train_, gp.Y_train_, gp.inducing_inputs_ = X_train, Y_train, Z
-    return gp.set_hyperparameters(theta, samples=arrays.get("theta_samples"))

@@ -1,6 +1,7 @@
-"""Fixtures of the FMU tests: the trained models and built FMUs (session scope: each is made once
-per test process), and, on a test module's ``case`` (tests/fmu_src/contract.py), the unzipped
-FMU and a host instance."""
+"""Fixtures of the FMU tests: the trained models and built FMUs only these tests use (session
+scope: each is made once per test process; those other packages share are in tests/conftest.py),
+and, on a test module's ``case`` (tests/fmu_src/contract.py), the unzipped FMU and a host
+instance."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,68 +10,26 @@ from fmpy import extract
 
 from fmu_src import (
     build_blimp_rkgp_fmu,
-    build_bo105_reference_fmu,
     build_jsbsim_fmu,
     build_native_blimp_rkgp_fmu,
     build_native_rate_predictor_fmu,
-    build_rate_predictor_fmu,
 )
 from gp_model import GreyBoxGP, save_model
 from tests.fmu_src.blimp_rkgp.contract import BLIMP_HOLD
 from tests.fmu_src.contract import Host
 from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
-from validation.models.narx import save_trained, train_narx
-from validation.reproduce.bo105 import PAPER_CONFIG, fly_3211
 from validation.vehicles.blimp import BlimpParameters
 from validation.vehicles.blimp_flight import BlimpFlightTest
 
 
-# -- the Bo105 GP-NARX rate predictor ------------------------------------------------------------
-@pytest.fixture(scope="session")
-def bo105_flights():
-    """The paper's 3-2-1-1 (training) and an unseen one, Bo105 80 kt flight-test stand-in."""
-    fly = lambda seed, amplitude, step_time: fly_3211(  # noqa: E731
-        "bo105-80kt-flight", input_name="theta_1s", amplitude=np.radians(amplitude),
-        step_time=step_time, start=1.0, duration=8.0, seed=seed)
-    return {"training": fly(0, 1.0, 0.4), "unseen": fly(1, 1.3, 0.3)}
-
-
-@pytest.fixture(scope="session")
-def bo105_trained(bo105_flights):
-    """The paper's configuration: 32 training points, annealing with 400 hyperparameter samples
-    (about 2 s), so the FMU's mixture over samples is exercised as in production."""
-    return train_narx([bo105_flights["training"]], PAPER_CONFIG, seed=0)
-
-
-@pytest.fixture(scope="session")
-def bo105_model_file(tmp_path_factory, bo105_trained):
-    return save_trained(tmp_path_factory.mktemp("model") / "bo105_gp_narx.npz", bo105_trained)
-
-
-@pytest.fixture(scope="session")
-def rate_predictor_fmu(bo105_model_file, tmp_path_factory):
-    return build_rate_predictor_fmu(bo105_model_file, tmp_path_factory.mktemp("fmu"),
-                                    name="bo105_rate_predictor")
-
-
+# -- the Bo105 GP-NARX rate predictor (flights, model and pythonfmu FMU: tests/conftest.py) ---------
 @pytest.fixture(scope="session")
 def native_rate_predictor_fmu(bo105_model_file, tmp_path_factory):
     return build_native_rate_predictor_fmu(bo105_model_file, tmp_path_factory.mktemp("native"),
                                            name="bo105_native_rate_predictor")
 
 
-# -- the physics references -------------------------------------------------------------------------
-@pytest.fixture(scope="session")
-def bo105_speed_kt():
-    """Trim speed of the Bo105 reference FMU, kt."""
-    return 80
-
-
-@pytest.fixture(scope="session")
-def bo105_reference_fmu(bo105_speed_kt, tmp_path_factory):
-    return build_bo105_reference_fmu(bo105_speed_kt, tmp_path_factory.mktemp("fmu"))
-
-
+# -- the physics references (the Bo105 reference FMU: tests/conftest.py) ----------------------------
 @pytest.fixture(scope="session")
 def jsbsim_fmu(tmp_path_factory):
     return build_jsbsim_fmu("c172x", tmp_path_factory.mktemp("fmu"))

@@ -53,13 +53,21 @@ def test_duplicate_and_ill_conditioned_inputs_escalate_jitter_and_log(caplog, le
     assert np.isfinite(mean).all() and np.isfinite(var).all()
 
 
-def test_hopeless_matrix_raises_clear_error():
-    # A kernel matrix with NaN entries cannot be rescued by jitter.
+def test_hopeless_matrix_raises_clear_error_and_leaves_the_gp_as_it_was():
+    # A kernel matrix with non-finite entries (here an infinite signal variance) cannot be
+    # rescued by jitter.
     gp = GaussianProcess(SquaredExponentialARD(1.0, [1.0]), noise_variance=1e-2)
     X = np.zeros((3, 1))
     gp.fit(X, np.ones(3))  # constant inputs are fine: noise keeps K + s I positive definite
+    theta, mean = gp.theta_, gp.predict(X)
+    hopeless = np.array([np.inf, 0.0, 0.0])
     with pytest.raises(GPNumericalError, match="non-finite"):
-        gp._factorise(np.array([np.inf, 0.0, 0.0]))
+        gp.set_hyperparameters(hopeless)
+    np.testing.assert_array_equal(gp.theta, theta)  # the configured kernel and noise too
+    np.testing.assert_array_equal(gp.theta_, theta)
+    np.testing.assert_array_equal(gp.predict(X), mean)
+    # Optimisers probe such points: the likelihood there is -inf, not an error.
+    assert gp.log_marginal_likelihood(hopeless) == -np.inf
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf])

@@ -13,7 +13,6 @@ flight-test stand-in built on it is :mod:`validation.vehicles.bo105_flight`.
 """
 from __future__ import annotations
 
-import copy
 import json
 import math
 from functools import cache
@@ -132,6 +131,16 @@ class Bo105Reference:
         self._changed: dict[str, float] = {}
         self._discretisations: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
+    @classmethod
+    def _from_matrices(cls, speed_kt: int, A: np.ndarray, B: np.ndarray,
+                       changed: dict[str, float]) -> Bo105Reference:
+        """The reference at ``speed_kt`` with state matrix ``A`` (8, 8), 1/s, and control matrix
+        ``B`` (8, 4), state units per rad per s, in place of Padfield's; ``changed`` (derivative
+        name -> value) names what differs from the table, for the recordings' metadata."""
+        reference = cls(speed_kt)
+        reference._A, reference._B, reference._changed = A, B, changed
+        return reference
+
     @property
     def A(self) -> np.ndarray:
         """State matrix, shape (8, 8), 1/s (a copy)."""
@@ -174,10 +183,7 @@ class Bo105Reference:
         BadInputError
             For an unknown name (the message lists the valid ones) or a non-finite value.
         """
-        changed = copy.copy(self)
-        changed._A, changed._B = self._A.copy(), self._B.copy()
-        changed._changed = dict(self._changed)
-        changed._discretisations = {}
+        A, B, changed = self._A.copy(), self._B.copy(), dict(self._changed)
         for name, value in values.items():
             matrix, row, column = self._locate(name)
             try:
@@ -186,9 +192,9 @@ class Bo105Reference:
                 number = math.nan
             if not math.isfinite(number):
                 raise BadInputError(f"derivative {name} must be a finite number, got {value!r}")
-            (changed._A if matrix == "A" else changed._B)[row, column] = number
-            changed._changed[name] = number
-        return changed
+            (A if matrix == "A" else B)[row, column] = number
+            changed[name] = number
+        return self._from_matrices(self.speed_kt, A, B, changed)
 
     def discretisation(self, step: float) -> tuple[np.ndarray, np.ndarray]:
         """Exact ZOH ``(Phi, Gamma)`` at ``step`` s, shapes (8, 8) and (8, 4); cached."""

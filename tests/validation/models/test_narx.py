@@ -10,16 +10,12 @@ from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.core.recordings import write_recording
 from validation.models.narx import NarxConfig, free_run, load_trained, one_step, save_trained, train_narx
-from validation.reproduce.bo105 import fly_3211
 
 
 @pytest.fixture(scope="module")
-def recordings():
-    """Short Bo105 stand-in 3-2-1-1s (training and unseen)."""
-    fly = lambda seed, amplitude: fly_3211("bo105-80kt-flight", input_name="theta_1s",  # noqa: E731
-                                           amplitude=np.radians(amplitude), step_time=0.4,
-                                           start=1.0, duration=6.0, seed=seed)
-    return fly(0, 1.0), fly(1, 1.3)
+def recordings(bo105_flights):
+    """The Bo105 stand-in 3-2-1-1s of tests/conftest.py: training and unseen."""
+    return bo105_flights["training"], bo105_flights["unseen"]
 
 
 FAST = NarxConfig(hyperparameters="maximum_likelihood", kernel="squared_exponential_ard", stride=10)
@@ -31,9 +27,9 @@ def trained(recordings):
 
 
 def test_training_uses_every_stride_th_sample_on_every_phase(trained, recordings):
-    # 6 s at 100 Hz = samples 0..600; a target needs 2 lags of 10 samples, so targets are
-    # samples 20..600; every 10th of them: 20, 30, ..., 600 -> 59 training points.
-    assert len(trained.model.model.gps[0].X_train_) == 59
+    # 8 s at 100 Hz = samples 0..800; a target needs 2 lags of 10 samples, so targets are
+    # samples 20..800; every 10th of them: 20, 30, ..., 800 -> 79 training points.
+    assert len(trained.model.model.gps[0].X_train_) == 79
     assert trained.step == pytest.approx(0.1)
     np.testing.assert_allclose(trained.training_time[:3], [0.2, 0.3, 0.4])
     # The paper's every 25th sample takes targets from two phases of the 0.1 s grid (25, 50, ...).
@@ -41,7 +37,7 @@ def test_training_uses_every_stride_th_sample_on_every_phase(trained, recordings
                                                    kernel="squared_exponential_ard", stride=25),
                        n_restarts=0)
     np.testing.assert_allclose(paper.training_time[:3], [0.25, 0.5, 0.75])
-    assert len(paper.model.model.gps[0].X_train_) == 24  # samples 25, 50, ..., 600
+    assert len(paper.model.model.gps[0].X_train_) == 32  # samples 25, 50, ..., 800
 
 
 def test_one_step_matches_the_model(trained, recordings):
@@ -113,7 +109,8 @@ def test_cli_train_and_predict(tmp_path, recordings, capsys):
     header = out.read_text().splitlines()[0].split(",")
     assert header[:5] == ["time", "p_measured", "p_mean", "p_lower", "p_upper"]
     table = np.loadtxt(out, delimiter=",", skiprows=1)
-    assert table.shape == (61, 13) and np.all(table[:, 3] <= table[:, 4])
+    # 8 s on the 0.1 s NARX grid: 81 rows; time, then measured, mean, lower, upper per axis.
+    assert table.shape == (81, 13) and np.all(table[:, 3] <= table[:, 4])
     assert out.with_suffix(".png").stat().st_size > 10_000
     assert "coverage" in capsys.readouterr().out
 

@@ -1,0 +1,56 @@
+"""Fixtures that tests of several packages share: the Bo105 3-2-1-1 flights, the paper's GP-NARX
+trained on them, its model file and rate-predictor FMU, and the Bo105 reference FMU. Session
+scope: each is made once per test process, and only by a process that runs a test using it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fmu_src import build_bo105_reference_fmu, build_rate_predictor_fmu
+from validation.models.narx import save_trained, train_narx
+from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+
+@pytest.fixture(scope="session")
+def bo105_speed_kt():
+    """Trim speed of the Bo105 flights and of the reference FMU, kt."""
+    return 80
+
+
+@pytest.fixture(scope="session")
+def bo105_flights(bo105_speed_kt):
+    """Bo105 flight-test stand-in at :func:`bo105_speed_kt`, ``theta_1s`` 3-2-1-1s of 8 s from 1 s: ``"training"``
+    is the paper's (1 deg, 0.4 s steps, seed 0; the one ``flightgp cosim --vehicle`` flies by
+    default), ``"unseen"`` a larger, faster one (1.3 deg, 0.3 s steps, seed 1) that leaves the
+    training envelope in places."""
+    fly = lambda seed, amplitude_deg, step_time: fly_3211(  # noqa: E731
+        f"bo105-{bo105_speed_kt}kt-flight", input_name="theta_1s", amplitude=np.radians(amplitude_deg),
+        step_time=step_time, start=TRAINING_MANOEUVRE["start"],
+        duration=TRAINING_MANOEUVRE["duration"], seed=seed)
+    return {"training": fly(0, TRAINING_MANOEUVRE["amplitude_deg"], TRAINING_MANOEUVRE["step_time"]),
+            "unseen": fly(1, 1.3, 0.3)}
+
+
+@pytest.fixture(scope="session")
+def bo105_trained(bo105_flights):
+    """The paper's configuration on the training flight: 32 training points, annealing with 400
+    hyperparameter samples (about 2 s), so FMUs' mixture over samples is exercised as in
+    production."""
+    return train_narx([bo105_flights["training"]], PAPER_CONFIG, seed=0)
+
+
+@pytest.fixture(scope="session")
+def bo105_model_file(tmp_path_factory, bo105_trained):
+    return save_trained(tmp_path_factory.mktemp("model") / "bo105_gp_narx.npz", bo105_trained)
+
+
+@pytest.fixture(scope="session")
+def rate_predictor_fmu(bo105_model_file, tmp_path_factory):
+    """The pythonfmu rate-predictor FMU of :func:`bo105_trained`."""
+    return build_rate_predictor_fmu(bo105_model_file, tmp_path_factory.mktemp("fmu"),
+                                    name="bo105_rate_predictor")
+
+
+@pytest.fixture(scope="session")
+def bo105_reference_fmu(bo105_speed_kt, tmp_path_factory):
+    return build_bo105_reference_fmu(bo105_speed_kt, tmp_path_factory.mktemp("fmu"))

@@ -1,0 +1,22 @@
+"""validation.bench.fmu: the step cost of the rate-predictor FMUs (pythonfmu and native) and the
+blimp RKGP FMUs against bare FMUs."""
+import math
+
+import pytest
+
+from validation.bench import fmu
+
+
+def test_times_the_gp_fmu_against_a_bare_one_and_the_native_fmus():
+    report = fmu.run(n_steps=50, progress=False)
+    assert report["steps"] == 50 and report["training_points"] == 32  # the paper's model
+    assert 0 < report["bare_us_per_step"] < report["gp_us_per_step"]
+    assert report["gp_over_bare"] == pytest.approx(report["gp_us_per_step"] / report["bare_us_per_step"])
+    assert report["goal_met"] == (report["gp_over_bare"] <= report["goal_ratio"])
+    blimp = report["blimp"]
+    assert blimp["steps"] > 0
+    times = [value for key, value in blimp.items() if key.endswith("us_per_step")]
+    assert len(times) >= 3 and all(math.isfinite(t) and t > 0 for t in times)
+    assert "bare us/step" in fmu.format_table(report)
+    # Headline rows: the pythonfmu FMU against the bare one, each native rate predictor, the blimp.
+    assert len(fmu.summary_rows(report)) == 1 + len(report["native"]) + 1
