@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         summarise_seeds,
     )
 
-    cases = concealed_cases(args.reference)
+    cases = concealed_cases(reference=args.reference)
     if args.list:
         for case in cases:
             print(f"{case.name:<28} {case.kind:<8} {case.description}")

@@ -2,7 +2,7 @@
 
 Each case flies the Bo105 reference with effects that :func:`validation.diagnose.pipeline.diagnose` is not
 told about, records it with sensor noise, diagnoses it and scores the answer against the truth
-(docs/diagnose.md, scorecards):
+(docs/diagnose.md, "The concealed-effect benchmark: `flightgp diagnose-bench`"):
 
 - **single** named effects on several channels and at several magnitudes, all at or above
   realistic sizes (delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %, biases >= 3x the
@@ -23,7 +23,7 @@ that is 100 Hz with the flight-test stand-in's sensor noise and the multi-axis m
 seed, the recording and the case's name: each case is an independent trial, and running a case
 alone gives what it gives in the whole suite.
 
-The ``blimp`` suite (:func:`blimp_cases`, ``concealed_cases("blimp")``) does the same on the blimp
+The ``blimp`` suite (:func:`blimp_cases`, ``concealed_cases(reference="blimp")``) does the same on the blimp
 ODE: 20 Hz (the mocap rate), all 12 states with the white noise of
 :data:`validation.vehicles.blimp_effects.SENSOR_NOISE_STD`, the manoeuvres of
 :func:`validation.vehicles.blimp_effects.identification_manoeuvre`; single effects of every kind the blimp
@@ -45,6 +45,7 @@ import math
 import time as clock
 import zlib
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -52,17 +53,17 @@ from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.diagnose.pipeline import diagnose
 from validation.vehicles import get_vehicle
-from validation.vehicles.blimp import BlimpReference
-from validation.vehicles.blimp_effects import BlimpEffects
+from validation.vehicles.blimp_equations import rk4
 from validation.vehicles.bo105 import STATE_NAMES
-from validation.vehicles.bo105_effects import Bo105Effects
-from validation.vehicles.effect_vehicle import EFFECT_REFERENCES, EffectVehicle, effect_model_of
+from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
-#: Held-out RMSE cut of the affected output that a named effect must achieve (docs/diagnose.md,
-#: scorecards: the corrected model must remove most of the error the effect causes).
+#: Held-out RMSE cut of the affected output that a named effect must achieve: the corrected model
+#: must remove most of the error the effect causes (docs/diagnose.md, "The concealed-effect
+#: benchmark: `flightgp diagnose-bench`").
 REQUIRED_CUT = 0.6
-#: Recording length of every case, s (the runtime goal of docs/diagnose.md is per 20 s recording).
+#: Recording length of every case, s (the runtime goal, docs/benchmarks.md, "`diagnose`", is per
+#: 20 s recording).
 DURATION = 20.0
 
 
@@ -108,13 +109,13 @@ def _scaled_case(reference: EffectModel, kind: str, term: str, factor: float, *,
                          description=f"{description}: {old:.4g} -> {value:.4g}")
 
 
-def blimp_cases(reference: BlimpEffects | None = None) -> list[ConcealedCase]:
+def blimp_cases(*, reference: EffectModel | None = None) -> list[ConcealedCase]:
     """The blimp suite (module docstring): every effect kind the blimp takes at sizes a real
     indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
     errors, a buoyancy imbalance of 0.3 g), a pair, no effect, and two fan nonlinearities
     outside the named list (:data:`COMMAND_MAPS`). ``reference``: the blimp's effect model
     (default: the ``blimp`` reference's)."""
-    reference = reference or BlimpEffects(BlimpReference())
+    reference = reference or effect_model("blimp", purpose="diagnose-bench")
     noise = reference.sensor_noise_sd
 
     def scaled(kind, term, factor, description):
@@ -154,7 +155,7 @@ def blimp_cases(reference: BlimpEffects | None = None) -> list[ConcealedCase]:
     ]
 
 
-def bo105_cases(reference: Bo105Effects) -> list[ConcealedCase]:
+def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
     """The Bo105 suite (module docstring) on ``reference``, a Bo105's effect model.
 
     Derivative changes are relative to the reference's own values, so the suite works at every
@@ -212,36 +213,57 @@ def bo105_cases(reference: Bo105Effects) -> list[ConcealedCase]:
     return cases
 
 
-#: The concealed-effect suite of each effect model type.
-SUITES = {Bo105Effects: bo105_cases, BlimpEffects: blimp_cases}
+#: The concealed-effect suite of each family of references
+#: (:attr:`validation.vehicles.effects.EffectModel.family`), called with the reference's effect model.
+SUITES = {"bo105": bo105_cases, "blimp": blimp_cases}
 
 
-def concealed_cases(reference: str = "bo105-80kt") -> list[ConcealedCase]:
+def concealed_cases(*, reference: str = "bo105-80kt") -> list[ConcealedCase]:
     """The benchmark suite for the reference called ``reference`` (:data:`SUITES`): the Bo105
-    suite for every ``bo105-<V>kt``, :func:`blimp_cases` for ``blimp``."""
-    model = _effect_model(reference)
-    suite = SUITES.get(type(model))
-    if suite is None:
-        raise BadInputError(f"diagnose-bench has no concealed-effect suite for {reference!r}; suites exist for "
-                            f"the {EFFECT_REFERENCES} references")
-    return suite(model)
+    suite for every ``bo105-<V>kt``, :func:`blimp_cases` for ``blimp``.
 
-
-def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed: int = 0):
-    """The diagnosed and the held-out recording of ``case`` (module docstring).
-
-    Returns
-    -------
-    fit, holdout : Recording
-    truth_states : ndarray, shape (n, n_states)
-        Noise-free states of the held-out flight with the concealed physics (for scoring).
+    Raises
+    ------
+    BadInputError
+        A reference that takes no effects (:func:`validation.vehicles.effect_vehicle.effect_model`)
+        or whose family has no suite.
     """
-    model = _effect_model(reference)
-    vehicle = EffectVehicle(reference, case.effects, noise_sd=model.sensor_noise_sd)
+    reference = effect_model(reference, purpose="diagnose-bench")
+    suite = SUITES.get(reference.family)
+    if suite is None:
+        raise BadInputError(f"diagnose-bench has no concealed-effect suite for {reference.name!r}; suites "
+                            f"exist for the {', '.join(SUITES)} references")
+    return suite(reference=reference)
+
+
+@dataclass(frozen=True)
+class CaseRecordings:
+    """The recordings of one case (:func:`case_recordings`).
+
+    Attributes
+    ----------
+    fit, holdout : Recording
+        The diagnosed recording (identification manoeuvre variant 0) and the held-out one
+        (variant 1), with sensor noise.
+    truth_states : ndarray, shape (n, n_states)
+        Noise-free states of the held-out flight with the concealed physics (for scoring), in
+        the reference's state units and order.
+    """
+
+    fit: Recording
+    holdout: Recording
+    truth_states: np.ndarray
+
+
+def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed: int = 0) -> CaseRecordings:
+    """The diagnosed and the held-out recording of ``case`` on the reference called
+    ``reference``, and the held-out truth (module docstring)."""
+    reference = effect_model(reference, purpose="diagnose-bench")
+    vehicle = EffectVehicle(reference.name, case.effects, noise_sd=reference.sensor_noise_sd)
     recordings = []
     for variant in (0, 1):
-        time, inputs = model.identification_manoeuvre(duration=DURATION, sample_time=model.sample_time,
-                                                      variant=variant)
+        time, inputs = reference.identification_manoeuvre(duration=DURATION, sample_time=reference.sample_time,
+                                                          variant=variant)
         if case.outside is None:
             states = vehicle.simulate_states(time, inputs)
         else:
@@ -249,14 +271,15 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
         # Each case draws its own noise (seeded by its name), so the cases of one run are
         # independent trials of diagnose rather than one noise draw seen through many effects.
         rng = np.random.default_rng([seed, variant, zlib.crc32(case.name.encode())])
-        noise = np.array([model.sensor_noise_sd[name] for name in vehicle.state_names])
+        noise = np.array([reference.sensor_noise_sd[name] for name in vehicle.state_names])
         measured = states + rng.standard_normal(states.shape) * noise
-        metadata = {"vehicle": reference, "simulator": f"diagnose-bench case {case.name}",
-                    "sample_time": model.sample_time, "seed": seed, "sensor_noise_std": dict(model.sensor_noise_sd)}
+        metadata = {"vehicle": reference.name, "simulator": f"diagnose-bench case {case.name}",
+                    "sample_time": reference.sample_time, "seed": seed,
+                    "sensor_noise_std": dict(reference.sensor_noise_sd)}
         recordings.append((Recording(time, inputs, vehicle.input_names, measured, vehicle.state_names, metadata),
                            states))
     (fit, _), (holdout, truth_states) = recordings
-    return fit, holdout, truth_states
+    return CaseRecordings(fit, holdout, truth_states)
 
 
 #: Static command nonlinearities outside the named list, ``(command, parameter) -> effective
@@ -301,12 +324,7 @@ def _quadratic_pitch_damping_states(reference: str, coefficient: float, time, in
     step = float(time[1] - time[0])
     states = np.zeros((len(time), len(STATE_NAMES)))
     for k in range(len(time) - 1):
-        x, u = states[k], inputs[k]
-        k1 = derivative(x, u)
-        k2 = derivative(x + 0.5 * step * k1, u)
-        k3 = derivative(x + 0.5 * step * k2, u)
-        k4 = derivative(x + step * k3, u)
-        states[k + 1] = x + step / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        states[k + 1] = rk4(partial(derivative, u=inputs[k]), states[k], step)
     return states
 
 
@@ -360,7 +378,22 @@ def _target(effect: dict) -> tuple:
 
 def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray, holdout: Recording,
                reference: str, seconds: float) -> CaseScore:
-    """Score one diagnosis (``Diagnosis.as_dict()``) against the case's truth."""
+    """Score one diagnosis against the case's truth (module docstring).
+
+    Parameters
+    ----------
+    case : ConcealedCase
+    diagnosis : dict
+        ``Diagnosis.as_dict()`` of the case's fit recording.
+    truth_states : ndarray, shape (n, n_states)
+        :attr:`CaseRecordings.truth_states`.
+    holdout : Recording
+        :attr:`CaseRecordings.holdout`.
+    reference : str
+        The registry name of the reference the case was flown on.
+    seconds : float
+        Wall-clock seconds of the diagnosis.
+    """
     findings = diagnosis["findings"]
     score = CaseScore(case, seconds=seconds)
     score.found = [{"effect": f["effect"], **{key: f[key] for key in ("input", "term", "output") if key in f},
@@ -384,9 +417,9 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
             f.get("interval") is not None and f["interval"][0] <= truth[key]["value"] <= f["interval"][1]
             for key, f in matched.items())
     # The affected output: the one the concealed physics moves most, relative to its noise.
-    model = _effect_model(reference)
-    replay = model.simulate_many([[]], holdout.time, holdout.inputs)[0]
-    noise_sd, names = model.sensor_noise_sd, model.state_names
+    reference = effect_model(reference, purpose="diagnose-bench")
+    replay = reference.simulate_many([[]], holdout.time, holdout.inputs)[0]
+    noise_sd, names = reference.sensor_noise_sd, reference.state_names
     outputs = diagnosis["fit"]["outputs"]
     if case.kind != "none":
         energy = [np.sum(((truth_states[:, names.index(n)] - replay[:, names.index(n)])
@@ -413,18 +446,18 @@ def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=N
     progress : callable, optional
         Called as ``progress(1, case=name)`` after each case.
     """
+    sample_time = effect_model(reference, purpose="diagnose-bench").sample_time
     rows = []
     for case in cases:
-        fit, holdout, truth_states = case_recordings(case, reference=reference, seed=seed)
+        recordings = case_recordings(case, reference=reference, seed=seed)
         start = clock.perf_counter()
-        diagnosis = diagnose([fit], reference=reference, holdout=[holdout], seed=seed).as_dict()
+        diagnosis = diagnose([recordings.fit], reference=reference, holdout=[recordings.holdout], seed=seed).as_dict()
         seconds = clock.perf_counter() - start
-        rows.append(score_case(case, diagnosis, truth_states=truth_states, holdout=holdout,
+        rows.append(score_case(case, diagnosis, truth_states=recordings.truth_states, holdout=recordings.holdout,
                                reference=reference, seconds=seconds))
         if progress:
             progress(1, case=case.name)
-    return {"reference": reference, "seed": seed, "duration_s": DURATION,
-            "sample_time_s": _effect_model(reference).sample_time,
+    return {"reference": reference, "seed": seed, "duration_s": DURATION, "sample_time_s": sample_time,
             "required_cut": REQUIRED_CUT, "cases": [row.as_dict() for row in rows],
             "passed": sum(row.passed for row in rows), "total": len(rows),
             "max_seconds": max((row.seconds for row in rows), default=0.0)}
@@ -504,11 +537,3 @@ def format_seed_summary(summary: dict) -> str:
                      f"{count['with_false_findings']:>5} {count['says_unexplained']:>6} {cut:>5} "
                      f"{c['max_seconds']:>6.1f}")
     return "\n".join(lines)
-
-
-def _effect_model(reference: str) -> EffectModel:
-    """The effect model of the reference called ``reference`` (BadInputError if it takes none)."""
-    model = effect_model_of(get_vehicle(reference))
-    if model is None:
-        raise BadInputError(f"diagnose-bench runs on the {EFFECT_REFERENCES} references, not {reference!r}")
-    return model

@@ -1,5 +1,5 @@
-"""The data a diagnosis works on: the reference checked, recordings read and checked against
-it, split into fitted and held-out samples, with the sensor noise of every measured output.
+"""The data a diagnosis works on: recordings read and checked against the reference, split into
+fitted and held-out samples, with the sensor noise of every measured output.
 
 Held-out data: the ``holdout`` recordings if given; otherwise the last recording when there are
 several; otherwise the last :data:`HOLDOUT_FRACTION` of the single recording (the model is then
@@ -10,7 +10,8 @@ discretisation has one step; :attr:`validation.vehicles.effects.EffectModel.need
 must be evenly sampled; others (the blimp's, motion capture with frame-timing jitter) may not
 be. All recordings must share one nominal interval ``h``
 (:func:`validation.core.sampling.nominal_step`, within :data:`RATE_TOLERANCE`).
-docs/conventions.md describes the recording format, docs/diagnose.md the stages.
+The recording format is in docs/conventions.md, "Recording files"; the stages are in
+docs/diagnose.md, "How it works".
 """
 from __future__ import annotations
 
@@ -24,8 +25,7 @@ from validation.core.recordings import Recording
 from validation.core.sampling import nominal_step, uneven_steps
 from validation.diagnose.fitting import FitData
 from validation.diagnose.noise import estimate_noise_sd
-from validation.vehicles import get_vehicle, read_recording
-from validation.vehicles.effect_vehicle import EFFECT_REFERENCES, effect_model_of
+from validation.vehicles import read_recording
 from validation.vehicles.effects import EffectModel
 
 #: Held-out share of a single recording's time when no other held-out data exist.
@@ -108,25 +108,6 @@ class _Source:
     name: str
     recording: Recording
     held_out: bool
-
-
-def diagnosable_reference(name: str) -> EffectModel:
-    """The effect model of the reference called ``name``.
-
-    Raises
-    ------
-    BadInputError
-        An unknown name, a flight-test stand-in, or a vehicle that takes no effects.
-    """
-    vehicle = get_vehicle(name)
-    if name.endswith("-flight"):
-        raise BadInputError(f"--reference {name} is a flight-test stand-in; diagnose a physics "
-                            f"reference ({name.removesuffix('-flight')})")
-    reference = effect_model_of(vehicle)
-    if reference is None:
-        raise BadInputError(f"diagnose supports the {EFFECT_REFERENCES} references; {name!r} is not "
-                            "implemented yet")
-    return reference
 
 
 def prepare(recordings, reference: EffectModel, *, holdout=None) -> PreparedData:

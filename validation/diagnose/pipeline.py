@@ -3,7 +3,7 @@ physics, model it, and prove the fit improves on data not used to fit it (docs/d
 
 :func:`diagnose` runs the stages in order, each a module with its result object:
 
-1. :mod:`~validation.diagnose.data`: the reference and the recordings checked, split into
+1. :mod:`~validation.diagnose.data`: the recordings checked against the reference, split into
    fitted and held-out samples, the sensor noise estimated
    (:class:`~validation.diagnose.data.PreparedData`);
 2. :mod:`~validation.diagnose.locate`: where and at which frequencies the reference misfits
@@ -19,17 +19,19 @@ physics, model it, and prove the fit improves on data not used to fit it (docs/d
    :func:`~validation.diagnose.report.write_diagnosis` writes with report.md and the corrected
    model.
 
-The reference takes effects through its :class:`validation.vehicles.effects.EffectModel`, so no
-stage asks which reference it is.
+The reference takes effects through its :class:`validation.vehicles.effects.EffectModel`
+(:func:`validation.vehicles.effect_vehicle.effect_model`), which every stage receives as
+``reference``, so no stage asks which reference it is.
 """
 from __future__ import annotations
 
-from validation.diagnose.data import diagnosable_reference, prepare
+from validation.diagnose.data import prepare
 from validation.diagnose.explain import explain
 from validation.diagnose.locate import locate
 from validation.diagnose.model import build_models
 from validation.diagnose.prove import prove
-from validation.diagnose.report import Diagnosis, write_up
+from validation.diagnose.report import Diagnosis, assemble_diagnosis
+from validation.vehicles.effect_vehicle import effect_model
 
 
 def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progress=None) -> Diagnosis:
@@ -39,12 +41,12 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
     ----------
     recordings : sequence of path-like or Recording
         Recordings of the vehicle ``reference`` describes, starting at trim (docs/conventions.md,
-        recording format). Paths are read with :func:`validation.vehicles.read_recording`.
+        "Recording files"). Paths are read with :func:`validation.vehicles.read_recording`.
         Evenly sampled if the reference needs it (a Bo105; the blimp's may be unevenly sampled,
         :mod:`validation.diagnose.data`). All share one nominal sample interval.
     reference : str
-        A reference that takes effects (:data:`validation.vehicles.effect_vehicle.EFFECT_MODELS`):
-        ``bo105-<V>kt`` or ``blimp``.
+        The registry name of a reference that takes effects
+        (:data:`validation.vehicles.effect_vehicle.EFFECT_MODELS`): ``bo105-<V>kt`` or ``blimp``.
     holdout : sequence of path-like or Recording, optional
         Recordings used only to score the models. Default: the last recording, or the last 30 %
         of a single one (:mod:`validation.diagnose.data`).
@@ -66,10 +68,10 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
         unevenly sampled recordings of a reference that needs even sampling; recordings at
         different nominal sample rates.
     """
-    model = diagnosable_reference(reference)
-    data = prepare(recordings, model, holdout=holdout)
-    location = locate(data, model)
-    explanation = explain(data, location, model, progress=progress)
-    models = build_models(data, location, explanation, model, seed=seed, progress=progress)
-    proof = prove(data, location, explanation, models, model, progress=progress)
-    return write_up(model, data, location, explanation, models, proof)
+    reference = effect_model(reference, purpose="diagnose")  # the name's EffectModel from here on
+    data = prepare(recordings, reference, holdout=holdout)
+    location = locate(data, reference)
+    explanation = explain(data, location, reference, progress=progress)
+    models = build_models(data, location, explanation, reference, seed=seed, progress=progress)
+    proof = prove(data, location, explanation, models, reference, progress=progress)
+    return assemble_diagnosis(reference, data, location, explanation, models, proof)

@@ -3,16 +3,15 @@ plain-language statements, ``report.md`` with its plots, and the files a diagnos
 (docs/diagnose.md)."""
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from validation.core.files import check_output_folder, write_files_atomically
+from validation.core.files import check_output_folder, json_text, write_files_atomically
 from validation.core.plots import png_bytes
-from validation.core.recordings import column_unit
+from validation.core.recordings import column_phrase, column_unit
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation, NamedEffect
 from validation.diagnose.locate import Location
@@ -21,35 +20,9 @@ from validation.diagnose.prove import MODEL_KEYS, HeldOutEffect, Proof
 from validation.vehicles.effect_vehicle import EffectVehicle
 from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
-INPUT_WORDS = {"theta_0": "main-rotor collective", "theta_1s": "longitudinal cyclic",
-               "theta_1c": "lateral cyclic", "theta_0T": "tail-rotor collective (pedals)",
-               "u_gondola": "gondola thrust command", "mu": "gondola thrust angle",
-               "u_tail": "tail-fan command"}
-OUTPUT_WORDS = {"u": "forward speed", "w": "vertical speed", "q": "pitch-rate", "theta": "pitch-attitude",
-                "v": "lateral speed", "p": "roll-rate", "phi": "roll-attitude", "r": "yaw-rate",
-                "x": "north position", "y": "east position", "z": "height (down)", "psi": "heading",
-                "U": "surge speed", "V": "sway speed", "W": "heave speed", "P": "roll-rate",
-                "Q": "pitch-rate", "R": "yaw-rate"}
-#: Common names of derivatives (Padfield 2007, ch. 4 and 7).
-TERM_WORDS = {"M_q": "pitch damping", "L_p": "roll damping", "N_r": "yaw damping",
-              "L_q": "roll moment due to pitch rate (off-axis coupling)",
-              "M_p": "pitch moment due to roll rate (off-axis coupling)",
-              "M_w": "pitch moment due to heave velocity (incidence stability)",
-              "M_u": "speed stability", "N_v": "weathercock stability", "L_v": "dihedral effect",
-              "X_u": "drag damping", "Z_w": "heave damping", "Y_v": "side-force damping",
-              "M_theta_1s": "pitch control power", "L_theta_1c": "roll control power",
-              "N_theta_0T": "yaw control power", "Z_theta_0": "heave control power",
-              # The blimp's terms (validation.vehicles.blimp_effects).
-              "gondola_thrust_forward": "gondola thrust per unit forward command",
-              "gondola_thrust_backward": "gondola thrust per unit backward command",
-              "tail_thrust_positive": "tail-fan thrust per unit positive command",
-              "tail_thrust_negative": "tail-fan thrust per unit negative command",
-              "L_P": "roll damping", "M_Q": "pitch damping", "N_R": "yaw damping",
-              "X_UU": "quadratic surge drag", "Y_VV": "quadratic sway drag", "Z_WW": "quadratic heave drag",
-              "X_0": "constant surge force", "Y_0": "constant side force",
-              "Z_0": "buoyancy imbalance (net downward force)", "N_0": "constant yaw moment"}
-_KIND_WORDS = {"control_derivative": "control derivative", "stability_derivative": "stability derivative",
-               "quadratic_drag": "quadratic drag derivative", "force_offset": "force offset"}
+#: The term effect kinds of the contract (:data:`validation.vehicles.effects.TARGET_KEYS`) in words,
+#: where the name with spaces would not do.
+_KIND_WORDS = {"quadratic_drag": "quadratic drag derivative"}
 _MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_gp": "corrected + GP"}
 #: Share of a named effect's signal that a GP on the uncorrected residual must reproduce for the
 #: report to warn that a residual GP alone would hide the effect (half: it would carry more of
@@ -61,7 +34,7 @@ HIDDEN_BY_GP = 0.5
 class Diagnosis:
     """Result of :func:`validation.diagnose.pipeline.diagnose`.
 
-    ``as_dict()`` is exactly ``diagnosis.json`` (docs/diagnose.md): ``reference``, ``verdict``,
+    ``as_dict()`` is exactly ``diagnosis.json`` (docs/diagnose.md, "diagnosis.json"): ``reference``, ``verdict``,
     ``mismatch``, ``findings``, ``fit``, plus ``locate`` (noise, bands, coherence), ``untestable``
     and ``search`` (what was tested and the last rejected hypothesis). The other attributes
     feed the report and the corrected-model file.
@@ -96,16 +69,16 @@ class Diagnosis:
                 "untestable": self.untestable, "search": self.search}
 
 
-def write_up(reference: EffectModel, data: PreparedData, location: Location, explanation: Explanation,
-             models: Models, proof: Proof) -> Diagnosis:
-    """The diagnosis of the stages' results: one finding per named effect (most important
-    first), then the ``unexplained`` ones of the model and the prove stage, each with its
-    :func:`statement`."""
+def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Location,
+                       explanation: Explanation, models: Models, proof: Proof) -> Diagnosis:
+    """The diagnosis of the stages' results (nothing is written: :func:`write_diagnosis` does
+    that): one finding per named effect (most important first), then the ``unexplained`` ones of
+    the model and the prove stage, each with its :func:`statement`."""
     findings = [_named_finding(named, data.output_names[named.main_output], held_out, absorbs)
                 for named, held_out, absorbs in zip(explanation.named, proof.effects, models.gp_absorbs)]
     findings += models.unexplained + proof.unexplained
     for finding in findings:
-        finding["statement"] = statement(finding, proof.fit)
+        finding["statement"] = statement(finding, proof.fit, reference)
     return Diagnosis(reference=reference.name,
                      verdict="missing_physics" if findings else "consistent", mismatch=location.mismatch,
                      findings=findings, fit=proof.fit, locate=location.summary,
@@ -114,7 +87,8 @@ def write_up(reference: EffectModel, data: PreparedData, location: Location, exp
 
 
 def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float) -> dict:
-    """The diagnosis.json finding of a named effect (docs/diagnose.md), keys in contract order."""
+    """The diagnosis.json finding of a named effect (docs/diagnose.md, "findings"), keys in
+    contract order."""
     finding = {**named.effect, "unit": named.unit, "interval": named.interval}
     if named.model_value is not None:
         finding["model_value"] = named.model_value
@@ -133,13 +107,20 @@ def _span(interval) -> str:
     return f"({_number(interval[0])} to {_number(interval[1])})"
 
 
+def _input_words(name: str) -> str:
+    """``"theta_1s, the longitudinal cyclic pitch"`` (:func:`validation.core.recordings.column_phrase`);
+    ``name`` alone for a column without a phrase."""
+    phrase = column_phrase(name)
+    return name if phrase == name else f"{name}, the {phrase}"
+
+
 def _improvement(finding: dict, fit: dict) -> str:
-    """``" Adding it cuts held-out pitch-rate RMSE from 0.031 to 0.006 rad/s."``"""
+    """``" Adding it cuts held-out pitch rate RMSE from 0.031 to 0.006 rad/s."``"""
     name = finding.get("main_output")
     if name is None or name not in fit["rmse_reference"]:
         return ""
     before, after = fit["rmse_reference"][name], finding["rmse_effect_alone"]
-    words = OUTPUT_WORDS.get(name, name)
+    words = column_phrase(name)
     if finding.get("carries_over") is None:
         return (f" The held-out data do not exercise it (held-out {words} RMSE {_number(before)} "
                 f"{column_unit(name)} with or without it).")
@@ -152,12 +133,15 @@ def _improvement(finding: dict, fit: dict) -> str:
             "outside the named list.")
 
 
-def statement(finding: dict, fit: dict) -> str:
-    """The plain-language sentence of one finding (what a flight-test engineer would write)."""
+def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
+    """The plain-language sentence of one finding (what a flight-test engineer would write): the
+    columns in the words of :func:`validation.core.recordings.column_phrase`, a term in those of
+    ``reference`` (:meth:`~validation.vehicles.effects.EffectModel.term_description`); ``fit`` is
+    diagnosis.json's ``fit``."""
     kind, value = finding["effect"], finding["value"]
     if kind == "unexplained":
         name = finding["output"]
-        words = OUTPUT_WORDS.get(name, name)
+        words = column_phrase(name)
         if finding.get("data") == "holdout":
             return (f"The corrected model fits the diagnosed {words} to the noise "
                     f"({finding['fit_noise_ratio']:.2f}x) but misses the held-out {words} by "
@@ -177,24 +161,25 @@ def statement(finding: dict, fit: dict) -> str:
     interval = _span(finding["interval"])
     unit = finding["unit"]
     if kind in ("time_delay", "input_lag"):
-        name = finding.get("main_output", "")
-        words = OUTPUT_WORDS.get(name, name).capitalize()
-        control = INPUT_WORDS[finding["input"]]
+        words = column_phrase(finding.get("main_output", ""))
+        control = _input_words(finding["input"])
         if kind == "time_delay":
-            text = (f"{words} response lags the model by {_number(value)} s {interval}: a transport "
-                    f"delay on {control} ({finding['input']}).")
+            text = (f"The {words} response lags the model by {_number(value)} s {interval}: a transport "
+                    f"delay on {control}.")
         else:
-            text = (f"{words} response to {control} ({finding['input']}) is smoothed by a first-order "
-                    f"lag of {_number(value)} s {interval}: unmodelled actuator or rotor dynamics.")
+            text = (f"The {words} response is smoothed by a first-order lag of {_number(value)} s "
+                    f"{interval} on {control}: unmodelled actuator or rotor dynamics.")
     elif kind == "sensor_bias":
         name = finding["output"]
-        text = (f"The {OUTPUT_WORDS.get(name, name)} sensor reads {_number(abs(value))} {unit} "
+        text = (f"The {column_phrase(name)} sensor reads {_number(abs(value))} {unit} "
                 f"{interval} {'high' if value > 0 else 'low'}: a sensor bias on {name}.")
     else:
         term, model_value = finding["term"], finding["model_value"]
-        words = TERM_WORDS.get(term, "the derivative")
+        description = reference.term_description(term)
+        named = term if description == term else f"{term} ({description})"
         change = (f"{(value - model_value) / abs(model_value):+.0%}" if model_value != 0 else "missing in the model")
-        text = (f"The {_KIND_WORDS[kind]} {term} ({words}) is {_number(value)} {unit} {interval}, not the "
+        kind_words = _KIND_WORDS.get(kind, kind.replace("_", " "))
+        text = (f"The {kind_words} {named} is {_number(value)} {unit} {interval}, not the "
                 f"model's {_number(model_value)} ({change}).")
     alternatives = finding.get("alternatives") or []
     if alternatives:
@@ -219,7 +204,7 @@ def _output_figure(name: str, trace: dict, fit: dict) -> Figure:
     axis.set_ylabel(f"{name} [{column_unit(name)}]")
     axis.grid(True, alpha=0.3)
     axis.legend(loc="upper right", fontsize="small")
-    axis.set_title(f"{OUTPUT_WORDS.get(name, name)} on held-out data")
+    axis.set_title(f"{column_phrase(name)} on held-out data")
     return figure
 
 
@@ -336,8 +321,8 @@ def diagnosis_files(diagnosis: Diagnosis, out_dir) -> dict:
         file_name = f"holdout_{name}.png"
         files[out_dir / file_name] = png_bytes(_output_figure(name, trace, diagnosis.fit))
         plot_names[name] = file_name
-    files[out_dir / "diagnosis.json"] = json.dumps(diagnosis.as_dict(), indent=2) + "\n"
-    files[out_dir / "corrected_model.json"] = json.dumps(diagnosis.corrected.as_dict(), indent=2) + "\n"
+    files[out_dir / "diagnosis.json"] = json_text(diagnosis.as_dict())
+    files.update(diagnosis.corrected.model_files(out_dir / "corrected_model.json"))
     files[out_dir / "report.md"] = report_markdown(diagnosis, plot_names)
     return files
 

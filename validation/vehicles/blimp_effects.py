@@ -4,7 +4,7 @@ identification manoeuvre that excites them.
 
 The effect dicts are those of :mod:`validation.vehicles.effects` (the ``flightgp diagnose``
 finding shape, docs/vehicles.md). On the blimp they act on the ODE of
-:func:`validation.vehicles.blimp.blimp_dynamics` as follows (body axes, SI units; ``M`` is the
+:func:`validation.vehicles.blimp_equations.blimp_dynamics` as follows (body axes, SI units; ``M`` is the
 blimp's system inertia matrix, so an extra generalised force ``tau`` adds ``M^-1 tau`` to
 ``nu_dot``):
 
@@ -45,13 +45,15 @@ Integration: classical RK4 with one step per recording interval, each of its own
 unevenly sampled), from the reference's hanging state (:class:`~validation.vehicles.blimp.BlimpReference`
 uses substeps of at most 0.01 s; at 20 Hz the two agree to far below the sensor noise, see
 ``tests/validation/diagnose/test_diagnose_blimp.py``). All members of a batch are integrated together, one
-vectorised :func:`~validation.vehicles.blimp.blimp_dynamics` call per RK4 stage, and all lags of a batch
+vectorised :func:`~validation.vehicles.blimp_equations.blimp_dynamics` call per RK4 stage
+(:func:`~validation.vehicles.blimp_equations.rk4`), and all lags of a batch
 are propagated together, which is what makes output-error fitting of many hypotheses affordable.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -64,7 +66,7 @@ from validation.vehicles.blimp import (
     check_command_history,
     hanging_state,
 )
-from validation.vehicles.blimp_equations import blimp_dynamics, mass_matrix
+from validation.vehicles.blimp_equations import blimp_dynamics, mass_matrix, rk4
 from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_STD
 from validation.vehicles.effects import TARGET_KEYS, Hypothesis
 
@@ -81,6 +83,15 @@ TERMS = {"control_derivative": tuple(CONTROL_TERMS), "stability_derivative": tup
          "quadratic_drag": tuple(DRAG_TERMS), "force_offset": tuple(OFFSET_TERMS)}
 TERM_UNITS = {**dict.fromkeys(CONTROL_TERMS, "N"), **dict.fromkeys(STABILITY_TERMS, "N m s/rad"),
               **dict.fromkeys(DRAG_TERMS, "N s^2/m^2"), "X_0": "N", "Y_0": "N", "Z_0": "N", "N_0": "N m"}
+#: Every term in words (module docstring), for the statements of a diagnosis.
+TERM_DESCRIPTIONS = {"gondola_thrust_forward": "gondola thrust per unit forward command",
+                     "gondola_thrust_backward": "gondola thrust per unit backward command",
+                     "tail_thrust_positive": "tail-fan thrust per unit positive command",
+                     "tail_thrust_negative": "tail-fan thrust per unit negative command",
+                     "L_P": "roll damping", "M_Q": "pitch damping", "N_R": "yaw damping",
+                     "X_UU": "quadratic surge drag", "Y_VV": "quadratic sway drag", "Z_WW": "quadratic heave drag",
+                     "X_0": "constant surge force", "Y_0": "constant side force",
+                     "Z_0": "buoyancy imbalance (net downward force)", "N_0": "constant yaw moment"}
 
 #: White sensor noise per state of the blimp recordings (the ``blimp-flight`` stand-in's marker
 #: noise, 1 mm and 0.5 deg; velocities and rates at the noise of its 5-sample quadratic-fit
@@ -192,19 +203,12 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
     _, inverse = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
                               params.cg_position)
 
-    def derivative(state, command):
-        return changes.rates(state, command, params, inverse)
-
     states = np.empty((len(effect_lists), len(time), 12))
     state = np.repeat(hanging_state(params)[None], len(effect_lists), axis=0)
     states[:, 0] = state
-    for k, step in enumerate(steps):  # classical RK4 over [t_k, t_{k+1}), input row k held
+    for k, step in enumerate(steps):  # one RK4 step over [t_k, t_{k+1}), input row k held
         command = held[:, k]
-        k1 = derivative(state, command)
-        k2 = derivative(state + 0.5 * step * k1, command)
-        k3 = derivative(state + 0.5 * step * k2, command)
-        k4 = derivative(state + step * k3, command)
-        state = state + step / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        state = rk4(partial(changes.rates, command=command, params=params, inverse=inverse), state, step)
         states[:, k + 1] = state
     return states + changes.bias[:, None, :]
 
@@ -352,6 +356,7 @@ class BlimpEffects:
     The other attributes and the methods are those of the protocol.
     """
 
+    family = "blimp"
     kinds = tuple(TARGET_KEYS)
     terms = TERMS
     batches_simulations = True
@@ -369,6 +374,10 @@ class BlimpEffects:
     def term_unit(self, term: str) -> str:
         """:data:`TERM_UNITS`."""
         return TERM_UNITS[term]
+
+    def term_description(self, term: str) -> str:
+        """:data:`TERM_DESCRIPTIONS`; ``term`` itself for another."""
+        return TERM_DESCRIPTIONS.get(term, term)
 
     def term_value_problem(self, term: str, value: float) -> str | None:
         """Fan thrust per unit command (the control-derivative terms) must be positive."""

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from validation.core.manoeuvres import doublet, three_two_one_one, time_grid
-from validation.core.recordings import column_unit
+from validation.core.recordings import column_phrase, column_unit
 from validation.core.sampling import check_history
 from validation.vehicles.bo105 import (
     INPUT_NAMES,
@@ -44,6 +44,19 @@ from validation.vehicles.effects import Hypothesis
 from validation.vehicles.linear_discretisation import zero_order_hold
 
 _ACCELERATION_UNITS = {"m/s": "m/s^2", "rad/s": "rad/s^2"}
+#: Common names of derivatives (Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 4 and 7).
+DERIVATIVE_NAMES = {"M_q": "pitch damping", "L_p": "roll damping", "N_r": "yaw damping",
+                    "L_q": "roll moment due to pitch rate (off-axis coupling)",
+                    "M_p": "pitch moment due to roll rate (off-axis coupling)",
+                    "M_w": "pitch moment due to heave velocity (incidence stability)",
+                    "M_u": "speed stability", "N_v": "weathercock stability", "L_v": "dihedral effect",
+                    "X_u": "drag damping", "Z_w": "heave damping", "Y_v": "side-force damping",
+                    "M_theta_1s": "pitch control power", "L_theta_1c": "roll control power",
+                    "N_theta_0T": "yaw control power", "Z_theta_0": "heave control power"}
+#: What each derivative row is a derivative of: the body-axis forces X, Y, Z and moments L, M, N
+#: (per unit mass and inertia; Padfield 2007, ch. 4), for the derivatives without a common name.
+_ROW_WORDS = {"X": "longitudinal force", "Y": "side force", "Z": "vertical force",
+              "L": "roll moment", "M": "pitch moment", "N": "yaw moment"}
 
 
 def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
@@ -169,6 +182,7 @@ class Bo105Effects:
     The other attributes and the methods are those of the protocol.
     """
 
+    family = "bo105"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias")
     terms = {"control_derivative": tuple(f"{letter}_{column}" for letter in ROW_LETTERS for column in INPUT_NAMES),
              "stability_derivative": tuple(f"{letter}_{column}" for letter in ROW_LETTERS for column in STATE_NAMES)}
@@ -189,6 +203,16 @@ class Bo105Effects:
         letter, _, column = term.partition("_")
         row_unit, column_unit_ = column_unit(ROW_LETTERS[letter]), column_unit(column)
         return "1/s" if row_unit == column_unit_ else f"({_ACCELERATION_UNITS[row_unit]})/({column_unit_})"
+
+    def term_description(self, term: str) -> str:
+        """The derivative's common name (:data:`DERIVATIVE_NAMES`), else ``"<row force or moment>
+        due to <column>"`` (``"side force due to longitudinal cyclic pitch"``), else ``term``."""
+        if term in DERIVATIVE_NAMES:
+            return DERIVATIVE_NAMES[term]
+        letter, _, column = term.partition("_")
+        if letter in _ROW_WORDS and column in STATE_NAMES + INPUT_NAMES:
+            return f"{_ROW_WORDS[letter]} due to {column_phrase(column)}"
+        return term
 
     def term_value_problem(self, term: str, value: float) -> None:
         """Every finite derivative is acceptable."""

@@ -3,45 +3,69 @@
 :class:`EffectVehicle` is a reference with a list of effects (:mod:`validation.vehicles.effects`)
 applied, plus optional white sensor noise; it is both the concealed "real aircraft" of tests and
 benchmarks and the corrected model that ``flightgp diagnose`` saves (:meth:`EffectVehicle.save`,
-:meth:`EffectVehicle.load`: a small versioned JSON file; docs/vehicles.md).
+:meth:`EffectVehicle.load`: a small versioned JSON file; docs/vehicles.md, "Named effects").
 
-:data:`EFFECT_MODELS` says which references take effects and through which
-:class:`~validation.vehicles.effects.EffectModel`; :func:`effect_model_of` looks one up.
+:data:`EFFECT_MODELS` is the one place that says which references take effects and through
+which :class:`~validation.vehicles.effects.EffectModel`; :func:`effect_model` looks one up by
+registry name for every caller (diagnose, its bench, :class:`EffectVehicle`).
 """
 from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 
 from validation.core.errors import BadInputError
-from validation.core.files import write_json
+from validation.core.files import json_text, write_files_atomically
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history, sampling_metadata
-from validation.vehicles.blimp import BlimpReference
 from validation.vehicles.blimp_effects import BlimpEffects
-from validation.vehicles.bo105 import Bo105Reference
 from validation.vehicles.bo105_effects import Bo105Effects
 from validation.vehicles.effects import EffectModel, check_effects
 from validation.vehicles.registry import get_vehicle
 
-#: Reference type -> (its effect model's class, called with the reference; how messages name the
-#: references of that type). A reference type not listed takes no effects.
-EFFECT_MODELS = {Bo105Reference: (Bo105Effects, "bo105-<V>kt"), BlimpReference: (BlimpEffects, "blimp")}
+#: The references that take effects, as messages name them -> (the registry names they cover, a
+#: full-match regular expression; their effect model's class, called with the registry's vehicle
+#: of that name). A registry name no pattern matches (flight-test stand-ins, JSBSim aircraft)
+#: takes no effects.
+EFFECT_MODELS = {"bo105-<V>kt": (r"bo105-\d+kt", Bo105Effects), "blimp": (r"blimp", BlimpEffects)}
 #: The references that take effects, as messages name them: "bo105-<V>kt and blimp".
-EFFECT_REFERENCES = " and ".join(label for _, label in EFFECT_MODELS.values())
+EFFECT_REFERENCES = " and ".join(EFFECT_MODELS)
+#: Suffix of the registry names of flight-test stand-ins (docs/vehicles.md, "Names and interface").
+_STAND_IN_SUFFIX = "-flight"
 _FILE_FORMAT = "flightgp-effect-vehicle"
 _FILE_VERSION = 1
 
 
-def effect_model_of(vehicle) -> EffectModel | None:
-    """The effect model of ``vehicle`` (an object of the registry,
-    :func:`validation.vehicles.registry.get_vehicle`); ``None`` if its type takes no effects
-    (flight-test stand-ins, JSBSim aircraft)."""
-    entry = EFFECT_MODELS.get(type(vehicle))
-    return None if entry is None else entry[0](vehicle)
+def effect_model(name: str, *, purpose: str) -> EffectModel:
+    """The effect model of the reference called ``name`` (:data:`EFFECT_MODELS`).
+
+    Parameters
+    ----------
+    name : str
+        A registry name (:func:`validation.vehicles.registry.get_vehicle`).
+    purpose : str
+        What the caller needs the effect model for, the subject of the error message
+        (``"diagnose"``, ``"diagnose-bench"``, ``"applying effects"``).
+
+    Raises
+    ------
+    BadInputError
+        An unknown name (the registry's message), a flight-test stand-in (naming its reference),
+        or a vehicle that takes no effects.
+    """
+    vehicle = get_vehicle(name)
+    for pattern, model_class in EFFECT_MODELS.values():
+        if re.fullmatch(pattern, name):
+            return model_class(vehicle)
+    needs = f"{purpose} needs one of the {EFFECT_REFERENCES} references"
+    if name.endswith(_STAND_IN_SUFFIX):
+        raise BadInputError(f"{needs}; {name!r} is a flight-test stand-in: use its physics reference "
+                            f"{name.removesuffix(_STAND_IN_SUFFIX)}")
+    raise BadInputError(f"{needs}; named effects are not implemented for {name!r} yet")
 
 
 class EffectVehicle:
@@ -71,10 +95,7 @@ class EffectVehicle:
     """
 
     def __init__(self, reference_name: str, effects=(), *, noise_sd: dict | None = None):
-        reference = effect_model_of(get_vehicle(reference_name))
-        if reference is None:
-            raise BadInputError(f"effects can be applied to the {EFFECT_REFERENCES} references only, "
-                                f"not {reference_name!r}")
+        reference = effect_model(reference_name, purpose="applying effects")
         self._reference = reference
         self.reference_name = reference.name
         self.name = f"{reference.name}+effects"
@@ -129,9 +150,15 @@ class EffectVehicle:
         return {"format": _FILE_FORMAT, "version": _FILE_VERSION, "reference": self.reference_name,
                 "effects": self.effects, "noise_sd": self.noise_sd}
 
+    def model_files(self, path) -> dict:
+        """The model file at ``path`` as ``{path: text}`` (:meth:`as_dict` as indented JSON), for
+        :func:`validation.core.files.write_files_atomically` with any other files of the same
+        step (as ``flightgp diagnose`` writes its corrected model with the report)."""
+        return {Path(path): json_text(self.as_dict())}
+
     def save(self, path) -> Path:
-        """Write the model as versioned JSON (atomically); :meth:`load` reads it back."""
-        return write_json(path, self.as_dict())
+        """Write the model file (:meth:`model_files`) atomically; :meth:`load` reads it back."""
+        return write_files_atomically(self.model_files(path))[0]
 
     @classmethod
     def from_dict(cls, content: dict, *, source: str = "model") -> EffectVehicle:

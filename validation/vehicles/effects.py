@@ -19,8 +19,9 @@ the reference's equations and which hypotheses diagnose tests on it is the refer
 business, supplied by an object implementing :class:`EffectModel`:
 :class:`validation.vehicles.bo105_effects.Bo105Effects` for every ``bo105-<V>kt``,
 :class:`validation.vehicles.blimp_effects.BlimpEffects` for the ``blimp``.
-:mod:`validation.vehicles.effect_vehicle` finds the effect model of a reference and applies
-effects to it (:class:`~validation.vehicles.effect_vehicle.EffectVehicle`).
+:mod:`validation.vehicles.effect_vehicle` finds the effect model of a reference
+(:func:`~validation.vehicles.effect_vehicle.effect_model`) and applies effects to it
+(:class:`~validation.vehicles.effect_vehicle.EffectVehicle`).
 """
 from __future__ import annotations
 
@@ -89,13 +90,17 @@ class EffectModel(Protocol):
     know of a reference, so that none of them asks which reference it is.
 
     A new reference (an FMU, a state-space model read from a file ...) becomes diagnosable by
-    implementing this protocol and entering its reference type in
+    implementing this protocol and entering its registry names in
     :data:`validation.vehicles.effect_vehicle.EFFECT_MODELS`.
 
     Attributes
     ----------
     name : str
         The reference's registry name (``"bo105-80kt"``, ``"blimp"``).
+    family : str
+        What the references of one effect model share, whatever their registry name
+        (``"bo105"`` for every ``bo105-<V>kt``, ``"blimp"``): the key of whatever an application
+        keeps per kind of reference (the concealed-effect suites of ``flightgp diagnose-bench``).
     input_names : tuple of str
         Its inputs, in recording-column order.
     state_names : tuple of str
@@ -117,6 +122,7 @@ class EffectModel(Protocol):
     """
 
     name: str
+    family: str
     input_names: tuple[str, ...]
     state_names: tuple[str, ...]
     kinds: tuple[str, ...]
@@ -133,6 +139,12 @@ class EffectModel(Protocol):
 
     def term_unit(self, term: str) -> str:
         """The unit of ``term``'s value (``"1/s"``, ``"N s^2/m^2"`` ...)."""
+        ...
+
+    def term_description(self, term: str) -> str:
+        """What ``term`` is, in words (``"pitch damping"`` for a Bo105's ``M_q``, ``"quadratic
+        surge drag"`` for the blimp's ``X_UU``), for the statements of a diagnosis; ``term``
+        itself when the reference has no words for it."""
         ...
 
     def term_value_problem(self, term: str, value: float) -> str | None:

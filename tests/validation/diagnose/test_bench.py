@@ -24,10 +24,11 @@ from validation.vehicles.effect_vehicle import EffectVehicle
 
 
 def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
-    """Realistic magnitudes (docs/diagnose.md, scorecards): delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %,
-    biases >= 3x noise; plus pairs, a no-effect case and effects outside the named list."""
+    """Realistic magnitudes (docs/diagnose.md, "The concealed-effect benchmark: `flightgp
+    diagnose-bench`"): delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %, biases >= 3x
+    noise; plus pairs, a no-effect case and effects outside the named list."""
     reference = Bo105Reference(80)
-    cases = concealed_cases("bo105-80kt")
+    cases = concealed_cases(reference="bo105-80kt")
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias"}
     assert {case.kind for case in cases} == {"single", "pair", "none", "outside"}
@@ -53,7 +54,8 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
 
 def test_case_recordings_are_the_concealed_vehicle_with_independent_noise():
     case = next(c for c in concealed_cases() if c.name == "delay-theta_1s-60ms")
-    fit, holdout, truth = case_recordings(case, seed=3)
+    recordings = case_recordings(case, seed=3)
+    fit, holdout, truth = recordings.fit, recordings.holdout, recordings.truth_states
     time, inputs = identification_manoeuvre(duration=20.0, sample_time=0.01, variant=1)
     np.testing.assert_array_equal(holdout.inputs, inputs)
     expected = EffectVehicle("bo105-80kt", case.effects).simulate_states(time, inputs)
@@ -78,9 +80,9 @@ def test_outside_effects_change_the_flight_and_the_quadratic_integrator_is_accur
     assert np.abs(damped[:, q]).max() < 0.9 * np.abs(reference[:, q]).max()
     for case in concealed_cases():
         if case.kind == "outside":
-            _, holdout, truth = case_recordings(case)
-            replay = Bo105Reference(80).simulate_states(holdout.time, holdout.inputs)
-            assert np.abs(truth - replay)[:, q].max() > 10 * SENSOR_NOISE_STD["q"], case.name
+            recordings = case_recordings(case)
+            replay = Bo105Reference(80).simulate_states(recordings.holdout.time, recordings.holdout.inputs)
+            assert np.abs(recordings.truth_states - replay)[:, q].max() > 10 * SENSOR_NOISE_STD["q"], case.name
 
 
 def _diagnosis(findings, rmse=(0.02, 0.004, 0.004)):
@@ -94,8 +96,8 @@ def _diagnosis(findings, rmse=(0.02, 0.004, 0.004)):
 @pytest.fixture(scope="module")
 def delay_case():
     case = ConcealedCase("d", "single", ({"effect": "time_delay", "input": "theta_1s", "value": 0.06},))
-    _, holdout, truth = case_recordings(case)
-    return case, holdout, truth
+    recordings = case_recordings(case)
+    return case, recordings.holdout, recordings.truth_states
 
 
 def test_score_requires_the_right_target_the_value_in_the_interval_and_the_cut(delay_case):
@@ -151,10 +153,11 @@ def test_cli_runs_chosen_cases_and_writes_the_scorecard(tmp_path, capsys):
 def test_blimp_fan_thrust_quadratic_in_its_command_is_unexplained():
     """Outside the named list on the blimp: per-direction thrust gains fit the tail fan's u|u|
     thrust at the diagnosed manoeuvre's one amplitude (0.8), not at the held-out one's (0.6)."""
-    case = next(c for c in concealed_cases("blimp") if c.name == "outside-quadratic-thrust-u_tail")
-    fit, holdout, truth = case_recordings(case, reference="blimp", seed=0)
-    result = diagnose([fit], reference="blimp", holdout=[holdout], seed=0).as_dict()
-    assert score_case(case, result, truth_states=truth, holdout=holdout, reference="blimp", seconds=0.0).passed
+    case = next(c for c in concealed_cases(reference="blimp") if c.name == "outside-quadratic-thrust-u_tail")
+    recordings = case_recordings(case, reference="blimp", seed=0)
+    result = diagnose([recordings.fit], reference="blimp", holdout=[recordings.holdout], seed=0).as_dict()
+    assert score_case(case, result, truth_states=recordings.truth_states, holdout=recordings.holdout,
+                      reference="blimp", seconds=0.0).passed
     assert any(f["effect"] == "unexplained" and f["output"] in ("y", "psi", "R") for f in result["findings"])
 
 

@@ -140,7 +140,7 @@ def test_cli_names_a_gondola_delay_and_writes_a_loadable_blimp_model(tmp_path, c
     corrected = EffectVehicle.load(out / "corrected_model.json")
     assert corrected.reference_name == "blimp" and corrected.effects[0]["input"] == "u_gondola"
     assert (out / "holdout_x.png").read_bytes()[:4] == b"\x89PNG"
-    assert "gondola thrust command" in capsys.readouterr().out
+    assert "u_gondola, the gondola fan command" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("problem, expected", [
@@ -164,7 +164,7 @@ def test_bad_blimp_recordings_exit_2_with_one_line(tmp_path, capsys, problem, ex
 
 
 def test_blimp_bench_suite_covers_every_blimp_effect_kind():
-    cases = concealed_cases("blimp")
+    cases = concealed_cases(reference="blimp")
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative",
                      "quadratic_drag", "force_offset", "sensor_bias"}
@@ -176,7 +176,7 @@ def test_blimp_bench_suite_covers_every_blimp_effect_kind():
 
 def _jittered(time, *, seed, sd=0.004):
     """``time`` with the blimp-flight stand-in's frame jitter (4 ms, clipped to a quarter of the
-    interval, first frame on time; validation.vehicles.blimp.BlimpFlightTest)."""
+    interval, first frame on time; validation.vehicles.blimp_flight.BlimpFlightTest)."""
     jitter = np.clip(np.random.default_rng(seed).normal(0.0, sd, len(time)), -SAMPLE_TIME / 4, SAMPLE_TIME / 4)
     jitter[0] = 0.0
     return time + jitter

@@ -8,7 +8,7 @@ from validation.core.errors import BadInputError
 from validation.vehicles.bo105 import INPUT_NAMES, Bo105Reference
 from validation.vehicles.bo105_effects import Bo105Effects, identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
-from validation.vehicles.effect_vehicle import EffectVehicle, effect_model_of
+from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.effects import TARGET_KEYS, check_effects
 from validation.vehicles.registry import get_vehicle
 
@@ -131,12 +131,15 @@ def test_every_diagnosable_reference_keeps_the_effect_model_contract(name):
     with the shared contract, term hypotheses start at the model's values inside their bounds,
     the manoeuvre excites every input, and a replay without effects is the reference's own."""
     vehicle = get_vehicle(name)
-    model = effect_model_of(vehicle)
+    model = effect_model(name, purpose="test")
     assert (model.name, model.input_names, model.state_names) == (name, vehicle.input_names, vehicle.state_names)
+    assert model.family == name.split("-")[0]  # every bo105-<V>kt shares one family
     assert set(model.kinds) <= set(TARGET_KEYS) and {"time_delay", "input_lag", "sensor_bias"} <= set(model.kinds)
     assert {kind for kind in model.kinds if TARGET_KEYS[kind] == "term"} == set(model.terms)
     for terms in model.terms.values():
         assert all(np.isfinite(model.model_value(term)) and model.term_unit(term) for term in terms)
+        assert all(model.term_description(term) not in ("", term) for term in terms)  # words for every term
+    assert model.term_description("no_such_term") == "no_such_term"
     hypotheses = model.term_hypotheses(model.input_names)
     assert {h.key for h in hypotheses} <= {(kind, term) for kind, terms in model.terms.items() for term in terms}
     for h in hypotheses:
@@ -150,6 +153,21 @@ def test_every_diagnosable_reference_keeps_the_effect_model_contract(name):
         np.testing.assert_array_equal(replay[0], vehicle.simulate_states(time, inputs))
 
 
-@pytest.mark.parametrize("name", ["bo105-80kt-flight", "blimp-flight"])
-def test_stand_ins_take_no_effects(name):
-    assert effect_model_of(get_vehicle(name)) is None
+@pytest.mark.parametrize("name, message", [
+    ("bo105-80kt-flight", "'bo105-80kt-flight' is a flight-test stand-in: use its physics reference bo105-80kt"),
+    ("blimp-flight", "'blimp-flight' is a flight-test stand-in: use its physics reference blimp"),
+    ("jsbsim:c172x", "named effects are not implemented for 'jsbsim:c172x' yet"),
+])
+def test_only_the_effect_references_take_effects(name, message):
+    """One lookup and one message for every caller: what it is for, the references that take
+    effects, and why this one does not."""
+    with pytest.raises(BadInputError, match="^doing X needs one of the bo105-<V>kt and blimp references; ") as error:
+        effect_model(name, purpose="doing X")
+    assert str(error.value).endswith(message)
+
+
+def test_effect_models_are_found_by_registry_name():
+    """Every tabulated Bo105 speed takes the Bo105 effects; an unknown name gets the registry's message."""
+    assert effect_model("bo105-140kt", purpose="test").name == "bo105-140kt"
+    with pytest.raises(BadInputError, match="no Bo105 model at 85 kt"):
+        effect_model("bo105-85kt", purpose="test")
