@@ -18,16 +18,17 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/flightgp demo
 
-# Lint first (ruff, configured in pyproject.toml), then two pytest workers on two cores: one
+# Lint first (ruff, configured in pyproject.toml), then two pytest workers on two cores (an idle
+# worker steals queued tests, so the long end-to-end runs do not leave one core idle): one
 # BLAS thread each, or they fight over the cores.
 test: $(STAMP)
 	$(BIN)/ruff check gp_model validation fmu_src tests
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal $(PYTEST_ARGS)
 
 # Local shortcut: skip the end-to-end tests marked slow.
 test-fast: $(STAMP)
 	$(BIN)/ruff check gp_model validation fmu_src tests
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -m "not slow" $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal -m "not slow" $(PYTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) build/* .pytest_cache
