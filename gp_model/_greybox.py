@@ -23,13 +23,37 @@ Conventions
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ._gp import GaussianProcess, PerOutputGP
 from ._inference import maximize_marginal_likelihood
 from ._kernels import SquaredExponentialARD
 
-_SAMPLING_JITTER = 1e-10  # relative jitter on conditional covariances (standardised units)
+
+@dataclass(frozen=True)
+class PropagatedRollout:
+    """A mean rollout with its propagated state covariance (:meth:`GreyBoxGP.propagate`).
+
+    Attributes
+    ----------
+    mean : ndarray, shape (steps + 1, n_states) or (r, steps + 1, n_states)
+    covariance : ndarray, shape (steps + 1, n_states, n_states) or (r, steps + 1, n_states, n_states)
+    """
+
+    mean: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def sd(self) -> np.ndarray:
+        """Standard deviation of each state, shape like :attr:`mean`."""
+        return np.sqrt(np.maximum(np.diagonal(self.covariance, axis1=-2, axis2=-1), 0.0))
+
+_SAMPLING_JITTER = 1e-10  # smallest conditional variance of a draw, relative to the prior's
+#: Central-difference step of :meth:`GreyBoxGP.propagate`, in state units (rounding ~1e-11
+#: relative against truncation ~1e-10 for states of order 1).
+PROPAGATION_STEP = 1e-5
 
 
 def _identity_step(states, inputs):
@@ -51,6 +75,9 @@ class GreyBoxGP:
     n_restarts : int, default 1
         Extra starts of the type-II maximum-likelihood search (0: only the default start);
         see :func:`~gp_model.maximize_marginal_likelihood`.
+    min_noise_variance : float, optional
+        Floor under each residual GP's noise variance (standardised), passed to
+        :func:`~gp_model.maximize_marginal_likelihood`.
 
     Attributes
     ----------
@@ -61,13 +88,14 @@ class GreyBoxGP:
     """
 
     def __init__(self, *, state_columns=None, shared: bool = True, noise_variance: float = 1e-2,
-                 n_restarts: int = 1) -> None:
+                 n_restarts: int = 1, min_noise_variance: float | None = None) -> None:
         if n_restarts < 0:
             raise ValueError(f"n_restarts must be >= 0, got {n_restarts}")
         self.state_columns = None if state_columns is None else tuple(int(c) for c in state_columns)
         self.shared = bool(shared)
         self.noise_variance = float(noise_variance)
         self.n_restarts = int(n_restarts)
+        self.min_noise_variance = None if min_noise_variance is None else float(min_noise_variance)
 
     # -- data --------------------------------------------------------------------------------
     def _check(self, states, inputs, *, fitted: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -139,14 +167,17 @@ class GreyBoxGP:
 
         if self.shared:
             self.gp_ = make_gp().fit(X, residual)
-            if optimize:
-                maximize_marginal_likelihood(self.gp_, n_restarts=self.n_restarts, seed=seed)
         else:
             self.gp_ = PerOutputGP.fit(make_gp, X, residual)
-            if optimize:
-                for j, gp in enumerate(self.gp_.gps):
-                    maximize_marginal_likelihood(gp, n_restarts=self.n_restarts, seed=seed + j)
+        if optimize:
+            for j, gp in enumerate(self._gps()):
+                maximize_marginal_likelihood(gp, n_restarts=self.n_restarts, seed=seed + j,
+                                             min_noise_variance=self.min_noise_variance)
         return self
+
+    def _gps(self) -> list:
+        """The residual GPs: ``[gp_]`` when shared, else one per output."""
+        return [self.gp_] if self.shared else list(self.gp_.gps)
 
     def fit_trajectories(self, trajectories, physics_step, **options) -> GreyBoxGP:
         """:meth:`fit` on every consecutive pair of samples of several trajectories.
@@ -209,13 +240,70 @@ class GreyBoxGP:
         path = np.stack(path, axis=1)
         return path[0] if single else path
 
+    def propagate(self, initial_state, inputs, physics_step, *, initial_covariance=None,
+                  include_noise: bool = True, step: float = PROPAGATION_STEP) -> PropagatedRollout:
+        """Mean rollout with the state covariance propagated along it to first order.
+
+        The one-step map ``g(s, u) = physics_step(s, u) + E[residual | s, u]`` is linearised at
+        the propagated mean, ``J = dg/ds`` by central differences of step ``step`` in every state
+        column, and ``P(k+1) = J P(k) J^T + Sigma(k)`` with ``Sigma(k)`` the residual GPs'
+        predictive variance at the mean (diagonal: the outputs are independent given the inputs;
+        with ``include_noise`` the observation noise too, which stands for the process noise the
+        GP learned). This is the first-order Taylor approximation of the moment-matching free
+        run (Girard, Rasmussen, Quinonero-Candela & Murray-Smith, NIPS 2003, sec. 3; Kocijan,
+        *Modelling and Control of Dynamic Systems Using Gaussian Process Models*, 2016,
+        sec. 2.6.1), the prediction step of an extended Kalman filter: its mean is that of
+        :meth:`rollout` (to the rounding of batched products), and a step costs ``2 n_states + 1``
+        one-step evaluations, in one batch.
+
+        Parameters
+        ----------
+        initial_state : ndarray, shape (n_states,) or (r, n_states)
+        inputs : ndarray, shape (steps, n_inputs) or (r, steps, n_inputs)
+        physics_step : callable or None
+        initial_covariance : ndarray, shape (n_states, n_states) or (r, n_states, n_states), optional
+            Covariance of the start state; default zero (the start is known).
+        include_noise : bool, default True
+            Add the GPs' noise variance to ``Sigma(k)``.
+        step : float
+            Central-difference step, in state units.
+
+        Returns
+        -------
+        PropagatedRollout
+            ``mean`` (steps + 1, n_states) and ``covariance`` (steps + 1, n_states, n_states), or
+            with a leading axis r for r start states; row 0 is the start.
+        """
+        state, inputs, single = self._check_rollout(initial_state, inputs)
+        r, n = state.shape
+        covariance = np.zeros((r, n, n))
+        if initial_covariance is not None:
+            covariance = np.broadcast_to(np.asarray(initial_covariance, dtype=float), (r, n, n)).copy()
+        offsets = step * np.concatenate([np.zeros((1, n)), np.eye(n), -np.eye(n)])  # (2n + 1, n)
+        means, covariances = [state], [covariance]
+        for k in range(inputs.shape[1]):
+            points = (state[:, None, :] + offsets[None]).reshape(-1, n)
+            u = np.repeat(inputs[:, k], len(offsets), axis=0)
+            moved, variance = self.predict_one_step(points, u, physics_step, include_noise=include_noise)
+            moved = moved.reshape(r, len(offsets), n)
+            jacobian = np.swapaxes(moved[:, 1:n + 1] - moved[:, n + 1:], 1, 2) / (2 * step)  # (r, n, n)
+            state = moved[:, 0]
+            variance = variance.reshape(r, len(offsets), -1)[:, 0] * np.ones(n)
+            covariance = jacobian @ covariance @ np.swapaxes(jacobian, 1, 2)
+            covariance += variance[:, :, None] * np.eye(n)
+            means.append(state)
+            covariances.append(covariance)
+        mean, covariance = np.stack(means, axis=1), np.stack(covariances, axis=1)
+        return PropagatedRollout(mean[0], covariance[0]) if single else PropagatedRollout(mean, covariance)
+
     def sample_rollouts(self, initial_state, inputs, physics_step, *, n_samples: int,
                         seed: int = 0, include_noise: bool = False) -> np.ndarray:
         """Rollouts that draw the GP residual instead of taking its mean (Ko et al., sec. IV-C).
 
         Each draw is conditioned on the residuals already drawn along the same rollout, so a
         rollout is one sample of a single function from the GP posterior (revisiting an input
-        gives the same residual), not independent noise at every step.
+        gives the same residual), not independent noise at every step
+        (:meth:`sample_closed_loop` with the inputs fixed up front).
 
         Parameters
         ----------
@@ -224,6 +312,7 @@ class GreyBoxGP:
         physics_step : callable or None
         n_samples : int
         seed : int, default 0
+            Seeds the standard normals of every draw.
         include_noise : bool, default False
             Add independent observation noise (variance ``sigma_n^2``) to every drawn residual;
             it is not part of the function and is not conditioned on.
@@ -237,29 +326,53 @@ class GreyBoxGP:
         state0, inputs, single = self._check_rollout(initial_state, inputs)
         if not single:
             raise ValueError("sample_rollouts takes one start state, shape (n_states,)")
-        rng = np.random.default_rng(seed)
-        runs = np.empty((n_samples, inputs.shape[1] + 1, self.n_states_))
-        for r in range(n_samples):
-            state = state0[0]
-            runs[r, 0] = state
-            visited, drawn = [], []  # GP inputs and drawn residuals along this rollout
-            for k in range(inputs.shape[1]):
-                u = inputs[0, k]
-                x = self.gp_inputs(state[None], u[None])[0]
-                visited.append(x)
-                if self.shared:
-                    residual = _conditional_draw(self.gp_, np.array(visited), drawn, rng)
-                else:
-                    residual = np.concatenate([
-                        _conditional_draw(gp, np.array(visited), [d[j:j + 1] for d in drawn], rng)
-                        for j, gp in enumerate(self.gp_.gps)])
-                drawn.append(residual)
-                if include_noise:
-                    residual = residual + rng.standard_normal(self.n_states_) * np.sqrt(
-                        self._noise_variances())
-                state = self._physics(physics_step, state[None], u[None])[0] + residual
-                runs[r, k + 1] = state
-        return runs
+        steps = inputs.shape[1]
+        normals = np.random.default_rng(seed).standard_normal((n_samples, steps, 2, self.n_states_))
+        return self.sample_closed_loop(np.repeat(state0, n_samples, axis=0), lambda k, states: inputs[0, k],
+                                       steps, physics_step, normals=normals, include_noise=include_noise)
+
+    def sample_closed_loop(self, initial_states, policy, steps: int, physics_step, *, normals,
+                           include_noise: bool = False) -> np.ndarray:
+        """Sampled rollouts whose inputs a policy chooses from the sampled states, step by step.
+
+        At step k the policy sees every rollout's current state and returns its inputs; the
+        residual is drawn from the GP conditioned on the residuals already drawn along the same
+        rollout (Rasmussen & Williams 2006, eq. A.6, updated one draw at a time with the inverse
+        Cholesky factor of the drawn points' posterior covariance), from the given standard
+        normals. Fixed normals make the draws common random numbers: the same rollouts for every
+        policy evaluated with them, as PEGASUS needs (Ng & Jordan, UAI 2000).
+
+        Parameters
+        ----------
+        initial_states : ndarray, shape (r, n_states)
+        policy : callable
+            ``policy(k, states (r, n_states)) -> inputs`` of shape (r, n_inputs) or (n_inputs,).
+        steps : int
+        physics_step : callable or None
+        normals : ndarray, shape (r, steps, 2, n_states)
+            Standard normals: ``[:, k, 0]`` draw the latent residual at step k, ``[:, k, 1]`` its
+            observation noise (read only with ``include_noise``).
+        include_noise : bool, default False
+
+        Returns
+        -------
+        ndarray, shape (r, steps + 1, n_states)
+        """
+        state = np.asarray(initial_states, dtype=float)
+        normals = np.asarray(normals, dtype=float)
+        r, n = state.shape
+        if n != self.n_states_ or normals.shape != (r, steps, 2, n):
+            raise ValueError(f"initial_states must have shape (r, {self.n_states_}) and normals "
+                             f"(r, {steps}, 2, {self.n_states_}); got {state.shape} and {normals.shape}")
+        sampler = _ConditionedSampler(self._gps(), n_rollouts=r, capacity=steps)
+        noise_sd = np.sqrt(self._noise_variances()) if include_noise else np.zeros(n)
+        path = [state]
+        for k in range(steps):
+            u = np.broadcast_to(np.asarray(policy(k, state), dtype=float), (r, self.n_inputs_))
+            residual = sampler.draw(self.gp_inputs(state, u), normals[:, k, 0])
+            state = self._physics(physics_step, state, u) + residual + noise_sd * normals[:, k, 1]
+            path.append(state)
+        return np.stack(path, axis=1)
 
     def _noise_variances(self) -> np.ndarray:
         """Observation-noise variance of each residual output in its own units, shape (n_states,)."""
@@ -285,28 +398,63 @@ class GreyBoxGP:
         return state, inputs, single
 
 
-def _conditional_draw(gp: GaussianProcess, visited: np.ndarray, drawn: list, rng) -> np.ndarray:
-    """Draw the latent GP output at ``visited[-1]`` given the values ``drawn`` at ``visited[:-1]``.
+class _ConditionedSampler:
+    """Draws of the residual GPs' latent functions along r rollouts, each draw conditioned on the
+    draws already made along the same rollout.
 
-    Gaussian conditioning on the joint posterior over the visited inputs (Rasmussen & Williams
-    2006, eq. A.6): ``mu_* + C_*o C_oo^-1 (f_o - mu_o)``, ``C_** - C_*o C_oo^-1 C_o*``.
-    ``visited`` (t, d), ``drawn`` t-1 latent draws of shape (m,) -> (m,).
+    Per GP, in its standardised units and at its point hyperparameters: the posterior covariance
+    of two inputs is ``c(a, b) = k(a, b) - (V k_a) . (V k_b)`` (``V`` the predictive form's
+    variance factor, ``k_a = k(basis, a)``). With ``Linv`` the inverse Cholesky factor of ``c``
+    over the points drawn so far and ``w = Linv (f_o - mu_o)`` their whitened draws, the next
+    draw at ``x`` has mean ``mu(x) + l . w`` and variance ``c(x, x) - l . l`` with
+    ``l = Linv c(x_o, x)`` (Rasmussen & Williams 2006, eq. A.6), and ``Linv`` grows by the row
+    ``[-l^T Linv, 1] / d`` with ``d`` the new conditional standard deviation: O(t^2) a draw, not
+    O(t^3). A draw whose conditional variance is below :data:`_SAMPLING_JITTER` of the prior's is
+    taken as determined by the earlier ones.
     """
-    mean, cov = gp.predict(visited, return_cov=True, use_samples=False)
-    mean = mean.reshape(len(visited), -1)  # (t, m)
-    cov = cov.reshape(len(visited), len(visited), -1)  # (t, t, m)
-    draw = np.empty(mean.shape[1])
-    for j in range(mean.shape[1]):
-        c = cov[:, :, j]
-        mu, var = mean[-1, j], c[-1, -1]
-        if drawn:
-            old = c[:-1, :-1] + _SAMPLING_JITTER * max(np.trace(c), 1e-300) * np.eye(len(c) - 1)
-            cross = c[-1, :-1]
-            weights = np.linalg.solve(old, cross)
-            mu = mu + weights @ (np.array(drawn)[:, j] - mean[:-1, j])
-            var = var - weights @ cross
-        draw[j] = mu + np.sqrt(max(var, 0.0)) * rng.standard_normal()
-    return draw
+
+    def __init__(self, gps, *, n_rollouts: int, capacity: int) -> None:
+        self.parts = []
+        for gp in gps:
+            form = gp.predictive_forms(use_samples=False)[0]
+            outputs = form.weights.reshape(len(form.basis), -1).shape[1]
+            self.parts.append({
+                "gp": gp, "form": form, "weights": form.weights.reshape(len(form.basis), -1),
+                "kernel_weights": gp.kernel.weights(form.theta[:-1]), "prior": float(np.exp(form.theta[0])),
+                "points": np.empty((n_rollouts, capacity, form.basis.shape[1])),
+                "projected": np.empty((n_rollouts, capacity, len(form.basis))),
+                "inverse": np.zeros((n_rollouts, capacity, capacity)),
+                "whitened": np.empty((n_rollouts, capacity, outputs))})
+        self.t = 0
+
+    def draw(self, X: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Latent draws at the GP inputs ``X`` (r, d) from standard normals (r, n_outputs);
+        returns (r, n_outputs) in output units."""
+        t, columns, draws = self.t, 0, []
+        for part in self.parts:
+            gp, form = part["gp"], part["form"]
+            z = gp.input_scaler_.transform(X)
+            k_basis = gp.kernel(z, form.basis, theta=form.theta[:-1])  # (r, m)
+            mean = k_basis @ part["weights"]  # (r, q)
+            projected = k_basis @ form.variance_factor.T  # V k_x, (r, m)
+            variance = part["prior"] - np.sum(projected**2, axis=1)
+            lower = np.zeros((len(z), 0))
+            if t:
+                distance = np.einsum("rtd,d->rt", (part["points"][:, :t] - z[:, None]) ** 2, part["kernel_weights"])
+                cross = part["prior"] * np.exp(-distance) - np.einsum("rtm,rm->rt", part["projected"][:, :t], projected)
+                lower = np.einsum("rts,rs->rt", part["inverse"][:, :t, :t], cross)
+                mean = mean + np.einsum("rt,rtq->rq", lower, part["whitened"][:, :t])
+                variance = variance - np.sum(lower**2, axis=1)
+            sd = np.sqrt(np.maximum(variance, _SAMPLING_JITTER * part["prior"]))
+            q = mean.shape[1]
+            z_draw = normals[:, columns:columns + q]
+            draws.append(gp.output_scaler_.inverse_transform(mean + sd[:, None] * z_draw))
+            part["points"][:, t], part["projected"][:, t], part["whitened"][:, t] = z, projected, z_draw
+            part["inverse"][:, t, :t] = -np.einsum("rs,rst->rt", lower, part["inverse"][:, :t, :t]) / sd[:, None]
+            part["inverse"][:, t, t] = 1.0 / sd
+            columns += q
+        self.t += 1
+        return np.hstack(draws)
 
 
 # -- portable state (used by gp_model._model_file) -----------------------------------------------

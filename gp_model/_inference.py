@@ -66,7 +66,7 @@ class MaximumLikelihoodResult:
 
 
 def maximize_marginal_likelihood(gp: GaussianProcess, *, n_restarts: int = 3, seed: int = 0,
-                                 ) -> MaximumLikelihoodResult:
+                                 min_noise_variance: float | None = None) -> MaximumLikelihoodResult:
     """Type-II maximum likelihood: L-BFGS-B from ``gp.theta_`` and ``n_restarts`` prior draws.
 
     The fitted ``gp`` is updated to the best hyperparameters found.
@@ -79,6 +79,11 @@ def maximize_marginal_likelihood(gp: GaussianProcess, *, n_restarts: int = 3, se
         Further starts drawn from ``gp.prior()`` (clipped to the optimiser's box).
     seed : int, default 0
         Seed of the restart draws.
+    min_noise_variance : float, optional
+        A floor under the noise variance ``sigma_n^2`` (standardised outputs): the search keeps
+        ``ln sigma_n^2 >= ln min_noise_variance``, so targets that are nearly a function of the
+        inputs cannot drive the noise to zero and the fit to interpolation. Default: the box
+        alone (``e^-15``).
 
     Returns
     -------
@@ -87,10 +92,15 @@ def maximize_marginal_likelihood(gp: GaussianProcess, *, n_restarts: int = 3, se
         number of likelihood evaluations.
     """
     rng = np.random.default_rng(seed)
-    starts = [gp.theta_]
-    if n_restarts > 0:
-        starts += list(np.clip(gp.prior().sample(n_restarts, rng), -THETA_BOUND, THETA_BOUND))
     bounds = [(-THETA_BOUND, THETA_BOUND)] * len(gp.theta_)
+    if min_noise_variance is not None:
+        if not (np.isfinite(min_noise_variance) and 0 < min_noise_variance < np.exp(THETA_BOUND)):
+            raise ValueError(f"min_noise_variance must be a positive number, got {min_noise_variance}")
+        bounds[-1] = (float(np.log(min_noise_variance)), THETA_BOUND)
+    low, high = np.array(bounds).T
+    starts = [np.clip(gp.theta_, low, high)]
+    if n_restarts > 0:
+        starts += list(np.clip(gp.prior().sample(n_restarts, rng), low, high))
     n_evaluations = 0
 
     def negative_lml(theta):

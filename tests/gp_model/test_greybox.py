@@ -129,6 +129,84 @@ def test_conditioned_sampling_reproduces_the_joint_posterior_covariance(shared):
         assert np.max(np.abs(independent - np.eye(len(X))) / standard_error) > 50
 
 
+@pytest.mark.parametrize("shared", [True, False])
+def test_incremental_draws_equal_the_joint_cholesky_draw(shared):
+    """Along one rollout with known GP inputs, the incremental sampler's draws are exactly
+    ``mean + L z`` with ``L`` the Cholesky factor of the joint posterior covariance at the visited
+    inputs, in visiting order (its incremental form must not drift from the direct one)."""
+    states, inputs = trajectory(15, seed=7, extra=True)
+    model = GreyBoxGP(state_columns=[], shared=shared).fit_trajectories([(states, inputs)], physics,
+                                                                       optimize=False)
+    controls = np.array([[1.2], [1.4], [-0.3], [1.9], [0.4], [1.3]])
+    normals = np.random.default_rng(3).standard_normal((1, len(controls), 2, 2))
+    runs = model.sample_closed_loop(states[:1], lambda k, s: controls[k], len(controls), physics, normals=normals)
+    drawn = np.stack([runs[0, k + 1] - physics(runs[:1, k], controls[k][None])[0] for k in range(len(controls))])
+    X = model.gp_inputs(np.zeros((len(controls), 2)), controls)
+    gps = [model.gp_] if shared else model.gp_.gps
+    columns = 0
+    for gp in gps:
+        mean, cov = gp.predict(X, return_cov=True, use_samples=False)
+        mean, cov = mean.reshape(len(X), -1), cov.reshape(len(X), len(X), -1)
+        for j in range(mean.shape[1]):
+            # The sampler works in standardised units: scale the joint covariance back.
+            expected = mean[:, j] + np.linalg.cholesky(cov[:, :, j]) @ normals[0, :, 0, columns + j]
+            # Two algebraically equal factorisations of a 6 x 6 matrix: rounding only.
+            np.testing.assert_allclose(drawn[:, columns + j], expected, rtol=1e-8, atol=1e-10)
+        columns += mean.shape[1]
+
+
+def test_closed_loop_sampling_takes_the_policys_inputs_and_common_random_numbers():
+    states, inputs = trajectory(40, seed=5, extra=True)
+    model = GreyBoxGP(state_columns=[1], n_restarts=0).fit_trajectories([(states, inputs)], physics)
+    normals = np.random.default_rng(0).standard_normal((3, 12, 2, 2))
+    start = np.repeat(states[:1], 3, axis=0)
+
+    def braking(k, s):  # a feedback policy: push against the velocity
+        return -2.0 * s[:, 1:2]
+
+    first = model.sample_closed_loop(start, braking, 12, physics, normals=normals)
+    again = model.sample_closed_loop(start, braking, 12, physics, normals=normals)
+    np.testing.assert_array_equal(first, again)  # common random numbers: the same rollouts
+    pushing = model.sample_closed_loop(start, lambda k, s: np.ones((3, 1)), 12, physics, normals=normals)
+    assert np.abs(pushing[:, -1, 1]).min() > np.abs(first[:, -1, 1]).max()  # the policy acts
+    with pytest.raises(ValueError, match="normals"):
+        model.sample_closed_loop(start, braking, 12, physics, normals=normals[:, :5])
+
+
+def test_propagated_mean_is_the_rollout_and_its_covariance_the_linear_update():
+    states, inputs = trajectory(60, seed=6, extra=True)
+    # A noise floor keeps the near-deterministic position residual's GP well conditioned, so its
+    # mean is smooth at the scale of the finite differences (without it the noise variance falls
+    # to ~3e-7 and the Jacobian picks up ~1e-5 of rounding).
+    model = GreyBoxGP(state_columns=[1], shared=False, n_restarts=0, min_noise_variance=1e-4).fit_trajectories(
+        [(states, inputs)], physics)
+    controls = inputs[:10]
+    propagated = model.propagate(states[0], controls, physics)
+    # The mean is the rollout's; the batched GP products round differently (as in the batched
+    # rollout test above).
+    np.testing.assert_allclose(propagated.mean, model.rollout(states[0], controls, physics), rtol=0, atol=1e-8)
+    assert propagated.covariance.shape == (11, 2, 2) and np.all(propagated.covariance[0] == 0)
+    # One step by hand: P' = J P J^T + diag(var) at the mean, J by central differences.
+    for k in range(10):
+        mu, u = propagated.mean[k], controls[k]
+        jacobian = np.column_stack([
+            (model.predict_one_step((mu + 1e-5 * e)[None], u[None], physics)[0][0]
+             - model.predict_one_step((mu - 1e-5 * e)[None], u[None], physics)[0][0]) / 2e-5
+            for e in np.eye(2)])
+        variance = model.predict_one_step(mu[None], u[None], physics, include_noise=True)[1][0]
+        expected = jacobian @ propagated.covariance[k] @ jacobian.T + np.diag(variance)
+        # The same arithmetic batched and unbatched: rounding only, absolute where a latent
+        # variance is the small difference of the prior and the explained part (~1e-15 of ~0.1).
+        np.testing.assert_allclose(propagated.covariance[k + 1], expected, rtol=1e-9, atol=1e-13)
+    assert np.all(np.diff(propagated.sd[:, 0]) > 0)  # position uncertainty grows along the run
+    together = model.propagate(states[[0, 5]], np.stack([controls, inputs[5:15]]), physics,
+                               initial_covariance=1e-4 * np.eye(2))
+    single = model.propagate(states[5], inputs[5:15], physics, initial_covariance=1e-4 * np.eye(2))
+    # Batched and single GP products round differently, and the central differences multiply that
+    # rounding by 1 / (2 step) = 5e4: agreement to ~1e-7 relative.
+    np.testing.assert_allclose(together.covariance[1], single.covariance, rtol=1e-6, atol=1e-15)
+
+
 def test_bad_shapes_are_refused_with_the_expected_shapes():
     states, inputs = trajectory(20, seed=8)
     model = GreyBoxGP(state_columns=[1], n_restarts=0).fit_trajectories([(states, inputs)], physics)

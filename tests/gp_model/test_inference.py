@@ -42,6 +42,26 @@ def test_maximum_likelihood_improves_and_reaches_a_stationary_point():
     assert len(result.restarts) == 3
 
 
+def test_noise_floor_binds_only_where_the_likelihood_wants_less_noise():
+    # Noise-free targets: maximum likelihood drives the noise to the bottom of its box.
+    X, _ = gp_sample_data(n=60, seed=2)
+    smooth = np.sin(X[:, 0]) + 0.5 * X[:, 1]
+    free = raw_gp(SquaredExponentialARD(1.0, [1.0, 1.0])).fit(X, smooth)
+    maximize_marginal_likelihood(free, n_restarts=0)
+    floored = raw_gp(SquaredExponentialARD(1.0, [1.0, 1.0])).fit(X, smooth)
+    maximize_marginal_likelihood(floored, n_restarts=0, min_noise_variance=1e-3)
+    assert free.noise_variance < 1e-5 and floored.noise_variance == pytest.approx(1e-3, rel=1e-9)
+    # Noisy targets (true noise 0.04): a floor well below it changes nothing.
+    X, y = gp_sample_data()
+    plain = raw_gp(SquaredExponentialARD(1.0, [1.0, 1.0])).fit(X, y)
+    maximize_marginal_likelihood(plain, n_restarts=0)
+    loose = raw_gp(SquaredExponentialARD(1.0, [1.0, 1.0])).fit(X, y)
+    maximize_marginal_likelihood(loose, n_restarts=0, min_noise_variance=1e-4)
+    np.testing.assert_allclose(loose.theta_, plain.theta_, rtol=1e-6)
+    with pytest.raises(ValueError, match="min_noise_variance"):
+        maximize_marginal_likelihood(loose, min_noise_variance=-1.0)
+
+
 def test_maximum_likelihood_at_least_as_good_as_scikit_learn():
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
