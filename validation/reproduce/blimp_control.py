@@ -47,12 +47,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from validation.core.smoothing import local_polynomial
 from validation.vehicles.blimp import SAMPLE_TIME
 from validation.vehicles.blimp_equations import euler_rates
 from validation.vehicles.blimp_flight import (
     ATTITUDE_NOISE_STD,
     BlimpFlightTest,
-    local_derivative,
 )
 
 #: Controller parameters, in the order of every parameter vector.
@@ -225,7 +225,8 @@ def fly_stand_in(params, *, seed, frames: int, vehicle: BlimpFlightTest | None =
             commands[k] = commands[k - 1]
             break
         if k % FRAMES_PER_DECISION == 0:
-            rate = 0.0 if k < 4 else local_derivative(flight.time[k - 4:k + 1], measured_yaw[k - 4:k + 1, None])[-1, 0]
+            rate = 0.0 if k < 4 else local_polynomial(flight.time[k - 4:k + 1], measured_yaw[k - 4:k + 1, None],
+                                                      window=5, order=2)[1][-1, 0]
             commands[k] = [0.0, 0.0, float(yaw_command(_wrap(TURN - measured_yaw[k]), rate, params))]
         else:
             commands[k] = commands[k - 1]

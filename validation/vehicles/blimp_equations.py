@@ -174,6 +174,29 @@ def body_rates(angles: np.ndarray, euler_rates: np.ndarray) -> np.ndarray:
     return np.stack([df - st * dp, cf * dt + sf * ct * dp, -sf * dt + cf * ct * dp], axis=-1)
 
 
+def states_from_poses(positions: np.ndarray, angles: np.ndarray, position_rates: np.ndarray,
+                      angle_rates: np.ndarray) -> np.ndarray:
+    """Full states from poses and their time derivatives, as motion capture measures them.
+
+    Body velocity ``v = R(Theta)^T p_dot`` (:func:`rotation_body_to_earth`) and body rates from
+    the Euler angle rates (:func:`body_rates`), at the given attitude.
+
+    Parameters
+    ----------
+    positions, position_rates : ndarray, shape (n, 3)
+        Earth position, m, and its derivative, m/s.
+    angles, angle_rates : ndarray, shape (n, 3)
+        ZYX Euler angles, rad, and their derivatives, rad/s.
+
+    Returns
+    -------
+    ndarray, shape (n, 12)
+        ``x, y, z, phi, theta, psi, U, V, W, P, Q, R``.
+    """
+    velocity = np.einsum("nji,nj->ni", rotation_body_to_earth(angles), position_rates)
+    return np.concatenate([positions, angles, velocity, body_rates(angles, angle_rates)], axis=1)
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a x b`` over the last axis (3), broadcasting; several times faster than ``np.cross`` on
     small arrays."""

@@ -13,6 +13,7 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.core.sampling import sampling_metadata
+from validation.core.smoothing import local_polynomial
 from validation.vehicles.blimp import (
     INPUT_NAMES,
     MAX_STEP,
@@ -25,9 +26,8 @@ from validation.vehicles.blimp import (
 )
 from validation.vehicles.blimp_equations import (
     blimp_dynamics,
-    body_rates,
     rk4,
-    rotation_body_to_earth,
+    states_from_poses,
     substep_count,
 )
 
@@ -50,28 +50,8 @@ MOCAP_JITTER_STD = 0.004  # s, frame timing jitter (assumed; Ko et al. report "j
 MOCAP_JITTER_LIMIT = 0.25  # jitter clipped to this fraction of the smallest command interval
 POSITION_NOISE_STD = 0.001  # m per axis, marker noise of an indoor mocap (assumed, ~mm)
 ATTITUDE_NOISE_STD = math.radians(0.5)  # rad per Euler angle (assumed)
-DIFFERENCE_WINDOW = 5  # samples in the local quadratic fit that differentiates poses
+DIFFERENCE_WINDOW = 5  # samples in the local quadratic fit that differentiates poses (core.smoothing)
 DRIFT_TIME_CONSTANT = 60.0  # s, correlation time of the buoyancy drift (assumed)
-
-
-def local_derivative(time: np.ndarray, signal: np.ndarray) -> np.ndarray:
-    """Slope at each sample of a least-squares quadratic through ``DIFFERENCE_WINDOW`` samples.
-
-    A Savitzky-Golay (1964) differentiator on the actual, unevenly spaced timestamps; the window
-    is centred where it fits and shifted inward at the ends. On an even grid of step h the
-    centred slope weights are ``[-2, -1, 0, 1, 2] / (10 h)``, so white noise of std s gives slope
-    noise ``s / (sqrt(10) h)`` and a sinusoid of ``omega h = 0.165`` loses 1.5 % of its amplitude;
-    the one-sided fits at the first and last two samples are 2 to 3.5 times noisier.
-    ``time`` (n,), ``signal`` (n, c) -> (n, c).
-    """
-    n = len(time)
-    half = DIFFERENCE_WINDOW // 2
-    start = np.clip(np.arange(n) - half, 0, n - DIFFERENCE_WINDOW)
-    window = start[:, None] + np.arange(DIFFERENCE_WINDOW)
-    offset = time[window] - time[:, None]
-    design = np.stack([np.ones_like(offset), offset, offset**2], axis=-1)
-    slope_weights = np.linalg.pinv(design)[:, 1, :]
-    return np.einsum("nk,nkc->nc", slope_weights, signal[window])
 
 
 class BlimpFlightTest:
@@ -183,7 +163,7 @@ class BlimpFlightTest:
                                 "mocap": self.mocap}}
         if self.mocap:
             states = self._measure(time, states, flight.noise_rng)
-            # Velocity noise: interior samples on the nominal grid (see local_derivative).
+            # Velocity noise: interior samples on the nominal grid (validation.core.smoothing).
             slope_gain = 1.0 / (math.sqrt(10.0) * nominal_step)
             noise_std = dict.fromkeys(("x", "y", "z"), POSITION_NOISE_STD)
             noise_std.update(dict.fromkeys(("phi", "theta", "psi"), ATTITUDE_NOISE_STD))
@@ -201,10 +181,9 @@ class BlimpFlightTest:
         """Noisy poses and the velocities a mocap pipeline differentiates from them, (n, 12)."""
         position = states[:, 0:3] + noise_rng.normal(0.0, POSITION_NOISE_STD, (len(time), 3))
         angles = states[:, 3:6] + noise_rng.normal(0.0, ATTITUDE_NOISE_STD, (len(time), 3))
-        earth_velocity = local_derivative(time, position)
-        body_velocity = np.einsum("nji,nj->ni", rotation_body_to_earth(angles), earth_velocity)
-        rates = body_rates(angles, local_derivative(time, angles))
-        return np.concatenate([position, angles, body_velocity, rates], axis=1)
+        _, position_rates = local_polynomial(time, position, window=DIFFERENCE_WINDOW, order=2)
+        _, angle_rates = local_polynomial(time, angles, window=DIFFERENCE_WINDOW, order=2)
+        return states_from_poses(position, angles, position_rates, angle_rates)
 
 
 class StandInFlight:
