@@ -5,7 +5,7 @@ module exports; everything else lives in private modules.
 """
 from ._errors import GPNumericalError, ModelFileError
 from ._gp import GaussianProcess, PerOutputGP, PredictiveForm
-from ._greybox import GreyBoxGP
+from ._greybox import PROPAGATION_STEP, GreyBoxGP, PropagatedRollout
 from ._inference import (
                          AnnealingResult,
                          MaximumLikelihoodResult,
@@ -26,6 +26,7 @@ __all__ = [
     "AnnealingResult", "FreeRunResult", "GaussianProcess", "GPNarx", "GPNumericalError", "GreyBoxGP",
     "HigdonKernel", "IndependentPrior",
     "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP", "PredictiveForm",
+    "PROPAGATION_STEP", "PropagatedRollout",
     "SparseGaussianProcess", "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
     "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
     "moment_matcher", "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",

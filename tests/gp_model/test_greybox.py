@@ -88,6 +88,21 @@ def test_conditioned_samples_are_one_function_per_rollout():
     np.testing.assert_array_equal(runs, again)
 
 
+def test_conditioned_samples_stay_finite_when_one_input_is_revisited_for_long():
+    """Hundreds of draws at one GP input: after the first, every draw is determined by it (its
+    conditional mean, the first draw again), and the sampler's inverse factor must not amplify
+    rounding (with the determined draws conditioned on, such rollouts used to blow up)."""
+    states, inputs = trajectory(80, seed=7, extra=True)
+    model = GreyBoxGP(state_columns=[], n_restarts=0).fit_trajectories([(states, inputs)], physics)
+    constant = np.full((400, 1), 0.3)
+    runs = model.sample_rollouts(states[0], constant, physics, n_samples=20, seed=2)
+    increments = np.stack([runs[:, k + 1] - physics(runs[:, k], np.broadcast_to(constant[k], (20, 1)))
+                           for k in range(400)], axis=1)
+    assert np.isfinite(runs).all()
+    np.testing.assert_allclose(increments, np.broadcast_to(increments[:, :1], increments.shape), atol=1e-6)
+    assert np.ptp(increments[:, 0, 0]) > 1e-3  # the first draws do differ between samples
+
+
 @pytest.mark.parametrize("shared", [True, False])
 def test_conditioned_sampling_reproduces_the_joint_posterior_covariance(shared):
     # GP inputs are the control only, so the inputs a rollout visits are known in advance (the
