@@ -1,41 +1,55 @@
 /* Blimp RKGP (Ko, Klein, Fox and Haehnel, ICRA 2007, sec. IV-B) for a native FMU: the blimp ODE
- * integrated by RK4 plus the mean of a GP on its one-step residual, and the GP's one-step
- * standard deviation. The same formulas, in the same order, as the pythonfmu blimp RKGP FMU:
- * validation/vehicles/blimp_equations.py (blimp_dynamics and rk4_advance: Fossen's rigid body
- * with added mass about the centre of buoyancy, gravity, buoyancy, drag, gondola and tail thrust,
- * fin lift; the equations and their sources are there), fmu_src/blimp_rkgp/model.py
- * (RKGPModel.residual) and fmu_src/blimp_rkgp/slave.py (BlimpRKGP), whose module docstrings
- * define the timing, the GP inputs, the standard deviations and the envelope.
+ * integrated by RK4 plus the mean of a GP on its one-step residual, the lagged fan commands the
+ * GP may see, and the state covariance propagated along the run. The same formulas, in the same
+ * order, as the pythonfmu blimp RKGP FMU: validation/vehicles/blimp_equations.py (blimp_dynamics
+ * and rk4_advance: Fossen's rigid body with added mass about the centre of buoyancy, gravity,
+ * buoyancy, drag, gondola and tail thrust, fin lift; the equations and their sources are there),
+ * fmu_src/blimp_rkgp/model.py (RKGPModel.residual, advance_lags and step) and
+ * fmu_src/blimp_rkgp/slave.py (BlimpRKGP), whose module docstrings define the timing, the GP
+ * inputs, the lagged commands, the standard deviations and the envelope.
  *
  * Model constants. The physics (parameters, the mass matrix M = M_RB + M_A and its inverse,
  * computed by validation/vehicles/blimp_equations.py, mass_matrix, so that both FMUs use the same
- * doubles),
- * the GP structure, value references and training envelope are compiled in from model_config.h;
- * the GP arrays are read at fmi2Instantiate from resources/DATA_FILE, written by
- * fmu_src/blimp_rkgp/native.py:
+ * doubles), the command lags, the propagation step, the GP structure, value references and
+ * training envelope are compiled in from model_config.h; the GP arrays are read at
+ * fmi2Instantiate from resources/DATA_FILE, written by fmu_src/blimp_rkgp/native.py:
  *
- *   8 bytes  "FGPBLMP1"
+ *   8 bytes  "FGPBLMP2"
  *   8 bytes  number of doubles that follow (uint64, little-endian, as the doubles)
  *   doubles  per GP part p (d = N_GP_INPUTS, m = BASIS_POINTS[p], q = PART_OUTPUTS[p]; all in
  *            standardised units): input_mean (d), input_scale (d), output_mean (q),
- *            output_scale (q), kernel_weights (d), log_signal_variance, basis (m x d, by rows),
- *            weights (m x q, by rows), variance factor V = L^-1 stored as gp_predict.h says (by
- *            columns, packed if LOWER_TRIANGULAR[p]).
+ *            output_scale (q), kernel_weights (d), log_signal_variance, log_noise_variance,
+ *            basis (m x d, by rows), weights (m x q, by rows), variance factor V = L^-1 stored
+ *            as gp_predict.h says (by columns, packed if LOWER_TRIANGULAR[p]).
  *
  * A shared GP is one part with q = 12; one GP per state is twelve parts with q = 1, in state
  * order. Each instance reads its own copy (no memory shared between instances).
  *
- * Residual of part p at GP input x = [s[STATE_COLUMNS], u_gondola, mu, u_tail, h]
+ * Residual of part p at GP input x = [s[STATE_COLUMNS], u_gondola, mu, u_tail, h, z]
  * (R&W 2006, Alg. 2.1, lines 4-6, in standardised units; the kernel row, means and latent
  * variance by the FMI layer's gp_predict.c):
  *   xs = (x - input_mean) / input_scale,  k_i = sigma_f^2 exp(-sum_c w_c (xs_c - basis_i,c)^2)
- *   mean_j = k . weights_j,  latent = max(sigma_f^2 - |V k|^2, 0),
- *   var_j = max((latent + mean_j^2) - mean_j^2, 0)   (GaussianProcess.predict's one-component
- *   mixture, rounding included); in physical units mean_j output_scale_j + output_mean_j and
- *   var_j output_scale_j^2.
+ *   mean_j = k . weights_j,  spread = max(sigma_f^2 - |V k|^2, 0) + sigma_n^2,
+ *   var_j = max((spread + mean_j^2) - mean_j^2, 0)   (GaussianProcess.predict with include_noise,
+ *   its one-component mixture, rounding included); in physical units mean_j output_scale_j +
+ *   output_mean_j and var_j output_scale_j^2.
  *
- * Hidden state (MODEL_STATE_SIZE doubles, saved with the FMU state): the 12 states, then 1.0
- * while a GP input is outside the training envelope (a warning is logged once per excursion).
+ * Lagged commands z (N_LAGS = N_COMMAND_LAGS x N_LAG_FANS; for each time constant T each fan
+ * command u, LAG_COMMAND_COLUMNS): z(k+1) = a z(k) + (1 - a) u(k), a = exp(-h / T), from 0 at
+ * the start (Franklin, Powell & Workman 1998, sec. 4.3; fmu_src/blimp_rkgp/model.py).
+ *
+ * Propagation (GreyBoxGP.propagate; fmu_src/blimp_rkgp/model.py, "Standard deviations"): with
+ * g(s) = RK4(s, u, h) + E[residual | s, u, h, z] and e_j the unit vectors,
+ *   J e_j = (g(s + PROPAGATION_STEP e_j) - g(s - PROPAGATION_STEP e_j)) / (2 PROPAGATION_STEP),
+ *   P(k+1) = (J P(k)) J^T + diag(var)   (var: the residuals' variances at s, noise included).
+ * 25 evaluations of g, with two exact shortcuts: the dynamics do not read the position, so the
+ * RK4 steps of s +/- step e_j for j = x, y, z are those of s, and the position alone is
+ * advanced by the same increments in the same order (the same doubles as a full RK4); and a
+ * state the GP does not see (GP_INPUT_OF_STATE < 0) leaves the GP input, so the GP mean, as it is.
+ *
+ * Hidden state (MODEL_STATE_SIZE doubles, saved with the FMU state): the 12 states, their
+ * covariance P (12 x 12, by rows), the lagged commands z (N_LAGS), then 1.0 while a GP input is
+ * outside the training envelope (a warning is logged once per excursion).
  */
 #include <math.h>
 #include <stdint.h>
@@ -47,9 +61,13 @@
 #include "model.h"
 #include "model_config.h"
 
-#define DATA_MAGIC "FGPBLMP1"
-#define OUTSIDE_ENVELOPE N_STATES /* index in the hidden state */
+#define DATA_MAGIC "FGPBLMP2"
+/* Indices in the hidden state */
+#define COVARIANCE N_STATES
+#define LAGS (COVARIANCE + N_STATES * N_STATES)
+#define OUTSIDE_ENVELOPE (LAGS + N_LAGS)
 #define D N_GP_INPUTS
+#define LAG_SLOTS (N_LAGS > 0 ? N_LAGS : 1) /* ISO C has no zero-length arrays */
 
 /* One GP part (pointers into Model.data). */
 typedef struct {
@@ -57,7 +75,7 @@ typedef struct {
     const double *input_mean, *input_scale;  /* (d,) */
     const double *output_mean, *output_scale; /* (q,) */
     const double *kernel_weights;            /* (d,) */
-    double log_signal_variance, signal_variance;
+    double log_signal_variance, signal_variance, noise_variance;
     const double *basis;                     /* (m, d) */
     const double *weights;                   /* (m, q) */
     const double *variance_factor;           /* by columns, packed if lower triangular (gp_predict.h) */
@@ -106,6 +124,7 @@ Model *model_load(const char *resources_dir, char **error) {
         part->kernel_weights = p, p += D;
         part->log_signal_variance = *p++;
         part->signal_variance = exp(part->log_signal_variance);
+        part->noise_variance = exp(*p++);
         part->basis = p, p += m * D;
         part->weights = p, p += m * q;
         part->variance_factor = p, p += gp_factor_size(part->m, part->lower_triangular);
@@ -118,9 +137,10 @@ Model *model_load(const char *resources_dir, char **error) {
     return model;
 }
 
-/* Latent mean and variance of the 12 residuals at GP input x (RKGPModel.residual): per part the
- * kernel row, its latent variance and, per output, the mean and GaussianProcess.predict's
- * one-component mixture variance max((latent + mean^2) - mean^2, 0) (gp_predict.c). */
+/* Means of the 12 residuals at GP input x and, if var is not NULL, their predictive variances
+ * with the observation noise (RKGPModel.residual): per part the kernel row, the means and
+ * GaussianProcess.predict's one-component mixture variance max((spread + mean^2) - mean^2, 0)
+ * of spread = latent + noise (gp_predict.c). */
 static void residual(const Model *model, const double x[D], double mean[N_STATES], double var[N_STATES]) {
     int out = 0;
     for (int j = 0; j < N_PARTS; j++) {
@@ -130,12 +150,13 @@ static void residual(const Model *model, const double x[D], double mean[N_STATES
         gp_standardise(D, x, part->input_mean, part->input_scale, xs);
         gp_squared_distances(m, D, xs, part->basis, model->squared);
         gp_kernel_row(m, D, model->squared, part->kernel_weights, part->log_signal_variance, model->k);
-        const double latent = gp_latent_variance(m, part->variance_factor, part->lower_triangular, model->k,
-                                                 part->signal_variance, model->v);
+        const double spread = var == NULL ? 0.0
+            : gp_latent_variance(m, part->variance_factor, part->lower_triangular, model->k, part->signal_variance,
+                                 model->v) + part->noise_variance;
         for (int o = 0; o < q; o++) {
             const double mu = gp_mean(m, model->k, part->weights + o, q);
             mean[out] = mu * part->output_scale[o] + part->output_mean[o];
-            var[out] = gp_spread(latent + mu * mu, mu) * (part->output_scale[o] * part->output_scale[o]);
+            if (var != NULL) var[out] = gp_spread(spread + mu * mu, mu) * (part->output_scale[o] * part->output_scale[o]);
             out++;
         }
     }
@@ -208,9 +229,12 @@ static void dynamics(const double state[N_STATES], const double commands[3], dou
 }
 
 /* RK4 over dt in equal substeps no longer than MAX_STEP, commands held
- * (validation/vehicles/blimp_equations.py, rk4_advance; the 1e-9 is its SUBSTEP_ROUNDING). */
+ * (validation/vehicles/blimp_equations.py, rk4_advance; the 1e-9 is its SUBSTEP_ROUNDING). If
+ * positions is not NULL, positions[0][c] and positions[1][c] (c = x, y, z) are advanced by the
+ * same increments as state[c]: the RK4 steps of starts that differ from start only in position,
+ * which the dynamics do not read (the propagation's shortcut, header). */
 static void physics_step(const double start[N_STATES], const double commands[3], double dt,
-                         double state[N_STATES]) {
+                         double state[N_STATES], double positions[2][3]) {
     double n_sub = ceil(dt / MAX_STEP - 1e-9);
     if (!(n_sub > 1.0)) n_sub = 1.0;
     const double h = dt / n_sub;
@@ -224,44 +248,122 @@ static void physics_step(const double start[N_STATES], const double commands[3],
         dynamics(probe, commands, k3);
         for (int i = 0; i < N_STATES; i++) probe[i] = state[i] + h * k3[i];
         dynamics(probe, commands, k4);
-        for (int i = 0; i < N_STATES; i++) state[i] = state[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+        for (int i = 0; i < N_STATES; i++) {
+            const double increment = h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+            if (positions != NULL && i < 3) {
+                positions[0][i] = positions[0][i] + increment;
+                positions[1][i] = positions[1][i] + increment;
+            }
+            state[i] = state[i] + increment;
+        }
     }
 }
 
-static void set_outputs(double *values, const double state[N_STATES], const double var[N_STATES]) {
+/* The GP input [s[STATE_COLUMNS], u_gondola, mu, u_tail, h, z] (RKGPModel.gp_inputs). */
+static void gp_input(const double s[N_STATES], const double commands[3], double h, const double *lags, double x[D]) {
+    for (int c = 0; c < N_STATE_COLUMNS; c++) x[c] = s[STATE_COLUMNS[c]];
+    for (int c = 0; c < 3; c++) x[N_STATE_COLUMNS + c] = commands[c];
+    x[N_STATE_COLUMNS + 3] = h;
+    for (int c = 0; c < N_LAGS; c++) x[N_STATE_COLUMNS + 4 + c] = lags[c];
+}
+
+/* z(k+1) = a z(k) + (1 - a) u(k), a = exp(-h / T) (RKGPModel.advance_lags). */
+static void advance_lags(const double *lags, const double commands[3], double h, double *next) {
+    for (int j = 0; j < N_COMMAND_LAGS; j++) {
+        const double decay = exp(-h / LAG_TIME_CONSTANTS[j]);
+        for (int f = 0; f < N_LAG_FANS; f++) {
+            const int i = j * N_LAG_FANS + f;
+            next[i] = decay * lags[i] + (1.0 - decay) * commands[LAG_COMMAND_COLUMNS[f]];
+        }
+    }
+}
+
+/* One step of the mean and its covariance (RKGPModel.step; header, "Propagation"): next (12),
+ * covariance (12 x 12, by rows) from state and P, the GP input x at the state (for the envelope). */
+static void propagate(const Model *model, const double state[N_STATES], const double P[N_STATES * N_STATES],
+                      const double commands[3], double h, const double *lags, double next[N_STATES],
+                      double covariance[N_STATES * N_STATES], double x[D]) {
+    double mean[N_STATES], var[N_STATES], physics[N_STATES], positions[2][3];
+    double plus[N_STATES], minus[N_STATES], J[N_STATES * N_STATES], JP[N_STATES * N_STATES];
+    gp_input(state, commands, h, lags, x);
+    residual(model, x, mean, var);
+    for (int c = 0; c < 3; c++) {
+        positions[0][c] = state[c] + PROPAGATION_STEP;
+        positions[1][c] = state[c] - PROPAGATION_STEP;
+    }
+    physics_step(state, commands, h, physics, positions);
+    for (int i = 0; i < N_STATES; i++) next[i] = physics[i] + mean[i];
+    for (int j = 0; j < N_STATES; j++) { /* column j of J */
+        for (int sign = 0; sign < 2; sign++) {
+            double *moved = sign == 0 ? plus : minus;
+            double probe[N_STATES], moved_mean[N_STATES];
+            memcpy(probe, state, sizeof probe);
+            probe[j] = state[j] + (sign == 0 ? PROPAGATION_STEP : -PROPAGATION_STEP);
+            if (j < 3) { /* the dynamics do not read the position: the centre's steps */
+                memcpy(moved, physics, sizeof physics);
+                moved[j] = positions[sign][j];
+            } else {
+                physics_step(probe, commands, h, moved, NULL);
+            }
+            if (GP_INPUT_OF_STATE[j] >= 0) { /* the GP sees state j */
+                double probe_x[D];
+                memcpy(probe_x, x, sizeof probe_x);
+                probe_x[GP_INPUT_OF_STATE[j]] = probe[j];
+                residual(model, probe_x, moved_mean, NULL);
+            } else {
+                memcpy(moved_mean, mean, sizeof moved_mean);
+            }
+            for (int i = 0; i < N_STATES; i++) moved[i] = moved[i] + moved_mean[i];
+        }
+        for (int i = 0; i < N_STATES; i++) J[i * N_STATES + j] = (plus[i] - minus[i]) / (2 * PROPAGATION_STEP);
+    }
+    for (int i = 0; i < N_STATES; i++) /* J P */
+        for (int c = 0; c < N_STATES; c++) {
+            double sum = 0.0;
+            for (int r = 0; r < N_STATES; r++) sum += J[i * N_STATES + r] * P[r * N_STATES + c];
+            JP[i * N_STATES + c] = sum;
+        }
+    for (int i = 0; i < N_STATES; i++) /* (J P) J^T + diag(var) */
+        for (int c = 0; c < N_STATES; c++) {
+            double sum = 0.0;
+            for (int r = 0; r < N_STATES; r++) sum += JP[i * N_STATES + r] * J[c * N_STATES + r];
+            covariance[i * N_STATES + c] = i == c ? sum + var[i] : sum;
+        }
+}
+
+/* The outputs: the states and the square roots of the covariance's diagonal, negative rounding
+ * clipped (PropagatedRollout.sd). */
+static void set_outputs(double *values, const double state[N_STATES], const double covariance[N_STATES * N_STATES]) {
     for (int i = 0; i < N_STATES; i++) {
+        const double variance = covariance[i * N_STATES + i];
         values[STATE_VR[i]] = state[i];
-        values[SD_VR[i]] = sqrt(var[i]);
+        values[SD_VR[i]] = sqrt(variance > 0.0 ? variance : 0.0);
     }
 }
 
 void model_start(Model *model, double *values, double *state) {
     (void)model;
-    const double zero[N_STATES] = {0.0};
-    /* The start state: the <state>_start parameters (BlimpRKGP.start_model); sd 0. */
+    /* The start state: the <state>_start parameters (BlimpRKGP.start_model), known (covariance
+       0); the lagged commands 0 (fans at rest). */
     for (int i = 0; i < N_STATES; i++) state[i] = values[START_VR[i]];
-    state[OUTSIDE_ENVELOPE] = 0.0;
-    set_outputs(values, state, zero);
+    for (int i = N_STATES; i < MODEL_STATE_SIZE; i++) state[i] = 0.0;
+    set_outputs(values, state, state + COVARIANCE);
 }
 
 char *model_advance(Model *model, const Slave *slave, double *values, double *state, double t, double h) {
-    double commands[3], x[D], mean[N_STATES], var[N_STATES], next[N_STATES];
+    double commands[3], x[D], next[N_STATES], covariance[N_STATES * N_STATES], lags[LAG_SLOTS];
     for (int c = 0; c < 3; c++) commands[c] = values[COMMAND_VR[c]];
-    /* GP input [s[state_columns], u_gondola, mu, u_tail, dt] (RKGPModel.gp_input), dt = h */
-    for (int c = 0; c < N_STATE_COLUMNS; c++) x[c] = state[STATE_COLUMNS[c]];
-    for (int c = 0; c < 3; c++) x[N_STATE_COLUMNS + c] = commands[c];
-    x[N_STATE_COLUMNS + 3] = h;
-    /* s(t + h) = RK4(s(t), u(t), h) + E[residual] (RKGPModel.step) */
-    residual(model, x, mean, var);
-    physics_step(state, commands, h, next);
+    /* s(t + h) = RK4(s(t), u(t), h) + E[residual] and P(t + h) (RKGPModel.step), dt = h */
+    propagate(model, state, state + COVARIANCE, commands, h, state + LAGS, next, covariance, x);
+    advance_lags(state + LAGS, commands, h, lags);
     int finite = 1;
-    for (int i = 0; i < N_STATES; i++) {
-        next[i] = next[i] + mean[i];
-        finite = finite && isfinite(next[i]) && isfinite(var[i]);
-    }
+    for (int i = 0; i < N_STATES; i++) finite = finite && isfinite(next[i]);
+    for (int i = 0; i < N_STATES * N_STATES; i++) finite = finite && isfinite(covariance[i]);
     if (!finite) {
-        char *s = number_list(next, N_STATES), *v = number_list(var, N_STATES);
-        char *message = format_message("non-finite state %s (residual variance %s) at t = %.16g s", s ? s : "?",
+        double variances[N_STATES];
+        for (int i = 0; i < N_STATES; i++) variances[i] = covariance[i * N_STATES + i];
+        char *s = number_list(next, N_STATES), *v = number_list(variances, N_STATES);
+        char *message = format_message("non-finite state %s (variances %s) at t = %.16g s", s ? s : "?",
                                        v ? v : "?", t + h);
         free(s), free(v);
         return message != NULL ? message : format_message("non-finite state");
@@ -275,9 +377,11 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
     else if (outside == NULL && was_outside)
         slave_log(slave, fmi2OK, "t = %.16g s: back inside the training envelope", t + h);
     /* Commit only after everything that can fail. */
-    memcpy(state, next, sizeof(double) * N_STATES);
+    memcpy(state, next, sizeof next);
+    memcpy(state + COVARIANCE, covariance, sizeof covariance);
+    for (int i = 0; i < N_LAGS; i++) state[LAGS + i] = lags[i];
     state[OUTSIDE_ENVELOPE] = outside != NULL ? 1.0 : 0.0;
     free(outside);
-    set_outputs(values, next, var);
+    set_outputs(values, next, covariance);
     return NULL;
 }

@@ -1,38 +1,57 @@
 """The blimp RKGP model inside the blimp RKGP FMU (Ko et al., ICRA 2007, sec. IV-B): the blimp
 ODE integrated by RK4 plus a GP on its one-step residual (:class:`gp_model.GreyBoxGP` with the
-physics ``blimp_rk4``). numpy and the standard library only.
+physics ``blimp_rk4``), the lagged fan commands its GP may see, and the state covariance
+propagated along the run. numpy and the standard library only.
 
 Every blimp RKGP FMU (pythonfmu) carries a copy of this file and of what it imports, the shared
 FMU runtime (:mod:`fmu_src.fmi.runtime`) and the blimp's equations of motion
 (:mod:`validation.vehicles.blimp_equations`, the very functions
 :func:`validation.models.blimp_identification.physics_step` steps with), under names unique to
-the FMU (:mod:`fmu_src.fmi.pythonfmu`). So the FMU reproduces ``GreyBoxGP.rollout`` with that
-physics to rounding (tested to 1e-9). The native FMU evaluates the same formulas in C
-(``blimp_model.c``).
+the FMU (:mod:`fmu_src.fmi.pythonfmu`). So the FMU reproduces ``GreyBoxGP.rollout`` (means) and
+``GreyBoxGP.propagate`` (standard deviations) with that physics to rounding (tested to 1e-9).
+The native FMU evaluates the same formulas in C (``blimp_model.c``).
 
 Model file (``model.npz``, written by :func:`pack_model`, read without pickle)
 ------------------------------------------------------------------------------
 ``format``, ``version``; ``parameter_names``, ``parameters`` (the
 ``BlimpParameters.to_vector`` the model was trained with), ``max_step`` (longest RK4 substep, s);
-``state_columns`` (state columns the GP sees); ``envelope_low``, ``envelope_high`` (range of the
-training GP inputs ``[states[state_columns], u_gondola, mu, u_tail, dt]``). Per GP part ``p``
-(one for a shared GP, twelve for one GP per state), prefix ``"<p>/"``, in standardised units:
-``basis`` (m, d) training inputs, ``weights`` (m, q) ``alpha``, ``variance_factor`` (m, m)
-``L^-1``, ``kernel_weights`` (d,) ``w`` of ``k = sigma_f^2 exp(-sum_i w_i (x_i - x'_i)^2)``,
-``log_signal_variance`` (), ``input_mean``, ``input_scale`` (d,), ``output_mean``,
-``output_scale`` (q,); q = 12 for a shared part, 1 otherwise.
+``state_columns`` (state columns the GP sees); ``command_lags`` (L,) time constants of the
+lagged commands, s (empty: none), ``lag_command_columns`` (F,) the commands (columns of
+``u_gondola, mu, u_tail``) each lag filters; ``propagation_step`` (the central-difference step of
+``GreyBoxGP.propagate``, state units); ``gp_input_names`` (d,) and ``envelope_low``,
+``envelope_high`` (d,) (names and training range of the GP inputs
+``[states[state_columns], u_gondola, mu, u_tail, dt, lags]``). Per GP part ``p`` (one for a
+shared GP, twelve for one GP per state), prefix ``"<p>/"``, in standardised units: ``basis``
+(m, d) training inputs, ``weights`` (m, q) ``alpha``, ``variance_factor`` (m, m) ``L^-1``,
+``kernel_weights`` (d,) ``w`` of ``k = sigma_f^2 exp(-sum_i w_i (x_i - x'_i)^2)``,
+``log_signal_variance`` (), ``log_noise_variance`` (), ``input_mean``, ``input_scale`` (d,),
+``output_mean``, ``output_scale`` (q,); q = 12 for a shared part, 1 otherwise.
+
+Lagged commands
+---------------
+With ``L`` time constants ``T_j`` the GP's last ``F L`` inputs are the fan commands passed
+through first-order lags, for each ``T_j`` each fan (``validation.models.blimp_greybox``,
+``lagged_commands``): ``T z' = -z + u`` with ``u`` held over the step is exact as
+``z(k+1) = a z(k) + (1 - a) u(k)``, ``a = exp(-h / T)`` (Franklin, Powell & Workman, *Digital
+Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3). The lags start at 0 (fans at rest) at
+the start time; step k's GP input holds ``z(k)``, then the lags advance with ``u(k)``.
 
 Standard deviations
 -------------------
-The one-step variance of a state is the GP's latent predictive variance of its residual at
-``(s(t_k), u(t_k), h)``, i.e. the spread of ``s(t_{k+1})`` *given that* ``s(t_k)`` is exactly
-the FMU's state at ``t_k`` (measurement noise not included; ``GreyBoxGP.predict_one_step`` with
-``include_noise=False``). It is not the spread of a free run over many steps: that needs
-propagating the state distribution through the dynamics (``GreyBoxGP.sample_rollouts``);
-summing one-step variances would ignore that a velocity error integrates into position and that
-residuals are correlated along a run, so it would be neither an upper nor a lower bound. The
-one-step sd says how far the GP is from its data at this step: it grows toward the prior's
-outside the training envelope.
+The state's covariance ``P`` is propagated along the mean run to first order, as
+``GreyBoxGP.propagate`` (with a known start, ``P(0) = 0``, and the GPs' noise included): with
+``g(s) = RK4(s, u, h) + E[residual | s, u, h]`` the one-step map and ``J = dg/ds`` by central
+differences of step ``propagation_step`` in each of the 12 states (25 evaluations of ``g``),
+
+    P(k+1) = J P(k) J^T + diag(Sigma(k)),
+
+``Sigma(k)`` the residual GPs' predictive variance at the mean, observation noise included
+(Girard, Rasmussen, Quinonero-Candela & Murray-Smith, NIPS 2003, sec. 3: the first-order
+Taylor approximation; the prediction step of an extended Kalman filter). So a velocity's
+uncertainty integrates into position and the standard deviations grow along a free run. It is a
+linearisation: the spread of sampled runs (``GreyBoxGP.sample_rollouts``, each residual
+conditioned on the draws before it) may differ where the dynamics or the GP are far from linear
+over the spread. Outside the training envelope ``Sigma`` grows toward the prior.
 """
 from __future__ import annotations
 
@@ -46,7 +65,6 @@ from fmu_src.fmi.runtime import (
     ModelFormatError,
     check_header,
     freeze,
-    kernel_rows,
     model_header,
     read_model_file,
     read_part,
@@ -55,14 +73,16 @@ from fmu_src.fmi.slave import TIME_TOLERANCE
 from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES, parameters_from_vector, rk4_advance
 
 FORMAT = "flightgp-fmu-blimp-rkgp"
-VERSION = 1
+#: Version 2 added the lagged commands, the noise variances and the propagation step.
+VERSION = 2
 #: Arrays per GP part and their number of dimensions.
 PER_PART = {"basis": 2, "weights": 2, "variance_factor": 2, "kernel_weights": 1,
-            "log_signal_variance": 0, "input_mean": 1, "input_scale": 1, "output_mean": 1,
-            "output_scale": 1}
+            "log_signal_variance": 0, "log_noise_variance": 0, "input_mean": 1, "input_scale": 1,
+            "output_mean": 1, "output_scale": 1}
 
 
-def pack_model(*, parameter_names, parameters, max_step: float, state_columns, envelope_low,
+def pack_model(*, parameter_names, parameters, max_step: float, state_columns, command_lags,
+               lag_command_columns, propagation_step: float, gp_input_names, envelope_low,
                envelope_high, parts) -> dict:
     """Arrays for ``numpy.savez`` (module docstring).
 
@@ -76,6 +96,14 @@ def pack_model(*, parameter_names, parameters, max_step: float, state_columns, e
         Longest RK4 substep, s.
     state_columns : sequence of int
         The state columns the GP sees.
+    command_lags : sequence of float, shape (L,)
+        Time constants of the lagged commands, s; empty for none.
+    lag_command_columns : sequence of int, shape (F,)
+        The commands (columns of ``u_gondola, mu, u_tail``) each lag filters.
+    propagation_step : float
+        Central-difference step of the covariance propagation, state units.
+    gp_input_names : sequence of str, shape (d,)
+        Names of the GP inputs, for messages.
     envelope_low, envelope_high : array_like, shape (d,)
         Training range of each GP input, physical units.
     parts : list of dict
@@ -85,6 +113,10 @@ def pack_model(*, parameter_names, parameters, max_step: float, state_columns, e
               "parameter_names": np.array(list(parameter_names), dtype=str),
               "parameters": np.asarray(parameters, dtype=float), "max_step": np.array(float(max_step)),
               "state_columns": np.asarray(state_columns, dtype=np.int64),
+              "command_lags": np.asarray(command_lags, dtype=float).reshape(-1),
+              "lag_command_columns": np.asarray(lag_command_columns, dtype=np.int64).reshape(-1),
+              "propagation_step": np.array(float(propagation_step)),
+              "gp_input_names": np.array(list(gp_input_names), dtype=str),
               "envelope_low": np.asarray(envelope_low, dtype=float),
               "envelope_high": np.asarray(envelope_high, dtype=float)}
     for p, part in enumerate(parts):
@@ -106,10 +138,20 @@ class RKGPModel:
         Longest RK4 substep, s.
     state_columns : ndarray of int
         The state columns the GP sees.
+    command_lags : ndarray, shape (L,)
+        Time constants of the lagged commands, s.
+    lag_command_columns : ndarray of int, shape (F,)
+        The commands each lag filters.
+    n_lags : int
+        ``F L``, the lagged-command GP inputs (and hidden states).
+    propagation_step : float
+        Central-difference step of the covariance propagation, state units.
     parts : list of dict
-        Each GP part's arrays (:data:`PER_PART`, plus ``signal_variance``).
+        Each GP part's arrays (:data:`PER_PART`, plus ``signal_variance`` and ``noise_variance``).
     input_names : tuple of str
-        The GP inputs: the seen states, the commands and ``dt``.
+        The GP inputs: the seen states, the commands, ``dt`` and the lagged commands.
+    dt_column : int
+        Index of ``dt`` among the GP inputs.
     envelope : fmu_src.fmi.runtime.Envelope
         Training range of each GP input.
     """
@@ -120,6 +162,10 @@ class RKGPModel:
             self.params = SimpleNamespace(**parameters_from_vector(arrays["parameter_names"], arrays["parameters"]))
             self.max_step = float(arrays["max_step"])
             self.state_columns = np.asarray(arrays["state_columns"], dtype=int)
+            self.command_lags = np.array(arrays["command_lags"], dtype=float).reshape(-1)
+            self.lag_command_columns = np.array(arrays["lag_command_columns"], dtype=int).reshape(-1)
+            self.propagation_step = float(arrays["propagation_step"])
+            self.input_names = tuple(str(name) for name in np.ravel(arrays["gp_input_names"]))
             envelope_low, envelope_high = arrays["envelope_low"], arrays["envelope_high"]
         except KeyError as error:
             raise ModelFormatError(f"the model file lacks the array {error}") from None
@@ -127,18 +173,34 @@ class RKGPModel:
         while f"{p}/basis" in arrays:
             part = read_part(arrays, f"{p}/", PER_PART)
             part["signal_variance"] = np.array(np.exp(part["log_signal_variance"]))
+            part["noise_variance"] = np.array(np.exp(part["log_noise_variance"]))
             freeze(part.values())
             self.parts.append(part)
             p += 1
-        d = len(self.state_columns) + len(INPUT_NAMES) + 1
+        if not (np.isfinite(self.command_lags).all() and (self.command_lags > 0).all()):
+            raise ModelFormatError(f"command lags must be positive times in s, got {self.command_lags.tolist()}")
+        if self.command_lags.size and (not self.lag_command_columns.size or self.lag_command_columns.min() < 0
+                                       or self.lag_command_columns.max() >= len(INPUT_NAMES)):
+            raise ModelFormatError(f"lag_command_columns {self.lag_command_columns.tolist()} must name commands "
+                                   f"0 .. {len(INPUT_NAMES) - 1}")
+        self.n_lags = len(self.command_lags) * len(self.lag_command_columns)
+        self.dt_column = len(self.state_columns) + len(INPUT_NAMES)
+        d = self.dt_column + 1 + self.n_lags
         outputs = sum(part["weights"].shape[1] for part in self.parts)
         if (outputs != len(STATE_NAMES) or np.shape(envelope_low) != (d,) or np.shape(envelope_high) != (d,)
-                or any(part["basis"].shape[1] != d for part in self.parts)):
-            raise ModelFormatError(f"the GP parts must map {d} inputs to {len(STATE_NAMES)} residuals")
+                or len(self.input_names) != d or any(part["basis"].shape[1] != d for part in self.parts)):
+            raise ModelFormatError(f"the GP parts must map {d} named inputs to {len(STATE_NAMES)} residuals")
         if not self.max_step > 0:
             raise ModelFormatError(f"max_step must be positive, got {self.max_step}")
-        self.input_names = tuple(STATE_NAMES[c] for c in self.state_columns) + INPUT_NAMES + ("dt",)
+        if not (np.isfinite(self.propagation_step) and self.propagation_step > 0):
+            raise ModelFormatError(f"propagation_step must be positive, got {self.propagation_step}")
         self.envelope = Envelope(envelope_low, envelope_high, self.input_names)
+        n = len(STATE_NAMES)
+        # The centre and the states moved by +/- the step, in GreyBoxGP.propagate's order (2n + 1, n).
+        self._offsets = self.propagation_step * np.concatenate([np.zeros((1, n)), np.eye(n), -np.eye(n)])
+        self._lag_time_constants = np.repeat(self.command_lags, len(self.lag_command_columns))
+        freeze((self.state_columns, self.command_lags, self.lag_command_columns, self._offsets,
+                self._lag_time_constants))
 
     @classmethod
     def load(cls, path) -> RKGPModel:
@@ -149,39 +211,80 @@ class RKGPModel:
         """Communication steps (s) the model accepts: the training range of ``dt`` plus the
         envelope margin and the FMI layer's time tolerance (evenly sampled training data has one
         ``dt``, up to rounding)."""
-        slack = TIME_TOLERANCE * float(self.envelope.high[-1])
-        return float(self.envelope.lower[-1]) - slack, float(self.envelope.upper[-1]) + slack
+        dt = self.dt_column
+        slack = TIME_TOLERANCE * float(self.envelope.high[dt])
+        return float(self.envelope.lower[dt]) - slack, float(self.envelope.upper[dt]) + slack
 
-    def gp_input(self, state: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
-        """The GP input (d,): the seen states of ``state`` (12,), ``commands`` (3,) and ``dt``, s."""
-        return np.concatenate([state[self.state_columns], commands, [dt]])
+    def gp_inputs(self, states: np.ndarray, commands: np.ndarray, dt: float, lags: np.ndarray) -> np.ndarray:
+        """The GP inputs (r, d) of ``states`` (r, 12) under ``commands`` (3,) held for ``dt`` s with
+        the lagged commands ``lags`` (n_lags,): ``[states[:, state_columns], commands, dt, lags]``."""
+        held = np.concatenate([commands, [dt], lags])
+        return np.hstack([states[:, self.state_columns], np.broadcast_to(held, (len(states), len(held)))])
 
-    def residual(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Latent mean and variance of the 12 residuals at GP input ``x`` (d,), as
-        ``GaussianProcess.predict(return_var=True)`` (Rasmussen & Williams 2006, Alg. 2.1,
-        lines 4-6)."""
+    def advance_lags(self, lags: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
+        """The lagged commands (n_lags,) ``dt`` s on under ``commands`` (3,) held: ``a z + (1 - a) u``,
+        ``a = exp(-dt / T)`` (module docstring)."""
+        decay = np.exp(-dt / self._lag_time_constants)
+        return decay * lags + (1.0 - decay) * np.tile(commands[self.lag_command_columns], len(self.command_lags))
+
+    def residual(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Means of the 12 residuals at the GP inputs ``X`` (r, d), shape (r, 12), and their
+        predictive variances at ``X[0]`` with the observation noise, shape (12,), as
+        ``GaussianProcess.predict(return_var=True, include_noise=True)`` (Rasmussen & Williams
+        2006, Alg. 2.1, lines 4-6; eq. 2.24 plus the noise variance)."""
         means, variances = [], []
         for part in self.parts:
-            xs = (x - part["input_mean"]) / part["input_scale"]
-            k = kernel_rows(xs, part["basis"], part["kernel_weights"][None], part["log_signal_variance"][None])[0]
-            mean = k @ part["weights"]  # (q,)
-            v = part["variance_factor"] @ k
-            latent = max(float(part["signal_variance"] - v @ v), 0.0)
+            xs = (X - part["input_mean"]) / part["input_scale"]  # (r, d)
+            # Kernel rows, fmu_src.fmi.runtime.kernel_rows for r inputs: (r, m).
+            k = np.exp(part["log_signal_variance"] - ((xs[:, None, :] - part["basis"]) ** 2) @ part["kernel_weights"])
+            mean = k @ part["weights"]  # (r, q)
+            v = part["variance_factor"] @ k[0]
+            spread = max(float(part["signal_variance"] - v @ v), 0.0) + float(part["noise_variance"])
             # The one-component mixture of GaussianProcess.predict, rounding included.
-            var = np.maximum((latent + mean**2) - mean**2, 0.0)
+            var = np.maximum((spread + mean[0] ** 2) - mean[0] ** 2, 0.0)
             means.append(mean * part["output_scale"] + part["output_mean"])
             variances.append(var * part["output_scale"] ** 2)
-        return np.concatenate(means), np.concatenate(variances)
+        return np.hstack(means), np.concatenate(variances)
 
-    def step(self, state: np.ndarray, commands: np.ndarray, dt: float):
-        """The next state (12,), mean: RK4 physics over ``dt`` s in substeps no longer than
-        ``max_step`` plus the GP residual mean; the residual variance (12,); the GP input (d,)."""
-        x = self.gp_input(state, commands, dt)
-        mean, var = self.residual(x)
-        return rk4_advance(state, commands, dt, self.params, max_step=self.max_step) + mean, var, x
+    def step(self, state: np.ndarray, covariance: np.ndarray, lags: np.ndarray, commands: np.ndarray,
+             dt: float):
+        """One step of ``dt`` s under ``commands`` (3,) held (module docstring).
+
+        Parameters
+        ----------
+        state : ndarray, shape (12,)
+            Mean state at ``t_k``.
+        covariance : ndarray, shape (12, 12)
+            Its covariance ``P(k)``.
+        lags : ndarray, shape (n_lags,)
+            The lagged commands ``z(k)``.
+        commands : ndarray, shape (3,)
+        dt : float
+            s.
+
+        Returns
+        -------
+        state : ndarray, shape (12,)
+            ``RK4(s, u, dt) + E[residual]`` (``GreyBoxGP.rollout``).
+        covariance : ndarray, shape (12, 12)
+            ``P(k+1) = J P(k) J^T + diag(Sigma)`` (``GreyBoxGP.propagate``).
+        lags : ndarray, shape (n_lags,)
+            ``z(k+1)``.
+        x : ndarray, shape (d,)
+            The GP input at the state, for the envelope check.
+        """
+        n = len(state)
+        points = state + self._offsets  # (2n + 1, n)
+        X = self.gp_inputs(points, commands, dt, lags)
+        mean, var = self.residual(X)
+        moved = rk4_advance(points, commands, dt, self.params, max_step=self.max_step) + mean
+        jacobian = (moved[1:n + 1] - moved[n + 1:]).T / (2 * self.propagation_step)
+        covariance = jacobian @ covariance @ jacobian.T + np.diag(var)
+        return moved[0], covariance, self.advance_lags(lags, commands, dt), X[0]
 
     def describe(self) -> str:
         """One line for the log."""
         return json.dumps({"gp_inputs": list(self.input_names), "gp_parts": len(self.parts),
                            "basis_points": int(self.parts[0]["basis"].shape[0]),
-                           "max_step_s": self.max_step, "step_range_s": list(self.step_range())})
+                           "command_lags_s": self.command_lags.tolist(), "max_step_s": self.max_step,
+                           "propagation_step": self.propagation_step, "step_range_s": list(self.step_range())})

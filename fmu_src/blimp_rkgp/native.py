@@ -7,12 +7,14 @@ the pythonfmu blimp RKGP FMU (:mod:`fmu_src.blimp_rkgp.slave`: the same variable
 references, units, descriptions, start values, bounds, default experiment, sampling convention
 and step policy, since its ``modelDescription.xml`` is written by the same class) and its
 numbers (``blimp_model.c``: the formulas of :mod:`validation.vehicles.blimp_equations` and of
-:meth:`fmu_src.blimp_rkgp.model.RKGPModel.residual` in the same order, so the states and
-standard deviations agree to rounding), packaged by :mod:`fmu_src.fmi.native`.
+:class:`fmu_src.blimp_rkgp.model.RKGPModel` (the GP residual, the lagged commands and the
+first-order propagation of the state covariance) in the same order, so the states and the
+propagated standard deviations agree to rounding), packaged by :mod:`fmu_src.fmi.native`.
 
 ``model_config.h`` holds the GUID, variable table, value references, the step range, the
-physics parameters with the mass matrix and its inverse, the GP structure and the training
-envelope; ``resources/model.bin`` every GP part's arrays (layout in ``blimp_model.c``). The step
+physics parameters with the mass matrix and its inverse, the command lags, the propagation
+step, the GP structure and the training envelope; ``resources/model.bin`` every GP part's arrays
+(layout in ``blimp_model.c``). The step
 is fixed by the first ``fmi2DoStep`` and refused outside the training range of the frame
 interval ``dt`` (plus the envelope margin), as the pythonfmu FMU
 (:meth:`fmu_src.blimp_rkgp.model.RKGPModel.step_range`).
@@ -45,7 +47,7 @@ from validation.vehicles.blimp_equations import INPUT_NAMES, STANDARD_GRAVITY, S
 #: The model's C file, compiled with the FMI layer.
 MODEL_SOURCE = Path(__file__).with_name("blimp_model.c")
 
-_DATA_MAGIC = b"FGPBLMP1"
+_DATA_MAGIC = b"FGPBLMP2"
 #: Scalar physics parameters (the ``BlimpParameters`` fields, C macros in capitals).
 _SCALARS = ("mass", "net_lift", "gondola_thrust_forward", "gondola_thrust_backward", "gondola_arm",
             "tail_thrust_positive", "tail_thrust_negative", "tail_arm", "fin_lift")
@@ -110,8 +112,17 @@ def _blimp_config(guid: str, name: str, variables: tuple, model: RKGPModel) -> s
         'with the default experiment\'s step size"', "",
         *variable_table(variables, "fmu_src/blimp_rkgp/slave.py, blimp_rkgp_variables"),
         f"#define N_STATES {len(STATE_NAMES)}",
-        "/* Hidden state: the 12 states, then the envelope flag (blimp_model.c) */",
-        "#define MODEL_STATE_SIZE (N_STATES + 1)",
+        "/* Lagged commands: N_COMMAND_LAGS time constants (s) of N_LAG_FANS commands each (columns of",
+        "   u_gondola, mu, u_tail) (fmu_src/blimp_rkgp/model.py, RKGPModel.advance_lags) */",
+        f"#define N_COMMAND_LAGS {len(model.command_lags)}",
+        f"#define N_LAG_FANS {len(model.lag_command_columns)}",
+        "#define N_LAGS (N_COMMAND_LAGS * N_LAG_FANS)",
+        c_array("double", "LAG_TIME_CONSTANTS", model.command_lags, c_number).rstrip(),
+        c_array("int", "LAG_COMMAND_COLUMNS", model.lag_command_columns).rstrip(),
+        "/* Hidden state: the 12 states, their covariance, the lagged commands, the envelope flag (blimp_model.c) */",
+        "#define MODEL_STATE_SIZE (N_STATES + N_STATES * N_STATES + N_LAGS + 1)",
+        "/* Central-difference step of the covariance propagation, state units (GreyBoxGP.propagate) */",
+        f"#define PROPAGATION_STEP {c_number(model.propagation_step)}",
         "/* Value references: commands, states, their sds, their start parameters */",
         c_array("unsigned", "COMMAND_VR", [reference[n] for n in INPUT_NAMES]).rstrip(),
         c_array("unsigned", "STATE_VR", [reference[n] for n in STATE_NAMES]).rstrip(),
@@ -126,10 +137,13 @@ def _blimp_config(guid: str, name: str, variables: tuple, model: RKGPModel) -> s
         "   (validation/vehicles/blimp_equations.py, mass_matrix) */",
         c_array("double", "MASS_MATRIX", matrix.ravel(), c_number).rstrip(),
         c_array("double", "INVERSE_MASS_MATRIX", inverse.ravel(), c_number).rstrip(), "",
-        "/* GP: inputs [states[STATE_COLUMNS], u_gondola, mu, u_tail, dt]; parts (one shared, or one per state) */",
+        "/* GP: inputs [states[STATE_COLUMNS], u_gondola, mu, u_tail, dt, lagged commands]; parts (one",
+        "   shared, or one per state); GP_INPUT_OF_STATE: each state's GP input, -1 if the GP does not see it */",
         f"#define N_STATE_COLUMNS {len(model.state_columns)}",
         f"#define N_GP_INPUTS {len(model.input_names)}",
         c_array("int", "STATE_COLUMNS", model.state_columns).rstrip(),
+        c_array("int", "GP_INPUT_OF_STATE", [list(model.state_columns).index(i) if i in model.state_columns else -1
+                                             for i in range(len(STATE_NAMES))]).rstrip(),
         f"#define N_PARTS {len(parts)}",
         c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
         c_array("int", "PART_OUTPUTS", [p["weights"].shape[1] for p in parts]).rstrip(),
@@ -146,7 +160,7 @@ def _blimp_doubles(model: RKGPModel) -> np.ndarray:
     for p in model.parts:
         factor = p["variance_factor"]
         chunks += [p["input_mean"], p["input_scale"], p["output_mean"], p["output_scale"], p["kernel_weights"],
-                   [p["log_signal_variance"]], p["basis"].ravel(), p["weights"].ravel(),
+                   [p["log_signal_variance"]], [p["log_noise_variance"]], p["basis"].ravel(), p["weights"].ravel(),
                    packed_variance_factor(factor, triangular=lower_triangular(factor))]
     return np.concatenate([np.ravel(np.asarray(c, dtype="<f8")) for c in chunks])
 

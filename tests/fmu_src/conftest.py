@@ -17,7 +17,15 @@ from fmu_src import (
 from gp_model import GreyBoxGP, save_model
 from tests.fmu_src.blimp_rkgp.contract import BLIMP_HOLD
 from tests.fmu_src.contract import Host
-from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
+from validation.models.blimp_greybox import (
+    COMMAND_LAGS,
+    GP_STATE_COLUMNS,
+    MIN_NOISE_VARIANCE,
+    BlimpStepDescription,
+    smoothed_states,
+    step_inputs,
+)
+from validation.models.blimp_identification import physics_step, recording_arrays
 from validation.vehicles.blimp import BlimpParameters
 from validation.vehicles.blimp_flight import BlimpFlightTest
 
@@ -60,7 +68,7 @@ def blimp_trained():
 @pytest.fixture(scope="session")
 def blimp_model_file(tmp_path_factory, blimp_trained):
     return save_model(tmp_path_factory.mktemp("model") / "blimp_rkgp.npz", blimp_trained["model"],
-                      physics=blimp_physics_description(blimp_trained["params"]))
+                      physics=BlimpStepDescription(blimp_trained["params"]).as_dict())
 
 
 @pytest.fixture(scope="session")
@@ -71,6 +79,39 @@ def blimp_rkgp_fmu(blimp_model_file, tmp_path_factory):
 @pytest.fixture(scope="session")
 def native_blimp_rkgp_fmu(blimp_model_file, tmp_path_factory):
     return build_native_blimp_rkgp_fmu(blimp_model_file, tmp_path_factory.mktemp("native"), name="blimp_native")
+
+
+@pytest.fixture(scope="session")
+def blimp_lagged(tmp_path_factory):
+    """A grey-box model as validation.models.blimp_greybox fits them, on 4 s of the blimp-flight
+    stand-in (motion capture on: jittered frames, noisy poses) under random commands held 0.5 s:
+    smoothed states, the fans' lagged commands (COMMAND_LAGS) as GP inputs, one GP per state on
+    all 79 transitions. Its hyperparameters stay at their defaults (``optimize=False``): the FMUs
+    must equal whatever model they carry, and the fit takes milliseconds (the flight 0.3 s)."""
+    time = np.arange(81) * BlimpFlightTest.sample_time
+    rng = np.random.default_rng(2)
+    levels = lambda low, high: np.repeat(rng.uniform(low, high, 9), BLIMP_HOLD)[:len(time)]  # noqa: E731
+    commands = np.column_stack([levels(0.2, 0.8), levels(-0.2, 0.4), levels(-0.6, 0.6)])
+    recording = BlimpFlightTest().simulate(time, commands, seed=0)
+    params = BlimpParameters()
+    description = BlimpStepDescription(params, command_lags=COMMAND_LAGS)
+    states, inputs = smoothed_states(recording), step_inputs(recording, command_lags=COMMAND_LAGS)
+    model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, shared=False, min_noise_variance=MIN_NOISE_VARIANCE).fit(
+        states[:-1], inputs[:-1], states[1:], description.physics_step(), optimize=False)
+    path = save_model(tmp_path_factory.mktemp("lagged") / "blimp_lagged.npz", model, physics=description.as_dict())
+    return {"model": model, "params": params, "command_lags": COMMAND_LAGS, "states": states,
+            "commands": commands, "path": path}
+
+
+@pytest.fixture(scope="session")
+def blimp_lagged_fmu(blimp_lagged, tmp_path_factory):
+    return build_blimp_rkgp_fmu(blimp_lagged["path"], tmp_path_factory.mktemp("fmu"), name="blimp_lagged")
+
+
+@pytest.fixture(scope="session")
+def native_blimp_lagged_fmu(blimp_lagged, tmp_path_factory):
+    return build_native_blimp_rkgp_fmu(blimp_lagged["path"], tmp_path_factory.mktemp("native"),
+                                       name="blimp_lagged_native")
 
 
 # -- on the test module's case ----------------------------------------------------------------------

@@ -11,6 +11,7 @@ from fmu_src.blimp_rkgp.native import MODEL_SOURCE as BLIMP_MODEL_SOURCE
 from fmu_src.fmi.native import compiled_sources
 from gp_model import save_model
 from validation.cli import main
+from validation.models.blimp_greybox import BlimpStepDescription
 from validation.models.narx import NarxConfig, save_trained, train_narx
 
 
@@ -122,3 +123,29 @@ def test_build_fmu_native_refuses_a_greybox_model_of_other_physics(blimp_trained
     err = capsys.readouterr().err
     assert err.startswith("flightgp build-fmu: error:") and "blimp_rk4" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+@pytest.mark.parametrize("native", [False, True], ids=["pythonfmu", "native"])
+@pytest.mark.parametrize("problem", ["negative lag", "lag not a number", "lags not the model's"])
+def test_build_fmu_refuses_a_blimp_model_whose_command_lags_are_unusable(blimp_lagged, tmp_path, capsys, problem,
+                                                                        native):
+    """The command lags of the physics description (validation.models.blimp_greybox) must be
+    positive times and the ones the model's GP inputs were made with; otherwise exit 2, one line
+    naming the problem, nothing written."""
+    physics = BlimpStepDescription(blimp_lagged["params"], command_lags=blimp_lagged["command_lags"]).as_dict()
+    if problem == "negative lag":
+        physics["command_lags"] = [-0.15, 0.3, 0.6]
+        phrase = "command lags must be positive times in s"
+    elif problem == "lag not a number":
+        physics["command_lags"] = ["fast", 0.3, 0.6]
+        phrase = "physics description is unusable"
+    else:  # a description without lags for a model whose GPs see three
+        physics = BlimpStepDescription(blimp_lagged["params"]).as_dict()
+        phrase = "names 12 states and 4 inputs"
+    model = save_model(tmp_path / "lagged.npz", blimp_lagged["model"], physics=physics)
+    out = tmp_path / "out"
+    assert main(["build-fmu", str(model), "--out", str(out), *(["--native"] if native else [])]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("flightgp build-fmu: error:") and phrase in err, err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists() or not any(out.iterdir())

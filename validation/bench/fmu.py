@@ -236,7 +236,8 @@ def blimp_rkgp_row(scratch, *, n_steps: int, seed: int = 0) -> dict:
 
     from fmu_src import build_blimp_rkgp_fmu, build_native_blimp_rkgp_fmu
     from gp_model import GreyBoxGP, save_model
-    from validation.models.blimp_identification import blimp_physics_description, physics_step, recording_arrays
+    from validation.models.blimp_greybox import BlimpStepDescription
+    from validation.models.blimp_identification import physics_step, recording_arrays
     from validation.vehicles.blimp import BlimpParameters
     from validation.vehicles.blimp_flight import BlimpFlightTest
 
@@ -250,7 +251,7 @@ def blimp_rkgp_row(scratch, *, n_steps: int, seed: int = 0) -> dict:
     params = BlimpParameters()
     model = GreyBoxGP(state_columns=(3, 4, 6, 7, 8, 9, 10, 11), n_restarts=0).fit_trajectories(
         [(states, step_inputs)], physics_step(params))
-    path = save_model(scratch / "blimp_rkgp.npz", model, physics=blimp_physics_description(params))
+    path = save_model(scratch / "blimp_rkgp.npz", model, physics=BlimpStepDescription(params).as_dict())
     row = time_blimp_rkgp_fmus(build_blimp_rkgp_fmu(path, scratch, name="bench_blimp_python"),
                                build_native_blimp_rkgp_fmu(path, scratch, name="bench_blimp_native"),
                                commands, states[0], n_steps=n_steps)

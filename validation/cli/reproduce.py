@@ -11,6 +11,14 @@ from validation.core.files import check_output_folder
 PAPERS = ("bo105", "blimp")
 
 
+def seed_list(text: str) -> tuple[int, ...]:
+    """argparse type of ``--seeds``: distinct seeds separated by commas."""
+    seeds = tuple(seed(part.strip()) for part in text.split(","))
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"seeds must be distinct, got {text!r}")
+    return seeds
+
+
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "reproduce", help="reproduce a seed paper's experiment",
@@ -19,12 +27,18 @@ def register(subparsers) -> None:
                     "results.json to DIR and prints the RMSE table. blimp: Tables I-III of the "
                     "blimp RKGP paper (Ko et al., ICRA 2007) on the blimp-flight stand-in: "
                     "one-second predictions of RK, ODE, RKGP, ODEGP and GP-only, trajectory "
-                    "sampling, and a yaw controller learned by policy search; writes results.json, "
-                    "predictions.png, table2.png, table3.png, the RKGP model blimp_rkgp.npz and its "
-                    "FMU (--runs and --paper-only apply to bo105 only).")
+                    "sampling, and a yaw controller learned by policy search, over a campaign of "
+                    "seeds; writes results.json, report.md, table1.png, predictions.png, table2.png, "
+                    "table3.png, the first seed's RKGP model blimp_rkgp.npz and its FMU (--runs and "
+                    "--paper-only apply to bo105 only, --seeds and --quick to blimp only).")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
-    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=None,
+                        help="random seed (default 0); for blimp, a campaign of this one seed")
+    parser.add_argument("--seeds", type=seed_list, default=None, metavar="S,S,...",
+                        help="blimp: the campaign's seeds (default 0,1,2,3,4; about 6 minutes a seed)")
+    parser.add_argument("--quick", action="store_true",
+                        help="blimp: the short setup of every table (about a minute a seed; for checks)")
     parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
     parser.add_argument("--paper-only", action="store_true", help="skip the beyond-the-paper studies")
     parser.set_defaults(func=run)
@@ -33,16 +47,23 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     if args.paper == "blimp":
-        from validation.reproduce.blimp import format_results, reproduce_blimp
+        from validation.reproduce.blimp import DEFAULT_SEEDS, reproduce_blimp
+        from validation.reproduce.blimp_report import format_results
 
-        print(format_results(reproduce_blimp(args.out, seed=args.seed)))
-        print(f"written {args.out}/results.json and predictions.png")
+        if args.seed is not None and args.seeds is not None:
+            raise BadInputError("give --seed or --seeds, not both")
+        seeds = (args.seed,) if args.seed is not None else args.seeds or DEFAULT_SEEDS
+        print(format_results(reproduce_blimp(args.out, seeds=seeds, quick=args.quick)))
+        print(f"written {args.out}/report.md, results.json and figures")
         return 0
+    if args.seeds is not None or args.quick:
+        raise BadInputError("--seeds and --quick apply to reproduce blimp only")
     from validation.reproduce.bo105 import format_results, reproduce_bo105
 
     if args.runs < 10:
         raise BadInputError(f"--runs must be at least 10 for meaningful bounds, got {args.runs}")
-    results = reproduce_bo105(args.out, seed=args.seed, n_runs=args.runs, beyond=not args.paper_only)
+    results = reproduce_bo105(args.out, seed=0 if args.seed is None else args.seed, n_runs=args.runs,
+                              beyond=not args.paper_only)
     print(format_results(results))
     print(f"written {args.out}/results.json and figures")
     return 0

@@ -133,7 +133,8 @@ class BlimpFlightTest:
         return np.concatenate([blimp_dynamics(state[:12], body_inputs, params), fans_dot])
 
     def simulate(self, time, inputs, *, seed: int = 0) -> Recording:
-        """Fly ``inputs`` (held from each frame to the next) and return the mocap recording.
+        """Fly ``inputs`` (held from each frame to the next) and return the mocap recording
+        (:meth:`fly`, then :meth:`record`).
 
         Parameters
         ----------
@@ -150,12 +151,26 @@ class BlimpFlightTest:
             and ``sample_time_nominal``); outputs are all 12 states as measured.
         """
         time, inputs = check_command_history(time, inputs, min_samples=DIFFERENCE_WINDOW)
-        nominal_step = float(np.median(np.diff(time)))
+        return self.record(self.fly(time, inputs, seed=seed), inputs)
+
+    def fly(self, time, inputs, *, seed: int = 0) -> StandInFlight:
+        """The whole flight of :meth:`simulate` before it is measured: its
+        :attr:`StandInFlight.states` are the true states at the frames.
+
+        ``time`` (n,) nominal frame times, s; ``inputs`` (n, 3), checked by :meth:`simulate`.
+        """
         flight = self.start_flight(time, seed=seed)
-        for command in inputs[:-1]:
+        for command in np.asarray(inputs, dtype=float)[:-1]:
             flight.advance(command)
+        return flight
+
+    def record(self, flight: StandInFlight, inputs) -> Recording:
+        """What motion capture records of a flown ``flight`` under ``inputs`` (n, 3): the poses
+        with marker noise and the velocities differentiated from them (when ``mocap``), with the
+        sidecar metadata."""
+        nominal_step = float(np.median(np.diff(flight.nominal_time)))
         time, states = flight.time, flight.states
-        metadata = {"vehicle": self.name, "seed": int(seed),
+        metadata = {"vehicle": self.name, "seed": int(flight.seed),
                     "parameters": dict(zip(BlimpParameters.vector_names(), self.params.to_vector().tolist())),
                     "effects": {"motor_time_constants": self.motor_time_constants,
                                 "dead_band": self.dead_band, "buoyancy_drift": self.buoyancy_drift,
@@ -200,6 +215,9 @@ class StandInFlight:
     ----------
     time : ndarray, shape (n,)
         Frame times, s.
+    nominal_time : ndarray, shape (n,)
+        The nominal frame times it was started with, s.
+    seed : int
     states : ndarray, shape (n, 12)
         True states at the frames reached so far (rows beyond :attr:`frame` are unset).
     frame : int
@@ -211,8 +229,8 @@ class StandInFlight:
     def __init__(self, vehicle: BlimpFlightTest, nominal_time: np.ndarray, *, seed: int) -> None:
         jitter_rng, drift_rng, self.noise_rng = (
             np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
-        self.vehicle = vehicle
-        self.time = nominal_time
+        self.vehicle, self.seed = vehicle, seed
+        self.nominal_time = self.time = nominal_time
         if vehicle.mocap:
             limit = MOCAP_JITTER_LIMIT * float(np.min(np.diff(nominal_time)))
             jitter = np.clip(jitter_rng.normal(0.0, MOCAP_JITTER_STD, len(nominal_time)), -limit, limit)

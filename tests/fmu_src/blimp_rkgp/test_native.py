@@ -5,7 +5,8 @@ that the Python code inside is self-contained replaced by its native counterpart
 native FMU's own checks: the pythonfmu FMU's modelDescription, a plain C host given the start
 state, the FMI call sequence, GUID and resources checks, pedantic C99, ``fmpy compile``) and the
 blimp RKGP's, with the case of the pythonfmu blimp RKGP of the same model (the same commands,
-start state, Python reference and tolerance).
+start state, Python reference and tolerance), and the blimp RKGP's lagged contract (a model with
+one GP per state whose GPs see the lagged fan commands).
 
 Then what is particular to the native blimp: its outputs over whole command sequences (inside and
 outside the training envelope) against the pythonfmu FMU's, one GP per state, a full variance
@@ -27,10 +28,17 @@ from fmu_src import build_blimp_rkgp_fmu, build_native_blimp_rkgp_fmu
 from fmu_src.blimp_rkgp import native
 from fmu_src.blimp_rkgp.native import MODEL_SOURCE
 from gp_model import GreyBoxGP, save_model
-from tests.fmu_src.blimp_rkgp.contract import BLIMP_HOLD, BlimpRkgpContract, blimp_rkgp_case
+from tests.fmu_src.blimp_rkgp.contract import (
+    BLIMP_HOLD,
+    BlimpRkgpContract,
+    BlimpRkgpLaggedContract,
+    blimp_reference,
+    blimp_rkgp_case,
+)
 from tests.fmu_src.contract import FMI_FATAL, Host, NativeFmuContract, run_in_fmpy, standard_run
 from validation.bench.fmu import time_blimp_rkgp_fmus
-from validation.models.blimp_identification import blimp_physics_description, physics_step
+from validation.models.blimp_greybox import BlimpStepDescription
+from validation.models.blimp_identification import physics_step
 from validation.vehicles.blimp import INPUT_NAMES as BLIMP_INPUTS
 from validation.vehicles.blimp import STATE_NAMES as BLIMP_STATES
 from validation.vehicles.blimp import BlimpParameters
@@ -43,14 +51,24 @@ STEP = BlimpFlightTest.sample_time
 @pytest.fixture(scope="module")
 def case(native_blimp_rkgp_fmu, blimp_rkgp_fmu, blimp_trained):
     """The case of the pythonfmu blimp RKGP, with the native FMU in its place: the same commands,
-    start state, Python reference (GreyBoxGP.rollout and predict_one_step) and tolerance (1e-9: the
-    same formulas for one state instead of a batch; measured 4.5e-11)."""
+    start state, Python reference (GreyBoxGP.rollout and propagate) and tolerance (1e-9: the same
+    formulas for one state instead of a batch)."""
     return replace(blimp_rkgp_case(blimp_rkgp_fmu, blimp_trained), path=native_blimp_rkgp_fmu,
                    native_of=blimp_rkgp_fmu, model_source=MODEL_SOURCE)
 
 
+@pytest.fixture(scope="module")
+def lagged_case(native_blimp_lagged_fmu, blimp_lagged_fmu, blimp_lagged):
+    return replace(blimp_rkgp_case(blimp_lagged_fmu, blimp_lagged, n_steps=40), path=native_blimp_lagged_fmu,
+                   native_of=blimp_lagged_fmu, model_source=MODEL_SOURCE)
+
+
 class TestNativeBlimpRkgpFmu(NativeFmuContract, BlimpRkgpContract):
     """The native FMU contract and the blimp RKGP's, on the native blimp RKGP."""
+
+
+class TestLaggedNativeBlimpRkgpFmu(BlimpRkgpLaggedContract):
+    """The blimp RKGP's lagged contract, on the native blimp RKGP."""
 
 
 def _run_fmpy(path, commands: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -61,22 +79,19 @@ def _run_fmpy(path, commands: np.ndarray, start: np.ndarray) -> np.ndarray:
 
 
 def _python_reference(model, params, commands: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """GreyBoxGP.rollout (mean fed back) and its one-step sds, as the FMU's outputs (n + 1, 24)."""
-    physics = physics_step(params)
-    steps = np.column_stack([commands[:-1], np.full(len(commands) - 1, STEP)])
-    mean = model.rollout(start, steps, physics)
-    _, var = model.predict_one_step(mean[:-1], steps, physics)
-    return np.hstack([mean, np.vstack([np.zeros(12), np.sqrt(var)])])
+    """GreyBoxGP.rollout (mean fed back) and GreyBoxGP.propagate's sds, as the FMU's outputs
+    (n + 1, 24), of a model without command lags."""
+    return blimp_reference({"model": model, "params": params}, commands, start, step=STEP)
 
 
 @pytest.mark.parametrize("commands", ["training", "unseen"])
 def test_outputs_equal_the_pythonfmu_fmu_and_the_python_rollout(case, blimp_trained, commands):
     """Over 10 s (200 steps) of commands, the training ones and unseen ones that leave the
     envelope (u_gondola down to -0.5, trained 0.2 .. 0.8), every state and sd equals the pythonfmu
-    FMU's and GreyBoxGP.rollout's (with predict_one_step's sds). Tolerance 1e-9 in SI units:
-    the same formulas for one state, rounded differently (numpy's BLAS and SIMD sin/cos/exp vs
-    libm, ~1e-16 relative per operation), grown by the dynamics over 200 steps; measured
-    2e-12 on the states and 3e-11 on the sds (native vs pythonfmu)."""
+    FMU's and GreyBoxGP.rollout's (with GreyBoxGP.propagate's sds). Tolerance 1e-9 in SI units
+    on states and sds alike: the same formulas for one state, rounded differently (numpy's BLAS
+    and SIMD sin/cos/exp vs libm, ~1e-16 relative per operation), divided by the central
+    difference's 2 * PROPAGATION_STEP in the Jacobian and grown by the dynamics over 200 steps."""
     if commands == "training":
         u = blimp_trained["commands"]
     else:
@@ -86,9 +101,15 @@ def test_outputs_equal_the_pythonfmu_fmu_and_the_python_rollout(case, blimp_trai
     start = blimp_trained["states"][0]
     native, python = (_run_fmpy(p, u, start) for p in (case.path, case.native_of))
     reference = _python_reference(blimp_trained["model"], blimp_trained["params"], u, start)
-    np.testing.assert_allclose(native, python, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(native, reference, rtol=0, atol=1e-9)
+    _assert_outputs_equal(native, python)
+    _assert_outputs_equal(native, reference)
+    _assert_outputs_equal(python, reference)
     assert np.ptp(native[:, :12], axis=0).max() > 0.5 and native[1:, 12:].min() > 0  # a real test
+
+
+def _assert_outputs_equal(actual: np.ndarray, desired: np.ndarray) -> None:
+    """States and sds to 1e-9, SI units."""
+    np.testing.assert_allclose(actual, desired, rtol=0, atol=1e-9)
 
 
 @pytest.fixture(scope="module")
@@ -101,20 +122,23 @@ def per_state_model(blimp_trained, tmp_path_factory):
     model = GreyBoxGP(state_columns=(3, 4, 6, 7, 8, 9, 10, 11), shared=False, n_restarts=0).fit_trajectories(
         [(states, inputs)], physics_step(params))
     path = save_model(tmp_path_factory.mktemp("per_state") / "per_state.npz", model,
-                      physics=blimp_physics_description(params))
+                      physics=BlimpStepDescription(params).as_dict())
     return {"model": model, "params": params, "path": path, "commands": commands, "start": states[0]}
 
 
 def test_one_gp_per_state_equals_the_pythonfmu_fmu_and_the_python_rollout(per_state_model, tmp_path):
+    """Twelve parts (a nearly noise-free model): states and sds to 1e-9."""
     m = per_state_model
     native = build_native_blimp_rkgp_fmu(m["path"], tmp_path, name="per_state_native")
     python = build_blimp_rkgp_fmu(m["path"], tmp_path, name="per_state_python")
     with zipfile.ZipFile(native) as archive:
         assert "#define N_PARTS 12" in archive.read("sources/model_config.h").decode()
     outputs = _run_fmpy(native, m["commands"], m["start"])
-    np.testing.assert_allclose(outputs, _run_fmpy(python, m["commands"], m["start"]), rtol=0, atol=1e-9)
-    np.testing.assert_allclose(outputs, _python_reference(m["model"], m["params"], m["commands"], m["start"]),
-                               rtol=0, atol=1e-9)
+    reference = _python_reference(m["model"], m["params"], m["commands"], m["start"])
+    python = _run_fmpy(python, m["commands"], m["start"])
+    _assert_outputs_equal(outputs, python)
+    _assert_outputs_equal(outputs, reference)
+    _assert_outputs_equal(python, reference)
 
 
 def test_a_full_variance_factor_gives_the_same_outputs(blimp_model_file, case, blimp_trained, tmp_path,

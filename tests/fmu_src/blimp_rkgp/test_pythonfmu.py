@@ -1,5 +1,7 @@
 """The pythonfmu blimp RKGP FMU (fmu_src/blimp_rkgp): the FMU contract and the blimp RKGP's, on a
-shared-GP RKGP trained on 10 s of blimp-flight, then what is particular to the pythonfmu build."""
+shared-GP RKGP trained on 10 s of blimp-flight; the blimp RKGP's lagged contract, on a model with
+one GP per state whose GPs see the lagged fan commands; then what is particular to the pythonfmu
+build."""
 from __future__ import annotations
 
 import zipfile
@@ -7,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.fmu_src.blimp_rkgp.contract import BlimpRkgpContract, blimp_rkgp_case
+from tests.fmu_src.blimp_rkgp.contract import BlimpRkgpContract, BlimpRkgpLaggedContract, blimp_rkgp_case
 from tests.fmu_src.contract import FmuContract
 from validation.vehicles import blimp_equations
 
@@ -17,8 +19,17 @@ def case(blimp_rkgp_fmu, blimp_trained):
     return blimp_rkgp_case(blimp_rkgp_fmu, blimp_trained)
 
 
+@pytest.fixture(scope="module")
+def lagged_case(blimp_lagged_fmu, blimp_lagged):
+    return blimp_rkgp_case(blimp_lagged_fmu, blimp_lagged, n_steps=40)
+
+
 class TestBlimpRkgpFmu(FmuContract, BlimpRkgpContract):
     """The FMU contract and the blimp RKGP's, on the pythonfmu blimp RKGP."""
+
+
+class TestLaggedBlimpRkgpFmu(BlimpRkgpLaggedContract):
+    """The blimp RKGP's lagged contract, on the pythonfmu blimp RKGP."""
 
 
 def test_carries_the_blimp_equations_of_the_vehicle(case):

@@ -1,10 +1,14 @@
-"""Tests of the blimp RKGP Tables I, II and III reproduction (validation/reproduce/blimp.py) and its command.
+"""Tests of the blimp RKGP Tables I, II and III reproduction (validation/reproduce/blimp*.py) and
+its command.
 
-The quick reproduction (one 30 s training flight, 20 start states, about 10 s) runs end to end;
-the assertions are the properties that hold by construction or by physics, not the paper's
-headline (RKGP beating RK does not come out on this stand-in; results.json explains why).
+One quick campaign (one seed, every table's QUICK_SETUP) runs end to end through the command;
+the assertions are what holds by construction or by physics, and that the goals and notes say
+what the tables measured. The paper's margins are not asserted: docs/reproductions.md reports
+the full campaign's numbers, met or missed.
 """
+import contextlib
 import dataclasses
+import io
 import json
 import math
 
@@ -12,142 +16,219 @@ import numpy as np
 import pytest
 
 from validation.cli import main
-from validation.reproduce.blimp import (
-    GROUPS,
-    METHODS,
-    adaptive_step,
-    format_results,
-    random_command_flight,
-    reproduce_blimp,
+from validation.models.blimp_greybox import (
+    COMMAND_LAGS,
+    GP_STATE_COLUMNS,
+    MIN_NOISE_VARIANCE,
+    smoothed_states,
+    step_inputs,
 )
-from validation.vehicles.blimp import SAMPLE_TIME, BlimpParameters, BlimpReference
+from validation.reproduce.blimp_prediction import GROUPS, METHODS, RK_MAX_STEP, START_KINDS, random_command_flight
+from validation.reproduce.blimp_report import format_results
+from validation.reproduce.blimp_spread import ROWS, Table2Setup, table2
+from validation.vehicles.blimp import STATE_NAMES
+
+SEED = 3
 
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
+    """``flightgp reproduce blimp --quick --seeds 3``: the output folder, results.json and what
+    the command printed."""
     out = tmp_path_factory.mktemp("blimp")
-    return out, reproduce_blimp(out, quick=True, progress=False)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["reproduce", "blimp", "--out", str(out), "--quick", "--seeds", str(SEED)]) == 0
+    return out, json.loads((out / "results.json").read_text()), printed.getvalue()
 
 
-def test_quick_reproduction_writes_table1_with_finite_values(quick):
-    out, results = quick
-    written = json.loads((out / "results.json").read_text())
-    assert (out / "predictions.png").stat().st_size > 0
-    assert set(written["table1"]) == set(METHODS)
+@pytest.mark.slow
+def test_table1_has_every_start_kind_method_and_group_with_its_noise_floor(quick):
+    out, results, printed = quick
+    by_seed = results["table1"]["by_seed"][str(SEED)]
+    assert set(by_seed) == {"noise_floor", *START_KINDS}
+    assert all(math.isfinite(v) and v > 0 for v in by_seed["noise_floor"].values())
+    for kind in START_KINDS:
+        assert set(by_seed[kind]) == set(METHODS)
+        for method, row in by_seed[kind].items():
+            for key in (*GROUPS, *(f"against_true.{g}" for g in GROUPS)):
+                value = row["against_true"][key.split(".")[1]] if "." in key else row[key]
+                assert math.isfinite(value) and value > 0, (kind, method, key)
+    assert all(by_seed["filtered"][m]["time_s"] > 0 for m in METHODS)
+    # The noise floor is the true states' error against the recording: a perfect model's score.
+    # Every model's error against the recording is above it, and against the truth it is smaller
+    # than against the recording plus the floor (triangle inequality, per start then RMS).
     for method in METHODS:
-        row = written["table1"][method]
-        assert set(row) == {*GROUPS, "time_s"}
-        assert all(math.isfinite(v) and v > 0 for v in row.values()), (method, row)
-    for entry in written["identification"]["parameters"].values():
-        assert math.isfinite(entry["value"]) and entry["standard_error"] > 0
-    assert written["notes"]
-    assert "RKGP" in format_results(written) and "position" in format_results(written)
+        row = by_seed["true"][method]
+        for group in GROUPS:
+            assert row[group] <= row["against_true"][group] + by_seed["noise_floor"][group] + 1e-12
+    assert all(method in printed for method in METHODS) and "noise floor" in printed
 
 
-TABLE2_ROWS = ("stand_in", "rkgp_sampled", "rkgp_mean")
-SPREAD_KEYS = {"x_std_m", "y_std_m", "z_std_m", "yaw_std_deg", "position_spread_m",
-               "offset_from_stand_in_m", "yaw_offset_from_stand_in_deg"}
-
-
-def test_quick_reproduction_writes_table2(quick):
-    out, results = quick
-    table2 = json.loads((out / "results.json").read_text())["table2"]
-    assert (out / "table2.png").stat().st_size > 0
-    assert set(table2) == {*TABLE2_ROWS, "setup"}
-    for row in TABLE2_ROWS:
-        assert SPREAD_KEYS <= set(table2[row])
-        assert all(math.isfinite(v) for v in table2[row].values()), (row, table2[row])
-    # The mean-only rollout is one deterministic end point: zero spread by construction. GP
-    # sampling draws different residual functions, so its end points spread; so do the stand-in
-    # runs (drift, jitter, marker noise differ with the seed).
-    spreads = {row: table2[row]["position_spread_m"] for row in TABLE2_ROWS}
-    assert spreads["rkgp_mean"] == 0.0 and table2["rkgp_mean"]["yaw_std_deg"] == 0.0
-    assert spreads["rkgp_sampled"] > spreads["rkgp_mean"] and spreads["stand_in"] > 0
-    assert table2["stand_in"]["offset_from_stand_in_m"] == pytest.approx(0.0, abs=1e-12)
-    assert table2["setup"]["stand_in_runs"] == 20 and table2["setup"]["n_samples"] == 20
-    assert "RKGP sampled" in format_results(results)
-    assert any(note.startswith("Table II") for note in results["notes"])
-
-
-def test_table2_is_reproducible_from_the_seed(quick):
-    from gp_model import GreyBoxGP
-    from validation.models.blimp_identification import physics_step
-    from validation.reproduce.blimp import GP_STATE_COLUMNS, QUICK_TABLE2, RK_MAX_STEP, _table2, _transitions
-    from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS
-
-    # A cheap model (known parameters, fixed hyperparameters, a short flight) through the same
-    # Table II code twice with one seed and once with another: the full run is seeded the same way.
-    flight = random_command_flight(3.0, [5, 1, 0])
-    rk = physics_step(FLIGHT_TEST_PARAMETERS, max_step=RK_MAX_STEP)
-    model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, n_restarts=0).fit(
-        *_transitions([flight], 2), rk, optimize=False)
-    setup = dataclasses.replace(QUICK_TABLE2, horizon_frames=10, stand_in_runs=3, n_samples=3)
-    first, paths = _table2(flight, model, rk, setup, 5, False)
-    again, paths_again = _table2(flight, model, rk, setup, 5, False)
-    other, other_paths = _table2(flight, model, rk, setup, 6, False)
-    for a, b in zip(paths, paths_again):
-        np.testing.assert_array_equal(a, b)
-    for row in TABLE2_ROWS:
-        assert {k: v for k, v in first[row].items() if k != "seconds"} == \
-            {k: v for k, v in again[row].items() if k != "seconds"}
-    assert first["stand_in"]["position_spread_m"] != other["stand_in"]["position_spread_m"]
-    assert first["rkgp_sampled"]["position_spread_m"] != other["rkgp_sampled"]["position_spread_m"]
-    np.testing.assert_array_equal(paths[2], other_paths[2])  # the mean rollout has no random part
-
-
-def test_comparisons_and_notes_agree_with_the_table(quick):
-    _, results = quick
-    table = results["table1"]
-    for group in GROUPS:
-        assert results["comparisons"]["RKGP_beats_RK"][group] == (table["RKGP"][group] < table["RK"][group])
-    if not all(results["comparisons"]["RKGP_beats_RK"].values()):
-        assert any(note.startswith("RKGP does not beat RK") for note in results["notes"])
-
-
-def test_rk_and_ode_agree_and_physics_beats_gp_only_on_position(quick):
-    _, results = quick
-    table = results["table1"]
-    # Same identified ODE, RK4 at 0.05 s vs RK45 at rtol 1e-8: integrator error is far below
-    # the 1 mm / 0.5 deg mocap noise, so the two agree to 1 % on every group.
+@pytest.mark.slow
+def test_physics_integrators_agree_and_physics_beats_gp_only_on_position(quick):
+    table = quick[1]["table1"]["by_seed"][str(SEED)]["true"]
+    # Same identified ODE, RK4 at one step per frame vs RK45 at rtol 1e-8: the integrator error
+    # is far below the 1 mm / 0.5 deg mocap noise, so the two agree to 1 % on every group.
     for group in GROUPS:
         assert table["ODE"][group] == pytest.approx(table["RK"][group], rel=0.01)
-    # Position needs yaw (earth-frame kinematics), which the GP inputs leave out: the physics
-    # models know it, GP-only cannot.
+    # Position needs yaw (earth-frame kinematics), which the GP inputs leave out: GP-only cannot.
     assert table["RKGP"]["position"] < table["GPonly"]["position"]
     assert table["RK"]["position"] < table["GPonly"]["position"]
 
 
-def test_identification_sees_the_stand_ins_tail_asymmetry(quick):
-    parameters = quick[1]["identification"]["parameters"]
-    # The stand-in's tail fan is 40 % weaker for u_tail < 0 (validation/vehicles/blimp_flight.py).
-    assert parameters["tail_thrust_negative"]["value"] < parameters["tail_thrust_positive"]["value"]
+@pytest.mark.slow
+def test_goals_say_what_the_tables_measured(quick):
+    results = quick[1]
+    summary = results["table1"]["summary"]["filtered"]
+    smallest = summary["RK_over_RKGP_smallest"]
+    goal = results["goals"]["table1_RKGP_beats_RK_every_group_and_seed"]
+    assert goal["met"] == all(smallest[g] > 1 for g in GROUPS)
+    table = results["table1"]["by_seed"][str(SEED)]["filtered"]
+    for group in GROUPS:
+        assert smallest[group] == pytest.approx(table["RK"][group] / table["RKGP"][group], rel=1e-12)
+    margin = results["goals"]["table1_margin_over_RK"]
+    assert margin["met"] == (smallest["position"] >= 3 and smallest["velocity"] >= 3)
+    ratio = results["table2"]["by_seed"][str(SEED)]["spread_ratio_noise"]
+    assert results["goals"]["table2_spread_with_noise_within_30_percent"]["met"] == (abs(ratio - 1) <= 0.3)
+    third = results["table3"]["by_seed"][str(SEED)]
+    assert third["yaw_error_ratio_RK_to_RKGP"] == pytest.approx(
+        third["RK"]["yaw_error_deg"] / third["RKGP"]["yaw_error_deg"], rel=1e-12)
+    # Every missed goal is a note with its number.
+    for name, entry in results["goals"].items():
+        assert entry["met"] or any(note.startswith(f"Goal missed: {name}") for note in results["notes"])
 
 
-def test_adaptive_step_matches_the_reference_adaptive_integrator():
-    params = BlimpParameters()
-    time = np.array([0.0, SAMPLE_TIME])
-    commands = np.array([[0.7, 0.2, -0.4], [0.0, 0.0, 0.0]])
-    start = np.array([0.0, 0.0, 0.0, 0.05, -0.02, 0.3, 0.4, 0.05, -0.02, 0.1, -0.1, 0.2])
-    expected = BlimpReference(params=params).simulate_states(time, commands, initial_state=start,
-                                                             method="adaptive")[1]
-    # Two rows with different dt in one call (rescaled time): row 0 is the reference's frame.
-    stepped = adaptive_step(params)(np.stack([start, start]),
-                                    np.array([[*commands[0], SAMPLE_TIME], [*commands[0], 0.04]]))
-    # Both at rtol 1e-8: agreement to a few 1e-8 relative, far below any physical meaning.
-    np.testing.assert_allclose(stepped[0], expected, rtol=1e-6, atol=1e-9)
-    assert not np.allclose(stepped[1], stepped[0])
+@pytest.mark.slow
+def test_table2_rows_and_their_properties(quick):
+    out, results, printed = quick
+    second = results["table2"]["by_seed"][str(SEED)]
+    assert set(ROWS) <= set(second)
+    for row in ROWS:
+        assert all(math.isfinite(v) for v in second[row].values()), row
+    # The mean rollout is one deterministic end point: zero spread by construction; sampling
+    # draws different residual functions, and the stand-in runs differ in drift, jitter, noise.
+    assert second["rkgp_mean"]["position_spread_m"] == 0.0 and second["rkgp_mean"]["yaw_std_deg"] == 0.0
+    assert second["rkgp_sampled"]["position_spread_m"] > 0 and second["stand_in"]["position_spread_m"] > 0
+    assert second["spread_ratio_noise"] == pytest.approx(
+        second["rkgp_sampled_noise"]["position_spread_m"] / second["stand_in"]["position_spread_m"], rel=1e-12)
+    assert second["setup"]["stand_in_runs"] == 20 and "Table II" in printed
+
+
+@pytest.mark.slow
+def test_table3_learns_three_controllers_and_flies_them(quick):
+    third = quick[1]["table3"]["by_seed"][str(SEED)]
+    for name in ("RK", "RKGP", "stand_in"):
+        row = third[name]
+        for key in ("yaw_error_deg", "yaw_error_std_deg", "yaw_rate_error_deg_s", "final_yaw_error_deg"):
+            assert math.isfinite(row[key]), (name, key)
+        assert 0 < row["yaw_error_deg"] < 90  # a 90 deg turn that never moved would score 90
+        # Nelder-Mead keeps its best vertex, which starts at the initial parameters.
+        assert row["pegasus_cost"] <= row["initial_cost"] * (1 + 1e-9)
+        assert set(row["parameters"]) == {"b_plus", "b_minus", "damping", "tanh_slope"}
+
+
+@pytest.mark.slow
+def test_report_and_figures_are_written(quick):
+    out, results, _ = quick
+    report = (out / "report.md").read_text()
+    for name in ("table1.png", "predictions.png", "table2.png", "table3.png"):
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and name in report
+    assert all(title in report for title in ("Table I", "Table II", "Table III"))
+    assert results["seeds"] == [SEED] and results["setup"]["quick"]
+
+
+@pytest.mark.slow
+def test_rkgp_fmu_equals_the_propagated_python_rollout(quick):
+    """The FMU built from the campaign's RKGP model: states and propagated sds equal
+    GreyBoxGP.propagate from the FMU's start (fans at rest) under the same commands, to 1e-9."""
+    import fmpy
+
+    from gp_model import load_model, read_header
+    from validation.models.blimp_greybox import BlimpStepDescription, lagged_commands
+
+    out, results, _ = quick
+    fmu = out / results["fmu"]["fmu"]
+    model = load_model(out / results["fmu"]["model"])
+    description = BlimpStepDescription.from_dict(read_header(out / results["fmu"]["model"])["physics"])
+    assert description.command_lags == COMMAND_LAGS
+    step = float(fmpy.read_model_description(str(fmu)).defaultExperiment.stepSize)
+    start = np.array([0.0, 0.0, 0.0, 0.01, 0.02, 0.1, 0.05, 0.0, 0.0, 0.0, 0.0, 0.02])
+    n = 30
+    commands = np.repeat([[0.4, 0.0, -0.3], [-0.2, 0.1, 0.5], [0.6, -0.1, 0.0]], 10, axis=0)
+    signal = np.zeros(n + 1, dtype=[("time", float), ("u_gondola", float), ("mu", float), ("u_tail", float)])
+    signal["time"] = np.arange(n + 1) * step
+    for column, name in enumerate(("u_gondola", "mu", "u_tail")):
+        signal[name] = np.append(commands[:, column], commands[-1, column])
+    sds = [f"{s}_sd" for s in STATE_NAMES]
+    result = fmpy.simulate_fmu(str(fmu), stop_time=n * step, step_size=step, output_interval=step, input=signal,
+                               output=[*STATE_NAMES, *sds],
+                               start_values={f"{s}_start": float(v) for s, v in zip(STATE_NAMES, start)})
+    dt = np.full(n, step)
+    inputs = np.column_stack([commands, dt, lagged_commands(commands, dt, time_constants=COMMAND_LAGS)])
+    python = model.propagate(start, inputs, description.physics_step())
+    np.testing.assert_allclose(np.column_stack([result[s] for s in STATE_NAMES])[:n + 1], python.mean, rtol=0,
+                               atol=1e-9)
+    np.testing.assert_allclose(np.column_stack([result[s] for s in sds])[:n + 1], python.sd, rtol=0, atol=1e-9)
+    assert python.sd[-1, :3].min() > python.sd[1, :3].max()  # the spread grows along the run
+
+
+def test_table2_is_reproducible_from_the_seed():
+    """A cheap model (true parameters, fixed hyperparameters, a short flight) through Table II
+    twice with one seed and once with another."""
+    from gp_model import GreyBoxGP
+    from validation.models.blimp_identification import physics_step
+    from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS
+
+    recording = random_command_flight(3.0, [5, 1, 0]).recording
+    rk = physics_step(FLIGHT_TEST_PARAMETERS, max_step=RK_MAX_STEP)
+    states, inputs = smoothed_states(recording), step_inputs(recording)
+    model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, shared=False, min_noise_variance=MIN_NOISE_VARIANCE).fit(
+        states[:-1:2], inputs[:-1:2], states[1::2], rk, optimize=False)
+    setup = dataclasses.replace(Table2Setup(), horizon_frames=10, stand_in_runs=3, n_samples=3)
+    first, paths = table2(recording.inputs, model, rk, setup, seed=5)
+    again, paths_again = table2(recording.inputs, model, rk, setup, seed=5)
+    other, other_paths = table2(recording.inputs, model, rk, setup, seed=6)
+    for field in dataclasses.fields(paths):
+        np.testing.assert_array_equal(getattr(paths, field.name), getattr(paths_again, field.name))
+    drop = lambda row: {k: v for k, v in row.items() if k != "seconds"}  # noqa: E731
+    assert all(drop(first[row]) == drop(again[row]) for row in ROWS)
+    for row in ("stand_in", "rkgp_sampled", "rkgp_sampled_noise"):
+        assert first[row]["position_spread_m"] != other[row]["position_spread_m"], row
+    assert drop(first["rkgp_mean"]) != {} and first["rkgp_mean"]["position_spread_m"] == 0.0
 
 
 def test_random_command_flight_is_reproducible_and_held_at_4_hz():
     a, b = random_command_flight(2.0, [7, 0, 0]), random_command_flight(2.0, [7, 0, 0])
-    np.testing.assert_array_equal(a.outputs, b.outputs)
+    np.testing.assert_array_equal(a.recording.outputs, b.recording.outputs)
+    np.testing.assert_array_equal(a.true_states, b.true_states)
     # 40 frames at 20 Hz in 8 holds of 5 frames (0.25 s); frame 41 starts a ninth hold.
-    holds = a.inputs[:-1].reshape(8, 5, 3)
+    holds = a.recording.inputs[:-1].reshape(8, 5, 3)
     assert np.all(holds == holds[:, :1]) and len(np.unique(holds[:, 0, 0])) == 8
-    assert np.all(np.abs(a.input("mu")) <= 0.5)
+    assert np.all(np.abs(a.recording.input("mu")) <= 0.5)
+    assert not np.allclose(a.recording.outputs, a.true_states)  # motion capture adds noise
 
 
-def test_cli_refuses_a_file_as_output_folder(tmp_path, capsys):
+@pytest.mark.parametrize("arguments, phrase", [
+    (["--seeds", "1,1"], "distinct"),
+    (["--seeds", "1,-2"], "0 or more"),
+    (["--seed", "1", "--seeds", "2"], "not both"),
+])
+def test_cli_refuses_bad_seeds(tmp_path, capsys, arguments, phrase):
+    """Exit 2 with one message (argparse's for a malformed list), nothing written."""
+    try:
+        code = main(["reproduce", "blimp", "--out", str(tmp_path / "out"), *arguments])
+    except SystemExit as usage_error:
+        code = usage_error.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert phrase in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_cli_refuses_blimp_options_for_bo105_and_a_file_as_output_folder(tmp_path, capsys):
+    assert main(["reproduce", "bo105", "--out", str(tmp_path / "out"), "--quick"]) == 2
+    assert "reproduce blimp only" in capsys.readouterr().err
     target = tmp_path / "file"
     target.write_text("x")
     assert main(["reproduce", "blimp", "--out", str(target)]) == 2
@@ -155,62 +236,6 @@ def test_cli_refuses_a_file_as_output_folder(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_cli_reproduce_blimp_prints_table1(tmp_path, capsys):
-    # The full default run (about a minute on one core).
-    assert main(["reproduce", "blimp", "--out", str(tmp_path)]) == 0
-    printed = capsys.readouterr().out
-    assert all(method in printed for method in METHODS)
-    results = json.loads((tmp_path / "results.json").read_text())
-    assert results["setup"]["n_starts"] == 100 and not results["setup"]["quick"]
-
-
-def test_quick_reproduction_writes_table3_with_finite_values(quick):
-    out, results = quick
-    table3 = json.loads((out / "results.json").read_text())["table3"]
-    assert (out / "table3.png").stat().st_size > 0
-    assert set(table3) == {"RK", "RKGP", "setup"}
-    for name in ("RK", "RKGP"):
-        row = table3[name]
-        for key in ("yaw_error_deg", "yaw_error_std_deg", "yaw_rate_error_deg_s",
-                    "yaw_rate_error_std_deg_s", "final_yaw_error_deg", "pegasus_cost"):
-            assert math.isfinite(row[key]), (name, key, row[key])
-        assert row["yaw_error_deg"] > 0 and row["yaw_error_std_deg"] >= 0
-        # Nelder-Mead keeps the best vertex, which starts at the initial parameters.
-        assert row["pegasus_cost"] <= row["initial_cost"]
-        assert set(row["parameters"]) == {"b_plus", "b_minus", "damping", "tanh_slope"}
-        assert all(v > 0 for v in row["parameters"].values())
-    assert table3["setup"]["stand_in_runs"] == 2
-    assert "Table III" in format_results(results)
-    assert any(note.startswith("Table III") for note in results["notes"])
-
-
-def test_reproduction_builds_the_blimp_rkgp_fmu_from_its_model(quick):
-    """The blimp RKGP FMU built from this model (the contract suite covers the FMU
-    type; here: this model's FMU validates and reproduces the model's rollout)."""
-    import fmpy
-    from fmpy.validation import validate_fmu
-
-    from gp_model import load_model, read_header
-    from validation.models.blimp_identification import blimp_physics_from_description
-
-    out, results = quick
-    fmu = out / results["fmu"]["fmu"]
-    assert validate_fmu(str(fmu)) == []
-    model = load_model(out / results["fmu"]["model"])
-    _, physics = blimp_physics_from_description(read_header(out / results["fmu"]["model"])["physics"])
-    description = fmpy.read_model_description(str(fmu))
-    step = float(description.defaultExperiment.stepSize)
-    start = np.array([0.0, 0.0, 0.0, 0.01, 0.02, 0.1, 0.05, 0.0, 0.0, 0.0, 0.0, 0.02])
-    names = ["x", "y", "z", "phi", "theta", "psi", "U", "V", "W", "P", "Q", "R"]
-    n = 20
-    commands = np.column_stack([np.full(n, 0.4), np.zeros(n), np.full(n, -0.3)])
-    signal = np.zeros(n + 1, dtype=[("time", float), ("u_gondola", float), ("mu", float), ("u_tail", float)])
-    signal["time"] = np.arange(n + 1) * step
-    signal["u_gondola"], signal["u_tail"] = 0.4, -0.3
-    result = fmpy.simulate_fmu(str(fmu), stop_time=n * step, step_size=step, output_interval=step,
-                               input=signal, output=names,
-                               start_values={f"{s}_start": float(v) for s, v in zip(names, start)})
-    rollout = model.rollout(start, np.column_stack([commands, np.full(n, step)]), physics)
-    fmu_states = np.column_stack([result[s] for s in names])[: n + 1]
-    # Same model, same RK4 substeps and GP arithmetic: equal to rounding (1e-9).
-    np.testing.assert_allclose(fmu_states, rollout, rtol=0, atol=1e-9)
+def test_format_results_names_every_table(quick):
+    text = format_results(quick[1])
+    assert all(title in text for title in ("Table I", "Table II", "Table III"))

@@ -5,19 +5,30 @@ import numpy as np
 import pytest
 
 from gp_model import GreyBoxGP
+from validation.models.blimp_greybox import (
+    COMMAND_LAGS,
+    GP_STATE_COLUMNS,
+    MIN_NOISE_VARIANCE,
+    lagged_commands,
+    smoothed_states,
+    step_inputs,
+)
 from validation.models.blimp_identification import physics_step
-from validation.reproduce.blimp import GP_STATE_COLUMNS, RK_MAX_STEP, _transitions, random_command_flight
 from validation.reproduce.blimp_control import (
+    FRAMES_PER_DECISION,
     INITIAL_PARAMETERS,
+    TurnPolicy,
     TurnTask,
     fly_stand_in,
     pegasus_cost,
     rk_simulator,
     rkgp_simulator,
+    scenarios,
     switching_function,
     yaw_command,
 )
-from validation.vehicles.blimp import hanging_state
+from validation.reproduce.blimp_prediction import RK_MAX_STEP, random_command_flight
+from validation.vehicles.blimp import SAMPLE_TIME, hanging_state
 from validation.vehicles.blimp_flight import FLIGHT_TEST_PARAMETERS, BlimpFlightTest
 
 PARAMS = np.array([0.5, 0.3, 0.5, 3.0])
@@ -55,11 +66,59 @@ def test_switching_curve_is_the_braking_distance_of_the_yaw_model():
 
 @pytest.fixture(scope="module")
 def simulators():
+    """RK and RKGP simulators of the stand-in's true parameters; the RKGP's GPs (fixed
+    hyperparameters, one per output, the lagged fan commands among their inputs) on 4 s of a
+    random-command flight, every second transition."""
     rk = physics_step(FLIGHT_TEST_PARAMETERS, max_step=RK_MAX_STEP)
-    flight = random_command_flight(4.0, [9, 0, 0])
-    model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, n_restarts=0).fit(*_transitions([flight], 2), rk,
-                                                                         optimize=False)
-    return {"RK": rk_simulator(rk), "RKGP": rkgp_simulator(model, rk)}
+    recording = random_command_flight(4.0, [9, 0, 0]).recording
+    states, inputs = smoothed_states(recording), step_inputs(recording)
+    model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, shared=False, min_noise_variance=MIN_NOISE_VARIANCE).fit(
+        states[:-1:2], inputs[:-1:2], states[1::2], rk, optimize=False)
+    return {"RK": rk_simulator(rk), "RKGP": rkgp_simulator(model, rk), "model": model, "rk": rk}
+
+
+def test_turn_policy_holds_commands_at_4_hz_and_lags_them_like_a_recording():
+    """Called step by step, the policy returns the inputs a recording of its commands would give:
+    the yaw command recomputed every FRAMES_PER_DECISION steps and held, gondola off, dt the
+    mocap interval, and the lagged commands of step_inputs (fans at rest at step 0)."""
+    rng = np.random.default_rng(0)
+    states = np.tile(hanging_state(FLIGHT_TEST_PARAMETERS), (2, 1))
+    policy = TurnPolicy(INITIAL_PARAMETERS, 2, command_lags=COMMAND_LAGS)
+    rows = []
+    for k in range(12):
+        states[:, 5] += rng.normal(0.0, 0.2, 2)  # yaw moves between decisions: the command must not
+        rows.append(policy(k, states))
+    inputs = np.stack(rows, axis=1)  # (2, 12, 4 + 6)
+    assert inputs.shape == (2, 12, 4 + 2 * len(COMMAND_LAGS))
+    for k in range(12):
+        decided = k - k % FRAMES_PER_DECISION
+        np.testing.assert_array_equal(inputs[:, k, 2], inputs[:, decided, 2])
+    assert len(np.unique(inputs[0, ::FRAMES_PER_DECISION, 2])) == 3  # three decisions, three commands
+    assert np.all(inputs[..., :2] == 0) and np.all(inputs[..., 3] == SAMPLE_TIME)
+    for r in range(2):
+        expected = lagged_commands(inputs[r, :, :3], inputs[r, :, 3], time_constants=COMMAND_LAGS)
+        np.testing.assert_allclose(inputs[r, :, 4:], expected, rtol=0, atol=1e-15)
+
+
+def test_rkgp_simulator_samples_with_the_policy_in_the_loop(simulators):
+    """The RKGP simulator's turns are GreyBoxGP.sample_closed_loop with a fresh TurnPolicy: the
+    same for the same normals (bit for bit), and the commands follow the sampled yaw, so
+    different draws give different commands (the sampling cannot have been done from a command
+    sequence fixed up front)."""
+    task = TurnTask(horizon_s=2.0, yaw_start_std_deg=0.0, yaw_rate_start_std_deg_s=0.0)
+    starts, normals = scenarios(task, hanging_state(FLIGHT_TEST_PARAMETERS), [1, 2])
+    starts[1] = starts[0]
+    paths = simulators["RKGP"](INITIAL_PARAMETERS, starts, normals, task.frames)
+    np.testing.assert_array_equal(paths, simulators["RKGP"](INITIAL_PARAMETERS, starts, normals, task.frames))
+    policy = TurnPolicy(INITIAL_PARAMETERS, 2, command_lags=COMMAND_LAGS)
+    expected = simulators["model"].sample_closed_loop(starts, policy, task.frames, simulators["rk"], normals=normals,
+                                                      include_noise=True)
+    np.testing.assert_array_equal(paths, expected)
+    # Replay the commands the policy chose from each sampled path: they differ between the two
+    # draws, from the same start.
+    replay = TurnPolicy(INITIAL_PARAMETERS, 2, command_lags=COMMAND_LAGS)
+    commands = np.stack([replay(k, paths[:, k]) for k in range(task.frames)], axis=1)[..., 2]
+    assert np.any(commands[0] != commands[1]) and np.all(commands[:, 0] == commands[0, 0])
 
 
 @pytest.mark.parametrize("name", ["RK", "RKGP"])
