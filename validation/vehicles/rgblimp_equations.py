@@ -1,0 +1,364 @@
+"""The RGBlimp's first-principle model, once: numpy, the standard library and plain project modules.
+
+The RGBlimp (robotic gliding blimp: a helium envelope with a pair of wings, two propellers and a
+gondola mass that can be moved along the body) of Zhu, Cheng & Zhang, "Data-Driven Dynamics
+Modeling of Miniature Robotic Blimps Using Neural ODEs With Parameter Auto-Tuning", IEEE
+Robotics and Automation Letters, 2024 (arXiv 2404.18580). Their first-principle model is the
+class ``RGBlimp`` of ``models/RGBlimp_dynamics.py`` in the repository ``zhu-yj/ABNODE`` (MIT
+licence), with the parameter values of its ``utils/parameters.py``; it is integrated there by
+one classical RK4 step per motion-capture sample (``utils/solvers.py``, ``RK_RGB``, step 1/60 s).
+This module writes the same equations in numpy, vectorised over leading axes; the values of
+:class:`RGBlimpParameters` are the source's. Like :mod:`validation.vehicles.blimp_equations` it
+checks no array arguments (an FMU can carry it as it is); :class:`RGBlimpParameters` checks its
+fields. docs/rgblimp.md describes the model and the port
+test (``tests/validation/vehicles/test_rgblimp.py``), which reproduces the accelerations the
+source stored in its recordings to 4e-10 m/s^2 (rad/s^2) with the coefficients they were
+computed with (:data:`validation.vehicles.rgblimp_data.RECORDED_MODEL_PARAMETERS`) and to 1.1e-4
+with the published ones, which are rounded to four decimals.
+
+Conventions (docs/conventions.md, "Units and axes"): earth axes with z down (the source's
+motion-capture frame; gravity is ``+g`` along earth z), body axes x forward, y right, z down
+with the origin at the centre of buoyancy (CB); ZYX Euler angles. State (:data:`STATE_NAMES`,
+the source's ``p, e, vb, wb``) ``x, y, z, phi, theta, psi, U, V, W, P, Q, R`` (m, rad, m/s,
+rad/s), the names and units of flightgp's blimp. Inputs (:data:`INPUT_NAMES`) ``thrust_left``,
+``thrust_right`` (N, each propeller's thrust along body x) and ``gondola_x, gondola_y,
+gondola_z`` (m, the gondola mass's position in body axes; the source's ``rb``).
+
+The source's 23-wide state also carries the gondola's velocity and acceleration, and its
+derivative integrates the gondola position with them; no term of the accelerations uses them,
+and they are zero in every recording, so here the gondola position is an input held over a step
+like the thrusts.
+
+Equations of motion
+-------------------
+With ``m_t = m + m_b`` (hull and gondola mass), ``l = m r + m_b r_b`` (their first mass moment
+about the CB), ``J = I - m_b S(r_b)^2`` (``S(a) b = a x b``: the hull's inertia plus the
+gondola's as a point mass) and ``n = [-sin theta, cos theta sin phi, cos theta cos phi]`` (earth
+down in body axes)::
+
+    p_dot     = R(Theta) v                                    (body -> earth, ZYX)
+    Theta_dot = T(Theta) omega                                (Euler angle rates)
+    [[m_t I3, -S(l)], [S(l), J]] [v_dot; omega_dot] = [f; tau]
+    f   = m_t v x omega + (omega x l) x omega + (m_t - B) g n + R_bw [-D, S_y, -L] + (F_l + F_r) e_x
+    tau = (J omega) x omega + l x (v x omega) + l x (g n) + R_bw (M + K omega)
+          + (F_l + F_r) r_b,z e_y + (F_l - F_r) d e_z
+
+Buoyancy ``B g`` acts at the CB (the origin), so it has no moment. The aerodynamic forces and
+moments are quadratic in airspeed ``|v|`` with polynomial coefficients in the angle of attack
+``alpha = atan2(W, U + eps)`` and the sideslip ``beta = asin(V / (|v| + eps))`` (``eps`` the
+source's guard against division by zero at rest, :data:`ZERO_SPEED_GUARD`), and are rotated from
+wind to body axes by ``R_bw(alpha, beta)`` (:func:`rotation_wind_to_body`); see
+:func:`aerodynamic_force_and_moment`. As in the source, the linear rate damping ``K omega`` is
+rotated with the aerodynamic moment ``M``, and there is no added mass.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.vehicles.blimp_equations import euler_rates, rk4, rotation_body_to_earth
+
+#: State names, in the order of the last axis of every state array (the source's ``p, e, vb, wb``).
+STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "U", "V", "W", "P", "Q", "R")
+#: Unit of each state, in :data:`STATE_NAMES` order.
+STATE_UNITS = ("m", "m", "m", "rad", "rad", "rad", "m/s", "m/s", "m/s", "rad/s", "rad/s", "rad/s")
+#: Input names, in the order of the last axis of every input array (the source's ``Fl, Fr, rb``).
+INPUT_NAMES = ("thrust_left", "thrust_right", "gondola_x", "gondola_y", "gondola_z")
+#: Unit of each input, in :data:`INPUT_NAMES` order.
+INPUT_UNITS = ("N", "N", "m", "m", "m")
+
+#: Motion-capture sample rate, Hz, and the source's RK4 step, s (``step_size = 1/60`` in its
+#: ``methods/*.py``).
+SAMPLE_RATE = 60.0
+SAMPLE_TIME = 1.0 / SAMPLE_RATE
+
+#: The source's ``eps`` in ``alpha = atan2(W, U + eps)`` and ``beta = asin(V / (|v| + eps))``,
+#: m/s: it keeps both defined at rest, where the aerodynamic forces vanish anyway.
+ZERO_SPEED_GUARD = 1e-10
+
+#: The gondola's position in the source's ``utils/parameters.py`` (``rb``), m, body axes: the
+#: nominal configuration; the recordings move it along x by -1 .. 4 cm.
+NOMINAL_GONDOLA_POSITION = (0.0747, 0.0006, 0.2380)
+
+
+def _field_width(field: dataclasses.Field) -> int:
+    """3 for the (x, y, z) triples of :class:`RGBlimpParameters` (annotated ``tuple[...]``), else 1."""
+    return 3 if str(field.type).startswith("tuple") else 1
+
+
+@dataclass(frozen=True)
+class RGBlimpParameters:
+    """Physical parameters of the RGBlimp model (SI units; body axes, origin at the CB).
+
+    Every default is the value of the same-named entry (in brackets) of ``utils/parameters.py``
+    in ``zhu-yj/ABNODE`` (Zhu, Cheng & Zhang 2024; MIT licence). The aerodynamic coefficients
+    there are rounded to four decimals; the source's recordings were computed with six of them
+    slightly different (:data:`validation.vehicles.rgblimp_data.RECORDED_MODEL_PARAMETERS`).
+    ``dataclasses.replace`` makes variants. Not used by the source's equations, so not here:
+    ``rho`` (0.1690, helium density, kg/m^3), ``G`` (0.06713, "gravitational force") and ``I``
+    (the diagonal of ``inertia`` again).
+
+    Attributes
+    ----------
+    air_density : float
+        kg/m^3 [``Rho``].
+    gravity : float
+        m/s^2 [``g``].
+    buoyancy_mass : float
+        Mass of the displaced air, kg: the buoyancy is ``buoyancy_mass * gravity`` at the CB
+        [``B``; the source's comment calls it a force, its equations use it as a mass].
+    hull_mass : float
+        Mass of everything but the gondola, kg [``m``].
+    gondola_mass : float
+        The movable gondola, kg [``mb``]; its position is an input.
+    hull_cg : (3,) tuple
+        Centre of gravity of ``hull_mass`` relative to the CB, m [``r``].
+    propeller_arm : float
+        Lateral distance of each propeller from the body x axis, m: the thrust difference yaws
+        with this arm [``d``].
+    reference_area : float
+        Aerodynamic reference area, m^2 [``A``].
+    inertia : (3,) tuple
+        Principal moments of inertia of the hull about the CB, kg m^2 [``Ix, Iy, Iz``].
+    rate_damping : (3,) tuple
+        Linear rate damping, N m s/rad: the moment is ``rate_damping * omega`` (negative
+        values damp) [``K1, K2, K3``].
+    c_d0, c_d_alpha2, c_d_beta2 : float
+        Drag ``D = qbar A (c_d0 + c_d_alpha2 alpha^2 + c_d_beta2 beta^2)`` [``Cd0, Cda, Cdb``].
+    c_s0, c_s_alpha2, c_s_beta : float
+        Side force ``S = qbar A (c_s0 + c_s_alpha2 alpha^2 + c_s_beta beta)`` [``Cs0, Csa, Csb``].
+    c_l0, c_l_alpha, c_l_beta2 : float
+        Lift ``L = qbar A (c_l0 + c_l_alpha alpha + c_l_beta2 beta^2)`` [``Cl0, Cla, Clb``].
+    c_mx0, c_mx_alpha, c_mx_beta : float
+        Rolling moment ``qbar A (c_mx0 + c_mx_alpha alpha + c_mx_beta beta)``, so in m (the
+        source's moment coefficients include the reference length) [``Cmx0, Cmxa, Cmxb``].
+    c_my0, c_my_alpha, c_my_beta4 : float
+        Pitching moment ``qbar A (c_my0 + c_my_alpha alpha + c_my_beta4 beta^4)``, m
+        [``Cmy0, Cmya, Cmyb``].
+    c_mz0, c_mz_alpha, c_mz_beta : float
+        Yawing moment ``qbar A (c_mz0 + c_mz_alpha alpha + c_mz_beta beta)``, m
+        [``Cmz0, Cmza, Cmzb``].
+    """
+
+    air_density: float = 1.2187
+    gravity: float = 9.8
+    buoyancy_mass: float = 0.15204
+    hull_mass: float = 0.10482
+    gondola_mass: float = 0.05407
+    hull_cg: tuple[float, float, float] = (-0.0432, -0.0003, 0.0079)
+    propeller_arm: float = 0.150
+    reference_area: float = 0.250
+    inertia: tuple[float, float, float] = (0.0300, 0.0150, 0.0100)
+    rate_damping: tuple[float, float, float] = (-0.0503, -0.0264, -0.0137)
+    c_d0: float = 0.2425
+    c_d_alpha2: float = 4.4195
+    c_d_beta2: float = 7.5080
+    c_s0: float = 0.0083
+    c_s_alpha2: float = -0.0744
+    c_s_beta: float = -2.1140
+    c_l0: float = 0.1594
+    c_l_alpha: float = 2.9375
+    c_l_beta2: float = 4.5537
+    c_mx0: float = 0.0131
+    c_mx_alpha: float = -0.0301
+    c_mx_beta: float = -0.5256
+    c_my0: float = 0.0568
+    c_my_alpha: float = 0.0933
+    c_my_beta4: float = 5.2357
+    c_mz0: float = 0.0006
+    c_mz_alpha: float = -0.0012
+    c_mz_beta: float = -0.0936
+
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            value, width = getattr(self, field.name), _field_width(field)
+            try:
+                values = tuple(float(v) for v in value) if width == 3 else (float(value),)
+            except (TypeError, ValueError):
+                values = ()
+            if len(values) != width:
+                raise BadInputError(
+                    f"RGBlimpParameters.{field.name} needs {'3 numbers (x, y, z)' if width == 3 else 'one number'}"
+                    f", got {value!r}")
+            if not all(math.isfinite(v) for v in values):
+                raise BadInputError(f"RGBlimpParameters.{field.name} must be finite, got {value!r}")
+            object.__setattr__(self, field.name, values if width == 3 else values[0])
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    """``S(a)`` with ``S(a) b = a x b``: (..., 3) -> (..., 3, 3)."""
+    zero = np.zeros_like(a[..., 0])
+    rows = [zero, -a[..., 2], a[..., 1], a[..., 2], zero, -a[..., 0], -a[..., 1], a[..., 0], zero]
+    return np.stack(rows, axis=-1).reshape(a.shape[:-1] + (3, 3))
+
+
+def wind_angles(velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Angle of attack and sideslip, rad, of body velocity ``velocity`` (..., 3), m/s, as the
+    source computes them: ``alpha = atan2(W, U + eps)``, ``beta = asin(V / (|v| + eps))``
+    (:data:`ZERO_SPEED_GUARD`); each of shape (...)."""
+    speed = np.linalg.norm(velocity, axis=-1)
+    alpha = np.arctan2(velocity[..., 2], velocity[..., 0] + ZERO_SPEED_GUARD)
+    beta = np.arcsin(velocity[..., 1] / (speed + ZERO_SPEED_GUARD))
+    return alpha, beta
+
+
+def rotation_wind_to_body(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    """Rotation from wind to body axes, (...) rad -> (..., 3, 3): its first column is the unit
+    airspeed direction ``[cos alpha cos beta, sin beta, sin alpha cos beta]`` (the source's
+    ``Rbv``)."""
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+    entries = [ca * cb, -ca * sb, -sa,
+               sb, cb, np.zeros_like(sb),
+               sa * cb, -sa * sb, ca]
+    return np.stack(entries, axis=-1).reshape(np.shape(alpha) + (3, 3))
+
+
+def aerodynamic_force_and_moment(velocity: np.ndarray, rates: np.ndarray, params) -> tuple[np.ndarray, np.ndarray]:
+    """Aerodynamic force, N, and moment with the rate damping, N m, in body axes.
+
+    ``qbar A`` times the coefficient polynomials of :class:`RGBlimpParameters`, ``qbar =
+    rho |v|^2 / 2``; the force ``[-D, S, -L]`` and the moment ``M + K omega`` rotated from
+    wind to body axes by :func:`rotation_wind_to_body` (the source's ``Rbv @ [-D, S, -L]``
+    and ``Rbv @ (M + Damping)``).
+
+    Parameters
+    ----------
+    velocity, rates : ndarray, shape (..., 3)
+        Body velocity, m/s, and body rates, rad/s.
+    params : RGBlimpParameters
+
+    Returns
+    -------
+    force, moment : ndarray, shape (..., 3)
+    """
+    alpha, beta = wind_angles(velocity)
+    qbar_area = 0.5 * params.air_density * np.sum(velocity**2, axis=-1) * params.reference_area
+    drag = qbar_area * (params.c_d0 + params.c_d_alpha2 * alpha**2 + params.c_d_beta2 * beta**2)
+    side = qbar_area * (params.c_s0 + params.c_s_alpha2 * alpha**2 + params.c_s_beta * beta)
+    lift = qbar_area * (params.c_l0 + params.c_l_alpha * alpha + params.c_l_beta2 * beta**2)
+    moment = qbar_area[..., None] * np.stack([
+        params.c_mx0 + params.c_mx_alpha * alpha + params.c_mx_beta * beta,
+        params.c_my0 + params.c_my_alpha * alpha + params.c_my_beta4 * beta**4,
+        params.c_mz0 + params.c_mz_alpha * alpha + params.c_mz_beta * beta], axis=-1)
+    moment = moment + np.asarray(params.rate_damping) * rates
+    rotation = rotation_wind_to_body(alpha, beta)
+    force = np.einsum("...ij,...j->...i", rotation, np.stack([-drag, side, -lift], axis=-1))
+    return force, np.einsum("...ij,...j->...i", rotation, moment)
+
+
+def _broadcast(state: np.ndarray, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``state`` (..., 12) and ``inputs`` (..., 5) with their leading axes broadcast together."""
+    leading = np.broadcast_shapes(state.shape[:-1], inputs.shape[:-1])
+    return (np.broadcast_to(state, leading + state.shape[-1:]),
+            np.broadcast_to(inputs, leading + inputs.shape[-1:]))
+
+
+def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
+    """Body accelerations ``[v_dot, omega_dot]`` of the RGBlimp (the source's ``dot_v, dot_w``).
+
+    Parameters
+    ----------
+    state : ndarray, shape (..., 12)
+        ``x, y, z, phi, theta, psi, U, V, W, P, Q, R`` (m, rad, m/s, rad/s).
+    inputs : ndarray, shape (..., 5)
+        ``thrust_left, thrust_right`` (N), ``gondola_x, gondola_y, gondola_z`` (m); leading axes
+        broadcast against those of ``state``.
+    params : RGBlimpParameters
+
+    Returns
+    -------
+    ndarray, shape (broadcast leading axes, 6)
+        ``U_dot, V_dot, W_dot`` (m/s^2) and ``P_dot, Q_dot, R_dot`` (rad/s^2), body axes
+        (the equations of the module docstring).
+    """
+    state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
+    angles, velocity, rates = state[..., 3:6], state[..., 6:9], state[..., 9:12]
+    thrust_left, thrust_right, gondola = inputs[..., 0], inputs[..., 1], inputs[..., 2:5]
+
+    total_mass = params.hull_mass + params.gondola_mass
+    mass_moment = params.hull_mass * np.asarray(params.hull_cg) + params.gondola_mass * gondola
+    gondola_skew = _skew(gondola)
+    inertia = np.diag(params.inertia) - params.gondola_mass * gondola_skew @ gondola_skew
+    down = np.stack([-np.sin(angles[..., 1]),
+                     np.cos(angles[..., 1]) * np.sin(angles[..., 0]),
+                     np.cos(angles[..., 1]) * np.cos(angles[..., 0])], axis=-1)
+    aero_force, aero_moment = aerodynamic_force_and_moment(velocity, rates, params)
+    thrust = thrust_left + thrust_right
+    zero = np.zeros_like(thrust)
+
+    velocity_cross_rates = np.cross(velocity, rates)
+    force = (total_mass * velocity_cross_rates
+             + np.cross(np.cross(rates, mass_moment), rates)
+             + (total_mass - params.buoyancy_mass) * params.gravity * down
+             + aero_force
+             + np.stack([thrust, zero, zero], axis=-1))
+    moment = (np.cross(np.einsum("...ij,...j->...i", inertia, rates), rates)
+              + np.cross(mass_moment, velocity_cross_rates)
+              + np.cross(mass_moment, params.gravity * down)
+              + aero_moment
+              + np.stack([zero, thrust * gondola[..., 2],
+                          (thrust_left - thrust_right) * params.propeller_arm], axis=-1))
+
+    mass_moment_skew = _skew(mass_moment)
+    matrix = np.empty(state.shape[:-1] + (6, 6))
+    matrix[..., :3, :3] = total_mass * np.eye(3)
+    matrix[..., :3, 3:] = -mass_moment_skew
+    matrix[..., 3:, :3] = mass_moment_skew
+    matrix[..., 3:, 3:] = inertia
+    right_side = np.concatenate([force, moment], axis=-1)
+    return np.linalg.solve(matrix, right_side[..., None])[..., 0]
+
+
+def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
+    """Time derivative of the RGBlimp state (the module docstring's equations).
+
+    Parameters
+    ----------
+    state : ndarray, shape (..., 12)
+        ``x, y, z, phi, theta, psi, U, V, W, P, Q, R`` (m, rad, m/s, rad/s).
+    inputs : ndarray, shape (..., 5)
+        ``thrust_left, thrust_right`` (N), ``gondola_x, gondola_y, gondola_z`` (m); leading axes
+        broadcast against those of ``state``.
+    params : RGBlimpParameters
+
+    Returns
+    -------
+    ndarray, shape (broadcast leading axes, 12)
+        ``d state / dt`` in the units of ``state`` per second.
+    """
+    state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
+    angles, velocity = state[..., 3:6], state[..., 6:9]
+    position_dot = np.einsum("...ij,...j->...i", rotation_body_to_earth(angles), velocity)
+    return np.concatenate([position_dot, euler_rates(angles, state[..., 9:12]),
+                           body_accelerations(state, inputs, params)], axis=-1)
+
+
+def wrap_heading(state: np.ndarray) -> np.ndarray:
+    """``state`` (..., 12) with ``psi`` moved by one turn into [-pi, pi] if it left it, as the
+    source's ``RK_RGB`` does after each step (one step never turns the blimp by a full turn)."""
+    psi = state[..., 5]
+    wrapped = np.where(psi > math.pi, psi - 2 * math.pi, np.where(psi < -math.pi, psi + 2 * math.pi, psi))
+    return np.concatenate([state[..., :5], wrapped[..., None], state[..., 6:]], axis=-1)
+
+
+def rk4_step(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
+    """The RGBlimp one sample (:data:`SAMPLE_TIME`, 1/60 s) later, inputs held, as the source
+    integrates: one classical RK4 step of :func:`rgblimp_dynamics`, then :func:`wrap_heading`.
+
+    Parameters
+    ----------
+    state : ndarray, shape (..., 12)
+    inputs : ndarray, shape (..., 5)
+        Held over the step; leading axes broadcast against those of ``state``.
+    params : RGBlimpParameters
+
+    Returns
+    -------
+    ndarray, shape (broadcast leading axes, 12)
+    """
+    state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
+    return wrap_heading(rk4(lambda s: rgblimp_dynamics(s, inputs, params), state, SAMPLE_TIME))
