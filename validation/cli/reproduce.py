@@ -8,7 +8,7 @@ from validation.cli.arguments import seed
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder
 
-PAPERS = ("bo105", "blimp")
+PAPERS = ("bo105", "blimp", "blimp-settings")
 
 
 def seed_list(text: str) -> tuple[int, ...]:
@@ -30,7 +30,10 @@ def register(subparsers) -> None:
                     "sampling, and a yaw controller learned by policy search, over a campaign of "
                     "seeds; writes results.json, report.md, table1.png, predictions.png, table2.png, "
                     "table3.png, the first seed's RKGP model blimp_rkgp.npz and its FMU (--runs and "
-                    "--paper-only apply to bo105 only, --seeds and --quick to blimp only).")
+                    "--paper-only apply to bo105 only, --seeds and --quick to blimp only). "
+                    "blimp-settings: the validation-flight study that fixed the blimp RKGP's "
+                    "settings (training-state smoothing, command lags, filter process noise); "
+                    "writes settings.json (--quick applies).")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=None,
@@ -55,6 +58,17 @@ def run(args: argparse.Namespace) -> int:
         seeds = (args.seed,) if args.seed is not None else args.seeds or DEFAULT_SEEDS
         print(format_results(reproduce_blimp(args.out, seeds=seeds, quick=args.quick)))
         print(f"written {args.out}/report.md, results.json and figures")
+        return 0
+    if args.paper == "blimp-settings":
+        from validation.core.files import write_json
+        from validation.reproduce.blimp_settings import choose_settings, format_settings
+
+        if args.seed is not None or args.seeds is not None:
+            raise BadInputError("the settings study has fixed seeds (campaign seed 0 and its validation flight)")
+        results = choose_settings(quick=args.quick, progress=True)
+        write_json(args.out / "settings.json", results)
+        print(format_settings(results))
+        print(f"written {args.out}/settings.json")
         return 0
     if args.seeds is not None or args.quick:
         raise BadInputError("--seeds and --quick apply to reproduce blimp only")

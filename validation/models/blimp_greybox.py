@@ -208,8 +208,8 @@ def adaptive_step(params: BlimpParameters):
     return step
 
 
-def fit_greybox(recordings, physics, *, command_lags=COMMAND_LAGS, stride: int = TRAINING_STRIDE,
-                seed: int = 0) -> GreyBoxGP:
+def fit_greybox(recordings, physics, *, command_lags=COMMAND_LAGS, smoothing=(SMOOTHING_WINDOW, SMOOTHING_ORDER),
+                stride: int = TRAINING_STRIDE, seed: int = 0) -> GreyBoxGP:
     """A :class:`gp_model.GreyBoxGP` on the residual of ``physics`` (module docstring).
 
     Parameters
@@ -221,6 +221,8 @@ def fit_greybox(recordings, physics, *, command_lags=COMMAND_LAGS, stride: int =
         or None for a GP-only model.
     command_lags : sequence of float
         :data:`COMMAND_LAGS`.
+    smoothing : (int, int) or None
+        Window (frames) and degree of :func:`smoothed_states`; None trains on the recorded states.
     stride : int
         Every ``stride``-th transition of each recording trains the GPs.
     seed : int
@@ -228,7 +230,10 @@ def fit_greybox(recordings, physics, *, command_lags=COMMAND_LAGS, stride: int =
     """
     states, inputs, next_states = [], [], []
     for recording in recordings:
-        smooth = smoothed_states(recording)
+        if smoothing is None:
+            smooth = recording_arrays(recording)[0]
+        else:
+            smooth = smoothed_states(recording, window=smoothing[0], order=smoothing[1])
         step = step_inputs(recording, command_lags=command_lags)
         rows = np.arange(0, len(smooth) - 1, stride)
         states.append(smooth[rows])

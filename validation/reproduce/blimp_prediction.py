@@ -239,13 +239,15 @@ def group_errors(predicted, truth) -> np.ndarray:
     return np.stack([np.linalg.norm(error[..., list(c)], axis=-1) for c in GROUPS.values()], axis=-1)
 
 
-def _horizon_rmse(predicted, truth) -> dict:
+def horizon_rmse(predicted, truth) -> dict:
+    """RMSE over paths (S, 21, 12) of each group's error norm at the horizon: ``{group: value}``."""
     rmse = np.sqrt(np.mean(group_errors(predicted[:, -1], truth[:, -1]) ** 2, axis=0))
     return {g: float(v) for g, v in zip(GROUPS, rmse)}
 
 
-def _start_frames(held_out: list, n_starts: int, rng) -> list[tuple[int, int]]:
-    """Random (flight, frame) start pairs, at least :data:`FILTER_WARMUP_FRAMES` in."""
+def start_frames(held_out: list, n_starts: int, rng) -> list[tuple[int, int]]:
+    """Random (flight, frame) start pairs, at least :data:`FILTER_WARMUP_FRAMES` in and a horizon
+    before the end, sorted."""
     candidates = [(r, k) for r, flight in enumerate(held_out)
                   for k in range(FILTER_WARMUP_FRAMES, len(flight.true_states) - HORIZON_FRAMES)]
     if n_starts > len(candidates):
@@ -256,7 +258,7 @@ def _start_frames(held_out: list, n_starts: int, rng) -> list[tuple[int, int]]:
 def table1(fitted: FittedModels, held_out: list, setup: Table1Setup, *, seed: int,
            progress: bool = False) -> Table1:
     """One-second predictions of every method from random held-out start states of each kind."""
-    chosen = _start_frames(held_out, setup.n_starts, np.random.default_rng([seed, 2]))
+    chosen = start_frames(held_out, setup.n_starts, np.random.default_rng([seed, 2]))
     window = np.arange(HORIZON_FRAMES + 1)
     rkgp_step = fitted.step("RKGP")
     per_flight = [{"recorded": recording_arrays(f.recording)[0], "true": f.true_states,
@@ -265,7 +267,7 @@ def table1(fitted: FittedModels, held_out: list, setup: Table1Setup, *, seed: in
     windows = {key: np.stack([per_flight[r][key][k + window] for r, k in chosen])
                for key in ("recorded", "true", "filtered")}
     inputs = np.stack([per_flight[r]["inputs"][k + window[:-1]] for r, k in chosen])
-    table = {"noise_floor": _horizon_rmse(windows["true"], windows["recorded"])}
+    table = {"noise_floor": horizon_rmse(windows["true"], windows["recorded"])}
     paths = {}
     with progress_bar(f"seed {seed}: one-second predictions", enabled=progress,
                       total=len(METHODS) * (setup.n_starts + 2), unit="prediction") as update:
@@ -286,8 +288,8 @@ def table1(fitted: FittedModels, held_out: list, setup: Table1Setup, *, seed: in
                     predicted = fitted.predict(method, starts, inputs)
                     if update:
                         update(1)
-                table[kind][method] = {**_horizon_rmse(predicted, windows["recorded"]),
-                                       "against_true": _horizon_rmse(predicted, windows["true"])}
+                table[kind][method] = {**horizon_rmse(predicted, windows["recorded"]),
+                                       "against_true": horizon_rmse(predicted, windows["true"])}
                 if kind == "filtered":
                     table[kind][method]["time_s"] = seconds / len(starts)
     spread = np.stack([fitted.models["RKGP"].propagate(start, u, fitted.physics["RK"]).sd
