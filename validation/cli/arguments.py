@@ -10,6 +10,7 @@ from validation.core.errors import BadInputError
 from validation.core.manoeuvres import MANOEUVRES, manoeuvre, time_grid
 from validation.core.recordings import Recording, column_limit, column_unit
 from validation.vehicles import get_vehicle
+from validation.vehicles.registry import RECORDING_FORMATS
 
 
 def seed(text: str) -> int:
@@ -21,6 +22,15 @@ def seed(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"seed must be 0 or more, got {value}")
     return value
+
+
+def add_format_argument(parser) -> None:
+    """``--format`` of the commands that read recording files (``inspect``, ``train``,
+    ``predict``): the keyword ``file_format`` of :func:`validation.vehicles.read_recording`."""
+    parser.add_argument("--format", dest="file_format", choices=RECORDING_FORMATS,
+                        help="file format: flightgp (a time column; docs/conventions.md) or rgblimp "
+                             "(the RGBlimp source's data_N.csv, 38 columns, 60 Hz); default: "
+                             "recognised from the header")
 
 
 #: Default manoeuvre amplitude for angle inputs, deg (the Bo105 paper's 3-2-1-1) ...

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from validation.cli.arguments import add_format_argument
 from validation.core.recordings import column_unit
 from validation.vehicles import read_recording
 
@@ -21,11 +22,12 @@ def register(subparsers) -> None:
     inspect.add_argument("recording", type=Path, metavar="FILE.csv")
     inspect.add_argument("--vehicle", help="check the columns against this vehicle "
                                            "(default: the sidecar's vehicle, if any)")
+    add_format_argument(inspect)
     inspect.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    recording = read_recording(args.recording, vehicle=args.vehicle)
+    recording = read_recording(args.recording, vehicle=args.vehicle, file_format=args.file_format)
     time = recording.time
     steps = np.diff(time)
     vehicle = args.vehicle or recording.metadata.get("vehicle")

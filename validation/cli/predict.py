@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from validation.cli.arguments import seed
+from validation.cli.arguments import add_format_argument, seed
 from validation.core.errors import BadInputError
 from validation.core.files import write_atomically
 from validation.models.narx import free_run, load_trained, one_step
@@ -23,6 +23,7 @@ def register(subparsers) -> None:
     predict.add_argument("model", type=Path, metavar="MODEL.npz")
     predict.add_argument("recording", type=Path, metavar="RECORDING")
     predict.add_argument("--out", type=Path, required=True, metavar="PREDICTION.csv")
+    add_format_argument(predict)
     predict.add_argument("--method", choices=METHODS, default="monte_carlo",
                          help="free run by Monte Carlo (default), moment matching or mean; or one_step")
     predict.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
@@ -37,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     if args.runs < 1:
         raise BadInputError(f"--runs must be at least 1, got {args.runs}")
     trained = load_trained(args.model)
-    recording = read_recording(args.recording)
+    recording = read_recording(args.recording, file_format=args.file_format)
     name = str(args.recording)
     if args.method == "one_step":
         prediction = one_step(trained, recording, name=name)

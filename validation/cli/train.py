@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from validation.cli.arguments import seed
+from validation.cli.arguments import add_format_argument, seed
 from validation.core.errors import BadInputError
 from validation.models.narx import HYPERPARAMETER_METHODS, KERNELS, NarxConfig, save_trained, train_narx
 from validation.vehicles import read_recording
@@ -19,6 +19,7 @@ def register(subparsers) -> None:
     train.add_argument("recordings", nargs="+", type=Path, metavar="RECORDING")
     train.add_argument("--out", type=Path, required=True, metavar="MODEL.npz")
     train.add_argument("--vehicle", help="vehicle the recordings come from (default: their sidecar)")
+    add_format_argument(train)
     train.add_argument("--inputs", nargs="+", default=list(defaults.inputs), metavar="NAME")
     train.add_argument("--outputs", nargs="+", default=list(defaults.outputs), metavar="NAME")
     train.add_argument("--input-lags", nargs="+", type=int, default=list(defaults.input_lags), metavar="K")
@@ -44,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
                         kernel=args.kernel, hyperparameters=args.hyperparameters, n_inducing=args.sparse)
     recordings = []
     for path in args.recordings:
-        recording = read_recording(path, vehicle=args.vehicle)
+        recording = read_recording(path, vehicle=args.vehicle, file_format=args.file_format)
         recording.metadata["source"] = str(path)
         recordings.append(recording)
     trained = train_narx(recordings, config, seed=args.seed, progress=True)

@@ -115,6 +115,12 @@ _COLUMNS = {  # name: (unit, largest plausible magnitude or None, what it is)
     "u_gondola": ("1", None, "gondola fan command (positive pushes forward)"),
     "mu": ("rad", _MAX_THRUST_ANGLE, "gondola thrust angle (positive tilts the thrust up)"),
     "u_tail": ("1", None, "tail fan command (positive yaws the nose right)"),
+    # RGBlimp (Zhu, Cheng & Zhang 2024; docs/rgblimp.md): the blimp's states, absolute inputs.
+    "thrust_left": ("N", None, "left propeller thrust along body x"),
+    "thrust_right": ("N", None, "right propeller thrust along body x"),
+    "gondola_x": ("m", None, "gondola position along body x"),
+    "gondola_y": ("m", None, "gondola position along body y"),
+    "gondola_z": ("m", None, "gondola position along body z (positive below the centre of buoyancy)"),
     # JSBSim (validation.vehicles.jsbsim): normalised stick and pedal commands.
     "elevator": ("1", None, "elevator (pitch stick) command"),
     "aileron": ("1", None, "aileron (roll stick) command"), "rudder": ("1", None, "rudder pedal command"),

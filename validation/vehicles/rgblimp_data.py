@@ -17,7 +17,9 @@ the file stores: the source model's at the recorded state (``vb_dot_sim_*``, ``w
 and the measured ones (``vb_dot_*``, ``wb_dot_*``). It refuses what it cannot read faithfully
 with :class:`~validation.core.errors.BadInputError`, one line naming file, row (1-based line
 number; the header is row 1) and column. :func:`flights_by_configuration` lists the flights a
-folder holds.
+folder holds; :func:`is_source_file` tells a file of the source's format by its header, which is
+how :func:`validation.vehicles.read_recording` reads these files as they are. :data:`EXCERPT_FOLDER`
+holds a few of the flights, unchanged, with the source's licence.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ import numpy as np
 
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording, column_limit
+from validation.vehicles.rgblimp import VEHICLE_NAME
 from validation.vehicles.rgblimp_equations import (
     INPUT_NAMES,
     SAMPLE_RATE,
@@ -60,6 +63,11 @@ MODEL_ACCELERATION_COLUMNS = ("vb_dot_sim_1", "vb_dot_sim_2", "vb_dot_sim_3",
                               "wb_dot_sim_1", "wb_dot_sim_2", "wb_dot_sim_3")
 #: The measured body accelerations (the source's derivatives of the motion capture).
 MEASURED_ACCELERATION_COLUMNS = ("vb_dot_1", "vb_dot_2", "vb_dot_3", "wb_dot_1", "wb_dot_2", "wb_dot_3")
+
+#: A few of the source's flights, copied unchanged with its ``LICENSE`` (their ``README.md`` says
+#: which): configuration 0's first flight, and the three at hand of configurations 29 (a spiral)
+#: and 30 (straight).
+EXCERPT_FOLDER = Path(__file__).resolve().with_name("data") / "rgblimp"
 
 #: Repeated flights of each input configuration: flight ``N = 4 j + k``, ``k = 1 .. 4``.
 FLIGHTS_PER_CONFIGURATION = 4
@@ -93,7 +101,8 @@ class RGBlimpFlight:
         :data:`~validation.vehicles.rgblimp_equations.INPUT_NAMES` (N, m); ``outputs`` (n, 12),
         all states, named :data:`~validation.vehicles.rgblimp_equations.STATE_NAMES` (m, rad,
         m/s, rad/s); ``metadata`` with ``source``, ``flight``, ``configuration`` and
-        ``sample_time``.
+        ``sample_time``, and ``vehicle`` (``"rgblimp"``), so that the recording, written with
+        :func:`~validation.core.recordings.write_recording`, reads back as the ``rgblimp``'s.
     model_accelerations : ndarray, shape (n, 6)
         The source model's ``U_dot, V_dot, W_dot`` (m/s^2), ``P_dot, Q_dot, R_dot`` (rad/s^2) at
         each recorded state and input (:data:`MODEL_ACCELERATION_COLUMNS`), computed with
@@ -150,6 +159,19 @@ def flights_by_configuration(folder: str | os.PathLike) -> dict[int, tuple[int, 
     return {j: tuple(sorted(numbers)) for j, numbers in sorted(flights.items())}
 
 
+def is_source_file(path: str | os.PathLike) -> bool:
+    """Whether the file at ``path`` has the source's header: its first line holds column names of
+    :data:`SOURCE_COLUMNS` (at least half of the 38, so that a damaged header still goes to
+    :func:`read_rgblimp_flight`, which says what is wrong with it) and no ``time`` column. Only
+    the first line is read; an unreadable file is not one (the caller's reader says why)."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as file:
+            header = [name.strip() for name in next(csv.reader([file.readline()]), [])]
+    except (OSError, UnicodeDecodeError):
+        return False
+    return "time" not in header and sum(name in SOURCE_COLUMNS for name in header) >= len(SOURCE_COLUMNS) // 2
+
+
 def read_rgblimp_flight(path: str | os.PathLike) -> RGBlimpFlight:
     """Read one source recording ``data_N.csv`` as it is.
 
@@ -183,7 +205,7 @@ def read_rgblimp_flight(path: str | os.PathLike) -> RGBlimpFlight:
         input_names=INPUT_NAMES,
         outputs=table[:, [column[name] for name in STATE_COLUMNS]],
         output_names=STATE_NAMES,
-        metadata={"source": f"zhu-yj/ABNODE data/{path.name}", "flight": number,
+        metadata={"vehicle": VEHICLE_NAME, "source": f"zhu-yj/ABNODE data/{path.name}", "flight": number,
                   "configuration": configuration, "sample_time": SAMPLE_TIME},
     )
     return RGBlimpFlight(
