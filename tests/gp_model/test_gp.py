@@ -4,7 +4,7 @@ import logging
 import numpy as np
 import pytest
 
-from gp_model import GaussianProcess, GPNumericalError, PerOutputGP, SquaredExponentialARD
+from gp_model import GaussianProcess, GPNumericalError, HigdonKernel, PerOutputGP, SquaredExponentialARD
 from tests.gp_model.data import make_data
 
 
@@ -111,6 +111,27 @@ def test_per_output_gp_stacks_independent_models():
     # Standardisation makes the second model an exact scaled copy of the first.
     np.testing.assert_allclose(mean[:, 1], 2 * mean[:, 0], rtol=1e-10)
     np.testing.assert_allclose(var[:, 1], 4 * var[:, 0], rtol=1e-10)
+
+
+def test_per_output_gp_evaluates_its_models_together_as_one_at_a_time(monkeypatch):
+    X, y = make_data()
+    Y = np.column_stack([y, np.sin(3 * X[:, 0]), X[:, 1] ** 2])
+    kernels = iter([SquaredExponentialARD(1.0, [1.0, 1.0]), HigdonKernel(1.0, [0.5, 0.3]),
+                    SquaredExponentialARD(1.0, [0.5, 2.0])])
+    model = PerOutputGP.fit(lambda: GaussianProcess(next(kernels), noise_variance=0.01), X, Y)
+    Xs = make_data(n=7, seed=3)[0]
+    with monkeypatch.context() as patch:  # the stacked path does not call the models one by one
+        patch.setattr(GaussianProcess, "predict", lambda *a, **k: pytest.fail("one model at a time"))
+        mean, var = model.predict(Xs, return_var=True, include_noise=True)
+        np.testing.assert_allclose(model.predict(Xs), mean, rtol=1e-12)
+    for j, gp in enumerate(model.gps):
+        m, v = gp.predict(Xs, return_var=True, include_noise=True)
+        np.testing.assert_allclose(mean[:, j], m, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(var[:, j], v, rtol=1e-9)
+    # With hyperparameter samples in use, one model at a time (the mixture of each).
+    gp = model.gps[0]
+    gp.set_hyperparameters(gp.theta_, samples=np.array([gp.theta_, gp.theta_ + 0.2]))
+    np.testing.assert_allclose(model.predict(Xs, return_var=True)[1][:, 0], gp.predict(Xs, return_var=True)[1])
 
 
 def test_mixture_over_samples_obeys_law_of_total_variance():

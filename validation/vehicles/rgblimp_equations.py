@@ -189,6 +189,15 @@ class RGBlimpParameters:
             object.__setattr__(self, field.name, values if width == 3 else values[0])
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a x b`` over the last axis (length 3), leading axes broadcast: ``numpy.cross`` written
+    out, which costs a third of it on the small batches of a free run."""
+    a, b = np.asarray(a), np.asarray(b)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack(np.broadcast_arrays(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
 def _skew(a: np.ndarray) -> np.ndarray:
     """``S(a)`` with ``S(a) b = a x b``: (..., 3) -> (..., 3, 3)."""
     zero = np.zeros_like(a[..., 0])
@@ -290,15 +299,15 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndar
     thrust = thrust_left + thrust_right
     zero = np.zeros_like(thrust)
 
-    velocity_cross_rates = np.cross(velocity, rates)
+    velocity_cross_rates = _cross(velocity, rates)
     force = (total_mass * velocity_cross_rates
-             + np.cross(np.cross(rates, mass_moment), rates)
+             + _cross(_cross(rates, mass_moment), rates)
              + (total_mass - params.buoyancy_mass) * params.gravity * down
              + aero_force
              + np.stack([thrust, zero, zero], axis=-1))
-    moment = (np.cross(np.einsum("...ij,...j->...i", inertia, rates), rates)
-              + np.cross(mass_moment, velocity_cross_rates)
-              + np.cross(mass_moment, params.gravity * down)
+    moment = (_cross(np.einsum("...ij,...j->...i", inertia, rates), rates)
+              + _cross(mass_moment, velocity_cross_rates)
+              + _cross(mass_moment, params.gravity * down)
               + aero_moment
               + np.stack([zero, thrust * gondola[..., 2],
                           (thrust_left - thrust_right) * params.propeller_arm], axis=-1))

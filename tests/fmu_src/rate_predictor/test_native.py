@@ -112,7 +112,9 @@ def test_a_sparse_model_with_a_full_variance_factor_equals_the_python_model(bo10
     python = trained.model.free_run(padded, np.tile(means[0], (lag, 1)), method="moment_matching", use_samples=True)
     np.testing.assert_allclose(means[1:], python.mean[lag:], rtol=0, atol=1e-9)
     np.testing.assert_allclose((upper - means)[1:] / z, np.sqrt(python.var[lag:]), rtol=0, atol=1e-9)
-    assert np.ptp(means[1:], axis=0).min() > 1e-3  # the free run moves: a real test
+    # The free run moves, so the equality tests something (with one BLAS thread the fit makes the
+    # roll rate's GP flat, so not every output moves).
+    assert np.ptp(means[1:], axis=0).max() > 1e-1
 
 
 @pytest.fixture(scope="module", params=[(2,), (1, 3)], ids=["output_lags_2", "output_lags_1_3"])
