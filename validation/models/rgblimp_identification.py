@@ -1,0 +1,525 @@
+"""Identify the RGBlimp's uncertain coefficients from its recorded flights by output error.
+
+On the real flights the first-principle model of Zhu, Cheng & Zhang (IEEE RA-L 2024, arXiv
+2404.18580; :mod:`validation.vehicles.rgblimp_equations`) flies too fast and climbs
+(docs/rgblimp.md). Here a few of its coefficients are re-fitted to recorded flights by output
+error, as Ko et al. (ICRA 2007, sec. III-B) identified their blimp ("minimizing the point-wise
+differences between simulated and recorded states") and as
+:mod:`validation.models.blimp_identification` does for flightgp's blimp: the flights are cut into
+segments of :data:`SEGMENT_DURATION`; every segment is simulated from its recorded first state by
+the source's integrator (one RK4 step per 1/60 s sample,
+:func:`validation.vehicles.rgblimp_equations.rk4_step`) with the recorded inputs; the residuals
+are the differences to the recorded states at every sample, each state column divided by a scale
+(:data:`STATE_SCALE`), the yaw difference wrapped; ``scipy.optimize.least_squares``
+(trust-region reflective) minimises their sum of squares. The recorded states are smooth (the
+source's motion capture is filtered: second differences of the positions are 8e-5 m), so the
+segments start at the recorded states rather than at free start states.
+
+Which coefficients (:data:`IDENTIFIED_PARAMETERS`): each flight holds its inputs constant
+(docs/rgblimp.md, "The recordings"), so a flight shows a launch transient and then one steady
+spiral; a small set is identifiable from it, about one coefficient for each thing the steady
+spiral shows:
+
+- ``thrust_gain``: a factor on both propellers' thrusts; with ``c_d0`` it sets the speed;
+- ``buoyancy_mass``: the buoyancy, so the sink or climb rate (which differs between repeats of
+  one configuration);
+- ``c_d0``, ``c_l0``: drag and lift at zero angle of attack;
+- ``c_my0``: the pitching moment, so the pitch trim;
+- ``c_mx0``: the rolling moment, so the bank in the turn;
+- ``rate_damping_z``: yaw damping, so the turn rate the thrust difference gives;
+- ``wind_x``, ``wind_y``: a steady horizontal air motion in the room (:func:`advance`). The
+  recorded spirals drift (their centres move by about 1 m a minute) and the recorded ground
+  speed oscillates once per turn, as a circle flown in moving air does (what the two components
+  change on the validation flights: docs/rgblimp.md, "Identification and RKGP").
+
+Uncertainty: the covariance of the estimate is the cluster-robust sandwich ``A^-1 B A^-1`` with
+``A = J^T J`` and ``B`` the sum over segments of ``(J_s^T r_s)(J_s^T r_s)^T``, times ``S / (S - 1)``
+for S segments (Liang & Zeger 1986): residuals within a segment are strongly correlated, segments
+nearly independent (:mod:`validation.models.blimp_identification` explains the choice).
+
+Speed: the segments are simulated together, vectorised (:func:`free_run`), and the Jacobian's
+forward differences perturb every coefficient at once, as one batch of parameter sets
+(:func:`batched_parameters`) evaluated with the residuals, which costs about 1.3 times one
+residual evaluation; a fit on two flights takes about 5 s.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from validation.core.errors import BadInputError
+from validation.vehicles.blimp_equations import rotation_body_to_earth
+from validation.vehicles.rgblimp_equations import SAMPLE_TIME, STATE_NAMES, RGBlimpParameters, rk4_step
+
+#: The coefficients identified by default (module docstring).
+IDENTIFIED_PARAMETERS = ("thrust_gain", "buoyancy_mass", "c_d0", "c_l0", "c_my0", "c_mx0", "rate_damping_z",
+                         "wind_x", "wind_y")
+#: Segment length, s: long enough for the spiral's speed, turn and sink rate to show in the
+#: positions, short enough for the free runs to stay near the recording (against 3 and 12 s on
+#: the validation flights, docs/rgblimp.md, "Identification and RKGP").
+SEGMENT_DURATION = 6.0
+#: At most this many segments per fit, evenly spread over the flights (the cost is linear in it).
+MAX_SEGMENTS = 60
+#: Divisor of each state's residual: 5 cm, 0.02 rad, 2 cm/s, 0.02 rad/s, so that position,
+#: attitude, velocity and rate errors of a few-second free run count about alike (not tuned).
+STATE_SCALE = (0.05,) * 3 + (0.02,) * 3 + (0.02,) * 3 + (0.02,) * 3
+#: Unit of each scaled optimisation variable for coefficients whose published value is zero or
+#: tiny: the variable is ``(theta - theta0) / max(|theta0|, this)``.
+_MIN_PARAMETER_SCALE = 0.01
+#: Most trust-region iterations of one fit.
+MAX_ITERATIONS = 30
+#: Relative tolerance on the cost and the step (scipy's ftol and xtol): far below the
+#: coefficients' standard errors.
+_TOLERANCE = 1e-6
+#: Relative step of the Jacobian's forward differences (in the scaled variable).
+_DIFFERENCE_STEP = 1e-6
+_YAW = STATE_NAMES.index("psi")
+_DAMPING_AXES = {"rate_damping_x": 0, "rate_damping_y": 1, "rate_damping_z": 2}
+_WIND_AXES = {"wind_x": 0, "wind_y": 1}
+_COEFFICIENTS = tuple(f.name for f in dataclasses.fields(RGBlimpParameters) if f.name.startswith("c_"))
+_PARAMETER_FIELDS = ("buoyancy_mass", *_COEFFICIENTS)
+#: Every name :func:`identify_parameters` accepts.
+IDENTIFIABLE = ("thrust_gain", *_WIND_AXES, *_PARAMETER_FIELDS, *_DAMPING_AXES)
+
+
+@dataclass(frozen=True)
+class RGBlimpModel:
+    """The first-principle model with a factor on the thrusts.
+
+    Attributes
+    ----------
+    params : RGBlimpParameters
+        Default: the source's published values.
+    thrust_gain : float
+        Multiplies ``thrust_left`` and ``thrust_right`` (1: the recorded thrusts).
+    """
+
+    params: RGBlimpParameters = dataclasses.field(default_factory=RGBlimpParameters)
+    thrust_gain: float = 1.0
+    wind: tuple = (0.0, 0.0)
+
+    def value(self, name: str) -> float:
+        """One coefficient of :data:`IDENTIFIABLE`."""
+        _check_names([name])
+        if name == "thrust_gain":
+            return float(self.thrust_gain)
+        if name in _WIND_AXES:
+            return float(self.wind[_WIND_AXES[name]])
+        if name in _DAMPING_AXES:
+            return float(self.params.rate_damping[_DAMPING_AXES[name]])
+        return float(getattr(self.params, name))
+
+    def replaced(self, values: dict) -> RGBlimpModel:
+        """This model with some coefficients of :data:`IDENTIFIABLE` replaced."""
+        _check_names(list(values))
+        fields = {n: float(v) for n, v in values.items() if n in _PARAMETER_FIELDS}
+        damping = list(self.params.rate_damping)
+        for name, axis in _DAMPING_AXES.items():
+            if name in values:
+                damping[axis] = float(values[name])
+        wind = tuple(float(values.get(name, self.wind[axis])) for name, axis in _WIND_AXES.items())
+        params = dataclasses.replace(self.params, rate_damping=tuple(damping), **fields)
+        return RGBlimpModel(params, float(values.get("thrust_gain", self.thrust_gain)), wind)
+
+    def step(self, states, inputs) -> np.ndarray:
+        """One sample (1/60 s) on (:func:`advance`): ``states`` (..., 12), ``inputs`` (..., 5)
+        -> (..., 12). This is a :class:`gp_model.GreyBoxGP` ``physics_step``."""
+        return advance(states, inputs, self.params, thrust_gain=self.thrust_gain, wind=self.wind)
+
+    def simulate(self, initial_state, inputs) -> np.ndarray:
+        """Free run from ``initial_state`` (..., 12) through ``inputs`` (..., n, 5), each held
+        over one sample (:func:`free_run`): states (..., n, 12), the first the start
+        (``inputs[..., -1, :]`` is not used)."""
+        return free_run(initial_state, inputs, self.params, thrust_gain=self.thrust_gain, wind=self.wind)
+
+
+def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
+    """The source's RK4 step over one sample with a thrust factor and a steady horizontal wind.
+
+    A uniform, steady wind ``w`` (earth axes) moves the air mass at constant velocity, and the
+    equations of motion hold unchanged in a frame moving with it (a Galilean change of frame:
+    the aerodynamics see the airspeed, the inertial terms only accelerations and rates). So the
+    step converts the state to the air mass's frame (body velocity ``v - R^T w``), takes
+    :func:`validation.vehicles.rgblimp_equations.rk4_step` there, and converts back (position
+    plus ``w h``, velocity plus ``R^T w`` at the new attitude); with ``w = 0`` it is ``rk4_step``.
+
+    Parameters
+    ----------
+    states : ndarray, shape (..., 12)
+    inputs : ndarray, shape (..., 5)
+        The thrusts are multiplied by ``thrust_gain`` (:func:`scaled_thrust`).
+    params : RGBlimpParameters or the namespace of :func:`batched_parameters`
+    thrust_gain : float or ndarray
+        Broadcasting against ``inputs[..., 0]``.
+    wind : (2,) sequence or ndarray, shape (..., 2)
+        North and east wind, m/s (earth x and y); leading axes broadcast against the states'.
+
+    Returns
+    -------
+    ndarray, shape (broadcast leading axes, 12)
+    """
+    states = np.asarray(states, dtype=float)
+    inputs = scaled_thrust(inputs, thrust_gain)
+    wind = np.asarray(wind, dtype=float)
+    if not np.any(wind):
+        return rk4_step(states, inputs, params)
+    wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
+    in_air = _with_velocity_offset(states, wind, -1.0)
+    moved = rk4_step(in_air, inputs, params)
+    position = moved[..., :3] + SAMPLE_TIME * wind
+    return _with_velocity_offset(np.concatenate([position, moved[..., 3:]], axis=-1), wind, 1.0)
+
+
+def free_run(initial_state, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
+    """Many :func:`advance` steps at once: the whole run in the air mass's frame, then back.
+
+    Equal to stepping :func:`advance` sample by sample (the conversions between the frames
+    cancel), with one conversion each way instead of two per step.
+
+    Parameters
+    ----------
+    initial_state : ndarray, shape (..., 12)
+    inputs : ndarray, shape (..., n, 5)
+        ``inputs[..., k, :]`` held from sample k to k + 1; the last row is unused.
+    params, thrust_gain, wind
+        As for :func:`advance` (``thrust_gain`` broadcasting against ``inputs[..., 0, 0]``,
+        ``wind`` against ``initial_state[..., :2]``).
+
+    Returns
+    -------
+    ndarray, shape (..., n, 12)
+        Row 0 is the start.
+    """
+    inputs = scaled_thrust(inputs, np.asarray(thrust_gain, dtype=float)[..., None])
+    wind = np.asarray(wind, dtype=float)
+    wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
+    path = simulate(lambda s, u: rk4_step(s, u, params), _with_velocity_offset(np.asarray(initial_state, float),
+                                                                                  wind, -1.0), inputs)
+    if not np.any(wind):
+        return path
+    drift = SAMPLE_TIME * np.arange(path.shape[-2])[:, None] * wind[..., None, :]  # t_k = k h
+    path = np.concatenate([path[..., :3] + drift, path[..., 3:]], axis=-1)
+    return _with_velocity_offset(path, wind[..., None, :], 1.0)
+
+
+def _with_velocity_offset(states: np.ndarray, wind: np.ndarray, sign: float) -> np.ndarray:
+    """``states`` with ``sign R(Theta)^T wind`` added to the body velocity."""
+    offset = np.einsum("...ji,...j->...i", rotation_body_to_earth(states[..., 3:6]), wind)
+    return np.concatenate([states[..., :6], states[..., 6:9] + sign * offset, states[..., 9:]], axis=-1)
+
+
+def scaled_thrust(inputs, gain) -> np.ndarray:
+    """``inputs`` (..., 5) with both thrusts multiplied by ``gain`` (a float, or an array
+    broadcasting against ``inputs[..., 0]``)."""
+    inputs = np.asarray(inputs, dtype=float)
+    gain = np.asarray(gain, dtype=float)
+    thrusts = inputs[..., :2] * gain[..., None]
+    leading = thrusts.shape[:-1]
+    return np.concatenate([thrusts, np.broadcast_to(inputs[..., 2:], leading + (3,))], axis=-1)
+
+
+def simulate(step, initial_state, inputs) -> np.ndarray:
+    """Roll ``step(states, inputs) -> next_states`` from ``initial_state`` (..., 12) through
+    ``inputs`` (..., n, m): states (..., n, 12), row 0 the start; the last input row is unused."""
+    state = np.asarray(initial_state, dtype=float)
+    inputs = np.asarray(inputs, dtype=float)
+    path = [state]
+    for k in range(inputs.shape[-2] - 1):
+        state = step(state, inputs[..., k, :])
+        path.append(state)
+    return np.stack(path, axis=-2)
+
+
+def wrapped_difference(predicted, recorded) -> np.ndarray:
+    """``predicted - recorded`` (..., 12) with the yaw difference wrapped into [-pi, pi)."""
+    difference = np.asarray(predicted, dtype=float) - np.asarray(recorded, dtype=float)
+    difference[..., _YAW] = (difference[..., _YAW] + np.pi) % (2 * np.pi) - np.pi
+    return difference
+
+
+def _check_names(names) -> None:
+    unknown = [n for n in names if n not in IDENTIFIABLE]
+    if unknown or len(set(names)) != len(names):
+        raise BadInputError(f"unknown or repeated RGBlimp coefficient name(s) {list(names)}; choose from "
+                            f"{', '.join(IDENTIFIABLE)}")
+
+
+def batched_parameters(model: RGBlimpModel, names, vectors) -> tuple[SimpleNamespace, np.ndarray, np.ndarray]:
+    """B variants of ``model`` at once, for states of shape (B, S, 12).
+
+    :mod:`validation.vehicles.rgblimp_equations` broadcasts its parameters against the states:
+    an aerodynamic coefficient multiplies arrays of shape (B, S) (angle of attack, sideslip), the
+    buoyancy a (B, S, 3) direction and the rate damping (B, S, 3) rates. So a namespace with the
+    identified coefficients as arrays of shapes (B, 1), (B, 1, 1) and (B, 1, 3) evaluates the B
+    parameter sets in one call (tested against one call per set).
+
+    Parameters
+    ----------
+    model : RGBlimpModel
+        The values of every coefficient not in ``names``.
+    names : sequence of str
+        Coefficients of :data:`IDENTIFIABLE`.
+    vectors : ndarray, shape (B, len(names))
+
+    Returns
+    -------
+    params : SimpleNamespace
+        The fields of :class:`RGBlimpParameters`, batched where identified.
+    thrust_gain : ndarray, shape (B, 1)
+    wind : ndarray, shape (B, 1, 2)
+        For :func:`advance` of states (B, S, 12) and inputs (B, S, 5).
+    """
+    _check_names(names)
+    vectors = np.atleast_2d(np.asarray(vectors, dtype=float))
+    fields = {f.name: getattr(model.params, f.name) for f in dataclasses.fields(RGBlimpParameters)}
+    damping = np.tile(np.asarray(model.params.rate_damping), (len(vectors), 1))
+    gain = np.full(len(vectors), float(model.thrust_gain))
+    wind = np.tile(np.asarray(model.wind), (len(vectors), 1))
+    for column, name in enumerate(names):
+        values = vectors[:, column]
+        if name == "thrust_gain":
+            gain = values
+        elif name in _WIND_AXES:
+            wind[:, _WIND_AXES[name]] = values
+        elif name in _DAMPING_AXES:
+            damping[:, _DAMPING_AXES[name]] = values
+        elif name == "buoyancy_mass":
+            fields[name] = values[:, None, None]
+        else:
+            fields[name] = values[:, None]
+    fields["rate_damping"] = damping[:, None, :]
+    return SimpleNamespace(**fields), gain[:, None], wind[:, None, :]
+
+
+@dataclass(frozen=True)
+class Segments:
+    """Pieces of recorded flights to simulate from their first recorded state.
+
+    Attributes
+    ----------
+    starts : ndarray, shape (S, 12)
+    inputs : ndarray, shape (S, L, 5)
+        ``inputs[:, k]`` held from sample k to k + 1 of each segment.
+    targets : ndarray, shape (S, L, 12)
+        Recorded states at samples 1 .. L of each segment.
+    mask : ndarray of bool, shape (S, L)
+        False past the end of a flight shorter than a segment (its last input and state repeat
+        there and count for nothing).
+    flights : ndarray of int, shape (S,)
+        The flight number each segment comes from.
+    """
+
+    starts: np.ndarray
+    inputs: np.ndarray
+    targets: np.ndarray
+    mask: np.ndarray
+    flights: np.ndarray
+
+
+def cut_segments(flights, *, duration: float = SEGMENT_DURATION, max_segments: int = MAX_SEGMENTS) -> Segments:
+    """Non-overlapping segments of ``duration`` from each flight, at most ``max_segments`` in all.
+
+    A flight shorter than one segment (the straight flights last 6 to 9 s) gives one segment of
+    its whole length, masked past its end.
+
+    Parameters
+    ----------
+    flights : sequence of RGBlimpFlight
+        :func:`validation.vehicles.rgblimp_data.read_rgblimp_flight`.
+    duration : float
+        Segment length, s (rounded to whole samples of 1/60 s).
+    max_segments : int
+        When the flights hold more, every ``ceil(S / max_segments)``-th is kept (evenly over
+        the flights and over time).
+    """
+    length = max(1, int(round(duration / SAMPLE_TIME)))
+    starts, inputs, targets, masks, numbers = [], [], [], [], []
+    for flight in flights:
+        states, commands = flight.recording.outputs, flight.recording.inputs
+        first = np.arange(0, len(states) - length, length) if len(states) > length else np.array([0])
+        steps = first[:, None] + np.arange(length)
+        last = len(states) - 2  # the last step that has a recorded next state
+        starts.append(states[first])
+        inputs.append(commands[np.minimum(steps, last)])
+        targets.append(states[np.minimum(steps, last) + 1])
+        masks.append(steps <= last)
+        numbers.append(np.full(len(first), flight.number))
+    if not starts:
+        raise BadInputError("no flights to identify from")
+    parts = [np.concatenate(part) for part in (starts, inputs, targets, masks, numbers)]
+    keep = np.arange(0, len(parts[0]), int(np.ceil(len(parts[0]) / max_segments)))
+    return Segments(*(part[keep] for part in parts))
+
+
+def simulate_segments(model: RGBlimpModel, segments: Segments) -> np.ndarray:
+    """Each segment's free run of ``model``: (S, L, 12), the states at samples 1 .. L."""
+    inputs = np.concatenate([segments.inputs, segments.inputs[:, -1:]], axis=1)
+    return model.simulate(segments.starts, inputs)[:, 1:]
+
+
+@dataclass
+class IdentificationResult:
+    """Identified coefficients with their uncertainty.
+
+    Attributes
+    ----------
+    model : RGBlimpModel
+        ``initial`` with the identified coefficients replaced.
+    names : tuple of str
+    values, standard_errors, standard_errors_iid, initial_values : ndarray, shape (p,)
+        Estimates, cluster-robust and textbook (``s^2 (J^T J)^-1``) standard errors, starting
+        values (which are also the prior's means).
+    covariance : ndarray, shape (p, p)
+        Cluster-robust covariance of ``values``.
+    rms_residual, initial_rms_residual : float
+        Root mean square of the scaled state residuals at the optimum and at the start.
+    n_segments, n_evaluations : int
+    flights : tuple of int
+        The flight numbers identified on.
+    seconds : float
+        Wall time of the fit.
+    """
+
+    model: RGBlimpModel
+    names: tuple
+    values: np.ndarray
+    standard_errors: np.ndarray
+    standard_errors_iid: np.ndarray
+    initial_values: np.ndarray
+    covariance: np.ndarray
+    rms_residual: float
+    initial_rms_residual: float
+    n_segments: int
+    n_evaluations: int
+    flights: tuple
+    seconds: float
+
+    def as_dict(self) -> dict:
+        """JSON-ready: per coefficient its value, standard error and starting value, and the fit."""
+        return {"parameters": {name: {"value": float(v), "standard_error": float(se), "initial": float(v0)}
+                               for name, v, se, v0 in zip(self.names, self.values, self.standard_errors,
+                                                          self.initial_values)},
+                "rms_scaled_residual": self.rms_residual, "initial_rms_scaled_residual": self.initial_rms_residual,
+                "n_segments": self.n_segments, "n_evaluations": self.n_evaluations, "flights": list(self.flights),
+                "seconds": self.seconds}
+
+
+def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlimpModel | None = None,
+                        prior_sd=None, segment_duration: float = SEGMENT_DURATION,
+                        max_segments: int = MAX_SEGMENTS, state_scale=STATE_SCALE,
+                        max_iterations: int = MAX_ITERATIONS) -> IdentificationResult:
+    """Least-squares output-error fit of RGBlimp coefficients to segments of recorded flights.
+
+    Minimises ``sum_s |r_s|^2 / L + sum_i ((theta_i - theta0_i) / sd_i)^2``: each segment's
+    scaled state residuals ``r_s`` (its L samples' residuals are strongly correlated, so a
+    segment counts about as one observation of the 12 states) and a Gaussian prior about the
+    starting values ``theta0``, which makes the estimate the maximum a posteriori one and keeps
+    coefficients that a short flight hardly shows near their starting values.
+
+    Parameters
+    ----------
+    flights : sequence of RGBlimpFlight
+    names : sequence of str
+        Coefficients of :data:`IDENTIFIABLE` to fit; the rest stay at ``initial``.
+    initial : RGBlimpModel, optional
+        Starting point, prior mean and fixed values; default the published model.
+    prior_sd : dict, optional
+        Prior standard deviation of each coefficient in ``names`` about its starting value;
+        default none (least squares alone).
+    segment_duration : float
+        s, :data:`SEGMENT_DURATION`.
+    max_segments : int
+        :data:`MAX_SEGMENTS`.
+    state_scale : sequence of float, shape (12,)
+        Divides each state's residual (:data:`STATE_SCALE`).
+    max_iterations : int
+        Most trust-region iterations (:data:`MAX_ITERATIONS`).
+
+    Returns
+    -------
+    IdentificationResult
+    """
+    started = time.perf_counter()
+    names = tuple(names)
+    _check_names(names)
+    if not names:
+        raise BadInputError("no coefficient to identify")
+    initial = RGBlimpModel() if initial is None else initial
+    scale = np.asarray(state_scale, dtype=float)
+    if scale.shape != (12,) or not np.all(scale > 0):
+        raise BadInputError(f"state_scale must be 12 positive numbers, got {state_scale}")
+    segments = cut_segments(flights, duration=segment_duration, max_segments=max_segments)
+    base = np.array([initial.value(n) for n in names])
+    units = np.maximum(np.abs(base), _MIN_PARAMETER_SCALE)
+    if prior_sd is None:
+        prior_weight = np.zeros(len(names))
+    else:
+        missing = [n for n in names if n not in prior_sd]
+        if missing:
+            raise BadInputError(f"prior_sd has no standard deviation for {', '.join(missing)}")
+        prior_weight = units / np.array([float(prior_sd[n]) for n in names])
+    n_segments, length = segments.inputs.shape[:2]
+    inputs = np.concatenate([segments.inputs, segments.inputs[:, -1:]], axis=1)
+    weight = segments.mask[..., None] / (scale * np.sqrt(length))  # (S, L, 12)
+
+    def batch_residuals(xs: np.ndarray) -> np.ndarray:
+        """Weighted residuals of B parameter points ``xs`` (B, p) at once: (B, S * L * 12 + p)."""
+        params, gain, wind = batched_parameters(initial, names, base + units * xs)
+        batch = len(xs)
+        starts = np.broadcast_to(segments.starts, (batch, *segments.starts.shape))
+        batch_inputs = np.broadcast_to(inputs, (batch, *inputs.shape))
+        path = free_run(starts, batch_inputs, params, thrust_gain=gain, wind=wind)
+        data = wrapped_difference(path[:, :, 1:], segments.targets[None]) * weight
+        return np.concatenate([data.reshape(batch, -1), prior_weight * xs], axis=1)
+
+    cache = {}
+
+    def evaluate(x):
+        """Residuals and their forward-difference Jacobian at ``x``, in one batch: the batch
+        costs about 1.3 times one run, so computing the Jacobian with every trial point is
+        cheaper than a separate call for it after each accepted step."""
+        key = x.tobytes()
+        if key not in cache:
+            points = x + np.vstack([np.zeros(len(x)), _DIFFERENCE_STEP * np.eye(len(x))])
+            values = batch_residuals(points)
+            cache.clear()
+            cache[key] = values[0], (values[1:] - values[0]).T / _DIFFERENCE_STEP
+        return cache[key]
+
+    def residuals(x):
+        return evaluate(x)[0]
+
+    def jacobian(x):
+        return evaluate(x)[1]
+
+    n_data = n_segments * length * 12
+    n_used = int(segments.mask.sum()) * 12
+
+    def rms_state_residual(residual: np.ndarray) -> float:  # back to the scaled states, unweighted by L
+        return float(np.sqrt(np.sum(residual[:n_data] ** 2) * length / n_used))
+
+    start = np.zeros(len(names))
+    initial_rms = rms_state_residual(residuals(start))
+    solution = least_squares(residuals, start, jac=jacobian, method="trf", x_scale=1.0, ftol=_TOLERANCE,
+                             xtol=_TOLERANCE, max_nfev=max_iterations)
+    residual, jac = solution.fun, solution.jac
+    data_jacobian = jac[:n_data]
+    information = np.linalg.pinv(jac.T @ jac)  # the prior's rows included
+    scores = np.einsum("sri,sr->si", data_jacobian.reshape(n_segments, length * 12, -1),
+                       residual[:n_data].reshape(n_segments, -1))
+    sandwich = information @ (scores.T @ scores) @ information * n_segments / max(n_segments - 1, 1)
+    sigma2 = residual[:n_data] @ residual[:n_data] / max(n_used - len(names), 1)  # per weighted sample
+    values = base + units * solution.x
+    return IdentificationResult(
+        model=initial.replaced(dict(zip(names, values))), names=names, values=values,
+        standard_errors=np.sqrt(np.diag(sandwich)) * units,
+        standard_errors_iid=np.sqrt(np.diag(sigma2 * information)) * units,
+        initial_values=base, covariance=sandwich * np.outer(units, units),
+        rms_residual=rms_state_residual(residual), initial_rms_residual=initial_rms,
+        n_segments=n_segments, n_evaluations=int(solution.nfev),
+        flights=tuple(sorted({int(n) for n in segments.flights})), seconds=time.perf_counter() - started)
