@@ -8,7 +8,7 @@ from validation.cli.arguments import seed
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder
 
-PAPERS = ("bo105", "blimp", "blimp-settings")
+PAPERS = ("bo105", "blimp", "blimp-settings", "rgblimp", "rgblimp-settings")
 
 
 def seed_list(text: str) -> tuple[int, ...]:
@@ -33,7 +33,15 @@ def register(subparsers) -> None:
                     "--paper-only apply to bo105 only, --seeds and --quick to blimp only). "
                     "blimp-settings: the validation-flight study that fixed the blimp RKGP's "
                     "settings (training-state smoothing, command lags, filter process noise); "
-                    "writes settings.json (--quick applies).")
+                    "writes settings.json (--quick applies). rgblimp: the RGBlimp's real flights "
+                    "(Zhu, Cheng & Zhang, IEEE RA-L 2024) from --data DIR: for each configuration with "
+                    "two flights or more, fit on all but the highest-numbered flight and test on that one "
+                    "by a free run of the whole flight; the published model, the identified model, the "
+                    "RKGP and one global RKGP, scored as the source scores; writes results.json, "
+                    "report.md, scores.png and flight_J.png (--configurations selects; --seed applies). "
+                    "rgblimp-settings: the validation-flight study behind the rgblimp settings (fit on each "
+                    "configuration's lowest-numbered flight, validate on the next; the test flight unread); "
+                    "writes settings.json.")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=None,
@@ -44,11 +52,20 @@ def register(subparsers) -> None:
                         help="blimp: the short setup of every table (about a minute a seed; for checks)")
     parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
     parser.add_argument("--paper-only", action="store_true", help="skip the beyond-the-paper studies")
+    parser.add_argument("--data", type=Path, default=None, metavar="DIR",
+                        help="rgblimp: a folder of the source's data_N.csv (any subset) with its data_info/")
+    parser.add_argument("--configurations", type=int, nargs="+", default=None, metavar="J",
+                        help="rgblimp: only these configurations j (flights 4j+1..4j+4; default every one "
+                             "with two flights present)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
+    if args.paper in ("rgblimp", "rgblimp-settings"):
+        return _run_rgblimp(args)
+    if args.data is not None or args.configurations is not None:
+        raise BadInputError("--data and --configurations apply to reproduce rgblimp only")
     if args.paper == "blimp":
         from validation.reproduce.blimp import DEFAULT_SEEDS, reproduce_blimp
         from validation.reproduce.blimp_report import format_results
@@ -80,4 +97,30 @@ def run(args: argparse.Namespace) -> int:
                               beyond=not args.paper_only)
     print(format_results(results))
     print(f"written {args.out}/results.json and figures")
+    return 0
+
+
+def _run_rgblimp(args: argparse.Namespace) -> int:
+    from validation.reproduce.rgblimp import reproduce_rgblimp
+    from validation.reproduce.rgblimp_report import format_results
+
+    if args.data is None:
+        raise BadInputError(f"reproduce {args.paper} needs --data DIR, a folder of the source's data_N.csv "
+                            "and data_info/")
+    if args.seeds is not None or args.quick or args.paper_only:
+        raise BadInputError(f"--seeds, --quick and --paper-only do not apply to reproduce {args.paper}")
+    if args.paper == "rgblimp-settings":
+        from validation.core.files import write_json
+        from validation.reproduce.rgblimp_settings import format_settings, study_settings
+
+        results = study_settings(args.data, configurations=args.configurations,
+                                 seed=0 if args.seed is None else args.seed, progress=True)
+        write_json(args.out / "settings.json", results)
+        print(format_settings(results))
+        print(f"written {args.out}/settings.json")
+        return 0
+    results = reproduce_rgblimp(args.data, args.out, configurations=args.configurations,
+                                seed=0 if args.seed is None else args.seed)
+    print(format_results(results))
+    print(f"written {args.out}/report.md, results.json and figures")
     return 0

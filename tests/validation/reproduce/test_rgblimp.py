@@ -1,0 +1,195 @@
+"""Tests of the RGBlimp real-flight reproduction (validation/reproduce/rgblimp.py) and its command.
+
+The score against a hand-made case, the fit/test split rule on folders of empty files (the rule
+reads names only), the one-line errors of bad folders through the command, and one small run
+end to end on the two configurations of the excerpt shipped with the package
+(:data:`validation.vehicles.rgblimp_data.EXCERPT_FOLDER`: spirals 117 .. 119, straight flights
+121 .. 123) with hand-made score ranges and a quick setup: the results.json schema and summaries
+that follow from the entries. The measured numbers are in docs/reproductions.md.
+"""
+import contextlib
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from validation.cli import main
+from validation.core.errors import BadInputError
+from validation.models.rgblimp_identification import RGBlimpModel
+from validation.reproduce.rgblimp import (
+    SOURCE_STATE_WIDTH,
+    RGBlimpSetup,
+    flight_metrics,
+    read_score_ranges,
+    reproduce_rgblimp,
+    source_score,
+    split_flights,
+)
+from validation.reproduce.rgblimp_report import BAND_MODELS, MODELS
+from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
+
+RANGES = np.array([2.0, 4.0, 1.0, 0.25, 0.5, 2 * np.pi])
+
+
+def test_score_is_the_sources_weighted_mean_square_over_23_columns():
+    recorded = np.zeros((10, 12))
+    predicted = recorded.copy()
+    predicted[:, 0] = 0.1                 # x off by 0.1 m everywhere: (0.1 / 2)^2
+    predicted[5:, 4] = 0.05               # theta off by 0.05 rad on half the samples: (0.05 / 0.5)^2 / 2
+    predicted[:, 6:] = 7.0                # velocities and rates do not count
+    expected = ((0.1 / 2.0) ** 2 + (0.05 / 0.5) ** 2 / 2) / SOURCE_STATE_WIDTH
+    assert math.isclose(source_score(predicted, recorded, RANGES), expected, rel_tol=1e-12)
+    # Yaw just across the wrap: 0.1 rad when wrapped, almost a turn in the source's literal form.
+    across = recorded.copy()
+    recorded_yaw, predicted_yaw = np.full(10, np.pi - 0.05), np.full(10, -np.pi + 0.05)
+    across[:, 5] = predicted_yaw
+    behind = recorded.copy()
+    behind[:, 5] = recorded_yaw
+    wrapped = source_score(across, behind, RANGES)
+    literal = source_score(across, behind, RANGES, wrap_yaw=False)
+    assert math.isclose(wrapped, (0.1 / RANGES[5]) ** 2 / 23, rel_tol=1e-9)
+    assert math.isclose(literal, ((2 * np.pi - 0.1) / RANGES[5]) ** 2 / 23, rel_tol=1e-9)
+    # A continuous yaw a turn on is the same yaw to the source, whose integrator wraps it.
+    turned = across.copy()
+    turned[:, 5] += 2 * np.pi
+    assert math.isclose(source_score(turned, behind, RANGES, wrap_yaw=False), literal, rel_tol=1e-9)
+
+
+def test_flight_metrics_position_errors_and_band_coverage():
+    recorded = np.zeros((4, 12))
+    predicted = recorded.copy()
+    predicted[:, :3] = [0.03, 0.04, 0.0]          # 5 cm everywhere
+    predicted[-1, :3] = [0.0, 0.0, 0.1]           # 10 cm at the end
+    wide, narrow = np.full((4, 3), 1.0), np.full((4, 3), 1e-3)
+    metrics = flight_metrics(predicted, recorded, RANGES, position_sd=wide)
+    assert math.isclose(metrics["position_rmse_m"], math.sqrt((3 * 0.05**2 + 0.1**2) / 4))
+    assert math.isclose(metrics["final_position_error_m"], 0.1)
+    assert metrics["yaw_rmse_rad"] == 0 and metrics["coverage95_position"] == 1.0
+    # With 1 mm sd only the exactly-zero coordinates (z on three samples, x and y on the last) lie inside.
+    assert flight_metrics(predicted, recorded, RANGES, position_sd=narrow)["coverage95_position"] == 5 / 12
+    assert "coverage95_position" not in flight_metrics(predicted, recorded, RANGES)
+
+
+def _folder(path: Path, numbers, *, data_info: bool = True) -> Path:
+    """Empty data_N.csv files (the split reads names only) and, optionally, a data_info folder."""
+    path.mkdir(parents=True, exist_ok=True)
+    for number in numbers:
+        (path / f"data_{number}.csv").write_text("")
+    if data_info:
+        (path / "data_info").mkdir(exist_ok=True)
+        spiral = np.array([np.zeros(38), np.ones(38), np.full(38, 3.0), np.full(38, -1.0)])
+        np.savetxt(path / "data_info" / "data_info_spiral.csv", spiral, delimiter=",")
+        np.savetxt(path / "data_info" / "data_info_straight.csv", np.array([np.full(38, 2.0), np.zeros(38)]),
+                   delimiter=",")
+    return path
+
+
+def test_split_fits_on_all_but_the_highest_numbered_flight_present(tmp_path):
+    folder = _folder(tmp_path, [1, 2, 3, 5, 9, 12, 121, 122, 123, 124])
+    splits = split_flights(folder)
+    assert [(s.configuration, s.fit, s.test, s.kind) for s in splits] == [
+        (0, (1, 2), 3, "spiral"), (2, (9,), 12, "spiral"), (30, (121, 122, 123), 124, "straight")]
+    assert [s.configuration for s in split_flights(folder, [30, 0])] == [0, 30]
+    with pytest.raises(BadInputError, match="configuration 1 has 1 flight"):
+        split_flights(folder, [1])
+    with pytest.raises(BadInputError, match="no configuration has two flights"):
+        split_flights(_folder(tmp_path / "lonely", [1, 5, 9]))
+
+
+def test_score_ranges_are_max_minus_min_from_the_sources_rows(tmp_path):
+    folder = _folder(tmp_path, [])
+    ranges = read_score_ranges(folder)
+    np.testing.assert_array_equal(ranges["spiral"], np.full(6, 4.0))    # rows 3 and 4: 3 - (-1)
+    np.testing.assert_array_equal(ranges["straight"], np.full(6, 2.0))  # rows 1 and 2: 2 - 0
+    (folder / "data_info" / "data_info_straight.csv").write_text("1,2,3,4,5,6\n")
+    with pytest.raises(BadInputError, match="rows"):
+        read_score_ranges(folder, ["straight"])
+
+
+def _command(*args) -> tuple[int, str]:
+    errors = io.StringIO()
+    with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["reproduce", "rgblimp", *args])
+    return code, errors.getvalue()
+
+
+@pytest.mark.parametrize(("numbers", "data_info", "extra", "message"), [
+    ([], True, [], "no RGBlimp recordings"),
+    ([1, 2, 5], True, ["--configurations", "1"], "configuration 1 has 1 flight"),
+    ([1, 2], False, [], "data_info_spiral.csv: missing"),
+], ids=["no-data-files", "one-flight", "no-data-info"])
+def test_bad_folders_give_one_line_and_exit_2(tmp_path, numbers, data_info, extra, message):
+    folder = _folder(tmp_path / "data", numbers, data_info=data_info)
+    code, errors = _command("--data", str(folder), "--out", str(tmp_path / "out"), *extra)
+    assert code == 2
+    assert errors.count("\n") == 1 and errors.startswith("flightgp reproduce: error: ") and message in errors
+    assert not (tmp_path / "out" / "results.json").exists()
+
+
+def test_options_of_other_papers_are_refused(tmp_path):
+    code, errors = _command("--out", str(tmp_path / "out"))
+    assert code == 2 and "needs --data" in errors
+    with contextlib.redirect_stderr(io.StringIO()) as stderr:
+        assert main(["reproduce", "bo105", "--out", str(tmp_path), "--data", str(tmp_path)]) == 2
+    assert "apply to reproduce rgblimp only" in stderr.getvalue()
+
+
+#: Short fits: 3 s segments, 60 GP points; the schema and the bookkeeping, not the numbers.
+QUICK = RGBlimpSetup(segment_duration=3.0, max_segments=8, global_max_segments=12, max_iterations=8,
+                     training_points=60, global_training_points=80)
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    """Configurations 29 (spirals data_117..119) and 30 (straight data_121..123) run end to end."""
+    data = _folder(tmp_path_factory.mktemp("rgblimp_data"), [])
+    for number in (117, 118, 119, 121, 122, 123):
+        (data / f"data_{number}.csv").symlink_to(EXCERPT_FOLDER / f"data_{number}.csv")
+    out = tmp_path_factory.mktemp("rgblimp_out")
+    results = reproduce_rgblimp(data, out, setup=QUICK, progress=False)
+    return data, out, results
+
+
+@pytest.mark.slow
+def test_results_json_has_the_issues_schema(small_run):
+    _, out, results = small_run
+    written = json.loads((out / "results.json").read_text())
+    assert written["configurations"] == json.loads(json.dumps(results["configurations"]))
+    first, second = written["configurations"]
+    assert (first["index"], first["fit"], first["test"]) == (29, ["data_117.csv", "data_118.csv"], "data_119.csv")
+    assert (second["index"], second["fit"], second["test"]) == (30, ["data_121.csv", "data_122.csv"], "data_123.csv")
+    for entry in written["configurations"]:
+        for key in ("score", "position_rmse_m", "final_position_error_m", "yaw_rmse_rad"):
+            assert set(entry[key]) == set(MODELS)
+            assert all(math.isfinite(v) and v >= 0 for v in entry[key].values())
+        assert set(entry["coverage95_position"]) == set(BAND_MODELS)
+        assert set(entry["fit_seconds"]) == {"identified", "rkgp", "sindyc"}
+        assert set(entry["free_run_seconds"]) == set(MODELS)
+        assert all(0 <= v <= 1 for v in entry["coverage95_position"].values())
+    summary = written["summary"]
+    for key, entry_key in (("mean_score", "score"), ("mean_position_rmse_m", "position_rmse_m")):
+        assert set(summary[key]) == set(MODELS)
+        for name in MODELS:
+            assert math.isclose(summary[key][name], np.mean([e[entry_key][name] for e in written["configurations"]]))
+    assert written["global"]["fit"] == ["data_117.csv", "data_118.csv", "data_121.csv", "data_122.csv"]
+    for name in ("report.md", "scores.png", "flight_29.png", "flight_30.png"):
+        assert (out / name).stat().st_size > 0
+    assert all(name in (out / "report.md").read_text() for name in ("## Goals", "scores.png", "data_123.csv"))
+
+
+@pytest.mark.slow
+def test_the_published_model_is_scored_as_it_is_and_goals_follow_the_summary(small_run):
+    data, _, results = small_run
+    for entry in results["configurations"]:
+        # The published model's score depends on no fit, so it is the same with any setup.
+        flight = read_rgblimp_flight(data / entry["test"])
+        ranges = read_score_ranges(data, [entry["kind"]])[entry["kind"]]
+        predicted = RGBlimpModel().simulate(flight.recording.outputs[0], flight.recording.inputs)
+        assert math.isclose(entry["score"]["physics"], source_score(predicted, flight.recording.outputs, ranges))
+    for name, goal in results["goals"].items():
+        assert goal["met"] in (True, False) and "measured" in goal, name
+    beats = results["summary"]["beats_physics_in_score"]["rkgp"]
+    assert results["goals"]["rkgp_beats_physics_on_every_test_flight"]["met"] == (beats == 2)

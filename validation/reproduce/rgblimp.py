@@ -1,0 +1,522 @@
+"""Real flights: the RGBlimp's first-principle model, identified model and RKGP on the source's
+recordings, scored as the source scores its models.
+
+Zhu, Cheng & Zhang (IEEE RA-L 2024, arXiv 2404.18580) publish 140 flights of the RGBlimp in 35
+input configurations, four repeats each (files ``data_{4j+1..4j+4}.csv``), and compare their
+models by a free run of the whole fourth flight of each configuration from its first recorded
+state, after fitting on the first three (docs/rgblimp.md, "The recordings"). flightgp does the
+same with the flights at hand: for each configuration ``j`` with at least two flights in the
+folder, fit on all but the highest-numbered one and test on that one (on the shared folder,
+which holds back ``4j+4``: fit on ``4j+1``, ``4j+2``, test on ``4j+3``). Five models:
+
+- ``physics``: the published model (:class:`~validation.vehicles.rgblimp_equations.RGBlimpParameters`
+  defaults), one RK4 step per 1/60 s sample, as the source integrates it;
+- ``identified``: its coefficients :data:`~validation.models.rgblimp_identification.IDENTIFIED_PARAMETERS`
+  re-fitted on the configuration's fitting flights by output error
+  (:func:`~validation.models.rgblimp_identification.identify_parameters`), starting from the
+  global fit below;
+- ``rkgp``: the identified model plus residual GPs trained on the same flights
+  (:func:`~validation.models.rgblimp_greybox.fit_rkgp`), run by ``GreyBoxGP.propagate``, whose
+  propagated covariance gives a 95 % band;
+- ``rkgp_global``: one identified model and one RKGP fitted on the fitting flights of every
+  configuration present at once, tested on each configuration's test flight;
+- ``sindyc``: the peer, the published model plus a sparse polynomial of its residual
+  accelerations fitted with PySINDy on the configuration's fitting flights
+  (:mod:`validation.models.rgblimp_sindyc`), as the source compares with SINDYc.
+
+Each entry also holds each model's fitting and free-run wall times.
+
+Scores (:func:`flight_metrics`): the source's (:func:`source_score`), the position RMSE, the
+final-position error, the wrapped-yaw RMSE and, for the RKGPs, the coverage of the 95 % position
+band. :mod:`validation.reproduce.rgblimp_report` writes the report and the figures.
+"""
+from __future__ import annotations
+
+import time as clock
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.core.files import write_atomically, write_json
+from validation.core.plots import png_bytes
+from validation.core.progress import progress_bar
+from validation.models.rgblimp_greybox import (
+    GP_INPUT_NAMES,
+    MIN_NOISE_VARIANCE,
+    SMOOTHING_ORDER,
+    SMOOTHING_WINDOW,
+    TRAINING_POINTS,
+    continuous_states,
+    fit_rkgp,
+    physics_step,
+)
+from validation.models.rgblimp_identification import (
+    IDENTIFIED_PARAMETERS,
+    MAX_ITERATIONS,
+    MAX_SEGMENTS,
+    SEGMENT_DURATION,
+    RGBlimpModel,
+    identify_parameters,
+    wrapped_difference,
+)
+from validation.models.rgblimp_sindyc import SINDYcResidual, fit_sindyc, require_pysindy
+from validation.reproduce import rgblimp_report
+from validation.reproduce.rgblimp_report import BAND_MODELS, BAND_QUANTILE, MODELS
+from validation.vehicles.rgblimp_data import flights_by_configuration, read_rgblimp_flight
+
+#: The source's state width: its score is a mean over 23 columns, 17 of them weighted zero
+#: (``F.mse_loss`` over the 23-wide state in ``methods/comp_NODE.py`` of ``zhu-yj/ABNODE``).
+SOURCE_STATE_WIDTH = 23
+#: Configurations 30 .. 34 are straight flights, the others spirals (docs/rgblimp.md).
+FIRST_STRAIGHT_CONFIGURATION = 30
+#: Rows of ``data_info/data_info_spiral.csv`` (mean, std, max, min) and
+#: ``data_info/data_info_straight.csv`` (max, min) holding each column's max and min, as the
+#: source's ``methods/*.py`` read them (``data_info[2] - data_info[3]``, ``[0] - [1]``).
+RANGE_ROWS = {"spiral": (2, 3), "straight": (0, 1)}
+#: Configurations drawn in the flight figures: at most this many, spread over those run.
+FIGURE_CONFIGURATIONS = 3
+#: The goals of the issue "Real flights": the RKGP better than the first-principle model in
+#: score on every test flight, by at least this factor in mean score, and a mean position RMSE
+#: below this (the published model's is about 0.75 m on the held-back flights, data README).
+GOAL_SCORE_FACTOR = 5.0
+GOAL_POSITION_RMSE_M = 0.15
+
+
+@dataclass(frozen=True)
+class RGBlimpSetup:
+    """The reproduction's settings (defaults: the module constants they name)."""
+
+    identified_parameters: tuple = IDENTIFIED_PARAMETERS
+    segment_duration: float = SEGMENT_DURATION
+    max_segments: int = MAX_SEGMENTS
+    global_max_segments: int = 4 * MAX_SEGMENTS
+    max_iterations: int = MAX_ITERATIONS
+    training_points: int = TRAINING_POINTS
+    global_training_points: int = 2 * TRAINING_POINTS
+    min_noise_variance: float = MIN_NOISE_VARIANCE
+    smoothing: tuple = (SMOOTHING_WINDOW, SMOOTHING_ORDER)
+
+
+DEFAULT_SETUP = RGBlimpSetup()
+
+
+@dataclass(frozen=True)
+class Split:
+    """One configuration's fitting flights and test flight (flight numbers)."""
+
+    configuration: int
+    fit: tuple
+    test: int
+
+    @property
+    def kind(self) -> str:
+        return "straight" if self.configuration >= FIRST_STRAIGHT_CONFIGURATION else "spiral"
+
+
+def split_flights(data_dir, configurations=None) -> list[Split]:
+    """The fit/test split of every configuration with at least two flights in ``data_dir``:
+    fit on all but the highest-numbered flight present, test on that one.
+
+    Parameters
+    ----------
+    data_dir : path
+        A folder of the source's ``data_N.csv`` (any subset).
+    configurations : sequence of int, optional
+        Only these (each must have two flights present); default every configuration that has.
+
+    Raises
+    ------
+    BadInputError
+        No ``data_N.csv``; no configuration with two flights; a requested configuration with
+        fewer than two flights.
+    """
+    present = flights_by_configuration(data_dir)
+    if configurations is None:
+        chosen = [j for j, numbers in present.items() if len(numbers) >= 2]
+        if not chosen:
+            raise BadInputError(f"{data_dir}: no configuration has two flights (a fitting flight and a test "
+                                f"flight); present: {_describe(present)}")
+    else:
+        chosen = sorted({int(j) for j in configurations})
+        for j in chosen:
+            if len(present.get(j, ())) < 2:
+                raise BadInputError(
+                    f"{data_dir}: configuration {j} has {len(present.get(j, ()))} flight(s) "
+                    f"({', '.join(f'data_{n}.csv' for n in present.get(j, ())) or 'none'}); it needs two, "
+                    f"flights {4 * j + 1}..{4 * j + 4}, to fit on one and test on another")
+    return [Split(j, present[j][:-1], present[j][-1]) for j in chosen]
+
+
+def _describe(present: dict) -> str:
+    return ", ".join(f"configuration {j}: {len(n)} flight(s)" for j, n in present.items())
+
+
+def read_score_ranges(data_dir, kinds=("spiral", "straight")) -> dict:
+    """Each kind's (max - min) of the six position and Euler-angle columns, from the source's
+    ``data_info/data_info_<kind>.csv`` (rows :data:`RANGE_ROWS`).
+
+    Returns
+    -------
+    dict
+        kind -> ndarray, shape (6,): m, m, m, rad, rad, rad.
+
+    Raises
+    ------
+    BadInputError
+        A file is missing, unreadable, too small, or a range is not positive.
+    """
+    ranges = {}
+    for kind in kinds:
+        path = Path(data_dir) / "data_info" / f"data_info_{kind}.csv"
+        high, low = RANGE_ROWS[kind]
+        try:
+            table = np.loadtxt(path, delimiter=",", ndmin=2)
+        except FileNotFoundError:
+            raise BadInputError(f"{path}: missing; the score needs the source's data_info folder (copy "
+                                "data/data_info/ of zhu-yj/ABNODE next to the recordings)") from None
+        except (ValueError, OSError) as error:
+            raise BadInputError(f"{path}: not a table of numbers ({error})") from None
+        if table.shape[0] <= max(high, low) or table.shape[1] < 6:
+            raise BadInputError(f"{path}: {table.shape[0]} rows of {table.shape[1]} columns; the source's file "
+                                f"has its max and min in rows {high + 1} and {low + 1} and the 6 pose columns first")
+        spread = table[high, :6] - table[low, :6]
+        if not np.all(np.isfinite(spread) & (spread > 0)):
+            raise BadInputError(f"{path}: row {high + 1} (max) minus row {low + 1} (min) must be positive for "
+                                f"the 6 pose columns, got {spread}")
+        ranges[kind] = spread
+    return ranges
+
+
+def source_score(predicted, recorded, ranges, *, wrap_yaw: bool = True) -> float:
+    """The source's score of a free run: ``sum_c mean_k ((y_hat - y)_kc / range_c)^2 / 23``.
+
+    Over the six columns ``x, y, z, phi, theta, psi``: the source multiplies state and
+    prediction by ``1 / range_c`` (zero for its other 17 columns) and takes ``F.mse_loss``, the
+    mean over samples and all 23 columns (:data:`SOURCE_STATE_WIDTH`) of the squared difference
+    (``methods/comp_NODE.py`` of ``zhu-yj/ABNODE``). The source does not wrap the yaw
+    difference (both yaws lie in [-pi, pi], so a run a little behind across the wrap counts
+    almost a full turn); with ``wrap_yaw`` (the default) it is wrapped, without it the predicted
+    yaw is first brought into [-pi, pi) as the source's integrator keeps it (a grey-box free run
+    carries yaw continuously).
+
+    Parameters
+    ----------
+    predicted, recorded : ndarray, shape (n, >= 6)
+        States in :data:`~validation.vehicles.rgblimp_equations.STATE_NAMES` order.
+    ranges : ndarray, shape (6,)
+        (max - min) of each column (:func:`read_score_ranges`).
+    wrap_yaw : bool
+
+    Returns
+    -------
+    float
+    """
+    predicted, recorded = np.asarray(predicted, dtype=float), np.asarray(recorded, dtype=float)
+    difference = predicted[:, :6] - recorded[:, :6]
+    if wrap_yaw:
+        difference[:, 5] = (difference[:, 5] + np.pi) % (2 * np.pi) - np.pi
+    else:
+        difference[:, 5] = (predicted[:, 5] + np.pi) % (2 * np.pi) - np.pi - recorded[:, 5]
+    return float(np.sum(np.mean((difference / np.asarray(ranges)) ** 2, axis=0)) / SOURCE_STATE_WIDTH)
+
+
+def flight_metrics(predicted, recorded, ranges, *, position_sd=None) -> dict:
+    """Every score of one free run against the recording.
+
+    Parameters
+    ----------
+    predicted, recorded : ndarray, shape (n, 12)
+    ranges : ndarray, shape (6,)
+    position_sd : ndarray, shape (n, 3), optional
+        Standard deviation of the predicted position, m.
+
+    Returns
+    -------
+    dict
+        ``score`` (:func:`source_score`, yaw wrapped), ``score_source_literal`` (yaw not
+        wrapped, as the source's code), ``position_rmse_m`` (RMS over samples of the 3-D
+        distance), ``final_position_error_m``, ``yaw_rmse_rad`` (wrapped) and, with
+        ``position_sd``, ``coverage95_position``: the fraction of samples and coordinates within
+        the mean plus or minus 1.96 sd.
+    """
+    error = wrapped_difference(predicted, recorded)
+    distance = np.linalg.norm(error[:, :3], axis=1)
+    metrics = {"score": source_score(predicted, recorded, ranges),
+               "score_source_literal": source_score(predicted, recorded, ranges, wrap_yaw=False),
+               "position_rmse_m": float(np.sqrt(np.mean(distance**2))),
+               "final_position_error_m": float(distance[-1]),
+               "yaw_rmse_rad": float(np.sqrt(np.mean(error[:, 5] ** 2)))}
+    if position_sd is not None:
+        inside = np.abs(error[:, :3]) <= BAND_QUANTILE * np.asarray(position_sd)
+        metrics["coverage95_position"] = float(np.mean(inside))
+    return metrics
+
+
+@dataclass
+class FlightRun:
+    """One test flight's free runs: the recording, each model's prediction (n, 12) and the RKGPs'
+    position sd (n, 3), kept for the figures."""
+
+    split: Split
+    time: np.ndarray
+    recorded: np.ndarray
+    predicted: dict
+    position_sd: dict = field(default_factory=dict)
+
+
+def free_runs(recorded, inputs, models: dict) -> tuple[dict, dict]:
+    """Each model's free run over a whole flight from its first recorded state.
+
+    Parameters
+    ----------
+    recorded : ndarray, shape (n, 12)
+    inputs : ndarray, shape (n, 5)
+        ``inputs[k]`` held from sample k to k + 1.
+    models : dict
+        name -> :class:`RGBlimpModel` or :class:`~validation.models.rgblimp_sindyc.SINDYcResidual`
+        (run by their RK4 steps) or ``(GreyBoxGP, RGBlimpModel)`` (run by ``GreyBoxGP.propagate``
+        with the model's step).
+
+    Returns
+    -------
+    predicted : dict
+        name -> ndarray (n, 12).
+    position_sd : dict
+        name -> ndarray (n, 3), for the grey-box models.
+    seconds : dict
+        name -> wall time of the free run, s.
+    """
+    predicted, position_sd, seconds = {}, {}, {}
+    for name, model in models.items():
+        began = clock.perf_counter()
+        if isinstance(model, (RGBlimpModel, SINDYcResidual)):
+            predicted[name] = model.simulate(recorded[0], inputs)
+        else:
+            greybox, physics = model
+            run = greybox.propagate(continuous_states(recorded[:1])[0], inputs[:-1], physics_step(physics))
+            predicted[name], position_sd[name] = run.mean, run.sd[:, :3]
+        seconds[name] = clock.perf_counter() - began
+    return predicted, position_sd, seconds
+
+
+def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpSetup = DEFAULT_SETUP,
+                      seed: int = 0, progress: bool = True) -> dict:
+    """Fit and test the four models on every configuration; write ``results.json``,
+    ``report.md`` and the figures to ``out_dir``.
+
+    Parameters
+    ----------
+    data_dir : path
+        The source's ``data_N.csv`` (any subset) and its ``data_info/`` folder.
+    out_dir : path
+    configurations : sequence of int, optional
+        Only these configurations (default: every one with two flights present). The global
+        model is fitted on the fitting flights of the configurations run.
+    setup : RGBlimpSetup
+    seed : int
+        Seed of the GPs' hyperparameter search.
+    progress : bool
+        Progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        The content of ``results.json``.
+    """
+    started = clock.perf_counter()
+    require_pysindy()  # before any fit: the peer needs it
+    out_dir = Path(out_dir)
+    splits = split_flights(data_dir, configurations)
+    ranges = read_score_ranges(data_dir, sorted({s.kind for s in splits}))
+    numbers = sorted({n for s in splits for n in (*s.fit, s.test)})
+    flights = {n: read_rgblimp_flight(Path(data_dir) / f"data_{n}.csv") for n in numbers}
+    fitting = [flights[n] for s in splits for n in s.fit]
+
+    with progress_bar("rgblimp configurations", enabled=progress, total=len(splits) + 1,
+                      unit="configuration") as update:
+        seconds = {}
+        tick = clock.perf_counter()
+        global_identified, global_rkgp = fit_global(fitting, setup, seed=seed)
+        seconds["global_fit"] = clock.perf_counter() - tick
+        if update:
+            update(1, stage="global model")
+        entries, runs = [], []
+        for split in splits:
+            entry, run = _run_configuration(split, flights, ranges[split.kind], global_identified.model,
+                                            global_rkgp, setup=setup, seed=seed)
+            entries.append(entry)
+            runs.append(run)
+            if update:
+                update(1, configuration=split.configuration)
+
+    results = {
+        "case": "RGBlimp real flights (Zhu, Cheng & Zhang, IEEE RA-L 2024): free run of each configuration's "
+                "test flight from its first recorded state",
+        "units": "score: the source's (mean squared pose error over (max - min) per column, summed over "
+                 "x y z phi theta psi, over 23; yaw wrapped); position m; yaw rad; coverage: fraction of "
+                 "samples and coordinates inside the 95 % band",
+        "models": {"physics": "published first-principle model (utils/parameters.py of zhu-yj/ABNODE), RK4 at 1/60 s",
+                   "identified": "coefficients re-fitted per configuration by output error on its fitting flights",
+                   "rkgp": "identified model plus residual GPs per configuration, GreyBoxGP.propagate",
+                   "rkgp_global": "one identified model and RKGP fitted on all configurations' fitting flights",
+                   "sindyc": "published model plus a PySINDy sparse polynomial (STLSQ) of its residual "
+                             "accelerations, per configuration"},
+        "setup": {"identified_parameters": list(setup.identified_parameters),
+                  "segment_duration_s": setup.segment_duration, "max_segments": setup.max_segments,
+                  "global_max_segments": setup.global_max_segments, "max_iterations": setup.max_iterations,
+                  "gp_inputs": list(GP_INPUT_NAMES), "training_points": setup.training_points,
+                  "global_training_points": setup.global_training_points,
+                  "min_noise_variance": setup.min_noise_variance,
+                  "training_states": "recorded" if setup.smoothing is None else
+                  f"from the poses, local polynomial of degree {setup.smoothing[1]} over {setup.smoothing[0]} samples",
+                  "seed": seed,
+                  "score_ranges": {kind: [float(v) for v in r] for kind, r in ranges.items()}},
+        "global": {"fit": [f"data_{n}.csv" for s in splits for n in s.fit],
+                   "identification": global_identified.as_dict(),
+                   "gp_training_points": int(len(global_rkgp.gp_.gps[0].X_train_))},
+        "configurations": entries,
+    }
+    results["summary"] = summarise(entries)
+    results["goals"] = goals(results)
+    figures = rgblimp_report.figures(results, runs, count=FIGURE_CONFIGURATIONS)
+    for name, figure in figures.items():
+        write_atomically(out_dir / name, png_bytes(figure))
+    results["seconds"] = {**seconds, "configurations": float(sum(e["seconds"] for e in entries)),
+                          "total": clock.perf_counter() - started}
+    write_json(out_dir / "results.json", results)
+    write_atomically(out_dir / "report.md", rgblimp_report.report_markdown(results, figures=list(figures)))
+    return results
+
+
+def fit_global(fitting, setup: RGBlimpSetup, *, seed: int, with_rkgp: bool = True):
+    """The global model: coefficients identified on the fitting flights of every configuration
+    at once (from the published values), and its RKGP (None without ``with_rkgp``).
+
+    Returns
+    -------
+    identified : IdentificationResult
+    rkgp : GreyBoxGP or None
+    """
+    identified = identify_parameters(
+        fitting, names=setup.identified_parameters, segment_duration=setup.segment_duration,
+        max_segments=setup.global_max_segments, max_iterations=setup.max_iterations)
+    if not with_rkgp:
+        return identified, None
+    return identified, fit_rkgp(fitting, identified.model, n_points=setup.global_training_points,
+                                min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
+
+
+def fit_configuration(fitting, initial: RGBlimpModel, *, setup: RGBlimpSetup, seed: int, seconds=None):
+    """One configuration's models: its coefficients identified on its fitting flights starting
+    from ``initial`` (the global model), and the RKGP on the identified model.
+
+    Parameters
+    ----------
+    seconds : dict, optional
+        Receives the wall times, s: ``identified`` (the identification) and ``rkgp`` (the
+        identification plus the GPs' fit).
+
+    Returns
+    -------
+    identified : IdentificationResult
+    rkgp : GreyBoxGP
+    """
+    began = clock.perf_counter()
+    identified = identify_parameters(
+        fitting, names=setup.identified_parameters, initial=initial, segment_duration=setup.segment_duration,
+        max_segments=setup.max_segments, max_iterations=setup.max_iterations)
+    identified_seconds = clock.perf_counter() - began
+    rkgp = fit_rkgp(fitting, identified.model, n_points=setup.training_points,
+                    min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
+    if seconds is not None:
+        seconds.update(identified=identified_seconds, rkgp=clock.perf_counter() - began)
+    return identified, rkgp
+
+
+def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlimpModel, global_rkgp, *,
+                       setup: RGBlimpSetup, seed: int) -> tuple[dict, FlightRun]:
+    """Fit the per-configuration models on ``split.fit``, run all four on ``split.test``."""
+    started = clock.perf_counter()
+    fitting = [flights[n] for n in split.fit]
+    fit_seconds = {}
+    identified, rkgp = fit_configuration(fitting, global_model, setup=setup, seed=seed, seconds=fit_seconds)
+    sindyc = fit_sindyc(fitting)
+    fit_seconds["sindyc"] = sindyc.fit_seconds
+    test = flights[split.test].recording
+    models = {"physics": RGBlimpModel(), "identified": identified.model, "rkgp": (rkgp, identified.model),
+              "rkgp_global": (global_rkgp, global_model), "sindyc": sindyc, "identified_global": global_model}
+    predicted, position_sd, run_seconds = free_runs(test.outputs, test.inputs, models)
+    metrics = {name: flight_metrics(predicted[name], test.outputs, ranges, position_sd=position_sd.get(name))
+               for name in models}
+    entry = {"index": split.configuration, "kind": split.kind,
+             "fit": [f"data_{n}.csv" for n in split.fit], "test": f"data_{split.test}.csv",
+             "test_samples": len(test.time), "test_duration_s": float(test.time[-1]),
+             "inputs": {name: float(v) for name, v in zip(test.input_names, test.inputs[0])}}
+    for key in ("score", "position_rmse_m", "final_position_error_m", "yaw_rmse_rad", "score_source_literal"):
+        # A free run that diverged (a SINDYc polynomial can) has no score: null, counted apart.
+        entry[key] = {name: metrics[name][key] if np.all(np.isfinite(predicted[name])) else None
+                      for name in MODELS}
+    entry["coverage95_position"] = {name: metrics[name]["coverage95_position"] for name in BAND_MODELS}
+    # The global RKGP's physics alone, to tell its GPs' share of its error from its coefficients'.
+    entry["identified_global"] = {key: metrics["identified_global"][key]
+                                  for key in ("score", "position_rmse_m", "final_position_error_m", "yaw_rmse_rad")}
+    entry["identification"] = identified.as_dict()
+    entry["sindyc_terms"] = sindyc.n_terms
+    entry["fit_seconds"] = fit_seconds
+    entry["free_run_seconds"] = {name: run_seconds[name] for name in MODELS}
+    entry["seconds"] = clock.perf_counter() - started
+    run = FlightRun(split, test.time, test.outputs, predicted, position_sd)
+    return entry, run
+
+
+def summarise(entries: list[dict]) -> dict:
+    """Means over the configurations of each model's scores, and how often each beats physics."""
+    def mean(key, models=MODELS):  # over the runs that did not diverge
+        return {name: float(np.mean([e[key][name] for e in entries if e[key][name] is not None] or [np.nan]))
+                for name in models}
+
+    summary = {"n_configurations": len(entries),
+               "diverged": {name: int(sum(e["score"][name] is None for e in entries)) for name in MODELS},
+               "mean_score": mean("score"),
+               "mean_position_rmse_m": mean("position_rmse_m"),
+               "mean_final_position_error_m": mean("final_position_error_m"),
+               "mean_yaw_rmse_rad": mean("yaw_rmse_rad"),
+               "mean_score_source_literal": mean("score_source_literal"),
+               "mean_coverage95_position": mean("coverage95_position", BAND_MODELS)}
+    summary["identified_global"] = {f"mean_{key}": float(np.mean([e["identified_global"][key] for e in entries]))
+                                    for key in ("score", "position_rmse_m")}
+    def beats(key, name):
+        return int(sum(e[key][name] is not None and e[key][name] < e[key]["physics"] for e in entries))
+
+    summary["beats_physics_in_score"] = {name: beats("score", name) for name in MODELS[1:]}
+    summary["beats_physics_in_position_rmse"] = {name: beats("position_rmse_m", name) for name in MODELS[1:]}
+    summary["physics_over_model_mean_score"] = {
+        name: summary["mean_score"]["physics"] / summary["mean_score"][name] for name in MODELS[1:]}
+    summary["mean_fit_seconds"] = {name: float(np.mean([e["fit_seconds"][name] for e in entries]))
+                                   for name in ("identified", "rkgp", "sindyc")}
+    summary["mean_free_run_seconds"] = mean("free_run_seconds")
+    return summary
+
+
+def goals(results: dict) -> dict:
+    """The issue's goals (:data:`GOAL_SCORE_FACTOR`, :data:`GOAL_POSITION_RMSE_M`), each with its
+    target, the measured value and whether it is met."""
+    summary = results["summary"]
+    n = summary["n_configurations"]
+    out = {}
+    for name in BAND_MODELS:
+        beats = summary["beats_physics_in_score"][name]
+        out[f"{name}_beats_physics_on_every_test_flight"] = {
+            "target": f"score below physics on all {n} test flights", "measured": f"{beats} of {n}",
+            "met": beats == n}
+        factor = summary["physics_over_model_mean_score"][name]
+        out[f"{name}_{GOAL_SCORE_FACTOR:g}x_better_mean_score"] = {
+            "target": f"mean score of physics / {name} >= {GOAL_SCORE_FACTOR:g}", "measured": factor,
+            "met": factor >= GOAL_SCORE_FACTOR}
+        rmse = summary["mean_position_rmse_m"][name]
+        out[f"{name}_mean_position_rmse_below_{GOAL_POSITION_RMSE_M:g}_m"] = {
+            "target": f"mean position RMSE < {GOAL_POSITION_RMSE_M:g} m", "measured": rmse,
+            "met": rmse < GOAL_POSITION_RMSE_M}
+    return out

@@ -1,0 +1,150 @@
+"""The validation-flight study behind the RGBlimp reproduction's settings (docs/rgblimp.md,
+"Identification and RKGP").
+
+:mod:`validation.reproduce.rgblimp` tests each configuration on its highest-numbered flight
+present. This study never reads that flight: for every configuration with at least three flights
+present it fits on the lowest-numbered one and validates on the next (on the shared folder, which
+holds flights ``4j+1 .. 4j+3``: fit on ``4j+1``, validate on ``4j+2``), with the reproduction's
+own procedure (a global identification on the fitting flights of every configuration,
+:func:`validation.reproduce.rgblimp.fit_global`, then per configuration the identified model
+started from it and its RKGP, as :func:`validation.reproduce.rgblimp.fit_configuration`; free runs
+of the whole validation flight, the RKGP's mean only). Candidates that share the identification
+settings share the identified models. Each candidate changes
+one setting of the chosen one (:data:`validation.reproduce.rgblimp.DEFAULT_SETUP`); the table is
+the mean over configurations of the source's score and of the position RMSE, identified model
+and RKGP, with the published model's for scale.
+"""
+from __future__ import annotations
+
+import time as clock
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.core.progress import progress_bar
+from validation.models.rgblimp_greybox import continuous_states, fit_rkgp, physics_step
+from validation.models.rgblimp_identification import IDENTIFIED_PARAMETERS, RGBlimpModel, identify_parameters
+from validation.reproduce.rgblimp import DEFAULT_SETUP, Split, fit_global, flight_metrics, read_score_ranges
+from validation.vehicles.rgblimp_data import flights_by_configuration, read_rgblimp_flight
+
+#: The chosen settings and their one-setting variants: name -> RGBlimpSetup.
+CANDIDATES = {
+    "chosen": DEFAULT_SETUP,
+    "no wind": replace(DEFAULT_SETUP, identified_parameters=tuple(
+        n for n in IDENTIFIED_PARAMETERS if not n.startswith("wind"))),
+    "segments 3 s": replace(DEFAULT_SETUP, segment_duration=3.0),
+    "segments 12 s": replace(DEFAULT_SETUP, segment_duration=12.0),
+    "recorded training states": replace(DEFAULT_SETUP, smoothing=None),
+    "smoothing 21 samples": replace(DEFAULT_SETUP, smoothing=(21, 2)),
+    "300 training points": replace(DEFAULT_SETUP, training_points=300),
+    "noise floor 1e-2": replace(DEFAULT_SETUP, min_noise_variance=1e-2),
+}
+#: The models each candidate is scored on.
+SCORED = ("physics", "identified", "rkgp")
+
+
+def validation_splits(data_dir, configurations=None) -> list[Split]:
+    """Fit on the lowest-numbered flight, validate on the next, of every configuration with at
+    least three flights present (the highest-numbered, the reproduction's test flight, unread).
+
+    Raises
+    ------
+    BadInputError
+        No configuration (or a requested one) has three flights.
+    """
+    present = flights_by_configuration(data_dir)
+    chosen = sorted(present) if configurations is None else sorted({int(j) for j in configurations})
+    splits = [Split(j, (present[j][0],), present[j][1]) for j in chosen if len(present.get(j, ())) >= 3]
+    missing = [j for j in chosen if len(present.get(j, ())) < 3]
+    if (configurations is not None and missing) or not splits:
+        raise BadInputError(f"{data_dir}: the settings study needs three flights of a configuration (fit, "
+                            f"validate, and the test flight it leaves unread); too few for configuration(s) "
+                            f"{missing or sorted(present)}")
+    return splits
+
+
+def study_settings(data_dir, *, configurations=None, candidates=None, seed: int = 0,
+                   progress: bool = False) -> dict:
+    """Score each candidate setup on the validation flights.
+
+    Parameters
+    ----------
+    data_dir : path
+        The source's ``data_N.csv`` and ``data_info/``.
+    configurations : sequence of int, optional
+        Default every configuration with three flights present.
+    candidates : dict, optional
+        name -> RGBlimpSetup; default :data:`CANDIDATES`.
+    seed : int
+        Seed of the GPs' hyperparameter search.
+    progress : bool
+
+    Returns
+    -------
+    dict
+        ``splits`` (fit and validation flight per configuration) and ``candidates``: per
+        candidate its setup, the mean over configurations of each model's ``score`` and
+        ``position_rmse_m``, per configuration the same, and the wall time.
+    """
+    candidates = CANDIDATES if candidates is None else candidates
+    splits = validation_splits(data_dir, configurations)
+    ranges = read_score_ranges(data_dir, sorted({s.kind for s in splits}))
+    flights = {n: read_rgblimp_flight(Path(data_dir) / f"data_{n}.csv")
+               for s in splits for n in (*s.fit, s.test)}
+    fitting = [flights[n] for s in splits for n in s.fit]
+    scored, globals_, identified_ = {}, {}, {}
+    with progress_bar("rgblimp settings", enabled=progress, total=len(candidates) * len(splits),
+                      unit="fit") as update:
+        for name, setup in candidates.items():
+            began = clock.perf_counter()
+            key = (setup.identified_parameters, setup.segment_duration)
+            if key not in globals_:
+                globals_[key] = fit_global(fitting, setup, seed=seed, with_rkgp=False)[0]
+            per_configuration = []
+            for split in splits:
+                fitting_flights = [flights[n] for n in split.fit]
+                if (key, split) not in identified_:
+                    identified_[key, split] = identify_parameters(
+                        fitting_flights, names=setup.identified_parameters, initial=globals_[key].model,
+                        segment_duration=setup.segment_duration, max_segments=setup.max_segments,
+                        max_iterations=setup.max_iterations)
+                model = identified_[key, split].model
+                rkgp = fit_rkgp(fitting_flights, model, n_points=setup.training_points,
+                                min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
+                test = flights[split.test].recording
+                start = continuous_states(test.outputs[:1])[0]
+                predicted = {"physics": RGBlimpModel().simulate(test.outputs[0], test.inputs),
+                             "identified": model.simulate(test.outputs[0], test.inputs),
+                             "rkgp": rkgp.rollout(start, test.inputs[:-1], physics_step(model))}
+                metrics = {m: flight_metrics(predicted[m], test.outputs, ranges[split.kind]) for m in SCORED}
+                per_configuration.append({"index": split.configuration,
+                                          **{key_: {m: metrics[m][key_] for m in SCORED}
+                                             for key_ in ("score", "position_rmse_m")}})
+                if update:
+                    update(1, candidate=name)
+            scored[name] = {
+                "setup": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(setup).items()},
+                **{f"mean_{k}": {m: float(np.mean([e[k][m] for e in per_configuration])) for m in SCORED}
+                   for k in ("score", "position_rmse_m")},
+                "configurations": per_configuration, "seconds": clock.perf_counter() - began}
+    return {"splits": [{"index": s.configuration, "fit": [f"data_{n}.csv" for n in s.fit],
+                        "validation": f"data_{s.test}.csv"} for s in splits],
+            "metric": "mean over configurations of a free run of the whole validation flight from its first "
+                      "recorded state: the source's score and the position RMSE (m)",
+            "candidates": scored}
+
+
+def format_settings(results: dict) -> str:
+    """The study as a plain-text table."""
+    lines = [f"RGBlimp settings on {len(results['splits'])} validation flights (fit on one flight per "
+             "configuration, free run of the next): means over configurations",
+             f"{'candidate':28}{'score ident.':>13}{'score RKGP':>12}{'pos ident. m':>14}{'pos RKGP m':>12}"]
+    for name, entry in results["candidates"].items():
+        lines.append(f"{name:28}{entry['mean_score']['identified']:13.5f}{entry['mean_score']['rkgp']:12.5f}"
+                     f"{entry['mean_position_rmse_m']['identified']:14.3f}{entry['mean_position_rmse_m']['rkgp']:12.3f}")
+    first = next(iter(results["candidates"].values()))
+    lines.append(f"{'published model':28}{first['mean_score']['physics']:13.5f}{'':12}"
+                 f"{first['mean_position_rmse_m']['physics']:14.3f}")
+    return "\n".join(lines)
