@@ -13,8 +13,10 @@ coefficients (one RK4 step of 1/60 s, the source's integrator), from:
   evenly spread (exact GPs cost n^3), between states re-estimated from the recorded poses
   (:func:`smoothed_states`: positions and Euler angles and their slopes by a quadratic through
   :data:`SMOOTHING_WINDOW` samples, turned into body velocities and rates). The recorded
-  velocities are smooth but disagree with the slope of the recorded positions by about 5 mm/s,
-  and that disagreement, not the dynamics, would be most of the position residual;
+  velocities are smooth but disagree with the slope of the recorded positions (rotated to the
+  earth frame) by about 7 mm/s RMS on spiral flights and 1.5-2 mm/s on straight ones (flights
+  1, 2, 29, 30, 121, 122), and that disagreement, not the dynamics, would be most of the one-step
+  position residual;
 - **one GP per residual output** with a floor :data:`MIN_NOISE_VARIANCE` under each noise
   variance (standardised), as for flightgp's blimp: the residuals of smooth states are nearly
   functions of the inputs, and without the floor the GPs become ill-conditioned.
