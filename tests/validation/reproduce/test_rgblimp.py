@@ -109,6 +109,14 @@ def test_score_ranges_are_max_minus_min_from_the_sources_rows(tmp_path):
         read_score_ranges(folder, ["straight"])
 
 
+def test_the_excerpt_carries_the_sources_score_ranges():
+    ranges = read_score_ranges(EXCERPT_FOLDER)
+    # Position ranges of a few metres, angle ranges within a turn: the source's statistics.
+    for kind in ("spiral", "straight"):
+        assert np.all((ranges[kind][:3] > 1) & (ranges[kind][:3] < 10))
+        assert np.all((ranges[kind][3:] > 0.1) & (ranges[kind][3:] <= 2 * np.pi + 1e-3))
+
+
 def _command(*args) -> tuple[int, str]:
     errors = io.StringIO()
     with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
