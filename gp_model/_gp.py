@@ -538,8 +538,8 @@ class _StackedPosterior:
     Every kernel here is ``sigma_f^2 exp(-sum_i w_i (x_i - x'_i)^2)`` (:class:`StationaryKernel`),
     so with each GP's inputs standardised and multiplied by ``sqrt(w)`` the m kernel matrices
     are m squared-distance computations against stacked training inputs (Rasmussen & Williams,
-    Alg. 2.1, lines 4-6; the variance's triangular solves stay one per GP, by LAPACK directly,
-    which gives :meth:`GaussianProcess.predict`'s numbers to the last bit).
+    Alg. 2.1, lines 4-6; the variance's triangular solves stay one per GP, by the LAPACK routine
+    :meth:`GaussianProcess.predict` uses, so the two agree to rounding, about 1e-14 relative).
     """
 
     input_mean: np.ndarray  # (m, 1, d)

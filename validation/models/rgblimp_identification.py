@@ -27,7 +27,8 @@ spiral shows:
 - ``c_my0``: the pitching moment, so the pitch trim;
 - ``c_mx0``: the rolling moment, so the bank in the turn;
 - ``rate_damping_z``: yaw damping, so the turn rate the thrust difference gives;
-- ``wind_x``, ``wind_y``: a steady horizontal air motion in the room (:func:`advance`). The
+- ``wind_x``, ``wind_y``: a steady horizontal air motion in the room (the air's velocity along
+  the motion capture's x and y axes, m/s) (:func:`advance`). The
   recorded spirals drift (their centres move by about 1 m a minute) and the recorded ground
   speed oscillates once per turn, as a circle flown in moving air does (what the two components
   change on the validation flights: docs/rgblimp.md, "Identification and RKGP").
@@ -35,7 +36,9 @@ spiral shows:
 Uncertainty: the covariance of the estimate is the cluster-robust sandwich ``A^-1 B A^-1`` with
 ``A = J^T J`` and ``B`` the sum over segments of ``(J_s^T r_s)(J_s^T r_s)^T``, times ``S / (S - 1)``
 for S segments (Liang & Zeger 1986): residuals within a segment are strongly correlated, segments
-nearly independent (:mod:`validation.models.blimp_identification` explains the choice).
+nearly independent (:mod:`validation.models.blimp_identification` explains the choice). It needs
+many more segments than coefficients; with fewer than :data:`MIN_SEGMENTS_PER_COEFFICIENT` per
+coefficient (a configuration's straight flights give two or three) it is reported as unknown.
 
 Speed: the segments are simulated together, vectorised (:func:`free_run`), and the Jacobian's
 forward differences perturb every coefficient at once, as one batch of parameter sets
@@ -71,8 +74,12 @@ STATE_SCALE = (0.05,) * 3 + (0.02,) * 3 + (0.02,) * 3 + (0.02,) * 3
 #: Unit of each scaled optimisation variable for coefficients whose published value is zero or
 #: tiny: the variable is ``(theta - theta0) / max(|theta0|, this)``.
 _MIN_PARAMETER_SCALE = 0.01
-#: Most trust-region iterations of one fit.
+#: Most residual evaluations of one fit (scipy's ``max_nfev``; each also gives the Jacobian).
 MAX_ITERATIONS = 30
+#: The cluster-robust covariance needs many more segments (clusters) than coefficients: with
+#: fewer than this many per coefficient it is not reported (two spiral flights of a
+#: configuration give 5 to 25 segments for nine coefficients).
+MIN_SEGMENTS_PER_COEFFICIENT = 3
 #: Relative tolerance on the cost and the step (scipy's ftol and xtol): far below the
 #: coefficients' standard errors.
 _TOLERANCE = 1e-6
@@ -89,7 +96,7 @@ IDENTIFIABLE = ("thrust_gain", *_WIND_AXES, *_PARAMETER_FIELDS, *_DAMPING_AXES)
 
 @dataclass(frozen=True)
 class RGBlimpModel:
-    """The first-principle model with a factor on the thrusts.
+    """The first-principle model with a factor on the thrusts and a steady wind.
 
     Attributes
     ----------
@@ -97,7 +104,14 @@ class RGBlimpModel:
         Default: the source's published values.
     thrust_gain : float
         Multiplies ``thrust_left`` and ``thrust_right`` (1: the recorded thrusts).
+    wind : (2,) tuple of float
+        The air's velocity along the earth x and y axes, m/s (:func:`advance`).
     """
+
+    def __post_init__(self):
+        if not (np.isfinite(self.thrust_gain) and np.all(np.isfinite(self.wind)) and len(self.wind) == 2):
+            raise BadInputError(f"RGBlimpModel needs a finite thrust gain and two finite wind components, got "
+                                f"{self.thrust_gain!r} and {self.wind!r}")
 
     params: RGBlimpParameters = dataclasses.field(default_factory=RGBlimpParameters)
     thrust_gain: float = 1.0
@@ -157,7 +171,8 @@ def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.n
     thrust_gain : float or ndarray
         Broadcasting against ``inputs[..., 0]``.
     wind : (2,) sequence or ndarray, shape (..., 2)
-        North and east wind, m/s (earth x and y); leading axes broadcast against the states'.
+        The air's velocity along the earth (motion-capture) x and y axes, m/s; leading axes
+        broadcast against the states'.
 
     Returns
     -------
@@ -322,10 +337,10 @@ class Segments:
 
 
 def cut_segments(flights, *, duration: float = SEGMENT_DURATION, max_segments: int = MAX_SEGMENTS) -> Segments:
-    """Non-overlapping segments of ``duration`` from each flight, at most ``max_segments`` in all.
+    """Non-overlapping segments of ``duration`` covering each flight, about ``max_segments`` in all.
 
-    A flight shorter than one segment (the straight flights last 6 to 9 s) gives one segment of
-    its whole length, masked past its end.
+    A flight's last segment, and the only one of a flight shorter than ``duration`` (the straight
+    flights last 6 to 9 s), is masked past the flight's end.
 
     Parameters
     ----------
@@ -334,14 +349,30 @@ def cut_segments(flights, *, duration: float = SEGMENT_DURATION, max_segments: i
     duration : float
         Segment length, s (rounded to whole samples of 1/60 s).
     max_segments : int
-        When the flights hold more, every ``ceil(S / max_segments)``-th is kept (evenly over
-        the flights and over time).
+        When the flights hold more, each flight keeps its share of them (in proportion to its
+        segments, evenly over its time, at least one: no flight is left out), so the total may
+        exceed it by about one per flight.
+
+    Raises
+    ------
+    BadInputError
+        No flights, a duration that is not a positive number, ``max_segments < 1``.
     """
+    if not (np.isfinite(duration) and duration > 0):
+        raise BadInputError(f"segment duration must be a positive number of seconds, got {duration}")
+    if max_segments < 1:
+        raise BadInputError(f"max_segments must be at least 1, got {max_segments}")
+    if not flights:
+        raise BadInputError("no flights to identify from")
     length = max(1, int(round(duration / SAMPLE_TIME)))
+    firsts = [np.arange(0, max(len(f.recording.outputs) - 1, 1), length) for f in flights]
+    total = sum(len(first) for first in firsts)
     starts, inputs, targets, masks, numbers = [], [], [], [], []
-    for flight in flights:
+    for flight, first in zip(flights, firsts):
+        if total > max_segments:
+            share = max(1, int(round(max_segments * len(first) / total)))
+            first = first[np.unique(np.round(np.linspace(0, len(first) - 1, share)).astype(int))]
         states, commands = flight.recording.outputs, flight.recording.inputs
-        first = np.arange(0, len(states) - length, length) if len(states) > length else np.array([0])
         steps = first[:, None] + np.arange(length)
         last = len(states) - 2  # the last step that has a recorded next state
         starts.append(states[first])
@@ -349,11 +380,7 @@ def cut_segments(flights, *, duration: float = SEGMENT_DURATION, max_segments: i
         targets.append(states[np.minimum(steps, last) + 1])
         masks.append(steps <= last)
         numbers.append(np.full(len(first), flight.number))
-    if not starts:
-        raise BadInputError("no flights to identify from")
-    parts = [np.concatenate(part) for part in (starts, inputs, targets, masks, numbers)]
-    keep = np.arange(0, len(parts[0]), int(np.ceil(len(parts[0]) / max_segments)))
-    return Segments(*(part[keep] for part in parts))
+    return Segments(*(np.concatenate(part) for part in (starts, inputs, targets, masks, numbers)))
 
 
 def simulate_segments(model: RGBlimpModel, segments: Segments) -> np.ndarray:
@@ -373,12 +400,17 @@ class IdentificationResult:
     names : tuple of str
     values, standard_errors, standard_errors_iid, initial_values : ndarray, shape (p,)
         Estimates, cluster-robust and textbook (``s^2 (J^T J)^-1``) standard errors, starting
-        values (which are also the prior's means).
+        values (which are also the prior's means). The cluster-robust ones are NaN with fewer
+        than :data:`MIN_SEGMENTS_PER_COEFFICIENT` segments per coefficient (the textbook ones
+        then understate the uncertainty: the residuals within a segment are correlated).
     covariance : ndarray, shape (p, p)
-        Cluster-robust covariance of ``values``.
+        Cluster-robust covariance of ``values`` (NaN as the standard errors).
     rms_residual, initial_rms_residual : float
         Root mean square of the scaled state residuals at the optimum and at the start.
     n_segments, n_evaluations : int
+    converged : bool
+        Whether ``least_squares`` met its tolerances (False: it stopped at ``max_iterations``
+        function evaluations).
     flights : tuple of int
         The flight numbers identified on.
     seconds : float
@@ -396,17 +428,23 @@ class IdentificationResult:
     initial_rms_residual: float
     n_segments: int
     n_evaluations: int
+    converged: bool
     flights: tuple
     seconds: float
 
     def as_dict(self) -> dict:
-        """JSON-ready: per coefficient its value, standard error and starting value, and the fit."""
-        return {"parameters": {name: {"value": float(v), "standard_error": float(se), "initial": float(v0)}
-                               for name, v, se, v0 in zip(self.names, self.values, self.standard_errors,
-                                                          self.initial_values)},
+        """JSON-ready: per coefficient its value, standard errors (null where not available) and
+        starting value, and the fit."""
+        def number(value):
+            return float(value) if np.isfinite(value) else None
+
+        return {"parameters": {name: {"value": float(v), "standard_error": number(se),
+                                      "standard_error_iid": number(se_iid), "initial": float(v0)}
+                               for name, v, se, se_iid, v0 in zip(self.names, self.values, self.standard_errors,
+                                                                  self.standard_errors_iid, self.initial_values)},
                 "rms_scaled_residual": self.rms_residual, "initial_rms_scaled_residual": self.initial_rms_residual,
-                "n_segments": self.n_segments, "n_evaluations": self.n_evaluations, "flights": list(self.flights),
-                "seconds": self.seconds}
+                "n_segments": self.n_segments, "n_evaluations": self.n_evaluations, "converged": self.converged,
+                "flights": list(self.flights), "seconds": self.seconds}
 
 
 def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlimpModel | None = None,
@@ -449,6 +487,8 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
     _check_names(names)
     if not names:
         raise BadInputError("no coefficient to identify")
+    if max_iterations < 1:
+        raise BadInputError(f"max_iterations must be at least 1, got {max_iterations}")
     initial = RGBlimpModel() if initial is None else initial
     scale = np.asarray(state_scale, dtype=float)
     if scale.shape != (12,) or not np.all(scale > 0):
@@ -462,7 +502,10 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
         missing = [n for n in names if n not in prior_sd]
         if missing:
             raise BadInputError(f"prior_sd has no standard deviation for {', '.join(missing)}")
-        prior_weight = units / np.array([float(prior_sd[n]) for n in names])
+        sds = np.array([float(prior_sd[n]) for n in names])
+        if not np.all(np.isfinite(sds) & (sds > 0)):
+            raise BadInputError(f"prior standard deviations must be positive numbers, got {dict(zip(names, sds))}")
+        prior_weight = units / sds
     n_segments, length = segments.inputs.shape[:2]
     inputs = np.concatenate([segments.inputs, segments.inputs[:, -1:]], axis=1)
     weight = segments.mask[..., None] / (scale * np.sqrt(length))  # (S, L, 12)
@@ -513,6 +556,9 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
     scores = np.einsum("sri,sr->si", data_jacobian.reshape(n_segments, length * 12, -1),
                        residual[:n_data].reshape(n_segments, -1))
     sandwich = information @ (scores.T @ scores) @ information * n_segments / max(n_segments - 1, 1)
+    if n_segments < MIN_SEGMENTS_PER_COEFFICIENT * len(names):
+        # Fewer clusters than this per coefficient make the sandwich rank-deficient or erratic.
+        sandwich = np.full_like(sandwich, np.nan)
     sigma2 = residual[:n_data] @ residual[:n_data] / max(n_used - len(names), 1)  # per weighted sample
     values = base + units * solution.x
     return IdentificationResult(
@@ -521,5 +567,5 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
         standard_errors_iid=np.sqrt(np.diag(sigma2 * information)) * units,
         initial_values=base, covariance=sandwich * np.outer(units, units),
         rms_residual=rms_state_residual(residual), initial_rms_residual=initial_rms,
-        n_segments=n_segments, n_evaluations=int(solution.nfev),
+        n_segments=n_segments, n_evaluations=int(solution.nfev), converged=bool(solution.status > 0),
         flights=tuple(sorted({int(n) for n in segments.flights})), seconds=time.perf_counter() - started)

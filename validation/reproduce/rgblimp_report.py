@@ -69,8 +69,8 @@ def flight_figure(run) -> Figure:
         path = run.predicted[name]
         track.plot(path[:, 0], path[:, 1], -path[:, 2], color=colour, ls=style, lw=1, label=name)
     track.scatter(*recorded[0, :2], -recorded[0, 2], color="k", s=20)
-    track.set_xlabel("x (north) [m]")
-    track.set_ylabel("y (east) [m]")
+    track.set_xlabel("x [m]")
+    track.set_ylabel("y [m]")
     track.set_zlabel("height -z [m]")
     track.legend(fontsize="small", loc="upper left")
     for row, name in enumerate(_POSITION_NAMES):
@@ -162,7 +162,9 @@ def report_markdown(results: dict, *, figures) -> str:
     lines += ["", "## Global identification", "", "| coefficient | published | identified | standard error |",
               "|---|---|---|---|"]
     for name, entry in identification.items():
-        lines.append(f"| {name} | {entry['initial']:.5g} | {entry['value']:.5g} | {entry['standard_error']:.2g} |")
+        error = (f"{entry['standard_error']:.2g}" if entry["standard_error"] is not None else
+                 f"n/a, too few segments (textbook {entry['standard_error_iid']:.2g})")
+        lines.append(f"| {name} | {entry['initial']:.5g} | {entry['value']:.5g} | {error} |")
     lines += ["", "## Figures", "", *[f"![{name}]({name})" for name in figures]]
     return "\n".join(lines) + "\n"
 

@@ -3,8 +3,8 @@
 
 :mod:`validation.reproduce.rgblimp` tests each configuration on its highest-numbered flight
 present. This study never reads that flight: for every configuration with at least three flights
-present it fits on the lowest-numbered one and validates on the next (on the shared folder, which
-holds flights ``4j+1 .. 4j+3``: fit on ``4j+1``, validate on ``4j+2``), with the reproduction's
+present it fits on the lowest-numbered one and validates on the next (on a folder that holds flights
+``4j+1 .. 4j+3``: fit on ``4j+1``, validate on ``4j+2``), with the reproduction's
 own procedure (a global identification on the fitting flights of every configuration,
 :func:`validation.reproduce.rgblimp.fit_global`, then per configuration the identified model
 started from it and its RKGP, as :func:`validation.reproduce.rgblimp.fit_configuration`; free runs
@@ -45,7 +45,7 @@ CANDIDATES = {
 SCORED = ("physics", "identified", "rkgp")
 
 
-def validation_splits(data_dir, configurations=None) -> list[Split]:
+def validation_splits(data_dir, *, configurations=None) -> list[Split]:
     """Fit on the lowest-numbered flight, validate on the next, of every configuration with at
     least three flights present (the highest-numbered, the reproduction's test flight, unread).
 
@@ -89,8 +89,8 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
         ``position_rmse_m``, per configuration the same, and the wall time.
     """
     candidates = CANDIDATES if candidates is None else candidates
-    splits = validation_splits(data_dir, configurations)
-    ranges = read_score_ranges(data_dir, sorted({s.kind for s in splits}))
+    splits = validation_splits(data_dir, configurations=configurations)
+    ranges = read_score_ranges(data_dir, kinds=sorted({s.kind for s in splits}))
     flights = {n: read_rgblimp_flight(Path(data_dir) / f"data_{n}.csv")
                for s in splits for n in (*s.fit, s.test)}
     fitting = [flights[n] for s in splits for n in s.fit]
@@ -99,7 +99,8 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
                       unit="fit") as update:
         for name, setup in candidates.items():
             began = clock.perf_counter()
-            key = (setup.identified_parameters, setup.segment_duration)
+            key = (setup.identified_parameters, setup.segment_duration, setup.max_segments,
+                   setup.global_max_segments, setup.max_iterations)  # everything the identifications use
             if key not in globals_:
                 globals_[key] = fit_global(fitting, setup, seed=seed, with_rkgp=False)[0]
             per_configuration = []

@@ -118,15 +118,27 @@ def test_a_prior_keeps_coefficients_the_flight_does_not_show_near_their_start():
 def test_short_flights_give_one_masked_segment_and_long_ones_are_thinned():
     short = synthetic_flight(RGBlimpModel(), samples=40, number=121)
     long = synthetic_flight(RGBlimpModel(), samples=1000, number=1)
-    segments = cut_segments([short, long], duration=1.0, max_segments=8)
     length = 60
+    whole = cut_segments([long], duration=1.0, max_segments=100)
+    # 999 transitions: 16 full segments and a last one masked past the flight's end (39 steps).
+    assert len(whole.starts) == 17 and whole.mask[:16].all() and whole.mask[16].sum() == 999 - 16 * length
+    segments = cut_segments([short, long], duration=1.0, max_segments=8)
     assert segments.inputs.shape[1:] == (length, 5) and segments.targets.shape[1:] == (length, 12)
     first = segments.flights == 121
     assert first.sum() == 1 and segments.mask[first].sum() == 39  # 39 transitions in 40 samples
     np.testing.assert_array_equal(segments.targets[first][0, :39], short.recording.outputs[1:])
-    assert segments.mask[~first].all()
-    assert len(segments.starts) <= 8
     np.testing.assert_array_equal(segments.starts[first][0], short.recording.outputs[0])
+    # The long flight keeps its share, evenly from its start to its end.
+    kept = segments.starts[~first]
+    assert len(kept) == 8
+    np.testing.assert_array_equal(kept[0], long.recording.outputs[0])
+    np.testing.assert_array_equal(kept[-1], long.recording.outputs[16 * length])
+    # However small the budget, no flight is left out.
+    assert set(cut_segments([short, long], duration=1.0, max_segments=1).flights) == {1, 121}
+    with pytest.raises(BadInputError, match="max_segments"):
+        cut_segments([long], max_segments=0)
+    with pytest.raises(BadInputError, match="duration"):
+        cut_segments([long], duration=float("nan"))
 
 
 def test_unknown_coefficient_names_are_refused():
@@ -141,7 +153,10 @@ def test_identified_model_free_runs_its_fitting_flights_better_than_the_publishe
     flights = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv") for n in (117, 118)]
     result = identify_parameters(flights)
     assert result.rms_residual < result.initial_rms_residual
-    assert np.all(np.isfinite(result.standard_errors)) and np.all(result.standard_errors > 0)
+    assert np.all(result.standard_errors_iid > 0)
+    # Six segments for nine coefficients: too few clusters for the cluster-robust errors.
+    assert result.n_segments == 6 and np.all(np.isnan(result.standard_errors))
+    assert all(p["standard_error"] is None for p in result.as_dict()["parameters"].values())
 
     def position_rmse(model, flight):
         error = wrapped_difference(model.simulate(flight.recording.outputs[0], flight.recording.inputs),
@@ -153,3 +168,11 @@ def test_identified_model_free_runs_its_fitting_flights_better_than_the_publishe
     assert np.mean(identified) < np.mean(published)
     entry = result.as_dict()
     assert set(entry["parameters"]) == set(IDENTIFIED_PARAMETERS) and entry["flights"] == [117, 118]
+
+
+def test_cluster_robust_errors_with_enough_segments_per_coefficient():
+    """Flight 1 of the excerpt (63 s: eleven 6 s segments) and two coefficients."""
+    result = identify_parameters([read_rgblimp_flight(EXCERPT_FOLDER / "data_1.csv")], names=("thrust_gain", "c_d0"))
+    assert result.n_segments == 11 and result.converged
+    assert np.all(np.isfinite(result.standard_errors)) and np.all(result.standard_errors > 0)
+    assert np.all(np.isfinite(result.covariance))

@@ -92,9 +92,9 @@ def test_split_fits_on_all_but_the_highest_numbered_flight_present(tmp_path):
     splits = split_flights(folder)
     assert [(s.configuration, s.fit, s.test, s.kind) for s in splits] == [
         (0, (1, 2), 3, "spiral"), (2, (9,), 12, "spiral"), (30, (121, 122, 123), 124, "straight")]
-    assert [s.configuration for s in split_flights(folder, [30, 0])] == [0, 30]
+    assert [s.configuration for s in split_flights(folder, configurations=[30, 0])] == [0, 30]
     with pytest.raises(BadInputError, match="configuration 1 has 1 flight"):
-        split_flights(folder, [1])
+        split_flights(folder, configurations=[1])
     with pytest.raises(BadInputError, match="no configuration has two flights"):
         split_flights(_folder(tmp_path / "lonely", [1, 5, 9]))
 
@@ -106,7 +106,7 @@ def test_score_ranges_are_max_minus_min_from_the_sources_rows(tmp_path):
     np.testing.assert_array_equal(ranges["straight"], np.full(6, 2.0))  # rows 1 and 2: 2 - 0
     (folder / "data_info" / "data_info_straight.csv").write_text("1,2,3,4,5,6\n")
     with pytest.raises(BadInputError, match="rows"):
-        read_score_ranges(folder, ["straight"])
+        read_score_ranges(folder, kinds=["straight"])
 
 
 def test_the_excerpt_carries_the_sources_score_ranges():
@@ -194,7 +194,7 @@ def test_the_published_model_is_scored_as_it_is_and_goals_follow_the_summary(sma
     for entry in results["configurations"]:
         # The published model's score depends on no fit, so it is the same with any setup.
         flight = read_rgblimp_flight(data / entry["test"])
-        ranges = read_score_ranges(data, [entry["kind"]])[entry["kind"]]
+        ranges = read_score_ranges(data, kinds=[entry["kind"]])[entry["kind"]]
         predicted = RGBlimpModel().simulate(flight.recording.outputs[0], flight.recording.inputs)
         assert math.isclose(entry["score"]["physics"], source_score(predicted, flight.recording.outputs, ranges))
     for name, goal in results["goals"].items():

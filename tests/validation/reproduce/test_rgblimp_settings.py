@@ -24,7 +24,7 @@ def test_validation_split_fits_on_the_first_flight_and_leaves_the_test_flight_un
     splits = validation_splits(folder)
     assert [(s.configuration, s.fit, s.test) for s in splits] == [(0, (1,), 2), (2, (9,), 10), (30, (121,), 122)]
     with pytest.raises(BadInputError, match="three flights"):
-        validation_splits(folder, [1])
+        validation_splits(folder, configurations=[1])
     with pytest.raises(BadInputError, match="three flights"):
         validation_splits(_folder(tmp_path / "two", [1, 2]))
 
