@@ -158,13 +158,16 @@ def test_every_flight_at_hand_reads_through_the_shared_reader():
 
 def test_the_excerpt_is_the_sources_files_unchanged_with_its_licence():
     names = sorted(path.name for path in EXCERPT_FOLDER.iterdir())
-    assert names == ["LICENSE", "README.md", *sorted(f"data_{n}.csv" for n in (1, 117, 118, 119, 121, 122, 123))]
+    assert names == ["LICENSE", "README.md", *sorted(f"data_{n}.csv" for n in (1, 117, 118, 119, 121, 122, 123)),
+                     "data_info"]
+    info = ["data_info/data_info_spiral.csv", "data_info/data_info_straight.csv"]
+    assert sorted(str(p.relative_to(EXCERPT_FOLDER)) for p in (EXCERPT_FOLDER / "data_info").iterdir()) == info
     assert flights_by_configuration(EXCERPT_FOLDER) == {0: (1,), 29: (117, 118, 119), 30: (121, 122, 123)}
     # The source's test flights (4j+4) are held back for a blind evaluation: never in the excerpt.
     assert all(number % 4 != 0 for numbers in flights_by_configuration(EXCERPT_FOLDER).values() for number in numbers)
     assert "Copyright (c) 2024 zhu-yj" in (EXCERPT_FOLDER / "LICENSE").read_text(encoding="utf-8")
-    assert sum(path.stat().st_size for path in EXCERPT_FOLDER.iterdir()) < 5e6
+    assert sum(path.stat().st_size for path in EXCERPT_FOLDER.rglob("*") if path.is_file()) < 5e6
     if DATA != EXCERPT_FOLDER:  # a full copy of the source is at hand: the bytes are its own
-        for name in names:
+        for name in [*names, *info]:
             if name != "README.md" and (DATA / name).is_file():
                 assert (EXCERPT_FOLDER / name).read_bytes() == (DATA / name).read_bytes(), name
