@@ -65,8 +65,8 @@ MODEL_ACCELERATION_COLUMNS = ("vb_dot_sim_1", "vb_dot_sim_2", "vb_dot_sim_3",
 MEASURED_ACCELERATION_COLUMNS = ("vb_dot_1", "vb_dot_2", "vb_dot_3", "wb_dot_1", "wb_dot_2", "wb_dot_3")
 
 #: A few of the source's flights, copied unchanged with its ``LICENSE`` (their ``README.md`` says
-#: which): configuration 0's first flight, and the three at hand of configurations 29 (a spiral)
-#: and 30 (straight).
+#: which): the three at hand of configurations 29 (spirals) and 30 (straight), and the source's
+#: ``data_info`` folder.
 EXCERPT_FOLDER = Path(__file__).resolve().with_name("data") / "rgblimp"
 
 #: Repeated flights of each input configuration: flight ``N = 4 j + k``, ``k = 1 .. 4``.

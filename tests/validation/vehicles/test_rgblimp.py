@@ -8,7 +8,7 @@ against a fine adaptive integration, and the reader's one-line errors.
 
 The recordings are read from ``$FLIGHTGP_RGBLIMP_DATA`` when it is set (a copy of the folder
 ``data/`` of ``zhu-yj/ABNODE``, MIT licence, copyright 2024 zhu-yj; CI sets it when the full
-folder is at hand), else from the repository's excerpt of seven flights
+folder is at hand), else from the repository's excerpt of six flights
 (:data:`validation.vehicles.rgblimp_data.EXCERPT_FOLDER`); the test that needs all 35
 configurations is skipped with the excerpt. One recorded row (:data:`RECORDED_ROW`) is carried
 here too.
@@ -94,7 +94,7 @@ def test_port_reproduces_the_recorded_row_carried_here():
 
 def test_port_reproduces_the_source_models_accelerations_in_every_recording(flights, stacked):
     states, inputs, recorded = stacked
-    assert len(flights) >= 7  # the excerpt's seven; the shared folder holds 105 (the 4j+4 are held back)
+    assert len(flights) >= 6  # the excerpt's six; the shared folder holds 105 (the 4j+4 are held back)
     error = np.abs(body_accelerations(states, inputs, RECORDED_MODEL_PARAMETERS) - recorded)
     assert error.max() < PORT_TOLERANCE, f"max error per column {error.max(axis=0)}"
 
@@ -299,7 +299,7 @@ def test_configurations_and_the_flights_a_folder_holds(tmp_path):
 
 def test_the_data_folder_holds_the_flights_of_all_35_configurations(flights):
     if DATA == EXCERPT_FOLDER:
-        pytest.skip("the repository's excerpt holds three configurations; set FLIGHTGP_RGBLIMP_DATA to the "
+        pytest.skip("the repository's excerpt holds two configurations; set FLIGHTGP_RGBLIMP_DATA to the "
                     "source's data/ folder for this test")
     by_configuration = flights_by_configuration(DATA)
     assert list(by_configuration) == list(range(35))

@@ -1,7 +1,7 @@
 """The ``rgblimp`` vehicle (validation/vehicles/rgblimp.py), its place in the registry, and the
 source's recordings read as they are through ``validation.vehicles.read_recording``.
 
-The recordings come from the excerpt in the repository (validation/vehicles/data/rgblimp/, seven
+The recordings come from the excerpt in the repository (validation/vehicles/data/rgblimp/, six
 flights of ``zhu-yj/ABNODE``, MIT licence, copyright 2024 zhu-yj), or from
 ``$FLIGHTGP_RGBLIMP_DATA`` when it is set (a full copy of the source's folder ``data/``).
 """
@@ -147,7 +147,7 @@ def test_a_source_file_read_otherwise_is_refused_with_one_line(arguments, messag
 
 
 def test_every_flight_at_hand_reads_through_the_shared_reader():
-    """Every flight of :data:`DATA` (seven in the excerpt, 105 in the shared folder) as the
+    """Every flight of :data:`DATA` (six in the excerpt, 105 in the shared folder) as the
     source's format, with the source's 60 Hz and its configuration."""
     for configuration, numbers in flights_by_configuration(DATA).items():
         for number in numbers:
@@ -158,15 +158,15 @@ def test_every_flight_at_hand_reads_through_the_shared_reader():
 
 def test_the_excerpt_is_the_sources_files_unchanged_with_its_licence():
     names = sorted(path.name for path in EXCERPT_FOLDER.iterdir())
-    assert names == ["LICENSE", "README.md", *sorted(f"data_{n}.csv" for n in (1, 117, 118, 119, 121, 122, 123)),
+    assert names == ["LICENSE", "README.md", *sorted(f"data_{n}.csv" for n in (117, 118, 119, 121, 122, 123)),
                      "data_info"]
     info = ["data_info/data_info_spiral.csv", "data_info/data_info_straight.csv"]
     assert sorted(str(p.relative_to(EXCERPT_FOLDER)) for p in (EXCERPT_FOLDER / "data_info").iterdir()) == info
-    assert flights_by_configuration(EXCERPT_FOLDER) == {0: (1,), 29: (117, 118, 119), 30: (121, 122, 123)}
+    assert flights_by_configuration(EXCERPT_FOLDER) == {29: (117, 118, 119), 30: (121, 122, 123)}
     # The source's test flights (4j+4) are held back for a blind evaluation: never in the excerpt.
     assert all(number % 4 != 0 for numbers in flights_by_configuration(EXCERPT_FOLDER).values() for number in numbers)
     assert "Copyright (c) 2024 zhu-yj" in (EXCERPT_FOLDER / "LICENSE").read_text(encoding="utf-8")
-    assert sum(path.stat().st_size for path in EXCERPT_FOLDER.rglob("*") if path.is_file()) < 5e6
+    assert sum(path.stat().st_size for path in EXCERPT_FOLDER.rglob("*") if path.is_file()) < 2.5e6
     if DATA != EXCERPT_FOLDER:  # a full copy of the source is at hand: the bytes are its own
         for name in [*names, *info]:
             if name != "README.md" and (DATA / name).is_file():
