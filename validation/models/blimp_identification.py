@@ -266,8 +266,30 @@ def _parameter_information(jacobian: np.ndarray, residual: np.ndarray, *, n_para
         schur += j_global.T @ j_global - coupling @ np.linalg.solve(j_start.T @ j_start, coupling.T)
         scores[segment] = j_global.T @ residual[rows]
     information = np.linalg.inv(schur)
-    sandwich = information @ (scores.T @ scores) @ information * n_segments / max(n_segments - 1, 1)
-    return information, sandwich
+    return information, cluster_robust_covariance(information, scores)
+
+
+def cluster_robust_covariance(information: np.ndarray, scores: np.ndarray) -> np.ndarray:
+    """The cluster-robust sandwich ``A^-1 B A^-1 S / (S - 1)`` (Liang & Zeger, Biometrika 1986).
+
+    Parameters
+    ----------
+    information : ndarray, shape (p, p)
+        ``A^-1``, the inverse of ``J^T J`` (Gauss-Newton information), in the optimisation's
+        variables.
+    scores : ndarray, shape (S, p)
+        Each cluster's (segment's) score ``J_s^T r_s``; ``B`` is the sum of their outer products.
+
+    Returns
+    -------
+    ndarray, shape (p, p)
+        NaN with no more clusters than parameters: ``B`` then has rank at most S (one less at
+        the optimum, where the scores sum to about zero), so the estimate is singular.
+    """
+    n_clusters, n_parameters = scores.shape
+    if n_clusters <= n_parameters:
+        return np.full((n_parameters, n_parameters), np.nan)
+    return information @ (scores.T @ scores) @ information * n_clusters / max(n_clusters - 1, 1)
 
 
 #: The ``kind`` of the physics description of a blimp grey-box model (its model file's header).

@@ -36,9 +36,10 @@ spiral shows:
 Uncertainty: the covariance of the estimate is the cluster-robust sandwich ``A^-1 B A^-1`` with
 ``A = J^T J`` and ``B`` the sum over segments of ``(J_s^T r_s)(J_s^T r_s)^T``, times ``S / (S - 1)``
 for S segments (Liang & Zeger 1986): residuals within a segment are strongly correlated, segments
-nearly independent (:mod:`validation.models.blimp_identification` explains the choice). It needs
-many more segments than coefficients; with fewer than :data:`MIN_SEGMENTS_PER_COEFFICIENT` per
-coefficient (a configuration's straight flights give two or three) it is reported as unknown.
+nearly independent (:func:`validation.models.blimp_identification.cluster_robust_covariance`
+computes it for both identifications). It needs more segments than coefficients (and is
+rough with few more: a configuration's two flights give 2 to 25 segments for nine
+coefficients); with no more it is reported as unknown.
 
 Speed: the segments are simulated together, vectorised (:func:`free_run`), and the Jacobian's
 forward differences perturb every coefficient at once, as one batch of parameter sets
@@ -56,6 +57,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from validation.core.errors import BadInputError
+from validation.models.blimp_identification import cluster_robust_covariance
 from validation.vehicles.blimp_equations import rotation_body_to_earth
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, STATE_NAMES, RGBlimpParameters, rk4_step
 
@@ -76,10 +78,6 @@ STATE_SCALE = (0.05,) * 3 + (0.02,) * 3 + (0.02,) * 3 + (0.02,) * 3
 _MIN_PARAMETER_SCALE = 0.01
 #: Most residual evaluations of one fit (scipy's ``max_nfev``; each also gives the Jacobian).
 MAX_ITERATIONS = 30
-#: The cluster-robust covariance needs many more segments (clusters) than coefficients: with
-#: fewer than this many per coefficient it is not reported (two spiral flights of a
-#: configuration give 5 to 25 segments for nine coefficients).
-MIN_SEGMENTS_PER_COEFFICIENT = 3
 #: Relative tolerance on the cost and the step (scipy's ftol and xtol): far below the
 #: coefficients' standard errors.
 _TOLERANCE = 1e-6
@@ -400,9 +398,9 @@ class IdentificationResult:
     names : tuple of str
     values, standard_errors, standard_errors_iid, initial_values : ndarray, shape (p,)
         Estimates, cluster-robust and textbook (``s^2 (J^T J)^-1``) standard errors, starting
-        values (which are also the prior's means). The cluster-robust ones are NaN with fewer
-        than :data:`MIN_SEGMENTS_PER_COEFFICIENT` segments per coefficient (the textbook ones
-        then understate the uncertainty: the residuals within a segment are correlated).
+        values (which are also the prior's means). The cluster-robust ones are NaN with no more
+        segments than coefficients (the textbook ones then understate the uncertainty: the
+        residuals within a segment are correlated).
     covariance : ndarray, shape (p, p)
         Cluster-robust covariance of ``values`` (NaN as the standard errors).
     rms_residual, initial_rms_residual : float
@@ -555,10 +553,7 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
     information = np.linalg.pinv(jac.T @ jac)  # the prior's rows included
     scores = np.einsum("sri,sr->si", data_jacobian.reshape(n_segments, length * 12, -1),
                        residual[:n_data].reshape(n_segments, -1))
-    sandwich = information @ (scores.T @ scores) @ information * n_segments / max(n_segments - 1, 1)
-    if n_segments < MIN_SEGMENTS_PER_COEFFICIENT * len(names):
-        # Fewer clusters than this per coefficient make the sandwich rank-deficient or erratic.
-        sandwich = np.full_like(sandwich, np.nan)
+    sandwich = cluster_robust_covariance(information, scores)
     sigma2 = residual[:n_data] @ residual[:n_data] / max(n_used - len(names), 1)  # per weighted sample
     values = base + units * solution.x
     return IdentificationResult(

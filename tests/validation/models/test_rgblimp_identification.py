@@ -154,7 +154,7 @@ def test_identified_model_free_runs_its_fitting_flights_better_than_the_publishe
     result = identify_parameters(flights)
     assert result.rms_residual < result.initial_rms_residual
     assert np.all(result.standard_errors_iid > 0)
-    # Six segments for nine coefficients: too few clusters for the cluster-robust errors.
+    # Six segments for nine coefficients: the cluster-robust covariance would be singular.
     assert result.n_segments == 6 and np.all(np.isnan(result.standard_errors))
     assert all(p["standard_error"] is None for p in result.as_dict()["parameters"].values())
 
