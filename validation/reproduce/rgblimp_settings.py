@@ -94,7 +94,7 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
     flights = {n: read_rgblimp_flight(Path(data_dir) / f"data_{n}.csv")
                for s in splits for n in (*s.fit, s.test)}
     fitting = [flights[n] for s in splits for n in s.fit]
-    scored, globals_, identified_ = {}, {}, {}
+    scored, globals_, identified_, physics_ = {}, {}, {}, {}
     with progress_bar("rgblimp settings", enabled=progress, total=len(candidates) * len(splits),
                       unit="fit") as update:
         for name, setup in candidates.items():
@@ -106,20 +106,24 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
             per_configuration = []
             for split in splits:
                 fitting_flights = [flights[n] for n in split.fit]
-                if (key, split) not in identified_:
-                    identified_[key, split] = identify_parameters(
+                test = flights[split.test].recording
+                if split not in physics_:  # no setting changes the published model's run
+                    physics_[split] = flight_metrics(RGBlimpModel().simulate(test.outputs[0], test.inputs),
+                                                     test.outputs, ranges[split.kind])
+                if (key, split) not in identified_:  # nor, within a key, the identified model's
+                    model = identify_parameters(
                         fitting_flights, names=setup.identified_parameters, initial=globals_[key].model,
                         segment_duration=setup.segment_duration, max_segments=setup.max_segments,
-                        max_iterations=setup.max_iterations)
-                model = identified_[key, split].model
+                        max_iterations=setup.max_iterations).model
+                    identified_[key, split] = model, flight_metrics(
+                        model.simulate(test.outputs[0], test.inputs), test.outputs, ranges[split.kind])
+                model, identified_metrics = identified_[key, split]
                 rkgp = fit_rkgp(fitting_flights, model, n_points=setup.training_points,
                                 min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
-                test = flights[split.test].recording
                 start = continuous_states(test.outputs[:1])[0]
-                predicted = {"physics": RGBlimpModel().simulate(test.outputs[0], test.inputs),
-                             "identified": model.simulate(test.outputs[0], test.inputs),
-                             "rkgp": rkgp.rollout(start, test.inputs[:-1], physics_step(model))}
-                metrics = {m: flight_metrics(predicted[m], test.outputs, ranges[split.kind]) for m in SCORED}
+                metrics = {"physics": physics_[split], "identified": identified_metrics,
+                           "rkgp": flight_metrics(rkgp.rollout(start, test.inputs[:-1], physics_step(model)),
+                                                  test.outputs, ranges[split.kind])}
                 per_configuration.append({"index": split.configuration,
                                           **{key_: {m: metrics[m][key_] for m in SCORED}
                                              for key_ in ("score", "position_rmse_m")}})
