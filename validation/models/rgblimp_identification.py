@@ -28,7 +28,7 @@ spiral shows:
 - ``c_mx0``: the rolling moment, so the bank in the turn;
 - ``rate_damping_z``: yaw damping, so the turn rate the thrust difference gives;
 - ``wind_x``, ``wind_y``: a steady horizontal air motion in the room (the air's velocity along
-  the motion capture's x and y axes, m/s) (:func:`advance`). The
+  the motion capture's x and y axes, m/s) (:func:`validation.vehicles.rgblimp_equations.advance`). The
   recorded spirals drift (their centres move by about 1 m a minute) and the recorded ground
   speed oscillates once per turn, as a circle flown in moving air does (what the two components
   change on the validation flights: docs/rgblimp.md, "Identification and RKGP").
@@ -41,7 +41,8 @@ computes it for both identifications). It needs more segments than coefficients 
 rough with few more: a configuration's two flights give 2 to 25 segments for nine
 coefficients); with no more it is reported as unknown.
 
-Speed: the segments are simulated together, vectorised (:func:`free_run`), and the Jacobian's
+Speed: the segments are simulated together, vectorised
+(:func:`validation.vehicles.rgblimp_equations.free_run`), and the Jacobian's
 forward differences perturb every coefficient at once, as one batch of parameter sets
 (:func:`batched_parameters`) evaluated with the residuals, which costs about 1.3 times one
 residual evaluation; a fit on two flights takes about 5 s.
@@ -58,8 +59,13 @@ from scipy.optimize import least_squares
 
 from validation.core.errors import BadInputError
 from validation.models.blimp_identification import cluster_robust_covariance
-from validation.vehicles.blimp_equations import rotation_body_to_earth
-from validation.vehicles.rgblimp_equations import SAMPLE_TIME, STATE_NAMES, RGBlimpParameters, rk4_step
+from validation.vehicles.rgblimp_equations import (
+    SAMPLE_TIME,
+    STATE_NAMES,
+    RGBlimpParameters,
+    advance,
+    free_run,
+)
 
 #: The coefficients identified by default (module docstring).
 IDENTIFIED_PARAMETERS = ("thrust_gain", "buoyancy_mass", "c_d0", "c_l0", "c_my0", "c_mx0", "rate_damping_z",
@@ -103,7 +109,7 @@ class RGBlimpModel:
     thrust_gain : float
         Multiplies ``thrust_left`` and ``thrust_right`` (1: the recorded thrusts).
     wind : (2,) tuple of float
-        The air's velocity along the earth x and y axes, m/s (:func:`advance`).
+        The air's velocity along the earth x and y axes, m/s (:func:`validation.vehicles.rgblimp_equations.advance`).
     """
 
     def __post_init__(self):
@@ -139,113 +145,17 @@ class RGBlimpModel:
         return RGBlimpModel(params, float(values.get("thrust_gain", self.thrust_gain)), wind)
 
     def step(self, states, inputs) -> np.ndarray:
-        """One sample (1/60 s) on (:func:`advance`): ``states`` (..., 12), ``inputs`` (..., 5)
-        -> (..., 12). This is a :class:`gp_model.GreyBoxGP` ``physics_step``."""
+        """One sample (1/60 s) on (:func:`validation.vehicles.rgblimp_equations.advance`):
+        ``states`` (..., 12), ``inputs`` (..., 5) -> (..., 12). This is a :class:`gp_model.GreyBoxGP`
+        ``physics_step``."""
         return advance(states, inputs, self.params, thrust_gain=self.thrust_gain, wind=self.wind)
 
     def simulate(self, initial_state, inputs) -> np.ndarray:
         """Free run from ``initial_state`` (..., 12) through ``inputs`` (..., n, 5), each held
-        over one sample (:func:`free_run`): states (..., n, 12), the first the start
+        over one sample (:func:`validation.vehicles.rgblimp_equations.free_run`): states
+        (..., n, 12), the first the start
         (``inputs[..., -1, :]`` is not used)."""
         return free_run(initial_state, inputs, self.params, thrust_gain=self.thrust_gain, wind=self.wind)
-
-
-def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
-    """The source's RK4 step over one sample with a thrust factor and a steady horizontal wind.
-
-    A uniform, steady wind ``w`` (earth axes) moves the air mass at constant velocity, and the
-    equations of motion hold unchanged in a frame moving with it (a Galilean change of frame:
-    the aerodynamics see the airspeed, the inertial terms only accelerations and rates). So the
-    step converts the state to the air mass's frame (body velocity ``v - R^T w``), takes
-    :func:`validation.vehicles.rgblimp_equations.rk4_step` there, and converts back (position
-    plus ``w h``, velocity plus ``R^T w`` at the new attitude); with ``w = 0`` it is ``rk4_step``.
-
-    Parameters
-    ----------
-    states : ndarray, shape (..., 12)
-    inputs : ndarray, shape (..., 5)
-        The thrusts are multiplied by ``thrust_gain`` (:func:`scaled_thrust`).
-    params : RGBlimpParameters or the namespace of :func:`batched_parameters`
-    thrust_gain : float or ndarray
-        Broadcasting against ``inputs[..., 0]``.
-    wind : (2,) sequence or ndarray, shape (..., 2)
-        The air's velocity along the earth (motion-capture) x and y axes, m/s; leading axes
-        broadcast against the states'.
-
-    Returns
-    -------
-    ndarray, shape (broadcast leading axes, 12)
-    """
-    states = np.asarray(states, dtype=float)
-    inputs = scaled_thrust(inputs, thrust_gain)
-    wind = np.asarray(wind, dtype=float)
-    if not np.any(wind):
-        return rk4_step(states, inputs, params)
-    wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
-    in_air = _with_velocity_offset(states, wind, -1.0)
-    moved = rk4_step(in_air, inputs, params)
-    position = moved[..., :3] + SAMPLE_TIME * wind
-    return _with_velocity_offset(np.concatenate([position, moved[..., 3:]], axis=-1), wind, 1.0)
-
-
-def free_run(initial_state, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
-    """Many :func:`advance` steps at once: the whole run in the air mass's frame, then back.
-
-    Equal to stepping :func:`advance` sample by sample (the conversions between the frames
-    cancel), with one conversion each way instead of two per step.
-
-    Parameters
-    ----------
-    initial_state : ndarray, shape (..., 12)
-    inputs : ndarray, shape (..., n, 5)
-        ``inputs[..., k, :]`` held from sample k to k + 1; the last row is unused.
-    params, thrust_gain, wind
-        As for :func:`advance` (``thrust_gain`` broadcasting against ``inputs[..., 0, 0]``,
-        ``wind`` against ``initial_state[..., :2]``).
-
-    Returns
-    -------
-    ndarray, shape (..., n, 12)
-        Row 0 is the start.
-    """
-    inputs = scaled_thrust(inputs, np.asarray(thrust_gain, dtype=float)[..., None])
-    wind = np.asarray(wind, dtype=float)
-    wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
-    path = simulate(lambda s, u: rk4_step(s, u, params), _with_velocity_offset(np.asarray(initial_state, float),
-                                                                                  wind, -1.0), inputs)
-    if not np.any(wind):
-        return path
-    drift = SAMPLE_TIME * np.arange(path.shape[-2])[:, None] * wind[..., None, :]  # t_k = k h
-    path = np.concatenate([path[..., :3] + drift, path[..., 3:]], axis=-1)
-    return _with_velocity_offset(path, wind[..., None, :], 1.0)
-
-
-def _with_velocity_offset(states: np.ndarray, wind: np.ndarray, sign: float) -> np.ndarray:
-    """``states`` with ``sign R(Theta)^T wind`` added to the body velocity."""
-    offset = np.einsum("...ji,...j->...i", rotation_body_to_earth(states[..., 3:6]), wind)
-    return np.concatenate([states[..., :6], states[..., 6:9] + sign * offset, states[..., 9:]], axis=-1)
-
-
-def scaled_thrust(inputs, gain) -> np.ndarray:
-    """``inputs`` (..., 5) with both thrusts multiplied by ``gain`` (a float, or an array
-    broadcasting against ``inputs[..., 0]``)."""
-    inputs = np.asarray(inputs, dtype=float)
-    gain = np.asarray(gain, dtype=float)
-    thrusts = inputs[..., :2] * gain[..., None]
-    leading = thrusts.shape[:-1]
-    return np.concatenate([thrusts, np.broadcast_to(inputs[..., 2:], leading + (3,))], axis=-1)
-
-
-def simulate(step, initial_state, inputs) -> np.ndarray:
-    """Roll ``step(states, inputs) -> next_states`` from ``initial_state`` (..., 12) through
-    ``inputs`` (..., n, m): states (..., n, 12), row 0 the start; the last input row is unused."""
-    state = np.asarray(initial_state, dtype=float)
-    inputs = np.asarray(inputs, dtype=float)
-    path = [state]
-    for k in range(inputs.shape[-2] - 1):
-        state = step(state, inputs[..., k, :])
-        path.append(state)
-    return np.stack(path, axis=-2)
 
 
 def wrapped_difference(predicted, recorded) -> np.ndarray:

@@ -50,6 +50,16 @@ source's guard against division by zero at rest, :data:`ZERO_SPEED_GUARD`), and 
 wind to body axes by ``R_bw(alpha, beta)`` (:func:`rotation_wind_to_body`); see
 :func:`aerodynamic_force_and_moment`. As in the source, the linear rate damping ``K omega`` is
 rotated with the aerodynamic moment ``M``, and there is no added mass.
+
+Added mass (not in the source's model; flightgp's diagnosis tests it as a term the model lacks,
+:mod:`validation.vehicles.rgblimp_effects`): a body moving through a fluid carries some of it
+along. With diagonal added masses ``A_v = diag(X_Udot, Y_Vdot, Z_Wdot)`` (kg, entered positive)
+and added inertias ``A_w = diag(K_Pdot, M_Qdot, N_Rdot)`` (kg m^2) about the CB, Kirchhoff's
+equations for a rigid body in an ideal fluid (Fossen, *Handbook of Marine Craft Hydrodynamics
+and Motion Control*, 2011, sec. 6.3.1) add ``A_v`` and ``A_w`` to the diagonal blocks of the
+mass matrix and the terms ``(A_v v) x omega`` to ``f`` and ``(A_v v) x v + (A_w omega) x omega``
+to ``tau`` (the second is the Munk moment, which turns an elongated hull broadside to the flow).
+:class:`RGBlimpParameters` has none by default, which leaves the source's equations as they are.
 """
 from __future__ import annotations
 
@@ -142,6 +152,11 @@ class RGBlimpParameters:
     c_mz0, c_mz_alpha, c_mz_beta : float
         Yawing moment ``qbar A (c_mz0 + c_mz_alpha alpha + c_mz_beta beta)``, m
         [``Cmz0, Cmza, Cmzb``].
+    added_mass : (3,) tuple
+        Added masses along body x, y, z, kg (module docstring; not in the source: 0).
+    added_inertia : (3,) tuple
+        Added moments of inertia about body x, y, z, kg m^2 (module docstring; not in the
+        source: 0).
     """
 
     air_density: float = 1.2187
@@ -172,6 +187,8 @@ class RGBlimpParameters:
     c_mz0: float = 0.0006
     c_mz_alpha: float = -0.0012
     c_mz_beta: float = -0.0936
+    added_mass: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    added_inertia: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -300,12 +317,16 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndar
     zero = np.zeros_like(thrust)
 
     velocity_cross_rates = _cross(velocity, rates)
+    added_momentum = np.asarray(params.added_mass) * velocity
     force = (total_mass * velocity_cross_rates
+             + _cross(added_momentum, rates)
              + _cross(_cross(rates, mass_moment), rates)
              + (total_mass - params.buoyancy_mass) * params.gravity * down
              + aero_force
              + np.stack([thrust, zero, zero], axis=-1))
     moment = (_cross(np.einsum("...ij,...j->...i", inertia, rates), rates)
+              + _cross(added_momentum, velocity)
+              + _cross(np.asarray(params.added_inertia) * rates, rates)
               + _cross(mass_moment, velocity_cross_rates)
               + _cross(mass_moment, params.gravity * down)
               + aero_moment
@@ -314,10 +335,10 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndar
 
     mass_moment_skew = _skew(mass_moment)
     matrix = np.empty(state.shape[:-1] + (6, 6))
-    matrix[..., :3, :3] = total_mass * np.eye(3)
+    matrix[..., :3, :3] = (total_mass + np.asarray(params.added_mass)[..., None]) * np.eye(3)
     matrix[..., :3, 3:] = -mass_moment_skew
     matrix[..., 3:, :3] = mass_moment_skew
-    matrix[..., 3:, 3:] = inertia
+    matrix[..., 3:, 3:] = inertia + np.asarray(params.added_inertia)[..., None] * np.eye(3)
     right_side = np.concatenate([force, moment], axis=-1)
     return np.linalg.solve(matrix, right_side[..., None])[..., 0]
 
@@ -371,3 +392,102 @@ def rk4_step(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
     """
     state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
     return wrap_heading(rk4(lambda s: rgblimp_dynamics(s, inputs, params), state, SAMPLE_TIME))
+
+
+def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
+    """The source's RK4 step over one sample with a thrust factor and a steady horizontal wind.
+
+    A uniform, steady wind ``w`` (earth axes) moves the air mass at constant velocity, and the
+    equations of motion hold unchanged in a frame moving with it (a Galilean change of frame:
+    the aerodynamics see the airspeed, the inertial terms only accelerations and rates). So the
+    step converts the state to the air mass's frame (body velocity ``v - R^T w``), takes
+    :func:`rk4_step` there, and converts back (position
+    plus ``w h``, velocity plus ``R^T w`` at the new attitude); with ``w = 0`` it is ``rk4_step``.
+
+    Parameters
+    ----------
+    states : ndarray, shape (..., 12)
+    inputs : ndarray, shape (..., 5)
+        The thrusts are multiplied by ``thrust_gain`` (:func:`scaled_thrust`).
+    params : RGBlimpParameters or a namespace of its fields, some batched (e.g.
+        :func:`validation.models.rgblimp_identification.batched_parameters`)
+    thrust_gain : float or ndarray
+        Broadcasting against ``inputs[..., 0]``.
+    wind : (2,) sequence or ndarray, shape (..., 2)
+        The air's velocity along the earth (motion-capture) x and y axes, m/s; leading axes
+        broadcast against the states'.
+
+    Returns
+    -------
+    ndarray, shape (broadcast leading axes, 12)
+    """
+    states = np.asarray(states, dtype=float)
+    inputs = scaled_thrust(inputs, thrust_gain)
+    wind = np.asarray(wind, dtype=float)
+    if not np.any(wind):
+        return rk4_step(states, inputs, params)
+    wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
+    in_air = _with_velocity_offset(states, wind, -1.0)
+    moved = rk4_step(in_air, inputs, params)
+    position = moved[..., :3] + SAMPLE_TIME * wind
+    return _with_velocity_offset(np.concatenate([position, moved[..., 3:]], axis=-1), wind, 1.0)
+
+
+def free_run(initial_state, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
+    """Many :func:`advance` steps at once: the whole run in the air mass's frame, then back.
+
+    Equal to stepping :func:`advance` sample by sample (the conversions between the frames
+    cancel), with one conversion each way instead of two per step.
+
+    Parameters
+    ----------
+    initial_state : ndarray, shape (..., 12)
+    inputs : ndarray, shape (..., n, 5)
+        ``inputs[..., k, :]`` held from sample k to k + 1; the last row is unused.
+    params, thrust_gain, wind
+        As for :func:`advance` (``thrust_gain`` broadcasting against ``inputs[..., 0, 0]``,
+        ``wind`` against ``initial_state[..., :2]``).
+
+    Returns
+    -------
+    ndarray, shape (..., n, 12)
+        Row 0 is the start.
+    """
+    inputs = scaled_thrust(inputs, np.asarray(thrust_gain, dtype=float)[..., None])
+    wind = np.asarray(wind, dtype=float)
+    wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
+    path = simulate(lambda s, u: rk4_step(s, u, params), _with_velocity_offset(np.asarray(initial_state, float),
+                                                                                  wind, -1.0), inputs)
+    if not np.any(wind):
+        return path
+    drift = SAMPLE_TIME * np.arange(path.shape[-2])[:, None] * wind[..., None, :]  # t_k = k h
+    path = np.concatenate([path[..., :3] + drift, path[..., 3:]], axis=-1)
+    return _with_velocity_offset(path, wind[..., None, :], 1.0)
+
+
+def _with_velocity_offset(states: np.ndarray, wind: np.ndarray, sign: float) -> np.ndarray:
+    """``states`` with ``sign R(Theta)^T wind`` added to the body velocity."""
+    offset = np.einsum("...ji,...j->...i", rotation_body_to_earth(states[..., 3:6]), wind)
+    return np.concatenate([states[..., :6], states[..., 6:9] + sign * offset, states[..., 9:]], axis=-1)
+
+
+def scaled_thrust(inputs, gain) -> np.ndarray:
+    """``inputs`` (..., 5) with both thrusts multiplied by ``gain`` (a float, or an array
+    broadcasting against ``inputs[..., 0]``)."""
+    inputs = np.asarray(inputs, dtype=float)
+    gain = np.asarray(gain, dtype=float)
+    thrusts = inputs[..., :2] * gain[..., None]
+    leading = thrusts.shape[:-1]
+    return np.concatenate([thrusts, np.broadcast_to(inputs[..., 2:], leading + (3,))], axis=-1)
+
+
+def simulate(step, initial_state, inputs) -> np.ndarray:
+    """Roll ``step(states, inputs) -> next_states`` from ``initial_state`` (..., 12) through
+    ``inputs`` (..., n, m): states (..., n, 12), row 0 the start; the last input row is unused."""
+    state = np.asarray(initial_state, dtype=float)
+    inputs = np.asarray(inputs, dtype=float)
+    path = [state]
+    for k in range(inputs.shape[-2] - 1):
+        state = step(state, inputs[..., k, :])
+        path.append(state)
+    return np.stack(path, axis=-2)

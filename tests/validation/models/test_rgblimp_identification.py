@@ -14,17 +14,22 @@ from validation.core.recordings import Recording
 from validation.models.rgblimp_identification import (
     IDENTIFIED_PARAMETERS,
     RGBlimpModel,
-    advance,
     batched_parameters,
     cut_segments,
-    free_run,
     identify_parameters,
-    simulate,
     wrapped_difference,
 )
 from validation.vehicles.blimp_equations import rotation_body_to_earth
 from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, RGBlimpFlight, read_rgblimp_flight
-from validation.vehicles.rgblimp_equations import INPUT_NAMES, SAMPLE_TIME, STATE_NAMES, rk4_step
+from validation.vehicles.rgblimp_equations import (
+    INPUT_NAMES,
+    SAMPLE_TIME,
+    STATE_NAMES,
+    advance,
+    free_run,
+    rk4_step,
+    simulate,
+)
 
 #: The first recorded state of the source's data_1.csv and its inputs (zhu-yj/ABNODE, MIT licence).
 START = np.array([0.0909488706576665, 0.207607196554284, -1.10977807000056, -0.021610771892882,
