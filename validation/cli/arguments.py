@@ -26,7 +26,7 @@ def seed(text: str) -> int:
 
 def add_format_argument(parser) -> None:
     """``--format`` of the commands that read recording files (``inspect``, ``train``,
-    ``predict``): the keyword ``file_format`` of :func:`validation.vehicles.read_recording`."""
+    ``predict``, ``diagnose``): the keyword ``file_format`` of :func:`validation.vehicles.read_recording`."""
     parser.add_argument("--format", dest="file_format", choices=RECORDING_FORMATS,
                         help="file format: flightgp (a time column; docs/conventions.md) or rgblimp "
                              "(the RGBlimp source's data_N.csv, 38 columns, 60 Hz); default: "

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from validation.cli.arguments import seed
+from validation.cli.arguments import add_format_argument, seed
 from validation.core.files import check_output_folder
 
 
@@ -14,17 +14,26 @@ def register(subparsers) -> None:
         description="Replay the reference on the recorded inputs, locate where the residual exceeds "
                     "the sensor noise, test named effects (time delay, input lag, control and "
                     "stability derivatives, sensor bias; on the blimp also quadratic drag and force "
-                    "offsets) by likelihood ratio, build the corrected "
+                    "offsets; on the RGBlimp aerodynamic coefficients, damping, thrust gain and "
+                    "asymmetry, buoyancy, CG, added mass and a steady wind, replayed from each "
+                    "flight's first state) by likelihood ratio, build the corrected "
                     "model plus a residual GP, and score all three on held-out data. Writes "
                     "DIR/diagnosis.json, DIR/report.md with PNGs, and DIR/corrected_model.json.")
     parser.add_argument("recordings", nargs="+", type=Path, metavar="RECORDING",
-                        help="recording CSV files (docs/conventions.md, Recording files), starting at trim")
-    parser.add_argument("--reference", required=True, metavar="NAME", help="physics reference: bo105-<V>kt or blimp")
+                        help="recording CSV files (docs/conventions.md, Recording files), starting at trim; "
+                             "for rgblimp the source's data_N.csv files as they are")
+    parser.add_argument("--reference", required=True, metavar="NAME",
+                        help="physics reference: bo105-<V>kt, blimp or rgblimp")
     parser.add_argument("--holdout", nargs="+", type=Path, metavar="RECORDING",
                         help="recordings used only to score the models (default: the last recording, "
                              "or the last 30 %% of a single one)")
+    add_format_argument(parser)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=0, help="random seed of the residual GP (default 0)")
+    parser.add_argument("--folds", type=int, metavar="K",
+                        help="also run the search on K folds of the recordings (K >= 2, at least K "
+                             "recordings besides the held-out ones) and state with confidence only "
+                             "the findings every fold names (default: no replication)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(func=run)
 
@@ -36,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     with progress_bar("diagnose", enabled=not args.no_progress, unit="fit") as update:
         diagnosis = diagnose(args.recordings, reference=args.reference, holdout=args.holdout,
-                             seed=args.seed, progress=update)
+                             seed=args.seed, folds=args.folds,
+                             file_format=args.file_format, progress=update)
     written = write_diagnosis(diagnosis, args.out)
     result = diagnosis.as_dict()
     print(f"{result['reference']}: {result['verdict']}")

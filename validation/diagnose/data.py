@@ -12,6 +12,15 @@ be. All recordings must share one nominal interval ``h``
 (:func:`validation.core.sampling.nominal_step`, within :data:`RATE_TOLERANCE`).
 The recording format is in docs/conventions.md, "Recording files"; the stages are in
 docs/diagnose.md, "How it works".
+
+Heading: a measured ``psi`` is unwrapped along each recording (:func:`numpy.unwrap`) before
+anything compares it, so that a heading that crosses +-pi (the RGBlimp source's files keep it in
+[-pi, pi]) does not count as a turn of misfit; replays carry heading continuously.
+
+Start and weights: each recording is replayed from the state its reference says
+(:meth:`validation.vehicles.effects.EffectModel.start_state`: trim, or the first recorded
+state), and each output's noise standard deviation is floored at the reference's
+:attr:`~validation.vehicles.effects.EffectModel.min_noise_sd`.
 """
 from __future__ import annotations
 
@@ -110,9 +119,10 @@ class _Source:
     held_out: bool
 
 
-def prepare(recordings, reference: EffectModel, *, holdout=None) -> PreparedData:
-    """Read and check ``recordings`` (and ``holdout``), split them (module docstring) and
-    estimate their noise (:func:`validation.diagnose.noise.estimate_noise_sd`).
+def prepare(recordings, reference: EffectModel, *, holdout=None, file_format: str | None = None) -> PreparedData:
+    """Read and check ``recordings`` (and ``holdout``; files in ``file_format``,
+    :func:`validation.vehicles.read_recording`), split them (module docstring) and estimate their
+    noise (:func:`validation.diagnose.noise.estimate_noise_sd`).
 
     Raises
     ------
@@ -124,9 +134,9 @@ def prepare(recordings, reference: EffectModel, *, holdout=None) -> PreparedData
     """
     if not recordings:
         raise BadInputError("no recordings to diagnose")
-    sources = _load(recordings, reference, held_out=False)
+    sources = _load(recordings, reference, held_out=False, file_format=file_format)
     if holdout:
-        sources += _load(holdout, reference, held_out=True, start_index=len(sources))
+        sources += _load(holdout, reference, held_out=True, start_index=len(sources), file_format=file_format)
     elif len(sources) > 1:
         sources[-1].held_out = True
     step, even = _common_step(sources)
@@ -140,14 +150,17 @@ def prepare(recordings, reference: EffectModel, *, holdout=None) -> PreparedData
         raise BadInputError("the recordings share no measured output; diagnose needs the same "
                             "outputs in every recording (including --holdout)")
     excited = _excited_inputs(sources, fit_mask, reference)
+    timing = "time_delay" in reference.kinds  # references whose inputs are perturbations from trim
     untestable = [f"{name}: never moves in the fitted data, so delays, lags and control derivatives "
-                  "on it cannot be tested" for name in reference.input_names if name not in excited]
+                  "on it cannot be tested" for name in reference.input_names if timing and name not in excited]
     measured = [np.column_stack([s.recording.output(n) for n in output_names]) for s in sources]
-    noise_sd = [np.array([estimate_noise_sd(column, time=s.recording.time) for column in m.T])
+    floors = np.array([reference.min_noise_sd.get(n, 0.0) for n in output_names])
+    noise_sd = [np.maximum(floors, [estimate_noise_sd(column, time=s.recording.time) for column in m.T])
                 for s, m in zip(sources, measured)]
     typical = {name: float(np.median([sd[i] for sd in noise_sd])) for i, name in enumerate(output_names)}
     return PreparedData(time=[s.recording.time for s in sources], inputs=[s.recording.inputs for s in sources],
                         measured=measured, output_names=output_names, noise_sd=noise_sd, fit_mask=fit_mask,
+                        starts=[reference.start_state(s.recording) for s in sources],
                         input_names=reference.input_names, holdout_mask=holdout_mask,
                         recording_names=[s.name for s in sources], held_out=[s.held_out for s in sources],
                         holdout_description=description, step=step, even=even, excited=excited,
@@ -159,7 +172,8 @@ def evenly_sampled(time: np.ndarray) -> bool:
     return not len(uneven_steps(time))
 
 
-def _load(items, reference: EffectModel, *, held_out: bool, start_index: int = 0) -> list[_Source]:
+def _load(items, reference: EffectModel, *, held_out: bool, start_index: int = 0,
+          file_format: str | None = None) -> list[_Source]:
     """Recordings (paths or :class:`Recording`) checked against ``reference``."""
     sources = []
     for index, item in enumerate(items, start=start_index + 1):
@@ -168,12 +182,13 @@ def _load(items, reference: EffectModel, *, held_out: bool, start_index: int = 0
             recording = _checked_recording(item, name, reference)
         else:
             name = Path(item).name
-            recording = _read(Path(item), reference)
+            recording = _read(Path(item), reference, file_format)
         if len(recording.time) < 3:
             raise BadInputError(f"{name}: {len(recording.time)} samples; too short to identify anything")
         steps = np.diff(recording.time)
         if np.any(steps <= 0):
             raise BadInputError(f"{name}: time must increase strictly from sample to sample")
+        recording = _heading_unwrapped(recording)
         if reference.needs_even_sampling and not evenly_sampled(recording.time):
             raise BadInputError(f"{name}: uneven sampling (intervals {steps.min():.6g} to {steps.max():.6g} s); "
                                 f"the {reference.name} reference is discretised exactly with one step, so "
@@ -182,15 +197,26 @@ def _load(items, reference: EffectModel, *, held_out: bool, start_index: int = 0
     return sources
 
 
-def _read(path: Path, reference: EffectModel) -> Recording:
-    """The recording file at ``path`` read as one of ``reference``."""
+def _read(path: Path, reference: EffectModel, file_format: str | None) -> Recording:
+    """The recording file at ``path`` (in ``file_format``, or recognised) read as one of ``reference``."""
     try:
-        return read_recording(path, vehicle=reference)
+        return read_recording(path, vehicle=reference, file_format=file_format)
     except BadInputError as error:
         if "unknown column" in str(error):
             raise BadInputError(f"{error} (is this a recording of another vehicle than "
                                 f"{reference.name}?)") from None
         raise
+
+
+def _heading_unwrapped(recording: Recording) -> Recording:
+    """``recording`` with a measured ``psi`` unwrapped along it (module docstring)."""
+    if "psi" not in recording.output_names:
+        return recording
+    outputs = np.array(recording.outputs, dtype=float)
+    column = recording.output_names.index("psi")
+    outputs[:, column] = np.unwrap(outputs[:, column])
+    return Recording(recording.time, recording.inputs, recording.input_names, outputs, recording.output_names,
+                     recording.metadata)
 
 
 def _checked_recording(recording: Recording, name: str, reference: EffectModel) -> Recording:
@@ -245,15 +271,17 @@ def _split(sources: list[_Source]) -> tuple[list, list, str]:
             fit_mask.append(time < split)
             holdout_mask.append(time >= split)
             description = (f"last {HOLDOUT_FRACTION:.0%} of {source.name} "
-                           f"(t >= {split:.2f} s; the model is replayed from trim throughout)")
+                           f"(t >= {split:.2f} s; the model is replayed from the start throughout)")
     return fit_mask, holdout_mask, description or ", ".join(s.name for s in sources if s.held_out)
 
 
 def _excited_inputs(sources: list[_Source], fit_mask: list, reference: EffectModel) -> list[str]:
-    """Inputs that move in the fitted samples; BadInputError when none does."""
+    """Inputs that move in the fitted samples; BadInputError when none does on a reference whose
+    inputs are perturbations from trim (one that takes delays: nothing acts there without a
+    move; the RGBlimp's absolute thrusts act in a flight that holds them)."""
     fit_inputs = np.vstack([s.recording.inputs[m] for s, m in zip(sources, fit_mask) if m.any()])
     excited = [name for j, name in enumerate(reference.input_names) if np.ptp(fit_inputs[:, j]) > EXCITATION_THRESHOLD]
-    if not excited:
+    if not excited and "time_delay" in reference.kinds:
         raise BadInputError("no input moves in the data to fit: nothing to identify (fly a 3-2-1-1 or "
                             "doublet on at least one control)")
     return excited

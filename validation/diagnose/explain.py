@@ -205,7 +205,7 @@ def _describe_rejected(rejected: dict | None) -> dict | None:
 def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd) -> list[Hypothesis]:
     """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``) and a lag (up to
     ``MAX_LAG``) on each excited input, the reference's term hypotheses, a bias on each measured
-    output.
+    output (each kind where the reference takes it, :attr:`EffectModel.kinds`).
 
     ``noise_sd`` (dict output -> typical noise standard deviation) sets the bias screening step.
     """
@@ -217,7 +217,7 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
     hypotheses += reference.term_hypotheses(excited_inputs)
     for name in output_names:
         hypotheses.append(Hypothesis("sensor_bias", name, 0.0, -math.inf, math.inf, float(noise_sd[name])))
-    return hypotheses
+    return [h for h in hypotheses if h.effect in reference.kinds]
 
 
 def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], *,

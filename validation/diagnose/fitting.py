@@ -1,7 +1,8 @@
 """Output-error fitting of named effects to recordings (the machinery of the explain stage).
 
-The reference, with the effects under test, is replayed from trim on the recorded inputs
-(:meth:`validation.vehicles.effects.EffectModel.simulate_many`) and the noise-weighted
+The reference, with the effects under test, is replayed on the recorded inputs from trim, or from
+each recording's first state where the reference says so
+(:meth:`validation.vehicles.effects.EffectModel.simulate_recordings`) and the noise-weighted
 differences to the measured outputs are minimised (Jategaonkar, *Flight Vehicle System
 Identification*, 2006, ch. 4). With white Gaussian sensor noise of known standard deviations the
 weighted residual sum of squares ``RSS`` is ``-2 ln L`` up to a constant.
@@ -36,6 +37,9 @@ _DIVERGED = 1e6
 _LM_ITERATIONS = 40
 _LM_RTOL = 1e-9
 _LM_DIFF = 1e-3
+#: Batched Levenberg-Marquardt: an RSS below this (noise variances) is an exact fit (noise-free
+#: data of the model itself), where the relative test alone would iterate on rounding.
+_LM_EXACT_RSS = 1e-12
 
 
 @dataclass
@@ -54,6 +58,9 @@ class FitData:
     fit_mask : list of ndarray of bool, shape (n_r,)
         Samples that enter the fit (the rest are held out); may be all False for a held-out
         recording.
+    starts : list of (ndarray, shape (n_states,), or None)
+        The state each recording's replay starts from
+        (:meth:`validation.vehicles.effects.EffectModel.start_state`; None: the reference's own).
     """
 
     time: list
@@ -62,6 +69,7 @@ class FitData:
     output_names: tuple
     noise_sd: list
     fit_mask: list
+    starts: list
 
     @property
     def n_residuals(self) -> int:
@@ -72,13 +80,22 @@ class FitData:
         """Replayed outputs per recording, shape (n_r, n_out) each."""
         return [replay[0] for replay in self._simulate_many(reference, [effects], fitted_only=False)]
 
+    def simulate_states(self, reference: EffectModel, effect_lists, *, fitted_only: bool = False) -> list:
+        """Per recording (``None`` where ``fitted_only`` and nothing of it is fitted): the
+        replayed states of each effect list, shape (B, n_r, n_states), all recordings in one
+        :meth:`~validation.vehicles.effects.EffectModel.simulate_recordings` call."""
+        chosen = [i for i, mask in enumerate(self.fit_mask) if mask.any() or not fitted_only]
+        replays = reference.simulate_recordings(effect_lists, [self.time[i] for i in chosen],
+                                                [self.inputs[i] for i in chosen], [self.starts[i] for i in chosen])
+        by_index = dict(zip(chosen, replays))
+        return [by_index.get(i) for i in range(len(self.time))]
+
     def _simulate_many(self, reference: EffectModel, effect_lists, *, fitted_only: bool) -> list:
         """Per recording (``None`` where ``fitted_only`` and nothing of it is fitted): replayed
         outputs of each effect list, shape (B, n_r, n_out)."""
         columns = [reference.state_names.index(name) for name in self.output_names]
-        return [reference.simulate_many(effect_lists, t, u)[:, :, columns]
-                if mask.any() or not fitted_only else None
-                for t, u, mask in zip(self.time, self.inputs, self.fit_mask)]
+        return [None if states is None else states[:, :, columns]
+                for states in self.simulate_states(reference, effect_lists, fitted_only=fitted_only)]
 
     def weighted_residuals_many(self, reference: EffectModel, effect_lists) -> np.ndarray:
         """``(measured - replay) / noise_sd`` on the fit samples for each of B effect lists,
@@ -192,7 +209,7 @@ class _Problem:
         residual (N,) and its neighbours' (p, N)."""
         rss = float(residual @ residual)
         if rss < self.rss:
-            converged = self.rss - rss <= _LM_RTOL * rss
+            converged = self.rss - rss <= _LM_RTOL * rss or rss <= _LM_EXACT_RSS
             self.x, self.rss, self.residual = self.trial, rss, residual
             self.jacobian = (neighbours - residual).T / steps
             self.damping /= 3.0
@@ -218,7 +235,7 @@ def _fit_batched(data: FitData, reference: EffectModel, problems: list) -> list[
     accepted and the damping ``lambda`` divided by 3, otherwise ``lambda`` is multiplied by 4;
     the next trial solves ``(J^T J + lambda diag(J^T J)) delta = -J^T r`` (``J = dr/dx``) and is
     clipped to the bounds. A problem is done when an accepted step changes the RSS by less than
-    ``_LM_RTOL`` relative, or ``lambda`` exceeds 1e10.
+    ``_LM_RTOL`` relative or leaves it below ``_LM_EXACT_RSS``, or ``lambda`` exceeds 1e10.
     """
     states = []
     for hypotheses, start in problems:

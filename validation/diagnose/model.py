@@ -31,7 +31,8 @@ MAX_GP_POINTS = 300
 class ResidualGPs:
     """Residual GPs of one replay, one per output, each fitted when first asked for.
 
-    Features per sample (:func:`_gp_features`) come from the replay's full states; targets are
+    Features per sample (:func:`_gp_features`) come from the replay's states (those the
+    reference lets the GPs see, :attr:`~validation.vehicles.effects.EffectModel.residual_gp_states`); targets are
     measured minus replayed outputs on the fitted samples, every k-th so that at most
     :data:`MAX_GP_POINTS` remain.
 
@@ -42,13 +43,16 @@ class ResidualGPs:
         Replayed outputs per recording.
     states : sequence of ndarray, shape (n_r, n_states)
         The same replay's states per recording.
+    reference : EffectModel
     seed : int
         Seed of the hyperparameter restarts.
     """
 
-    def __init__(self, data: PreparedData, replay: list, states, *, seed: int):
+    def __init__(self, data: PreparedData, replay: list, states, reference: EffectModel, *, seed: int):
         excited_columns = [data.input_names.index(n) for n in data.excited]
-        self.features = [_gp_features(x, u, t, excited_columns) for x, u, t in zip(states, data.inputs, data.time)]
+        state_columns = [reference.state_names.index(n) for n in reference.residual_gp_states]
+        self.features = [_gp_features(x[:, state_columns], u, t, excited_columns)
+                         for x, u, t in zip(states, data.inputs, data.time)]
         self._data, self._replay, self._seed = data, replay, seed
         n_fit = int(sum(m.sum() for m in data.fit_mask))
         self._stride = max(1, -(-n_fit // MAX_GP_POINTS))
@@ -106,10 +110,9 @@ def build_models(data: PreparedData, location: Location, explanation: Explanatio
     """The corrected model, the residual GPs where it misfits, and the absorption check
     (module docstring); ``seed`` seeds the GPs' hyperparameter restarts."""
     corrected_replay = data.simulate(reference, explanation.effects)
-    corrected_states, reference_states = zip(*(reference.simulate_many([explanation.effects, []], t, u)
-                                               for t, u in zip(data.time, data.inputs)))
-    corrected_gps = ResidualGPs(data, corrected_replay, corrected_states, seed=seed)
-    reference_gps = ResidualGPs(data, location.reference_replay, reference_states, seed=seed)
+    corrected_states, reference_states = zip(*data.simulate_states(reference, [explanation.effects, []]))
+    corrected_gps = ResidualGPs(data, corrected_replay, corrected_states, reference, seed=seed)
+    reference_gps = ResidualGPs(data, location.reference_replay, reference_states, reference, seed=seed)
     unexplained, gp_prediction = [], {}
     for i, name in enumerate(data.output_names):
         ratio, exceeds = noise_excess(data.weighted_output_residual(corrected_replay, i, data.fit_mask))

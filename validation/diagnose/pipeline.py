@@ -14,6 +14,8 @@ physics, model it, and prove the fit improves on data not used to fit it (docs/d
    (:class:`~validation.diagnose.model.Models`);
 5. :mod:`~validation.diagnose.prove`: the models scored and the explanation validated on the
    held-out samples (:class:`~validation.diagnose.prove.Proof`);
+   with ``folds``, :mod:`~validation.diagnose.replicate`: the search repeated on folds of the
+   diagnosed recordings (:class:`~validation.diagnose.replicate.Replication`);
 6. :mod:`~validation.diagnose.report`: the findings with their statements
    (:class:`~validation.diagnose.report.Diagnosis`, exactly diagnosis.json), which
    :func:`~validation.diagnose.report.write_diagnosis` writes with report.md and the corrected
@@ -30,11 +32,13 @@ from validation.diagnose.explain import explain
 from validation.diagnose.locate import locate
 from validation.diagnose.model import build_models
 from validation.diagnose.prove import prove
+from validation.diagnose.replicate import fold_recordings, replicate
 from validation.diagnose.report import Diagnosis, assemble_diagnosis
 from validation.vehicles.effect_vehicle import effect_model
 
 
-def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progress=None) -> Diagnosis:
+def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: int | None = None,
+             file_format: str | None = None, progress=None) -> Diagnosis:
     """Locate, explain, model and prove (module docstring) on ``recordings``.
 
     Parameters
@@ -46,12 +50,20 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
         :mod:`validation.diagnose.data`). All share one nominal sample interval.
     reference : str
         The registry name of a reference that takes effects
-        (:data:`validation.vehicles.effect_vehicle.EFFECT_MODELS`): ``bo105-<V>kt`` or ``blimp``.
+        (:data:`validation.vehicles.effect_vehicle.EFFECT_MODELS`): ``bo105-<V>kt``, ``blimp`` or
+        ``rgblimp``.
     holdout : sequence of path-like or Recording, optional
         Recordings used only to score the models. Default: the last recording, or the last 30 %
         of a single one (:mod:`validation.diagnose.data`).
     seed : int
         Seed of the residual GPs' hyperparameter restarts.
+    folds : int, optional
+        Also run the search on this many folds of the diagnosed recordings (2 or more; at least
+        that many recordings besides the held-out ones) and say which findings every fold names
+        (:mod:`validation.diagnose.replicate`). Default: no replication.
+    file_format : {"flightgp", "rgblimp"}, optional
+        Format of the recording files (:func:`validation.vehicles.read_recording`); default:
+        recognised from each file's header.
     progress : callable, optional
         ``progress(n, **status)`` advanced once per simulation batch
         (:func:`validation.core.progress.progress_bar` yields one).
@@ -66,12 +78,17 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, progres
         Unknown or unsupported reference; recordings that miss its inputs, hold another
         vehicle's columns, have no outputs, hold NaN, or are too short to identify anything;
         unevenly sampled recordings of a reference that needs even sampling; recordings at
-        different nominal sample rates.
+        different nominal sample rates; ``folds`` below 2 or above the number of diagnosed
+        recordings.
     """
     reference = effect_model(reference, purpose="diagnose")  # the name's EffectModel from here on
-    data = prepare(recordings, reference, holdout=holdout)
+    data = prepare(recordings, reference, holdout=holdout, file_format=file_format)
+    if folds is not None:
+        fold_recordings(data, folds)  # refuses impossible folds before the long stages
     location = locate(data, reference)
     explanation = explain(data, location, reference, progress=progress)
     models = build_models(data, location, explanation, reference, seed=seed, progress=progress)
     proof = prove(data, location, explanation, models, reference, progress=progress)
-    return assemble_diagnosis(reference, data, location, explanation, models, proof)
+    replication = (replicate(data, location, explanation, reference, folds=folds, progress=progress)
+                   if folds is not None else None)
+    return assemble_diagnosis(reference, data, location, explanation, models, proof, replication=replication)

@@ -17,12 +17,14 @@ from validation.diagnose.explain import Explanation, NamedEffect
 from validation.diagnose.locate import Location
 from validation.diagnose.model import Models
 from validation.diagnose.prove import MODEL_KEYS, HeldOutEffect, Proof
+from validation.diagnose.replicate import Replication
 from validation.vehicles.effect_vehicle import EffectVehicle
 from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
 #: The term effect kinds of the contract (:data:`validation.vehicles.effects.TARGET_KEYS`) in words,
 #: where the name with spaces would not do.
-_KIND_WORDS = {"quadratic_drag": "quadratic drag derivative"}
+_KIND_WORDS = {"quadratic_drag": "quadratic drag derivative", "cg_offset": "centre-of-gravity position",
+               "added_mass": "added-mass term"}
 _MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_gp": "corrected + GP"}
 #: Share of a named effect's signal that a GP on the uncorrected residual must reproduce for the
 #: report to warn that a residual GP alone would hide the effect (half: it would carry more of
@@ -36,8 +38,9 @@ class Diagnosis:
 
     ``as_dict()`` is exactly ``diagnosis.json`` (docs/diagnose.md, "diagnosis.json"): ``reference``, ``verdict``,
     ``mismatch``, ``findings``, ``fit``, plus ``locate`` (noise, bands, coherence), ``untestable``
-    and ``search`` (what was tested and the last rejected hypothesis). The other attributes
-    feed the report and the corrected-model file.
+    and ``search`` (what was tested and the last rejected hypothesis), and ``replication`` (the
+    folds' findings) when the search was replicated. The other attributes feed the report and the
+    corrected-model file.
 
     Attributes
     ----------
@@ -62,20 +65,29 @@ class Diagnosis:
     search: dict
     corrected: EffectVehicle
     holdout_traces: dict = field(repr=False, default_factory=dict)
+    replication: dict | None = None
 
     def as_dict(self) -> dict:
-        return {"reference": self.reference, "verdict": self.verdict, "mismatch": self.mismatch,
-                "findings": self.findings, "fit": self.fit, "locate": self.locate,
-                "untestable": self.untestable, "search": self.search}
+        result = {"reference": self.reference, "verdict": self.verdict, "mismatch": self.mismatch,
+                  "findings": self.findings, "fit": self.fit, "locate": self.locate,
+                  "untestable": self.untestable, "search": self.search}
+        if self.replication is not None:
+            result["replication"] = self.replication
+        return result
 
 
 def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Location,
-                       explanation: Explanation, models: Models, proof: Proof) -> Diagnosis:
+                       explanation: Explanation, models: Models, proof: Proof, *,
+                       replication: Replication | None = None) -> Diagnosis:
     """The diagnosis of the stages' results (nothing is written: :func:`write_diagnosis` does
-    that): one finding per named effect (most important first), then the ``unexplained`` ones of
-    the model and the prove stage, each with its :func:`statement`."""
+    that): one finding per named effect (most important first, each with its ``replication``
+    when the search was replicated), then the ``unexplained`` ones of the model and the prove
+    stage, each with its :func:`statement`."""
     findings = [_named_finding(named, data.output_names[named.main_output], held_out, absorbs)
                 for named, held_out, absorbs in zip(explanation.named, proof.effects, models.gp_absorbs)]
+    if replication is not None:
+        for finding in findings:
+            finding["replication"] = replication.of(finding)
     findings += models.unexplained + proof.unexplained
     for finding in findings:
         finding["statement"] = statement(finding, proof.fit, reference)
@@ -83,7 +95,8 @@ def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Loc
                      verdict="missing_physics" if findings else "consistent", mismatch=location.mismatch,
                      findings=findings, fit=proof.fit, locate=location.summary,
                      untestable=data.untestable + proof.untestable, search=explanation.search,
-                     corrected=models.corrected, holdout_traces=proof.traces)
+                     corrected=models.corrected, holdout_traces=proof.traces,
+                     replication=replication.summary() if replication is not None else None)
 
 
 def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float) -> dict:
@@ -143,12 +156,13 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         name = finding["output"]
         words = column_phrase(name)
         if finding.get("data") == "holdout":
-            return (f"The corrected model fits the diagnosed {words} to the noise "
+            within = "the noise" if not reference.min_noise_sd.get(name) else "its misfit scale"
+            return (f"The corrected model fits the diagnosed {words} to {within} "
                     f"({finding['fit_noise_ratio']:.2f}x) but misses the held-out {words} by "
-                    f"{_number(value)} {column_unit(name)} RMS, {finding['noise_ratio']:.1f}x the sensor "
-                    "noise: physics outside the named list that the named effects only mimic on the "
-                    "diagnosed manoeuvre (unexplained; e.g. an amplitude-dependent nonlinearity). A "
-                    "residual GP on the reference's residual gives held-out RMSE "
+                    f"{_number(value)} {column_unit(name)} RMS, {finding['noise_ratio']:.1f}x "
+                    f"{_noise_words(name, reference)}: physics outside the named list that the named "
+                    "effects only mimic on the diagnosed manoeuvre (unexplained; e.g. an amplitude-dependent "
+                    "nonlinearity). A residual GP on the reference's residual gives held-out RMSE "
                     f"{_number(fit['rmse_reference'][name])} -> {_number(finding['rmse_reference_gp'])} "
                     f"{column_unit(name)}.")
         gp = fit["rmse_corrected_gp"].get(name)
@@ -156,8 +170,8 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         gp_text = (f" A residual GP models it: held-out RMSE {_number(corrected)} -> {_number(gp)} "
                    f"{column_unit(name)}." if gp is not None else "")
         return (f"The {words} still differs from the corrected model by {_number(value)} "
-                f"{column_unit(name)} RMS, {finding['noise_ratio']:.1f}x the sensor noise, and no named "
-                f"effect accounts for it (unexplained).{gp_text}")
+                f"{column_unit(name)} RMS, {finding['noise_ratio']:.1f}x {_noise_words(name, reference)}, "
+                f"and no named effect accounts for it (unexplained).{gp_text}")
     interval = _span(finding["interval"])
     unit = finding["unit"]
     if kind in ("time_delay", "input_lag"):
@@ -187,7 +201,33 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         target = alternative[TARGET_KEYS[alternative["effect"]]]
         text += (f" Next best: {alternative['effect'].replace('_', ' ')} on {target} "
                  f"({_number(alternative['value'])}), which the data disfavour {alternative['evidence_ratio']:.3g}:1.")
-    return text + _improvement(finding, fit)
+    return text + _improvement(finding, fit) + _replication_words(finding)
+
+
+def _replication_words(finding: dict) -> str:
+    """``" Named again on each of the 2 folds ..."`` or why it is not stated with confidence;
+    empty without replication (:mod:`validation.diagnose.replicate`)."""
+    replication = finding.get("replication")
+    if replication is None:
+        return ""
+    values = ", ".join("not named" if v is None else _number(v) for v in replication["values"])
+    if replication["replicated"]:
+        return (f" Replicated: each of the {replication['folds']} folds of the diagnosed recordings names it "
+                f"on its own ({values} {finding['unit']}).")
+    if replication["named_in"] == replication["folds"]:
+        return (f" Not replicated, so not stated with confidence: every fold of the diagnosed recordings names it "
+                f"on its own, but not moved the same way from the model's value ({values}).")
+    return (f" Not replicated, so not stated with confidence: {replication['named_in']} of "
+            f"{replication['folds']} folds of the diagnosed recordings name it on their own ({values}).")
+
+
+def _noise_words(name: str, reference: EffectModel) -> str:
+    """What an output's residual is measured against in words: the sensor noise, or the
+    reference's floor under it (:attr:`~validation.vehicles.effects.EffectModel.min_noise_sd`)."""
+    floor = reference.min_noise_sd.get(name)
+    if not floor:
+        return "the sensor noise"
+    return f"the misfit scale the {reference.name} reference weighs it by ({_number(floor)} {column_unit(name)})"
 
 
 def _output_figure(name: str, trace: dict, fit: dict) -> Figure:

@@ -68,7 +68,12 @@ from validation.vehicles.blimp import (
 )
 from validation.vehicles.blimp_equations import blimp_dynamics, mass_matrix, rk4
 from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_STD
-from validation.vehicles.effects import TARGET_KEYS, Hypothesis
+from validation.vehicles.effects import (
+    Hypothesis,
+    check_trim_start,
+    simulate_each_recording,
+    starts_at_trim,
+)
 
 #: Control-derivative terms: fan, command column, sign of the commands it applies to.
 CONTROL_TERMS = {"gondola_thrust_forward": ("u_gondola", 1.0), "gondola_thrust_backward": ("u_gondola", -1.0),
@@ -357,11 +362,16 @@ class BlimpEffects:
     """
 
     family = "blimp"
-    kinds = tuple(TARGET_KEYS)
+    kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias", "quadratic_drag",
+             "force_offset")
     terms = TERMS
     batches_simulations = True
     needs_even_sampling = False
     sensor_noise_sd = SENSOR_NOISE_STD
+    min_noise_sd = {}
+    residual_gp_states = STATE_NAMES
+    start_state = starts_at_trim
+    simulate_recordings = simulate_each_recording
 
     def __init__(self, reference: BlimpReference):
         self.reference = reference
@@ -402,8 +412,10 @@ class BlimpEffects:
             hypotheses.append(Hypothesis("force_offset", term, self.model_value(term), -math.inf, math.inf, step))
         return hypotheses
 
-    def simulate_many(self, effect_lists, time, inputs) -> np.ndarray:
-        """:func:`simulate_batch`, shape (B, n, 12)."""
+    def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
+        """:func:`simulate_batch`, shape (B, n, 12), from the hanging state (``start`` must be
+        None: :meth:`start_state`)."""
+        check_trim_start(start, self.name)
         return simulate_batch(self.reference, effect_lists, time, inputs)
 
     identification_manoeuvre = staticmethod(identification_manoeuvre)

@@ -40,7 +40,7 @@ from validation.vehicles.bo105 import (
     propagate,
 )
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
-from validation.vehicles.effects import Hypothesis
+from validation.vehicles.effects import Hypothesis, check_trim_start, simulate_each_recording, starts_at_trim
 from validation.vehicles.linear_discretisation import zero_order_hold
 
 _ACCELERATION_UNITS = {"m/s": "m/s^2", "rad/s": "rad/s^2"}
@@ -189,6 +189,10 @@ class Bo105Effects:
     batches_simulations = False
     needs_even_sampling = True
     sensor_noise_sd = SENSOR_NOISE_STD
+    min_noise_sd = {}
+    residual_gp_states = STATE_NAMES
+    start_state = starts_at_trim
+    simulate_recordings = simulate_each_recording
 
     def __init__(self, reference: Bo105Reference):
         self.reference = reference
@@ -238,8 +242,10 @@ class Bo105Effects:
                                                  -math.inf, math.inf, step))
         return hypotheses
 
-    def simulate_many(self, effect_lists, time, inputs) -> np.ndarray:
-        """:func:`simulate_bo105_with_effects` for each list, shape (B, n, 8)."""
+    def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
+        """:func:`simulate_bo105_with_effects` for each list, shape (B, n, 8), from trim
+        (``start`` must be None: :meth:`start_state`)."""
+        check_trim_start(start, self.name)
         return np.stack([simulate_bo105_with_effects(self.reference, effects, time, inputs)
                          for effects in effect_lists])
 

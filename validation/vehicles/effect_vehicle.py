@@ -26,14 +26,16 @@ from validation.vehicles.blimp_effects import BlimpEffects
 from validation.vehicles.bo105_effects import Bo105Effects
 from validation.vehicles.effects import EffectModel, check_effects
 from validation.vehicles.registry import get_vehicle
+from validation.vehicles.rgblimp_effects import RGBlimpEffects
 
 #: The references that take effects, as messages name them -> (the registry names they cover, a
 #: full-match regular expression; their effect model's class, called with the registry's vehicle
 #: of that name). A registry name no pattern matches (flight-test stand-ins, JSBSim aircraft)
 #: takes no effects.
-EFFECT_MODELS = {"bo105-<V>kt": (r"bo105-\d+kt", Bo105Effects), "blimp": (r"blimp", BlimpEffects)}
-#: The references that take effects, as messages name them: "bo105-<V>kt and blimp".
-EFFECT_REFERENCES = " and ".join(EFFECT_MODELS)
+EFFECT_MODELS = {"bo105-<V>kt": (r"bo105-\d+kt", Bo105Effects), "blimp": (r"blimp", BlimpEffects),
+                 "rgblimp": (r"rgblimp", RGBlimpEffects)}
+#: The references that take effects, as messages name them: "bo105-<V>kt, blimp and rgblimp".
+EFFECT_REFERENCES = ", ".join(list(EFFECT_MODELS)[:-1]) + " and " + list(EFFECT_MODELS)[-1]
 #: Suffix of the registry names of flight-test stand-ins (docs/vehicles.md, "Names and interface").
 _STAND_IN_SUFFIX = "-flight"
 _FILE_FORMAT = "flightgp-effect-vehicle"
@@ -122,6 +124,13 @@ class EffectVehicle:
         """Noise-free recorded states (biases included), shape (n, n_states); see
         :meth:`validation.vehicles.effects.EffectModel.simulate_many`."""
         return self._reference.simulate_many([self._effects], time, inputs)[0]
+
+    def replay_states(self, recording) -> np.ndarray:
+        """Noise-free states (n, n_states) along ``recording``'s inputs and times, from the state
+        the reference replays it from (:meth:`validation.vehicles.effects.EffectModel.start_state`:
+        the RGBlimp's first recorded state; the Bo105's and blimp's own trim)."""
+        start = self._reference.start_state(recording)
+        return self._reference.simulate_many([self._effects], recording.time, recording.inputs, start=start)[0]
 
     def simulate(self, time, inputs, *, seed: int = 0) -> Recording:
         """Fly ``inputs`` from trim; returns every state as recorded, with sensor noise drawn

@@ -11,6 +11,7 @@ An *effect* is a dict in the shape of a ``flightgp diagnose`` finding (docs/diag
     {"effect": "sensor_bias", "output": "q", "value": 0.01}             # output units
     {"effect": "quadratic_drag", "term": "X_UU", "value": -0.2}         # the blimp's
     {"effect": "force_offset", "term": "Z_0", "value": 0.003}           # the blimp's
+    {"effect": "aerodynamic_coefficient", "term": "c_l_alpha", "value": 3.5}  # the RGBlimp's
 
 Other keys (``unit``, ``interval``, ``statement`` ...) are ignored, so the findings of a
 diagnosis can be fed back in unchanged. Delays, lags and biases mean the same on every
@@ -18,7 +19,8 @@ reference; what a *term* (a derivative, a drag coefficient, a force offset) is, 
 the reference's equations and which hypotheses diagnose tests on it is the reference's own
 business, supplied by an object implementing :class:`EffectModel`:
 :class:`validation.vehicles.bo105_effects.Bo105Effects` for every ``bo105-<V>kt``,
-:class:`validation.vehicles.blimp_effects.BlimpEffects` for the ``blimp``.
+:class:`validation.vehicles.blimp_effects.BlimpEffects` for the ``blimp``,
+:class:`validation.vehicles.rgblimp_effects.RGBlimpEffects` for the ``rgblimp``.
 :mod:`validation.vehicles.effect_vehicle` finds the effect model of a reference
 (:func:`~validation.vehicles.effect_vehicle.effect_model`) and applies effects to it
 (:class:`~validation.vehicles.effect_vehicle.EffectVehicle`).
@@ -39,7 +41,8 @@ from validation.core.recordings import column_unit
 #: no named effect explains, has none: it is not an effect that can be applied).
 TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative": "term",
                "stability_derivative": "term", "sensor_bias": "output", "quadratic_drag": "term",
-               "force_offset": "term"}
+               "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
+               "added_mass": "term", "steady_wind": "term"}
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.
@@ -119,6 +122,14 @@ class EffectModel(Protocol):
         concealed-effect bench makes.
     sample_time : float
         s, the interval of its identification manoeuvre's recordings (and of the bench's).
+    residual_gp_states : tuple of str
+        The states whose replayed values (and rates) the residual GPs of a diagnosis see: all
+        of them, or without those a residual cannot depend on (where the vehicle is and which way
+        it faces, for the RGBlimp, as Ko et al., ICRA 2007, sec. IV-B).
+    min_noise_sd : dict of str to float
+        Per state, a floor under the noise standard deviation that weighs its residuals (state
+        units; states not named have none): where recordings are filtered so smooth that their
+        estimated noise says nothing of how well any model could fit them (the RGBlimp's).
     """
 
     name: str
@@ -131,6 +142,8 @@ class EffectModel(Protocol):
     needs_even_sampling: bool
     sensor_noise_sd: dict[str, float]
     sample_time: float
+    residual_gp_states: tuple[str, ...]
+    min_noise_sd: dict[str, float]
 
     def model_value(self, term: str) -> float:
         """The reference's own value of ``term`` (``M_q`` of a Bo105, ``X_UU`` of the blimp),
@@ -159,9 +172,23 @@ class EffectModel(Protocol):
         are added by diagnose for every reference)."""
         ...
 
+    def start_state(self, recording) -> np.ndarray | None:
+        """The state a replay of ``recording`` starts from, shape (n_states,), or None for the
+        reference's own start (trim, or rest); BadInputError when the recording cannot give it."""
+        ...
+
+    def simulate_recordings(self, effect_lists: Sequence[list[dict]], times: Sequence[np.ndarray],
+                            inputs: Sequence[np.ndarray], starts: Sequence) -> list[np.ndarray]:
+        """:meth:`simulate_many` for several recordings at once (``times``, ``inputs``,
+        ``starts`` one per recording), a list of arrays (B, n_r, n_states); references whose
+        replays are dominated by per-step overhead batch the recordings too
+        (:func:`simulate_each_recording` replays them one after the other)."""
+        ...
+
     def simulate_many(self, effect_lists: Sequence[list[dict]], time: np.ndarray,
-                      inputs: np.ndarray) -> np.ndarray:
-        """Recorded states of the reference with each of B lists of effects, from trim.
+                      inputs: np.ndarray, *, start: np.ndarray | None = None) -> np.ndarray:
+        """Recorded states of the reference with each of B lists of effects, from trim or from
+        ``start``.
 
         Parameters
         ----------
@@ -172,6 +199,8 @@ class EffectModel(Protocol):
         inputs : ndarray, shape (n, n_inputs)
             Inputs in reference units, zero-order hold (row k acts from ``time[k]`` to
             ``time[k+1]``).
+        start : ndarray, shape (n_states,), optional
+            The state at ``time[0]`` (:meth:`start_state`); None: the reference's own start.
 
         Returns
         -------
@@ -199,6 +228,25 @@ class EffectModel(Protocol):
         inputs : ndarray, shape (n, n_inputs)
         """
         ...
+
+
+def simulate_each_recording(reference: EffectModel, effect_lists, times, inputs, starts) -> list[np.ndarray]:
+    """:meth:`EffectModel.simulate_recordings` by one :meth:`EffectModel.simulate_many` per
+    recording: a list of arrays (B, n_r, n_states)."""
+    return [reference.simulate_many(effect_lists, t, u, start=s) for t, u, s in zip(times, inputs, starts)]
+
+
+def starts_at_trim(reference: EffectModel, recording) -> None:
+    """:meth:`EffectModel.start_state` of a reference whose recordings start at its own trim or
+    rest state (docs/conventions.md, "Time"): None, whatever the recording."""
+    return None
+
+
+def check_trim_start(start, name: str) -> None:
+    """BadInputError unless ``start`` is None: the ``name`` reference replays from its own start."""
+    if start is not None:
+        raise BadInputError(f"the {name} reference replays recordings from its own start state "
+                            "(they start there, docs/conventions.md, \"Time\"); got another start state")
 
 
 def effect_unit(effect: dict, reference: EffectModel) -> str:

@@ -112,7 +112,7 @@ def test_bad_effects_are_refused(effect, message):
 
 
 def test_other_references_and_bo105_effects_on_the_blimp_are_refused():
-    with pytest.raises(BadInputError, match="bo105-<V>kt and blimp"):
+    with pytest.raises(BadInputError, match="bo105-<V>kt, blimp and rgblimp"):
         EffectVehicle("blimp-flight", [])
     with pytest.raises(BadInputError, match="is not one of"):
         EffectVehicle("blimp", [{"effect": "stability_derivative", "term": "M_q", "value": -1.0}])
@@ -125,16 +125,18 @@ def test_thrust_per_unit_command_must_be_positive_on_the_blimp():
         EffectVehicle("blimp", [{"effect": "control_derivative", "term": "tail_thrust_positive", "value": 0.0}])
 
 
-@pytest.mark.parametrize("name", ["bo105-80kt", "bo105-40kt", "blimp"])
+@pytest.mark.parametrize("name", ["bo105-80kt", "bo105-40kt", "blimp", "rgblimp"])
 def test_every_diagnosable_reference_keeps_the_effect_model_contract(name):
     """The EffectModel protocol, checked as diagnose and its bench use it: kinds and terms agree
     with the shared contract, term hypotheses start at the model's values inside their bounds,
-    the manoeuvre excites every input, and a replay without effects is the reference's own."""
+    the manoeuvre excites every input (the RGBlimp's two variants differ in the thrusts and the
+    gondola's x, as its flights do: they hold their inputs), and a replay without effects is the reference's own."""
     vehicle = get_vehicle(name)
     model = effect_model(name, purpose="test")
     assert (model.name, model.input_names, model.state_names) == (name, vehicle.input_names, vehicle.state_names)
     assert model.family == name.split("-")[0]  # every bo105-<V>kt shares one family
-    assert set(model.kinds) <= set(TARGET_KEYS) and {"time_delay", "input_lag", "sensor_bias"} <= set(model.kinds)
+    assert set(model.kinds) <= set(TARGET_KEYS)
+    assert ({"time_delay", "input_lag", "sensor_bias"} <= set(model.kinds)) == (name != "rgblimp")
     assert {kind for kind in model.kinds if TARGET_KEYS[kind] == "term"} == set(model.terms)
     for terms in model.terms.values():
         assert all(np.isfinite(model.model_value(term)) and model.term_unit(term) for term in terms)
@@ -146,11 +148,19 @@ def test_every_diagnosable_reference_keeps_the_effect_model_contract(name):
         assert h.null == model.model_value(h.target) and h.lower <= h.null <= h.upper and h.step > 0, h
     assert set(model.sensor_noise_sd) == set(model.state_names) and model.sample_time == vehicle.sample_time
     time, inputs = model.identification_manoeuvre(duration=20.0, sample_time=model.sample_time, variant=1)
-    assert inputs.shape == (len(time), len(model.input_names)) and np.all(np.ptp(inputs, axis=0) > 0)
+    assert inputs.shape == (len(time), len(model.input_names))
+    if name == "rgblimp":
+        other = model.identification_manoeuvre(duration=20.0, sample_time=model.sample_time, variant=0)[1]
+        assert np.all(inputs[0, :3] != other[0, :3]) and np.all(np.ptp(inputs, axis=0) == 0)
+    else:
+        assert np.all(np.ptp(inputs, axis=0) > 0)
     replay = model.simulate_many([[], []], time, inputs)
     assert replay.shape == (2, len(time), len(model.state_names)) and np.array_equal(replay[0], replay[1])
     if model.needs_even_sampling:  # the blimp's RK4 at the recording interval: test_diagnose_blimp
-        np.testing.assert_array_equal(replay[0], vehicle.simulate_states(time, inputs))
+        expected = vehicle.simulate_states(time, inputs)
+        if name == "rgblimp":  # the replay carries heading on, the reference wraps it
+            expected[:, 5] = np.unwrap(expected[:, 5])
+        np.testing.assert_array_equal(replay[0], expected)
 
 
 @pytest.mark.parametrize("name, message", [
@@ -161,7 +171,8 @@ def test_every_diagnosable_reference_keeps_the_effect_model_contract(name):
 def test_only_the_effect_references_take_effects(name, message):
     """One lookup and one message for every caller: what it is for, the references that take
     effects, and why this one does not."""
-    with pytest.raises(BadInputError, match="^doing X needs one of the bo105-<V>kt and blimp references; ") as error:
+    needs = "^doing X needs one of the bo105-<V>kt, blimp and rgblimp references; "
+    with pytest.raises(BadInputError, match=needs) as error:
         effect_model(name, purpose="doing X")
     assert str(error.value).endswith(message)
 

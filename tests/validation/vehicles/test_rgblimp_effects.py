@@ -1,0 +1,157 @@
+"""Tests of the RGBlimp's named effects (validation/vehicles/rgblimp_effects.py) and of the added
+mass the equations take for them (validation/vehicles/rgblimp_equations.py).
+
+Properties: with added mass, Kirchhoff's equations keep the kinetic energy of a free body (no
+gravity, air or thrust), which only the right Coriolis and Munk terms do; the batched replay of
+several recordings equals one replay per recording and the identification's own model with the
+same coefficients; and each term moves the flight the way its physics says.
+"""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from validation.core.errors import BadInputError
+from validation.core.recordings import Recording
+from validation.models.rgblimp_identification import RGBlimpModel
+from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
+from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
+from validation.vehicles.rgblimp_effects import TERMS, model_value
+from validation.vehicles.rgblimp_equations import (
+    NOMINAL_GONDOLA_POSITION,
+    SAMPLE_TIME,
+    RGBlimpParameters,
+    body_accelerations,
+    rk4_step,
+)
+
+
+@pytest.fixture(scope="module")
+def flights():
+    """The first 4 s of two excerpt flights of different configurations (29 and 30)."""
+    recordings = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv").recording for n in (117, 121)]
+    return [Recording(r.time[:240], r.inputs[:240], r.input_names, r.outputs[:240], r.output_names, r.metadata)
+            for r in recordings]
+
+
+def _kinetic_energy(state, params, gondola):
+    """``1/2 nu^T M nu`` with the system mass matrix of rigid body and added mass."""
+    velocity, rates = state[6:9], state[9:12]
+    total = params.hull_mass + params.gondola_mass
+    moment = params.hull_mass * np.asarray(params.hull_cg) + params.gondola_mass * np.asarray(gondola)
+    # J = I - m_b S(r_b)^2 = I + m_b (|r_b|^2 I - r_b r_b^T)
+    inertia = np.diag(params.inertia) + params.gondola_mass * (np.dot(gondola, gondola) * np.eye(3)
+                                                               - np.outer(gondola, gondola))
+    translational = (total + np.asarray(params.added_mass)) * velocity
+    rotational = (inertia + np.diag(params.added_inertia)) @ rates
+    coupling = np.cross(rates, moment)  # nu^T [[0, -S(l)], [S(l), 0]] nu / 2 = v . (omega x l)
+    return 0.5 * (velocity @ translational + rates @ rotational) + velocity @ coupling
+
+
+@pytest.mark.parametrize("added_mass, added_inertia", [((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),
+                                                       ((0.02, 0.12, 0.12), (0.002, 0.01, 0.01))])
+def test_a_free_body_keeps_its_kinetic_energy_with_and_without_added_mass(added_mass, added_inertia):
+    """No gravity, no air, no thrust: rigid-body and Kirchhoff added-mass terms only exchange
+    energy between the axes (Fossen 2011, sec. 6.3.1); a sign error in a Coriolis or Munk term
+    makes the energy drift by far more than RK4's error."""
+    params = RGBlimpParameters(gravity=0.0, air_density=0.0, rate_damping=(0.0, 0.0, 0.0),
+                               added_mass=added_mass, added_inertia=added_inertia)
+    gondola = np.array(NOMINAL_GONDOLA_POSITION)
+    inputs = np.concatenate([[0.0, 0.0], gondola])
+    state = np.array([0, 0, 0, 0.1, -0.2, 0.3, 0.3, 0.1, 0.2, 0.3, -0.2, 0.5])
+    start = _kinetic_energy(state, params, gondola)
+    for _ in range(120):
+        state = rk4_step(state, inputs, params)
+    assert abs(_kinetic_energy(state, params, gondola) / start - 1) < 1e-6
+    assert not np.allclose(state[6:], [0.3, 0.1, 0.2, 0.3, -0.2, 0.5], atol=1e-3)  # the motion did change
+
+
+def test_the_munk_moment_turns_the_hull_broadside():
+    """An elongated hull (more added mass across than along) at positive angle of attack gets a
+    nose-up pitching moment ``(Z_Wdot - X_Udot) U W``, destabilising (Fossen 2011, sec. 6.3)."""
+    base = RGBlimpParameters(air_density=0.0)
+    munk = dataclasses.replace(base, added_mass=(0.02, 0.12, 0.12))
+    state = np.zeros(12)
+    state[6], state[8] = 0.4, 0.1
+    inputs = np.concatenate([[0.0, 0.0], NOMINAL_GONDOLA_POSITION])
+    pitch = [body_accelerations(state, inputs, p)[4] for p in (base, munk)]
+    assert pitch[1] > pitch[0]
+
+
+def test_batched_replays_equal_one_per_recording_and_the_identified_models(flights):
+    """Members and recordings integrated together equal separate replays, and a term set through
+    an effect equals the identification's model with the same coefficient (its own free run)."""
+    model = effect_model("rgblimp", purpose="test")
+    effect_lists = [[], [{"effect": "stability_derivative", "term": "N_R", "value": -0.02},
+                         {"effect": "steady_wind", "term": "wind_x", "value": 0.05},
+                         {"effect": "control_derivative", "term": "thrust_gain", "value": 0.8}],
+                    [{"effect": "aerodynamic_coefficient", "term": "c_l0", "value": 0.2}]]
+    starts = [model.start_state(r) for r in flights]
+    together = model.simulate_recordings(effect_lists, [r.time for r in flights], [r.inputs for r in flights], starts)
+    for recording, start, replay in zip(flights, starts, together):
+        alone = model.simulate_many(effect_lists, recording.time, recording.inputs, start=start)
+        np.testing.assert_allclose(replay, alone, rtol=0, atol=1e-12)
+        expected = [RGBlimpModel(),
+                    RGBlimpModel().replaced({"rate_damping_z": -0.02, "wind_x": 0.05, "thrust_gain": 0.8}),
+                    RGBlimpModel().replaced({"c_l0": 0.2})]
+        for member, identified in enumerate(expected):
+            states = identified.simulate(start, recording.inputs)
+            states[:, 5] = np.unwrap(states[:, 5])
+            np.testing.assert_allclose(replay[member], states, rtol=0, atol=1e-10)
+
+
+def test_recordings_of_different_lengths_are_padded_and_cut(flights):
+    model = effect_model("rgblimp", purpose="test")
+    short = flights[1]
+    replays = model.simulate_recordings([[]], [flights[0].time, short.time[:100]],
+                                        [flights[0].inputs, short.inputs[:100]],
+                                        [model.start_state(flights[0]), model.start_state(short)])
+    assert replays[1].shape == (1, 100, 12)
+    np.testing.assert_allclose(replays[1][0], model.simulate_many([[]], short.time, short.inputs,
+                                                                  start=model.start_state(short))[0, :100], atol=1e-12)
+
+
+@pytest.mark.parametrize("term, value, check", [
+    # heavier than the model's 0.067 N: sinks faster at first (z and W down)
+    ("Z_0", 0.1, lambda base, changed: changed[30, 8] > base[30, 8] and changed[30, 2] > base[30, 2]),
+    ("thrust_gain", 1.5, lambda base, changed: changed[30, 6] > base[30, 6]),  # more thrust: faster at first
+    ("X_Udot", 0.05, lambda base, changed: abs(changed[30, 6] - changed[0, 6]) < abs(base[30, 6] - base[0, 6])),
+    ("wind_y", 0.1, lambda base, changed: changed[-1, 1] > base[-1, 1] + 0.1),  # drifts east with the air
+    ("thrust_asymmetry", 0.3, lambda base, changed: changed[-1, 11] > base[-1, 11]),  # left stronger: yaws right
+])
+def test_each_term_moves_the_flight_as_its_physics_says(flights, term, value, check):
+    model = effect_model("rgblimp", purpose="test")
+    kind = next(kind for kind, terms in TERMS.items() if term in terms)
+    recording = flights[0]
+    base, changed = model.simulate_many([[], [{"effect": kind, "term": term, "value": value}]], recording.time,
+                                        recording.inputs, start=model.start_state(recording))
+    assert check(base, changed)
+
+
+def test_z_0_is_the_net_weight_and_sets_the_buoyancy():
+    params = RGBlimpParameters()
+    net = model_value(params, "Z_0")
+    assert net == pytest.approx((0.10482 + 0.05407 - 0.15204) * 9.8)
+    vehicle = EffectVehicle("rgblimp", [{"effect": "force_offset", "term": "Z_0", "value": 0.0}])
+    time = np.arange(120) * SAMPLE_TIME
+    inputs = np.tile(np.concatenate([[0.0, 0.0], NOMINAL_GONDOLA_POSITION]), (120, 1))
+    states = vehicle.simulate_states(time, inputs)  # neutrally buoyant at rest: stays put
+    np.testing.assert_allclose(states[-1, :3], 0.0, atol=1e-12)
+
+
+def test_bad_values_and_missing_start_states_are_refused(flights):
+    with pytest.raises(BadInputError, match="thrust gain must be positive"):
+        EffectVehicle("rgblimp", [{"effect": "control_derivative", "term": "thrust_gain", "value": 0.0}])
+    with pytest.raises(BadInputError, match="cannot be negative"):
+        EffectVehicle("rgblimp", [{"effect": "added_mass", "term": "Z_Wdot", "value": -0.1}])
+    with pytest.raises(BadInputError, match="is not one of"):
+        EffectVehicle("rgblimp", [{"effect": "stability_derivative", "term": "M_q", "value": -1.0}])
+    model = effect_model("rgblimp", purpose="test")
+    recording = flights[0]
+    partial = Recording(recording.time, recording.inputs, recording.input_names, recording.outputs[:, :6],
+                        recording.output_names[:6], recording.metadata)
+    with pytest.raises(BadInputError, match="needs all 12 states; missing U, V, W, P, Q, R"):
+        model.start_state(partial)
+    with pytest.raises(BadInputError, match="resample the recordings to 60 Hz"):
+        model.simulate_many([[]], recording.time * 2, recording.inputs)
+

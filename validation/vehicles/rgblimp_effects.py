@@ -1,0 +1,371 @@
+"""Named effects on the RGBlimp reference (:mod:`validation.vehicles.rgblimp`): its
+:class:`~validation.vehicles.effects.EffectModel`, :class:`RGBlimpEffects`, which ``flightgp
+diagnose --reference rgblimp`` fits to real flights.
+
+The effect dicts are those of :mod:`validation.vehicles.effects` (docs/diagnose.md,
+"diagnosis.json"); every RGBlimp effect names a *term* and gives its new value. They act on the
+equations of :mod:`validation.vehicles.rgblimp_equations` (body axes, SI units) as follows:
+
+- ``aerodynamic_coefficient``, terms ``c_d0 ... c_mz_beta``: a coefficient of the source's
+  polynomial aerodynamics (:class:`~validation.vehicles.rgblimp_equations.RGBlimpParameters`,
+  the same names; force coefficients dimensionless, moment coefficients in m, per rad^k of the
+  angle they multiply);
+- ``stability_derivative``, terms ``L_P``, ``M_Q``, ``N_R``: the linear rate damping
+  ``dL/dP`` etc., N m s/rad (the source's ``K1, K2, K3``);
+- ``control_derivative``, terms ``thrust_gain`` (a factor on both recorded thrusts, 1 in the
+  model) and ``thrust_asymmetry`` (``a``: the left thrust is ``(1 + a)`` and the right
+  ``(1 - a)`` times the recorded one, 0 in the model);
+- ``force_offset``, term ``Z_0``: the net downward force, weight minus buoyancy, N, acting at
+  the centre of buoyancy (set through the buoyancy);
+- ``cg_offset``, terms ``x_G``, ``y_G``, ``z_G``: the hull's centre of gravity relative to the
+  centre of buoyancy, m (the source's ``r``);
+- ``added_mass``, terms ``X_Udot``, ``Y_Vdot``, ``Z_Wdot`` (kg) and ``K_Pdot``, ``M_Qdot``,
+  ``N_Rdot`` (kg m^2): the fluid carried along, which the source's model lacks (Kirchhoff's
+  equations, :mod:`validation.vehicles.rgblimp_equations`), 0 in the model, never negative;
+- ``steady_wind``, terms ``wind_x``, ``wind_y``: a steady horizontal air motion in the room, m/s
+  along the motion capture's x and y axes (:func:`~validation.vehicles.rgblimp_equations.advance`),
+  0 in the model.
+
+Replays start at each recording's first recorded state (:meth:`RGBlimpEffects.start_state`),
+as the source's free runs do, and step one RK4 step per 1/60 s sample, the source's integrator;
+heading is carried continuously (diagnose compares it unwrapped). All members of a batch and all
+recordings of a diagnosis are integrated together, as one array of shape (B, S, 12): the model's
+cost is per-step overhead, so batching the S recordings divides it by S. A recording that ends
+early is padded with its last inputs, and the padding is dropped.
+
+Weights: the source's recordings are motion capture filtered so smoothly (noise estimates of
+1e-6 m and rad, :func:`validation.diagnose.noise.estimate_noise_sd`) that any model misfits
+them by 1e4-1e6 noise standard deviations; weighted by that noise, the output error would count
+heave 2000 times more than surge. So residuals are weighted at least by :data:`MIN_NOISE_SD`,
+the scales the identification of the same model uses
+(:data:`validation.models.rgblimp_identification.STATE_SCALE`): 5 cm, 0.02 rad, 2 cm/s and
+0.02 rad/s, at which position, attitude, velocity and rate errors of a free run count about
+alike (not tuned).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.core.manoeuvres import time_grid
+from validation.vehicles.effects import Hypothesis
+from validation.vehicles.rgblimp import RGBlimpReference, resting_state
+from validation.vehicles.rgblimp_equations import (
+    NOMINAL_GONDOLA_POSITION,
+    SAMPLE_TIME,
+    STATE_NAMES,
+    RGBlimpParameters,
+    free_run,
+)
+
+#: Aerodynamic-coefficient terms: the coefficient fields of :class:`RGBlimpParameters`.
+AERODYNAMIC_TERMS = tuple(f.name for f in dataclasses.fields(RGBlimpParameters) if f.name.startswith("c_"))
+#: Rate-damping terms -> body axis of ``rate_damping``.
+STABILITY_TERMS = {"L_P": 0, "M_Q": 1, "N_R": 2}
+#: Thrust terms and their model values (a factor and an asymmetry).
+CONTROL_TERMS = {"thrust_gain": 1.0, "thrust_asymmetry": 0.0}
+#: Centre-of-gravity terms -> body axis of ``hull_cg``.
+CG_TERMS = {"x_G": 0, "y_G": 1, "z_G": 2}
+#: Added-mass terms -> (field of :class:`RGBlimpParameters`, body axis).
+ADDED_MASS_TERMS = {"X_Udot": ("added_mass", 0), "Y_Vdot": ("added_mass", 1), "Z_Wdot": ("added_mass", 2),
+                    "K_Pdot": ("added_inertia", 0), "M_Qdot": ("added_inertia", 1),
+                    "N_Rdot": ("added_inertia", 2)}
+#: Wind terms -> earth axis.
+WIND_TERMS = {"wind_x": 0, "wind_y": 1}
+TERMS = {"aerodynamic_coefficient": AERODYNAMIC_TERMS, "stability_derivative": tuple(STABILITY_TERMS),
+         "control_derivative": tuple(CONTROL_TERMS), "force_offset": ("Z_0",), "cg_offset": tuple(CG_TERMS),
+         "added_mass": tuple(ADDED_MASS_TERMS), "steady_wind": tuple(WIND_TERMS)}
+
+_AERODYNAMIC_WORDS = {
+    "c_d0": "drag coefficient at zero angle of attack and sideslip",
+    "c_d_alpha2": "growth of drag with the square of the angle of attack",
+    "c_d_beta2": "growth of drag with the square of the sideslip",
+    "c_s0": "side-force coefficient at zero angle of attack and sideslip",
+    "c_s_alpha2": "growth of side force with the square of the angle of attack",
+    "c_s_beta": "side force per radian of sideslip",
+    "c_l0": "lift coefficient at zero angle of attack",
+    "c_l_alpha": "lift-curve slope, the growth of lift with angle of attack",
+    "c_l_beta2": "growth of lift with the square of the sideslip",
+    "c_mx0": "rolling-moment coefficient at zero angle of attack and sideslip",
+    "c_mx_alpha": "rolling moment per radian of angle of attack",
+    "c_mx_beta": "rolling moment per radian of sideslip, the dihedral effect",
+    "c_my0": "pitching-moment coefficient at zero angle of attack, the pitch trim",
+    "c_my_alpha": "pitching moment per radian of angle of attack, the static pitch stability",
+    "c_my_beta4": "pitching moment with the fourth power of the sideslip",
+    "c_mz0": "yawing-moment coefficient at zero angle of attack and sideslip",
+    "c_mz_alpha": "yawing moment per radian of angle of attack",
+    "c_mz_beta": "yawing moment per radian of sideslip, the weathercock stability",
+}
+#: Every term in words, for the statements of a diagnosis.
+TERM_DESCRIPTIONS = {
+    **_AERODYNAMIC_WORDS,
+    "L_P": "roll damping", "M_Q": "pitch damping", "N_R": "yaw damping",
+    "thrust_gain": "thrust per recorded thrust, the propellers' effectiveness",
+    "thrust_asymmetry": "left/right thrust asymmetry a: left thrust 1 + a, right 1 - a times the recorded",
+    "Z_0": "buoyancy imbalance (net downward force)",
+    "x_G": "hull centre of gravity ahead of the centre of buoyancy",
+    "y_G": "hull centre of gravity right of the centre of buoyancy",
+    "z_G": "hull centre of gravity below the centre of buoyancy",
+    "X_Udot": "added mass in surge", "Y_Vdot": "added mass in sway", "Z_Wdot": "added mass in heave",
+    "K_Pdot": "added inertia in roll", "M_Qdot": "added inertia in pitch", "N_Rdot": "added inertia in yaw",
+    "wind_x": "steady wind along the room's x axis", "wind_y": "steady wind along the room's y axis",
+}
+
+
+def _aerodynamic_unit(term: str) -> str:
+    """``"1"`` or ``"m"`` (moment coefficients carry the reference length), per rad^k of the
+    angle the coefficient multiplies (``c_l_alpha``: 1/rad, ``c_my_beta4``: m/rad^4)."""
+    base = "m" if term.startswith("c_m") else "1"
+    power = term.rsplit("_", 1)[-1].lstrip("alphbet")
+    if term.endswith("0"):
+        return base
+    per = "rad" if power == "" else f"rad^{power}"
+    return f"{base}/{per}" if base == "m" else f"1/{per}"
+
+
+TERM_UNITS = {**{term: _aerodynamic_unit(term) for term in AERODYNAMIC_TERMS},
+              **dict.fromkeys(STABILITY_TERMS, "N m s/rad"), **dict.fromkeys(CONTROL_TERMS, "1"),
+              "Z_0": "N", **dict.fromkeys(CG_TERMS, "m"), "X_Udot": "kg", "Y_Vdot": "kg", "Z_Wdot": "kg",
+              "K_Pdot": "kg m^2", "M_Qdot": "kg m^2", "N_Rdot": "kg m^2", **dict.fromkeys(WIND_TERMS, "m/s")}
+
+#: Floor under the noise that weighs each state's residuals (module docstring), state units.
+MIN_NOISE_SD = {**dict.fromkeys(("x", "y", "z"), 0.05), **dict.fromkeys(("phi", "theta", "psi"), 0.02),
+                **dict.fromkeys(("U", "V", "W"), 0.02), **dict.fromkeys(("P", "Q", "R"), 0.02)}
+#: The states diagnose's residual GPs see: all but position and yaw (a residual cannot depend on
+#: where the blimp is or which way it faces; Ko et al., ICRA 2007, sec. IV-B, as the RKGP's,
+#: :data:`validation.models.rgblimp_greybox.GP_STATE_COLUMNS`).
+RESIDUAL_GP_STATES = ("phi", "theta", "U", "V", "W", "P", "Q", "R")
+#: White noise of the concealed-effect bench's RGBlimp recordings, state units: about the
+#: largest noise estimate of the excerpt's positions (6e-5 m, data_117.csv), rounded up.
+SENSOR_NOISE_STD = dict.fromkeys(STATE_NAMES, 1e-4)
+#: Screening steps of terms whose model value is zero or tiny, in their units: 1 mN of net
+#: force, 2 mm of CG, 0.01 kg (7 % of the displaced air) of added mass, 0.001 kg m^2 (about a
+#: tenth of the smallest moment of inertia) of added inertia, 1 cm/s of wind, 2 % of thrust
+#: asymmetry, 0.001 of a coefficient.
+_ABSOLUTE_STEPS = {"Z_0": 1e-3, "cg_offset": 2e-3, "added_mass": 0.01, "added_inertia": 1e-3, "steady_wind": 0.01,
+                   "thrust_asymmetry": 0.02, "coefficient": 1e-3}
+#: Relative screening step of terms with a model value (5 %, as for the blimp's).
+_RELATIVE_STEP = 0.05
+#: Largest thrust asymmetry: the weaker propeller keeps a tenth of its thrust.
+_MAX_ASYMMETRY = 0.9
+
+
+def model_value(params: RGBlimpParameters, term: str) -> float:
+    """The model's value of ``term`` (module docstring for units and signs)."""
+    if term in AERODYNAMIC_TERMS:
+        return float(getattr(params, term))
+    if term in STABILITY_TERMS:
+        return float(params.rate_damping[STABILITY_TERMS[term]])
+    if term in CONTROL_TERMS:
+        return CONTROL_TERMS[term]
+    if term == "Z_0":
+        return (params.hull_mass + params.gondola_mass - params.buoyancy_mass) * params.gravity
+    if term in CG_TERMS:
+        return float(params.hull_cg[CG_TERMS[term]])
+    if term in ADDED_MASS_TERMS:
+        field, axis = ADDED_MASS_TERMS[term]
+        return float(getattr(params, field)[axis])
+    if term in WIND_TERMS:
+        return 0.0
+    raise KeyError(term)
+
+
+def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = SAMPLE_TIME,
+                             variant: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """An RGBlimp input history as the source's flights hold them: constant thrusts and gondola.
+
+    Variant 0 thrusts 0.03 N left and 0.045 N right (a right-hand spiral) with the gondola at
+    :data:`~validation.vehicles.rgblimp_equations.NOMINAL_GONDOLA_POSITION`; variant 1 the
+    thrusts the other way round with the gondola 2 cm further forward (the source's flights
+    hold 0.01-0.06 N and move the gondola by -1 .. 4 cm, docs/rgblimp.md).
+
+    Returns
+    -------
+    time : ndarray, shape (n,)
+    inputs : ndarray, shape (n, 5)
+    """
+    time = time_grid(duration=duration, sample_time=sample_time)
+    gondola = np.array(NOMINAL_GONDOLA_POSITION) + (np.array([0.02, 0.0, 0.0]) if variant else 0.0)
+    thrusts = (0.045, 0.03) if variant else (0.03, 0.045)
+    return time, np.tile(np.concatenate([thrusts, gondola]), (len(time), 1))
+
+
+class _MemberValues:
+    """The parameters of B effect lists as arrays, for states of shape (B, S, 12) (the
+    broadcasting of :func:`validation.models.rgblimp_identification.batched_parameters`)."""
+
+    def __init__(self, params: RGBlimpParameters, effect_lists):
+        n = len(effect_lists)
+        self.fields = {f.name: np.tile(np.asarray(getattr(params, f.name), dtype=float), (n, 1))
+                       for f in dataclasses.fields(RGBlimpParameters)}
+        self.gain, self.asymmetry, self.wind = np.ones(n), np.zeros(n), np.zeros((n, 2))
+        self.changed = set()
+        for member, effects in enumerate(effect_lists):
+            for effect in effects:
+                self._set(member, effect["term"], float(effect["value"]))
+
+    def _set(self, member: int, term: str, value: float) -> None:
+        if term in AERODYNAMIC_TERMS:
+            field, axis = term, 0
+        elif term in STABILITY_TERMS:
+            field, axis = "rate_damping", STABILITY_TERMS[term]
+        elif term == "Z_0":  # (m + m_b - B) g = value
+            field, axis = "buoyancy_mass", 0
+            value = self.fields["hull_mass"][member, 0] + self.fields["gondola_mass"][member, 0] \
+                - value / self.fields["gravity"][member, 0]
+        elif term in CG_TERMS:
+            field, axis = "hull_cg", CG_TERMS[term]
+        elif term in ADDED_MASS_TERMS:
+            field, axis = ADDED_MASS_TERMS[term]
+        elif term == "thrust_gain":
+            self.gain[member] = value
+            return
+        elif term == "thrust_asymmetry":
+            self.asymmetry[member] = value
+            return
+        else:
+            self.wind[member, WIND_TERMS[term]] = value
+            return
+        self.fields[field][member, axis] = value
+        self.changed.add(field)
+
+    def namespace(self, params: RGBlimpParameters) -> SimpleNamespace:
+        """The fields, batched where any member changed them: scalars (B, 1) (they multiply
+        angles (B, S)), the buoyancy (B, 1, 1) (it multiplies a direction (B, S, 3)), triples
+        (B, 1, 3)."""
+        values = {f.name: getattr(params, f.name) for f in dataclasses.fields(RGBlimpParameters)}
+        for field in self.changed:
+            array = self.fields[field]
+            if array.shape[1] == 3:
+                values[field] = array[:, None, :]
+            elif field == "buoyancy_mass":
+                values[field] = array[:, :, None]
+            else:
+                values[field] = array
+        return SimpleNamespace(**values)
+
+    def member_parameters(self, member: int) -> RGBlimpParameters:
+        """Member ``member``'s parameters as an :class:`RGBlimpParameters`."""
+        return RGBlimpParameters(**{name: (tuple(array[member]) if array.shape[1] == 3 else float(array[member, 0]))
+                                    for name, array in self.fields.items()})
+
+
+class RGBlimpEffects:
+    """The :class:`~validation.vehicles.effects.EffectModel` of the ``rgblimp`` reference (module
+    docstring): replays from each recording's first state, batched over members and recordings,
+    evenly sampled at 60 Hz.
+
+    Parameters
+    ----------
+    reference : RGBlimpReference
+
+    The attributes and methods are those of the protocol.
+    """
+
+    family = "rgblimp"
+    kinds = tuple(TERMS)
+    terms = TERMS
+    batches_simulations = True
+    needs_even_sampling = True
+    sensor_noise_sd = SENSOR_NOISE_STD
+    min_noise_sd = MIN_NOISE_SD
+    residual_gp_states = RESIDUAL_GP_STATES
+
+    def __init__(self, reference: RGBlimpReference):
+        self.reference = reference
+        self.name, self.sample_time = reference.name, reference.sample_time
+        self.input_names, self.state_names = reference.input_names, reference.state_names
+
+    def model_value(self, term: str) -> float:
+        return model_value(self.reference.params, term)
+
+    def term_unit(self, term: str) -> str:
+        """:data:`TERM_UNITS`."""
+        return TERM_UNITS[term]
+
+    def term_description(self, term: str) -> str:
+        """:data:`TERM_DESCRIPTIONS`; ``term`` itself for another."""
+        return TERM_DESCRIPTIONS.get(term, term)
+
+    def term_value_problem(self, term: str, value: float) -> str | None:
+        """The thrust gain must be positive, an asymmetry below :data:`_MAX_ASYMMETRY` in size,
+        an added mass or inertia not negative."""
+        if term == "thrust_gain" and not value > 0:
+            return f"the thrust gain must be positive, got {value}"
+        if term == "thrust_asymmetry" and not abs(value) <= _MAX_ASYMMETRY:
+            return f"the thrust asymmetry must lie within +-{_MAX_ASYMMETRY}, got {value}"
+        if term in ADDED_MASS_TERMS and value < 0:
+            return f"an added mass or inertia cannot be negative, got {value} {TERM_UNITS[term]}"
+        return None
+
+    def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
+        """Every term of :data:`TERMS`, whatever moves: the inputs are absolute thrusts and
+        positions, not perturbations, so they act in every flight (screening steps 5 % of the
+        model's value, or :data:`_ABSOLUTE_STEPS` where it is zero or tiny)."""
+        hypotheses = []
+        for kind, terms in TERMS.items():
+            for term in terms:
+                value = self.model_value(term)
+                lower, upper = -math.inf, math.inf
+                if kind == "added_mass":
+                    lower = 0.0
+                    step = _ABSOLUTE_STEPS["added_mass" if ADDED_MASS_TERMS[term][0] == "added_mass"
+                                           else "added_inertia"]
+                elif term == "thrust_gain":
+                    lower, step = 0.0, _RELATIVE_STEP
+                elif term == "thrust_asymmetry":
+                    lower, upper, step = -_MAX_ASYMMETRY, _MAX_ASYMMETRY, _ABSOLUTE_STEPS["thrust_asymmetry"]
+                elif kind in ("force_offset", "cg_offset", "steady_wind"):
+                    step = _ABSOLUTE_STEPS["Z_0" if kind == "force_offset" else kind]
+                else:
+                    step = max(_RELATIVE_STEP * abs(value), _ABSOLUTE_STEPS["coefficient"])
+                hypotheses.append(Hypothesis(kind, term, value, lower, upper, step))
+        return hypotheses
+
+    def start_state(self, recording) -> np.ndarray:
+        """The recording's first row of all 12 states, in :data:`STATE_NAMES` order;
+        BadInputError when it does not measure them all (a free run needs its start)."""
+        missing = [n for n in STATE_NAMES if n not in recording.output_names]
+        if missing:
+            raise BadInputError(f"the {self.name} reference replays each recording from its first recorded "
+                                f"state, so it needs all 12 states; missing {', '.join(missing)}")
+        return np.array([recording.outputs[0, recording.output_names.index(n)] for n in STATE_NAMES])
+
+    def simulate_recordings(self, effect_lists, times, inputs, starts) -> list[np.ndarray]:
+        """Replays of every recording with every effect list, integrated together (module
+        docstring): a list of arrays (B, n_r, 12), heading continuous."""
+        for time in times:
+            self._check_time(np.asarray(time, dtype=float))
+        lengths = [len(u) for u in inputs]
+        longest = max(lengths)
+        padded = np.stack([np.vstack([u, np.repeat(u[-1:], longest - len(u), axis=0)]) for u in inputs])
+        members = _MemberValues(self.reference.params, effect_lists)
+        first = np.stack([np.tile(start, (len(effect_lists), 1)) if start is not None else
+                          np.stack([resting_state(u[0, 2:5], members.member_parameters(b))
+                                    for b in range(len(effect_lists))])
+                          for start, u in zip(starts, inputs)], axis=1)  # (B, S, 12)
+        factors = members.gain[:, None] * (1.0 + np.outer(members.asymmetry, [1.0, -1.0]))  # (B, 2)
+        batch_inputs = np.broadcast_to(padded, (len(effect_lists),) + padded.shape).copy()
+        batch_inputs[..., :2] *= factors[:, None, None, :]
+        with np.errstate(over="ignore", invalid="ignore"):
+            path = free_run(first, batch_inputs, members.namespace(self.reference.params),
+                            wind=members.wind[:, None, :])
+            path[..., 5] = np.unwrap(path[..., 5], axis=-1)
+        return [path[:, s, :n] for s, n in enumerate(lengths)]
+
+    def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
+        """:meth:`simulate_recordings` of one recording, shape (B, n, 12); from ``start``, or
+        at rest (:func:`~validation.vehicles.rgblimp.resting_state`) without one."""
+        return self.simulate_recordings(effect_lists, [time], [np.asarray(inputs, dtype=float)], [start])[0]
+
+    def _check_time(self, time: np.ndarray) -> None:
+        steps = np.diff(time)
+        if len(steps) == 0 or np.max(np.abs(steps - SAMPLE_TIME)) > 1e-6 * SAMPLE_TIME + 1e-9:
+            raise BadInputError(f"the {self.name} model steps at 1/60 s (the source's RK4 step and motion-capture "
+                                "rate); resample the recordings to 60 Hz")
+
+    identification_manoeuvre = staticmethod(identification_manoeuvre)
