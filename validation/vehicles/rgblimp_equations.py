@@ -283,7 +283,42 @@ def _broadcast(state: np.ndarray, inputs: np.ndarray) -> tuple[np.ndarray, np.nd
             np.broadcast_to(inputs, leading + inputs.shape[-1:]))
 
 
-def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
+def mass_properties(inputs: np.ndarray, params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the accelerations need of the masses, which the gondola position (an input) sets and
+    the state does not: one evaluation serves every stage of an RK4 step (:func:`rk4_step`).
+
+    Parameters
+    ----------
+    inputs : ndarray, shape (..., 5)
+        Only the gondola position ``inputs[..., 2:5]`` (m) is used.
+    params : RGBlimpParameters
+
+    Returns
+    -------
+    mass_moment : ndarray, shape (..., 3)
+        ``l = m r + m_b r_b``, kg m.
+    inertia : ndarray, shape (..., 3, 3)
+        ``J = I - m_b S(r_b)^2``, kg m^2 (without added inertia).
+    inverse_mass_matrix : ndarray, shape (..., 6, 6)
+        The inverse of ``[[m_t I3 + A_v, -S(l)], [S(l), J + A_w]]`` (module docstring).
+    """
+    gondola = np.asarray(inputs, dtype=float)[..., 2:5]
+    mass_moment = params.hull_mass * np.asarray(params.hull_cg) + params.gondola_mass * gondola
+    gondola_skew = _skew(gondola)
+    inertia = np.diag(params.inertia) - params.gondola_mass * gondola_skew @ gondola_skew
+    translational = (params.hull_mass + params.gondola_mass + np.asarray(params.added_mass)[..., None]) * np.eye(3)
+    rotational = inertia + np.asarray(params.added_inertia)[..., None] * np.eye(3)
+    mass_moment_skew = _skew(mass_moment)
+    leading = np.broadcast_shapes(translational.shape[:-2], rotational.shape[:-2], mass_moment_skew.shape[:-2])
+    matrix = np.empty(leading + (6, 6))
+    matrix[..., :3, :3] = translational
+    matrix[..., :3, 3:] = -mass_moment_skew
+    matrix[..., 3:, :3] = mass_moment_skew
+    matrix[..., 3:, 3:] = rotational
+    return mass_moment, inertia, np.linalg.inv(matrix)
+
+
+def body_accelerations(state: np.ndarray, inputs: np.ndarray, params, *, masses=None) -> np.ndarray:
     """Body accelerations ``[v_dot, omega_dot]`` of the RGBlimp (the source's ``dot_v, dot_w``).
 
     Parameters
@@ -294,6 +329,8 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndar
         ``thrust_left, thrust_right`` (N), ``gondola_x, gondola_y, gondola_z`` (m); leading axes
         broadcast against those of ``state``.
     params : RGBlimpParameters
+    masses : tuple, optional
+        :func:`mass_properties` of ``inputs`` and ``params``, when the caller has them.
 
     Returns
     -------
@@ -303,12 +340,10 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndar
     """
     state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
     angles, velocity, rates = state[..., 3:6], state[..., 6:9], state[..., 9:12]
-    thrust_left, thrust_right, gondola = inputs[..., 0], inputs[..., 1], inputs[..., 2:5]
+    thrust_left, thrust_right, gondola_z = inputs[..., 0], inputs[..., 1], inputs[..., 4]
+    mass_moment, inertia, inverse = masses if masses is not None else mass_properties(inputs, params)
 
     total_mass = params.hull_mass + params.gondola_mass
-    mass_moment = params.hull_mass * np.asarray(params.hull_cg) + params.gondola_mass * gondola
-    gondola_skew = _skew(gondola)
-    inertia = np.diag(params.inertia) - params.gondola_mass * gondola_skew @ gondola_skew
     down = np.stack([-np.sin(angles[..., 1]),
                      np.cos(angles[..., 1]) * np.sin(angles[..., 0]),
                      np.cos(angles[..., 1]) * np.cos(angles[..., 0])], axis=-1)
@@ -330,20 +365,13 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params) -> np.ndar
               + _cross(mass_moment, velocity_cross_rates)
               + _cross(mass_moment, params.gravity * down)
               + aero_moment
-              + np.stack([zero, thrust * gondola[..., 2],
+              + np.stack([zero, thrust * gondola_z,
                           (thrust_left - thrust_right) * params.propeller_arm], axis=-1))
-
-    mass_moment_skew = _skew(mass_moment)
-    matrix = np.empty(state.shape[:-1] + (6, 6))
-    matrix[..., :3, :3] = (total_mass + np.asarray(params.added_mass)[..., None]) * np.eye(3)
-    matrix[..., :3, 3:] = -mass_moment_skew
-    matrix[..., 3:, :3] = mass_moment_skew
-    matrix[..., 3:, 3:] = inertia + np.asarray(params.added_inertia)[..., None] * np.eye(3)
     right_side = np.concatenate([force, moment], axis=-1)
-    return np.linalg.solve(matrix, right_side[..., None])[..., 0]
+    return np.einsum("...ij,...j->...i", inverse, right_side)
 
 
-def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
+def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params, *, masses=None) -> np.ndarray:
     """Time derivative of the RGBlimp state (the module docstring's equations).
 
     Parameters
@@ -354,6 +382,8 @@ def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarra
         ``thrust_left, thrust_right`` (N), ``gondola_x, gondola_y, gondola_z`` (m); leading axes
         broadcast against those of ``state``.
     params : RGBlimpParameters
+    masses : tuple, optional
+        :func:`mass_properties` of ``inputs`` and ``params``, when the caller has them.
 
     Returns
     -------
@@ -364,7 +394,7 @@ def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarra
     angles, velocity = state[..., 3:6], state[..., 6:9]
     position_dot = np.einsum("...ij,...j->...i", rotation_body_to_earth(angles), velocity)
     return np.concatenate([position_dot, euler_rates(angles, state[..., 9:12]),
-                           body_accelerations(state, inputs, params)], axis=-1)
+                           body_accelerations(state, inputs, params, masses=masses)], axis=-1)
 
 
 def wrap_heading(state: np.ndarray) -> np.ndarray:
@@ -391,7 +421,8 @@ def rk4_step(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
     ndarray, shape (broadcast leading axes, 12)
     """
     state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
-    return wrap_heading(rk4(lambda s: rgblimp_dynamics(s, inputs, params), state, SAMPLE_TIME))
+    masses = mass_properties(inputs, params)  # the inputs are held: one for the four stages
+    return wrap_heading(rk4(lambda s: rgblimp_dynamics(s, inputs, params, masses=masses), state, SAMPLE_TIME))
 
 
 def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
