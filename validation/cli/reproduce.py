@@ -8,7 +8,7 @@ from validation.cli.arguments import seed
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder
 
-PAPERS = ("bo105", "blimp", "blimp-settings", "rgblimp", "rgblimp-settings")
+PAPERS = ("bo105", "blimp", "blimp-settings", "rgblimp", "rgblimp-settings", "rgblimp-diagnose")
 
 
 def seed_list(text: str) -> tuple[int, ...]:
@@ -42,7 +42,11 @@ def register(subparsers) -> None:
                     "report.md, scores.png and flight_J.png (--configurations selects; --seed applies). "
                     "rgblimp-settings: the validation-flight study behind the rgblimp settings (fit on each "
                     "configuration's lowest-numbered flight, validate on the next; the test flight unread); "
-                    "writes settings.json.")
+                    "writes settings.json. rgblimp-diagnose: flightgp diagnose --reference rgblimp on the "
+                    "flights of several configurations (default 0 6 12 18 24 27 30 33) but the highest-numbered, "
+                    "its findings replicated on two folds (each configuration's first and second flight), "
+                    "and the corrected model free-run on the held-out flights and scored as the source scores; "
+                    "writes results.json, report.md and diagnosis/.")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=None,
@@ -63,7 +67,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
-    if args.paper in ("rgblimp", "rgblimp-settings"):
+    if args.paper in ("rgblimp", "rgblimp-settings", "rgblimp-diagnose"):
         return _run_rgblimp(args)
     if args.data is not None or args.configurations is not None:
         raise BadInputError("--data and --configurations apply to reproduce rgblimp only")
@@ -119,6 +123,16 @@ def _run_rgblimp(args: argparse.Namespace) -> int:
         write_json(args.out / "settings.json", results)
         print(format_settings(results))
         print(f"written {args.out}/settings.json")
+        return 0
+    if args.paper == "rgblimp-diagnose":
+        from validation.reproduce.rgblimp_diagnose import DEFAULT_CONFIGURATIONS, reproduce_rgblimp_diagnose
+        from validation.reproduce.rgblimp_diagnose import format_results as format_diagnosis
+
+        results = reproduce_rgblimp_diagnose(args.data, args.out,
+                                             configurations=args.configurations or DEFAULT_CONFIGURATIONS,
+                                             seed=0 if args.seed is None else args.seed)
+        print(format_diagnosis(results))
+        print(f"written {args.out}/report.md, results.json and diagnosis/")
         return 0
     results = reproduce_rgblimp(args.data, args.out, configurations=args.configurations,
                                 seed=0 if args.seed is None else args.seed)

@@ -1,0 +1,75 @@
+"""``flightgp reproduce rgblimp-diagnose`` (validation/reproduce/rgblimp_diagnose.py) end to end on
+the first second of the excerpt's flights (configurations 29 and 30): the bookkeeping, the
+replication and the scores, checked against independent free runs; not the numbers."""
+import json
+
+import numpy as np
+import pytest
+
+from validation.cli import main
+from validation.reproduce.rgblimp import flight_metrics, read_score_ranges
+from validation.reproduce.rgblimp_diagnose import SCORED, reproduce_rgblimp_diagnose
+from validation.vehicles.effect_vehicle import EffectVehicle
+from validation.vehicles.rgblimp import RGBlimpReference
+from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
+
+#: Rows of each truncated flight (1 s at 60 Hz; the header besides).
+ROWS = 60
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    data = tmp_path_factory.mktemp("rgblimp_short")
+    for number in (117, 118, 119, 121, 122, 123):
+        lines = (EXCERPT_FOLDER / f"data_{number}.csv").read_text().splitlines()[:ROWS + 1]
+        (data / f"data_{number}.csv").write_text("\n".join(lines) + "\n")
+    (data / "data_info").mkdir()
+    for path in (EXCERPT_FOLDER / "data_info").iterdir():
+        (data / "data_info" / path.name).write_bytes(path.read_bytes())
+    out = tmp_path_factory.mktemp("rgblimp_diagnose_out")
+    return data, out, reproduce_rgblimp_diagnose(data, out, configurations=(29, 30), progress=False)
+
+
+@pytest.mark.slow
+def test_results_diagnosis_and_report_are_written(run):
+    data, out, results = run
+    assert json.loads((out / "results.json").read_text()) == json.loads(json.dumps(results))
+    assert [c["diagnosed"] for c in results["configurations"]] == [["data_117.csv", "data_118.csv"],
+                                                                     ["data_121.csv", "data_122.csv"]]
+    diagnosis = json.loads((out / "diagnosis" / "diagnosis.json").read_text())
+    assert [fold["recordings"] for fold in diagnosis["replication"]["folds"]] == [
+        ["data_117.csv", "data_121.csv"], ["data_118.csv", "data_122.csv"]]  # first and second repeats
+    for finding in (f for f in results["findings"] if f["effect"] != "unexplained"):
+        assert finding["replication"]["folds"] == 2 and len(finding["replication"]["values"]) == 2
+        assert ("Replicated" in finding["statement"]) == finding["replication"]["replicated"]
+    assert (out / "report.md").read_text().startswith("# RGBlimp diagnosis on real flights")
+
+
+@pytest.mark.slow
+def test_held_out_scores_are_the_free_runs_of_the_published_and_corrected_models(run):
+    data, out, results = run
+    corrected = EffectVehicle.load(out / "diagnosis" / "corrected_model.json")
+    ranges = read_score_ranges(data)
+    for flight in results["flights"]:
+        recording = read_rgblimp_flight(data / flight["test"]).recording
+        kind = "straight" if flight["configuration"] >= 30 else "spiral"
+        physics = RGBlimpReference().simulate_states(recording.time, recording.inputs,
+                                                     initial_state=recording.outputs[0])
+        for name, states in (("physics", physics), ("corrected", corrected.replay_states(recording))):
+            expected = flight_metrics(states, recording.outputs, ranges[kind])
+            assert flight["score"][name] == pytest.approx(expected["score"], rel=1e-12)
+            assert flight["position_rmse_m"][name] == pytest.approx(expected["position_rmse_m"], rel=1e-12)
+    summary = results["summary"]
+    for name in SCORED:
+        assert summary["mean_score"][name] == pytest.approx(np.mean([f["score"][name] for f in results["flights"]]))
+    assert results["goal"]["met"] == (summary["score_ratio_physics_to_corrected"] >= 2.0)
+
+
+def test_too_few_configurations_and_bad_folders_exit_2(tmp_path, capsys):
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "data_117.csv").write_text("")
+    code = main(["reproduce", "rgblimp-diagnose", "--data", str(data), "--out", str(tmp_path / "out"),
+                 "--configurations", "29"])
+    err = capsys.readouterr().err
+    assert code == 2 and "configuration 29 has 1 flight" in err and err.count("\n") == 1
