@@ -1,2 +1,2 @@
-"""The blimp RKGP FMU (docs/fmus.md, "Blimp RKGP"): its variables and slave, the RK4-plus-GP model
-it carries, its pythonfmu and native builders and ``blimp_model.c``."""
+"""The blimp RKGP FMU (docs/fmus.md, "Blimp RKGP"): its slave, the RK4-plus-GP model it
+carries, its pythonfmu and native builders and ``blimp_model.c``."""

@@ -2,17 +2,22 @@
 is built from too (runs in the flightgp environment, not inside an FMU)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from fmu_src.blimp_rkgp.model import pack_model
-from fmu_src.blimp_rkgp.slave import BlimpRKGP, blimp_rkgp_variables
+from fmu_src.blimp_rkgp.slave import START_DEFAULT, BlimpRKGP
+from fmu_src.fmi.greybox_build import (
+    GreyBoxParts,
+    build_greybox_pythonfmu,
+    gp_parts,
+    read_greybox,
+    training_inputs,
+)
 from fmu_src.fmi.naming import default_name, fmu_target
-from fmu_src.fmi.pythonfmu import build_pythonfmu
 from fmu_src.fmi.signals import signal
-from gp_model import PROPAGATION_STEP, GreyBoxGP, ModelFileError, load_model, read_header
+from gp_model import PROPAGATION_STEP
 from validation.core.errors import BadInputError
 from validation.models.blimp_greybox import FAN_COMMANDS, BlimpStepDescription
 from validation.vehicles.blimp import INPUT_NAMES, STATE_NAMES, BlimpParameters, hanging_state
@@ -49,43 +54,16 @@ def build_blimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Pat
         are not positive times, or other inputs than the model was trained with); hyperparameter
         samples; a bad ``name`` or ``out_dir``.
     """
-    parts = blimp_rkgp_parts(model_path, out_dir, name=name)
-    return build_pythonfmu(parts.target, slave_class=BlimpRKGP, variables=(blimp_rkgp_variables, parts.interface),
-                           attributes={"DEFAULT_STEP_SIZE": parts.nominal_step}, description=parts.description,
-                           arrays=parts.arrays)
+    return build_greybox_pythonfmu(blimp_rkgp_parts(model_path, out_dir, name=name), slave_class=BlimpRKGP)
 
 
-@dataclass(frozen=True)
-class BlimpRKGPParts:
-    """What every blimp RKGP FMU (pythonfmu or native) is built from.
-
-    Attributes
-    ----------
-    target : Path
-        ``out_dir/<name>.fmu`` (name checked; default the model file's stem made into a name).
-    arrays : dict of str -> ndarray
-        The FMU model file's arrays (:func:`fmu_src.blimp_rkgp.model.pack_model`): the physics
-        parameters, the longest RK4 substep, the command lags, the propagation step, the GP
-        inputs and their training envelope, and per GP part (one shared, or one per state) its
-        point-hyperparameter predictive form and noise variance.
-    interface : dict
-        ``inputs`` and ``states`` for :func:`fmu_src.blimp_rkgp.slave.blimp_rkgp_variables`.
-    description : str
-        The FMU's one-line description.
-    nominal_step : float
-        The default experiment's step: the median training frame interval, s.
-    """
-
-    target: Path
-    arrays: dict
-    interface: dict
-    description: str
-    nominal_step: float
-
-
-def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> BlimpRKGPParts:
+def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> GreyBoxParts:
     """What every blimp RKGP FMU (pythonfmu or native) is built from, for the grey-box model file
-    ``model_path``, ``out_dir`` and ``name`` of :func:`build_blimp_rkgp_fmu`.
+    ``model_path``, ``out_dir`` and ``name`` of :func:`build_blimp_rkgp_fmu`: the FMU model file's
+    arrays (:func:`fmu_src.blimp_rkgp.model.pack_model`: the physics parameters, the longest RK4
+    substep, the command lags, the propagation step, the GP inputs and their training envelope,
+    and each GP part's point-hyperparameter predictive form and noise variance), the variables
+    and the default experiment's step (the median training frame interval, s).
 
     Raises
     ------
@@ -93,19 +71,15 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> BlimpRK
     """
     model_path = Path(model_path)
     target = fmu_target(out_dir, default_name(model_path.stem) if name is None else name)
-    model = load_model(model_path)
-    if not isinstance(model, GreyBoxGP):
-        raise ModelFileError(f"{model_path}: a {type(model).__name__}, not a GreyBoxGP; the blimp RKGP "
-                             "FMU needs a grey-box model")
-    step = BlimpStepDescription.from_dict(read_header(model_path).get("physics"))
+    model, physics = read_greybox(model_path, fmu="blimp RKGP")
+    step = BlimpStepDescription.from_dict(physics)
     if (model.n_states_, model.n_inputs_) != (len(STATE_NAMES), len(step.input_names)):
         raise BadInputError(f"{model_path.name}: the model has {model.n_states_} states and {model.n_inputs_} "
                             f"inputs; its blimp_rk4 physics description (command_lags {list(step.command_lags)}) "
                             f"names {len(STATE_NAMES)} states and {len(step.input_names)} inputs "
                             f"({', '.join(step.input_names)}). Save the model with the description of the "
                             "command lags it was trained with")
-    gps = [model.gp_] if model.shared else model.gp_.gps
-    X = gps[0].input_scaler_.inverse_transform(gps[0].X_train_)
+    X = training_inputs(model)
     dt = X[:, len(model.state_columns_) + len(INPUT_NAMES)]  # the frame intervals trained on, s
     gp_inputs = [STATE_NAMES[c] for c in model.state_columns_] + step.input_names
     arrays = pack_model(
@@ -113,7 +87,7 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> BlimpRK
         max_step=step.max_step, state_columns=model.state_columns_, command_lags=step.command_lags,
         lag_command_columns=[INPUT_NAMES.index(name) for name in FAN_COMMANDS],
         propagation_step=PROPAGATION_STEP, gp_input_names=gp_inputs,
-        envelope_low=X.min(axis=0), envelope_high=X.max(axis=0), parts=[_gp_part(gp) for gp in gps])
+        envelope_low=X.min(axis=0), envelope_high=X.max(axis=0), parts=gp_parts(model))
     nominal_step = float(np.median(dt))
     start = hanging_state(step.params)
     inputs = tuple(signal(n, "input").row() for n in INPUT_NAMES)
@@ -123,19 +97,7 @@ def blimp_rkgp_parts(model_path, out_dir, *, name: str | None = None) -> BlimpRK
                    f"{', '.join(gp_inputs)}); commands u_gondola, mu, u_tail in, the 12 states and their "
                    f"standard deviations propagated along the run out; communication step = frame "
                    f"interval dt (trained {dt.min():.4g} .. {dt.max():.4g} s); model {model_path.name}")
-    return BlimpRKGPParts(target=target, arrays=arrays, interface={"inputs": inputs, "states": states},
-                          description=description, nominal_step=nominal_step)
+    return GreyBoxParts(target=target, arrays=arrays,
+                        interface={"inputs": inputs, "states": states, "start_default": START_DEFAULT},
+                        description=description, attributes={"DEFAULT_STEP_SIZE": nominal_step})
 
-
-def _gp_part(gp) -> dict:
-    """The model-file arrays (:data:`fmu_src.blimp_rkgp.model.PER_PART`) of one GP part: its
-    point-hyperparameter predictive form, kernel weights, noise variance and scalers."""
-    if gp.theta_samples_ is not None:
-        raise BadInputError("the blimp RKGP FMU evaluates point hyperparameters; this model mixes "
-                            f"{len(gp.theta_samples_)} samples. Train it by maximum likelihood")
-    form = gp.predictive_forms(use_samples=False)[0]
-    return {"basis": form.basis, "weights": form.weights.reshape(len(form.basis), -1),
-            "variance_factor": form.variance_factor, "kernel_weights": gp.kernel.weights(form.theta[:-1]),
-            "log_signal_variance": form.theta[0], "log_noise_variance": form.theta[-1],
-            "input_mean": gp.input_scaler_.mean_, "input_scale": gp.input_scaler_.scale_,
-            "output_mean": gp.output_scaler_.mean_, "output_scale": gp.output_scaler_.scale_}

@@ -4,7 +4,8 @@ physics ``blimp_rk4``), the lagged fan commands its GP may see, and the state co
 propagated along the run. numpy and the standard library only.
 
 Every blimp RKGP FMU (pythonfmu) carries a copy of this file and of what it imports, the shared
-FMU runtime (:mod:`fmu_src.fmi.runtime`) and the blimp's equations of motion
+FMU runtime (:mod:`fmu_src.fmi.runtime`), the grey-box FMUs' residual GPs and covariance
+propagation (:mod:`fmu_src.fmi.greybox`) and the blimp's equations of motion
 (:mod:`validation.vehicles.blimp_equations`, the very functions
 :func:`validation.models.blimp_identification.physics_step` steps with), under names unique to
 the FMU (:mod:`fmu_src.fmi.pythonfmu`). So the FMU reproduces ``GreyBoxGP.rollout`` (means) and
@@ -20,12 +21,8 @@ lagged commands, s (empty: none), ``lag_command_columns`` (F,) the commands (col
 ``u_gondola, mu, u_tail``) each lag filters; ``propagation_step`` (the central-difference step of
 ``GreyBoxGP.propagate``, state units); ``gp_input_names`` (d,) and ``envelope_low``,
 ``envelope_high`` (d,) (names and training range of the GP inputs
-``[states[state_columns], u_gondola, mu, u_tail, dt, lags]``). Per GP part ``p`` (one for a
-shared GP, twelve for one GP per state), prefix ``"<p>/"``, in standardised units: ``basis``
-(m, d) training inputs, ``weights`` (m, q) ``alpha``, ``variance_factor`` (m, m) ``L^-1``,
-``kernel_weights`` (d,) ``w`` of ``k = sigma_f^2 exp(-sum_i w_i (x_i - x'_i)^2)``,
-``log_signal_variance`` (), ``log_noise_variance`` (), ``input_mean``, ``input_scale`` (d,),
-``output_mean``, ``output_scale`` (q,); q = 12 for a shared part, 1 otherwise.
+``[states[state_columns], u_gondola, mu, u_tail, dt, lags]``); the GP parts, ``"<p>/<name>"``
+(:mod:`fmu_src.fmi.greybox`, "Residual GPs").
 
 Lagged commands
 ---------------
@@ -38,20 +35,8 @@ the start time; step k's GP input holds ``z(k)``, then the lags advance with ``u
 
 Standard deviations
 -------------------
-The state's covariance ``P`` is propagated along the mean run to first order, as
-``GreyBoxGP.propagate`` (with a known start, ``P(0) = 0``, and the GPs' noise included): with
-``g(s) = RK4(s, u, h) + E[residual | s, u, h]`` the one-step map and ``J = dg/ds`` by central
-differences of step ``propagation_step`` in each of the 12 states (25 evaluations of ``g``),
-
-    P(k+1) = J P(k) J^T + diag(Sigma(k)),
-
-``Sigma(k)`` the residual GPs' predictive variance at the mean, observation noise included
-(Girard, Rasmussen, Quinonero-Candela & Murray-Smith, NIPS 2003, sec. 3: the first-order
-Taylor approximation; the prediction step of an extended Kalman filter). So a velocity's
-uncertainty integrates into position and the standard deviations grow along a free run. It is a
-linearisation: the spread of sampled runs (``GreyBoxGP.sample_rollouts``, each residual
-conditioned on the draws before it) may differ where the dynamics or the GP are far from linear
-over the spread. Outside the training envelope ``Sigma`` grows toward the prior.
+The state covariance is propagated to first order along the mean run, as ``GreyBoxGP.propagate``
+(:mod:`fmu_src.fmi.greybox`, "Standard deviations").
 """
 from __future__ import annotations
 
@@ -60,25 +45,14 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from fmu_src.fmi.runtime import (
-    Envelope,
-    ModelFormatError,
-    check_header,
-    freeze,
-    model_header,
-    read_model_file,
-    read_part,
-)
+from fmu_src.fmi.greybox import FirstOrderPropagation, ResidualGPs, pack_gp_parts
+from fmu_src.fmi.runtime import Envelope, ModelFormatError, check_header, freeze, model_header, read_model_file
 from fmu_src.fmi.slave import TIME_TOLERANCE
 from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES, parameters_from_vector, rk4_advance
 
 FORMAT = "flightgp-fmu-blimp-rkgp"
 #: Version 2 added the lagged commands, the noise variances and the propagation step.
 VERSION = 2
-#: Arrays per GP part and their number of dimensions.
-PER_PART = {"basis": 2, "weights": 2, "variance_factor": 2, "kernel_weights": 1,
-            "log_signal_variance": 0, "log_noise_variance": 0, "input_mean": 1, "input_scale": 1,
-            "output_mean": 1, "output_scale": 1}
 
 
 def pack_model(*, parameter_names, parameters, max_step: float, state_columns, command_lags,
@@ -107,7 +81,7 @@ def pack_model(*, parameter_names, parameters, max_step: float, state_columns, c
     envelope_low, envelope_high : array_like, shape (d,)
         Training range of each GP input, physical units.
     parts : list of dict
-        One dict of :data:`PER_PART` arrays per GP part.
+        One dict of :data:`fmu_src.fmi.greybox.PER_PART` arrays per GP part.
     """
     arrays = {**model_header(FORMAT, VERSION),
               "parameter_names": np.array(list(parameter_names), dtype=str),
@@ -119,10 +93,7 @@ def pack_model(*, parameter_names, parameters, max_step: float, state_columns, c
               "gp_input_names": np.array(list(gp_input_names), dtype=str),
               "envelope_low": np.asarray(envelope_low, dtype=float),
               "envelope_high": np.asarray(envelope_high, dtype=float)}
-    for p, part in enumerate(parts):
-        for name in PER_PART:
-            arrays[f"{p}/{name}"] = np.asarray(part[name], dtype=float)
-    return arrays
+    return {**arrays, **pack_gp_parts(parts)}
 
 
 class RKGPModel:
@@ -144,10 +115,10 @@ class RKGPModel:
         The commands each lag filters.
     n_lags : int
         ``F L``, the lagged-command GP inputs (and hidden states).
-    propagation_step : float
-        Central-difference step of the covariance propagation, state units.
-    parts : list of dict
-        Each GP part's arrays (:data:`PER_PART`, plus ``signal_variance`` and ``noise_variance``).
+    propagation : fmu_src.fmi.greybox.FirstOrderPropagation
+        The covariance propagation and its central-difference step.
+    gps : fmu_src.fmi.greybox.ResidualGPs
+        The residual GPs (one shared part, or one per state).
     input_names : tuple of str
         The GP inputs: the seen states, the commands, ``dt`` and the lagged commands.
     dt_column : int
@@ -164,19 +135,11 @@ class RKGPModel:
             self.state_columns = np.asarray(arrays["state_columns"], dtype=int)
             self.command_lags = np.array(arrays["command_lags"], dtype=float).reshape(-1)
             self.lag_command_columns = np.array(arrays["lag_command_columns"], dtype=int).reshape(-1)
-            self.propagation_step = float(arrays["propagation_step"])
+            propagation_step = float(arrays["propagation_step"])
             self.input_names = tuple(str(name) for name in np.ravel(arrays["gp_input_names"]))
             envelope_low, envelope_high = arrays["envelope_low"], arrays["envelope_high"]
         except KeyError as error:
             raise ModelFormatError(f"the model file lacks the array {error}") from None
-        self.parts, p = [], 0
-        while f"{p}/basis" in arrays:
-            part = read_part(arrays, f"{p}/", PER_PART)
-            part["signal_variance"] = np.array(np.exp(part["log_signal_variance"]))
-            part["noise_variance"] = np.array(np.exp(part["log_noise_variance"]))
-            freeze(part.values())
-            self.parts.append(part)
-            p += 1
         if not (np.isfinite(self.command_lags).all() and (self.command_lags > 0).all()):
             raise ModelFormatError(f"command lags must be positive times in s, got {self.command_lags.tolist()}")
         if self.command_lags.size and (not self.lag_command_columns.size or self.lag_command_columns.min() < 0
@@ -186,21 +149,15 @@ class RKGPModel:
         self.n_lags = len(self.command_lags) * len(self.lag_command_columns)
         self.dt_column = len(self.state_columns) + len(INPUT_NAMES)
         d = self.dt_column + 1 + self.n_lags
-        outputs = sum(part["weights"].shape[1] for part in self.parts)
-        if (outputs != len(STATE_NAMES) or np.shape(envelope_low) != (d,) or np.shape(envelope_high) != (d,)
-                or len(self.input_names) != d or any(part["basis"].shape[1] != d for part in self.parts)):
+        self.gps = ResidualGPs(arrays, n_outputs=len(STATE_NAMES), n_inputs=d)
+        if np.shape(envelope_low) != (d,) or np.shape(envelope_high) != (d,) or len(self.input_names) != d:
             raise ModelFormatError(f"the GP parts must map {d} named inputs to {len(STATE_NAMES)} residuals")
         if not self.max_step > 0:
             raise ModelFormatError(f"max_step must be positive, got {self.max_step}")
-        if not (np.isfinite(self.propagation_step) and self.propagation_step > 0):
-            raise ModelFormatError(f"propagation_step must be positive, got {self.propagation_step}")
+        self.propagation = FirstOrderPropagation(len(STATE_NAMES), propagation_step)
         self.envelope = Envelope(envelope_low, envelope_high, self.input_names)
-        n = len(STATE_NAMES)
-        # The centre and the states moved by +/- the step, in GreyBoxGP.propagate's order (2n + 1, n).
-        self._offsets = self.propagation_step * np.concatenate([np.zeros((1, n)), np.eye(n), -np.eye(n)])
         self._lag_time_constants = np.repeat(self.command_lags, len(self.lag_command_columns))
-        freeze((self.state_columns, self.command_lags, self.lag_command_columns, self._offsets,
-                self._lag_time_constants))
+        freeze((self.state_columns, self.command_lags, self.lag_command_columns, self._lag_time_constants))
 
     @classmethod
     def load(cls, path) -> RKGPModel:
@@ -221,30 +178,15 @@ class RKGPModel:
         held = np.concatenate([commands, [dt], lags])
         return np.hstack([states[:, self.state_columns], np.broadcast_to(held, (len(states), len(held)))])
 
+    def start_hidden(self) -> np.ndarray:
+        """The lagged commands at the start: 0 (fans at rest), shape (n_lags,)."""
+        return np.zeros(self.n_lags)
+
     def advance_lags(self, lags: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
         """The lagged commands (n_lags,) ``dt`` s on under ``commands`` (3,) held: ``a z + (1 - a) u``,
         ``a = exp(-dt / T)`` (module docstring)."""
         decay = np.exp(-dt / self._lag_time_constants)
         return decay * lags + (1.0 - decay) * np.tile(commands[self.lag_command_columns], len(self.command_lags))
-
-    def residual(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Means of the 12 residuals at the GP inputs ``X`` (r, d), shape (r, 12), and their
-        predictive variances at ``X[0]`` with the observation noise, shape (12,), as
-        ``GaussianProcess.predict(return_var=True, include_noise=True)`` (Rasmussen & Williams
-        2006, Alg. 2.1, lines 4-6; eq. 2.24 plus the noise variance)."""
-        means, variances = [], []
-        for part in self.parts:
-            xs = (X - part["input_mean"]) / part["input_scale"]  # (r, d)
-            # Kernel rows, fmu_src.fmi.runtime.kernel_rows for r inputs: (r, m).
-            k = np.exp(part["log_signal_variance"] - ((xs[:, None, :] - part["basis"]) ** 2) @ part["kernel_weights"])
-            mean = k @ part["weights"]  # (r, q)
-            v = part["variance_factor"] @ k[0]
-            spread = max(float(part["signal_variance"] - v @ v), 0.0) + float(part["noise_variance"])
-            # The one-component mixture of GaussianProcess.predict, rounding included.
-            var = np.maximum((spread + mean[0] ** 2) - mean[0] ** 2, 0.0)
-            means.append(mean * part["output_scale"] + part["output_mean"])
-            variances.append(var * part["output_scale"] ** 2)
-        return np.hstack(means), np.concatenate(variances)
 
     def step(self, state: np.ndarray, covariance: np.ndarray, lags: np.ndarray, commands: np.ndarray,
              dt: float):
@@ -273,18 +215,15 @@ class RKGPModel:
         x : ndarray, shape (d,)
             The GP input at the state, for the envelope check.
         """
-        n = len(state)
-        points = state + self._offsets  # (2n + 1, n)
+        points = self.propagation.points(state)  # (2n + 1, n)
         X = self.gp_inputs(points, commands, dt, lags)
-        mean, var = self.residual(X)
+        mean, var = self.gps.predict(X)
         moved = rk4_advance(points, commands, dt, self.params, max_step=self.max_step) + mean
-        jacobian = (moved[1:n + 1] - moved[n + 1:]).T / (2 * self.propagation_step)
-        covariance = jacobian @ covariance @ jacobian.T + np.diag(var)
-        return moved[0], covariance, self.advance_lags(lags, commands, dt), X[0]
+        state, covariance = self.propagation.advance(moved, covariance, var)
+        return state, covariance, self.advance_lags(lags, commands, dt), X[0]
 
     def describe(self) -> str:
         """One line for the log."""
-        return json.dumps({"gp_inputs": list(self.input_names), "gp_parts": len(self.parts),
-                           "basis_points": int(self.parts[0]["basis"].shape[0]),
+        return json.dumps({"gp_inputs": list(self.input_names), **self.gps.describe(),
                            "command_lags_s": self.command_lags.tolist(), "max_step_s": self.max_step,
-                           "propagation_step": self.propagation_step, "step_range_s": list(self.step_range())})
+                           "propagation_step": self.propagation.step, "step_range_s": list(self.step_range())})

@@ -4,10 +4,11 @@ its one-step residual inside (:mod:`fmu_src.blimp_rkgp.model`). docs/fmus.md, "B
 lists the variables.
 
 Every blimp RKGP FMU carries a copy of this file (:mod:`fmu_src.fmi.pythonfmu`), so it imports
-only the FMI layer (:mod:`fmu_src.fmi.slave`), the model, numpy and the standard library. The
-per-FMU slave script that :func:`fmu_src.blimp_rkgp.build.build_blimp_rkgp_fmu` generates
-subclasses :class:`BlimpRKGP` with the FMU's variable table (:func:`blimp_rkgp_variables`), its
-package name and its default step.
+only the FMI layer (:mod:`fmu_src.fmi.greybox`, whose slave runs every grey-box FMU), the model,
+numpy and the standard library. The per-FMU slave script that
+:func:`fmu_src.blimp_rkgp.build.build_blimp_rkgp_fmu` generates subclasses :class:`BlimpRKGP`
+with the FMU's variable table (:func:`fmu_src.fmi.greybox.greybox_variables`), its package name
+and its default step.
 
 Timing (docs/conventions.md, "FMU sampling convention")
 -------------------------------------------------------
@@ -34,66 +35,30 @@ Standard deviations
 -------------------
 ``<state>_sd`` at ``t_{k+1}`` is the standard deviation of the state propagated along the run
 from the known start (0 at ``t0``): ``GreyBoxGP.propagate`` with the GPs' noise included, the
-first-order propagation of the state covariance through the linearised one-step map (the
-model's docstring says how and what it is not). The covariance (12 x 12) is a hidden state.
+first-order propagation of the state covariance through the linearised one-step map
+(:mod:`fmu_src.fmi.greybox` says how and what it is not). The covariance (12 x 12) is a hidden
+state.
 
 Envelope: when a GP input leaves the training range (by more than 10 % of the range), the FMU
 logs a Warning once per excursion; the GP then extrapolates, and the sd outputs grow faster.
 """
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
 from fmu_src.blimp_rkgp.model import RKGPModel
-from fmu_src.fmi.slave import FlightgpSlave, Variable
+from fmu_src.fmi.greybox import GreyBoxSlave
 from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES
 
-
-def blimp_rkgp_variables(*, inputs, states) -> tuple:
-    """The variable table of the blimp RKGP FMU.
-
-    Parameters
-    ----------
-    inputs : sequence of (name, unit, limit, phrase)
-        The commands: name, unit (a key of :data:`fmu_src.fmi.slave.UNITS`), largest magnitude, phrase.
-    states : sequence of (name, unit, limit, phrase, start)
-        The states, with the default start value (the hanging equilibrium).
-
-    Returns
-    -------
-    tuple of Variable
-        Commands (inputs); states and their propagated standard deviations (outputs); each
-        state's start value (fixed parameters ``<state>_start``).
-    """
-    limits = lambda limit: (None, None) if limit is None else (-limit, limit)  # noqa: E731
-    table = [Variable(name, "input", "continuous", None, unit,
-                      f"{phrase}, held from this communication point to the next", 0.0, *limits(limit))
-             for name, unit, limit, phrase in inputs]
-    table += [Variable(name, "output", "continuous", "exact", unit,
-                       f"{phrase}: RK4 physics plus GP residual mean (mean rollout)", start)
-              for name, unit, _, phrase, start in states]
-    table += [Variable(f"{name}_sd", "output", "continuous", "exact", unit,
-                       f"standard deviation of the {phrase}, propagated along the run from the known "
-                       "start (first order, GP noise included: GreyBoxGP.propagate; 0 at the start)", 0.0)
-              for name, unit, _, phrase, _ in states]
-    table += [Variable(f"{name}_start", "parameter", "fixed", "exact", unit,
-                       f"{phrase} at the start time (default: at rest at the origin, hanging)", start,
-                       *limits(limit))
-              for name, unit, limit, phrase, start in states]
-    return tuple(table)
+#: The default start state, for the start parameters' descriptions.
+START_DEFAULT = "at rest at the origin, hanging"
 
 
-class BlimpRKGP(FlightgpSlave):
+class BlimpRKGP(GreyBoxSlave):
     """Blimp RKGP (the class the build generates sets its description, PACKAGE, VARIABLES and
-    DEFAULT_STEP_SIZE)."""
+    DEFAULT_STEP_SIZE); the hidden state beyond mean and covariance is the lagged commands."""
 
-    STATE_ATTRIBUTES = ("_state", "_covariance", "_lags", "_outside_envelope")
-    CONSTANT_ATTRIBUTES = ("_model",)
-
-    def load_constants(self) -> None:
-        self._model = self.shared_model(RKGPModel.load, self.model_file(), "blimp RKGP model")
+    STATE_NAMES, INPUT_NAMES = STATE_NAMES, INPUT_NAMES
+    MODEL = RKGPModel
+    MODEL_PHRASE = "blimp RKGP model"
 
     def step_problem(self, h: float) -> str | None:
         low, high = self._model.step_range()
@@ -102,28 +67,3 @@ class BlimpRKGP(FlightgpSlave):
                     "frame intervals the GP residual was trained on (plus 10 %); step with the "
                     "default experiment's step size")
         return None
-
-    def start_model(self) -> None:
-        n = len(STATE_NAMES)
-        self._state = np.array([self.values[f"{name}_start"] for name in STATE_NAMES])
-        self._covariance = np.zeros((n, n))  # the start is known
-        self._lags = np.zeros(self._model.n_lags)  # fans at rest
-        self._outside_envelope = False
-        self._set_outputs(self._state, self._covariance)
-
-    def advance_model(self, t: float, h: float) -> None:
-        commands = np.array([self.values[name] for name in INPUT_NAMES])
-        state, covariance, lags, x = self._model.step(self._state, self._covariance, self._lags, commands, h)
-        if not (np.isfinite(state).all() and np.isfinite(covariance).all()):
-            raise FloatingPointError(f"non-finite state {state.tolist()} or covariance at t = {t + h:.16g} s")
-        outside = self.report_envelope(self._model.envelope.outside(x), self._outside_envelope, t + h,
-                                       "its standard deviations grow")
-        # Commit only after everything that can fail (a refused step leaves the state as it was).
-        self._state, self._covariance, self._lags, self._outside_envelope = state, covariance, lags, outside
-        self._set_outputs(state, covariance)
-
-    def _set_outputs(self, state: np.ndarray, covariance: np.ndarray) -> None:
-        # PropagatedRollout.sd: the square root of the diagonal, negative rounding clipped.
-        for name, value, variance in zip(STATE_NAMES, state.tolist(), np.diagonal(covariance).tolist()):
-            self.values[name] = value
-            self.values[f"{name}_sd"] = math.sqrt(max(variance, 0.0))

@@ -175,8 +175,10 @@ char *number_list(const double *numbers, int n) {
     return closed;
 }
 
-char *envelope_excursions(const double *x, int n, const char *const names[], const double *low, const double *high,
-                          double margin) {
+/* The inputs of x outside the envelope as "name = x (trained on a .. b); ..." (malloc'd), or NULL
+ * when all are inside. */
+static char *envelope_excursions(const double *x, int n, const char *const names[], const double *low,
+                                 const double *high, double margin) {
     char *outside = NULL;
     for (int i = 0; i < n; i++) {
         double widen = margin * (high[i] - low[i]);
@@ -236,6 +238,19 @@ void slave_log(const Slave *slave, fmi2Status status, const char *format, ...) {
     va_end(args);
     log_text(slave, status, text);
     free(text);
+}
+
+int report_envelope(const Slave *slave, const double *x, int n, const char *const names[], const double *low,
+                    const double *high, double margin, int was_outside, double t, const char *consequence) {
+    char *outside = envelope_excursions(x, n, names, low, high, margin);
+    if (outside != NULL && !was_outside)
+        slave_log(slave, fmi2Warning, "t = %.16g s: input outside the training envelope: %s. The GP extrapolates; %s.",
+                  t, outside, consequence);
+    else if (outside == NULL && was_outside)
+        slave_log(slave, fmi2OK, "t = %.16g s: back inside the training envelope", t);
+    const int now_outside = outside != NULL;
+    free(outside);
+    return now_outside;
 }
 
 static const char *mode_name(int mode) {

@@ -61,11 +61,12 @@ double *read_model_data(const char *resources_dir, const char *magic, size_t cou
 /* "[a, b, c]" of n numbers, for messages (malloc'd; NULL if out of memory). */
 char *number_list(const double *numbers, int n);
 
-/* The model inputs x (n) outside the training range [low, high] widened by margin of it on each
- * side (fmu_src/fmi/runtime.py, Envelope), as "name = x (trained on a .. b); ..." (malloc'd), or
- * NULL when all are inside. */
-char *envelope_excursions(const double *x, int n, const char *const names[], const double *low, const double *high,
-                          double margin);
+/* Whether the model inputs x (n) are outside the training range [low, high] widened by margin of
+ * it on each side (fmu_src/fmi/runtime.py, Envelope), logged at time t as
+ * FlightgpSlave.report_envelope does: leaving it (was_outside 0) a Warning naming each input
+ * outside ("name = x (trained on a .. b)") and the consequence, re-entering it an OK message. */
+int report_envelope(const Slave *slave, const double *x, int n, const char *const names[], const double *low,
+                    const double *high, double margin, int was_outside, double t, const char *consequence);
 
 /* Load the model's constants from the FMU's resources folder (a local path). Returns NULL and
  * sets *error (malloc'd message) on failure. */

@@ -14,7 +14,8 @@ native FMU holds (:func:`package_native_fmu`):
   against the FMI 2.0 headers that fmpy ships (:func:`fmi_headers`);
 - ``sources/``: ``fmi2_slave.c`` (this layer in C: call-sequence state machine, variables,
   logging, status policy, FMU state), ``gp_predict.c`` and ``gp_predict.h`` (GP prediction at one
-  input: kernel row, mean, latent variance, for every model's GPs), the model's C file,
+  input: kernel row, mean, latent variance, for every model's GPs), ``greybox.c`` and
+  ``greybox.h`` (the grey-box models' residual GPs and covariance propagation), the model's C file,
   ``model.h`` (the interface between layer and model) and the generated ``model_config.h`` (the
   FMU's GUID, variable table and the model's structure and constants, :func:`config_header`);
 - ``resources/model.bin``: the model's arrays, read by each instance at ``fmi2Instantiate``
@@ -42,10 +43,13 @@ from validation.core.files import write_atomically
 FMI_SOURCE = Path(__file__).with_name("fmi2_slave.c")
 #: GP prediction at one input (kernel row, mean, latent variance), compiled into every native FMU.
 GP_SOURCE = Path(__file__).with_name("gp_predict.c")
+#: The grey-box (RKGP) models' residual GPs and covariance propagation, compiled into every native
+#: FMU (dimensions are arguments, so it needs no model's constants).
+GREYBOX_SOURCE = Path(__file__).with_name("greybox.c")
 #: The interface between the FMI layer and a model's C file.
 MODEL_HEADER = Path(__file__).with_name("model.h")
 #: The headers of this layer every native FMU's sources carry.
-LAYER_HEADERS = (MODEL_HEADER, Path(__file__).with_name("gp_predict.h"))
+LAYER_HEADERS = (MODEL_HEADER, Path(__file__).with_name("gp_predict.h"), Path(__file__).with_name("greybox.h"))
 #: The generated header and the data file.
 CONFIG_HEADER, DATA_FILE = "model_config.h", "model.bin"
 #: Flags of the system gcc for the shared library (``-fvisibility=hidden``: only the FMI
@@ -60,7 +64,7 @@ _KINDS = {"Real": "KIND_REAL", "Boolean": "KIND_BOOLEAN"}
 def compiled_sources(model_source: Path) -> tuple[Path, ...]:
     """The C files compiled into a native FMU of the model whose C is ``model_source``, in the
     order its ``modelDescription.xml`` lists them."""
-    return FMI_SOURCE, GP_SOURCE, model_source
+    return FMI_SOURCE, GP_SOURCE, GREYBOX_SOURCE, model_source
 
 
 def check_platform() -> None:
@@ -83,7 +87,8 @@ def package_native_fmu(target: Path, *, slave_class, model_source: Path, config,
         The pythonfmu slave class of the same FMU (variable table, description, step), whose
         ``modelDescription.xml`` the native FMU declares.
     model_source : Path
-        The model's C file, compiled with :data:`FMI_SOURCE` and :data:`GP_SOURCE`.
+        The model's C file, compiled with :data:`FMI_SOURCE`, :data:`GP_SOURCE` and
+        :data:`GREYBOX_SOURCE`.
     config : callable
         ``config(guid) -> str``: the FMU's ``model_config.h`` (:func:`config_header`).
     data : bytes

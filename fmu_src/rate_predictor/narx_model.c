@@ -779,17 +779,12 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
         return message != NULL ? message : format_message("non-finite prediction");
     }
     /* Envelope (RatePredictor.advance_model, FlightgpSlave.report_envelope): warn once per excursion. */
-    char *outside = envelope_excursions(x, N_REGRESSORS, REGRESSOR_NAMES, ENVELOPE_LOW, ENVELOPE_HIGH, ENVELOPE_MARGIN);
-    const int was_outside = state[OUTSIDE_ENVELOPE] != 0.0;
-    if (outside != NULL && !was_outside)
-        slave_log(slave, fmi2Warning, "t = %.16g s: input outside the training envelope: %s. The GP extrapolates; "
-                  "its variance, and so the bounds, widen.", t + h, outside);
-    else if (outside == NULL && was_outside)
-        slave_log(slave, fmi2OK, "t = %.16g s: back inside the training envelope", t + h);
+    const int outside = report_envelope(slave, x, N_REGRESSORS, REGRESSOR_NAMES, ENVELOPE_LOW, ENVELOPE_HIGH,
+                                        ENVELOPE_MARGIN, state[OUTSIDE_ENVELOPE] != 0.0, t + h,
+                                        "its variance, and so the bounds, widen");
     /* Commit only after everything that can fail. */
-    next[OUTSIDE_ENVELOPE] = outside != NULL ? 1.0 : 0.0;
+    next[OUTSIDE_ENVELOPE] = outside ? 1.0 : 0.0;
     memcpy(state, next, sizeof(double) * MODEL_STATE_SIZE);
-    free(outside);
     set_outputs(values, mean, var);
     return NULL;
 }

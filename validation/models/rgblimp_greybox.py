@@ -24,16 +24,25 @@ coefficients (one RK4 step of 1/60 s, the source's integrator), from:
 Yaw: the source's step keeps ``psi`` in [-pi, pi], so at the wrap its one-step difference jumps
 by a turn. :func:`physics_step` and :func:`continuous_states` carry yaw continuously instead (the
 GPs never see it, and errors are measured wrapped), so no residual jumps.
+
+A model file of such a model stores the GPs and :class:`RGBlimpStepDescription` as its
+``physics`` (``gp_model.save_model(..., physics=description.as_dict())``): every number of the
+identified model, from which :func:`physics_step` is rebuilt (``flightgp build-fmu`` builds the
+RGBlimp RKGP FMU from it, docs/fmus.md, "RGBlimp RKGP").
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from gp_model import GreyBoxGP
 from validation.core.errors import BadInputError
 from validation.core.smoothing import local_polynomial
+from validation.models.rgblimp_identification import RGBlimpModel
+from validation.models.rgblimp_step import carry_yaw, parameters_as_dict, parameters_from_dict
 from validation.vehicles.blimp_equations import states_from_poses
-from validation.vehicles.rgblimp_equations import INPUT_NAMES, STATE_NAMES
+from validation.vehicles.rgblimp_equations import INPUT_NAMES, SAMPLE_TIME, STATE_NAMES
 
 #: The states the GPs see: every state but position and yaw (Ko et al. 2007, sec. IV-B).
 GP_STATE_COLUMNS = tuple(STATE_NAMES.index(n) for n in ("phi", "theta", "U", "V", "W", "P", "Q", "R"))
@@ -50,6 +59,8 @@ SMOOTHING_WINDOW, SMOOTHING_ORDER = 9, 2
 #: Floor under each residual GP's noise variance, standardised (1 % of the residual's spread, as
 #: for flightgp's blimp, :data:`validation.models.blimp_greybox.MIN_NOISE_VARIANCE`).
 MIN_NOISE_VARIANCE = 1e-4
+#: The ``kind`` of :class:`RGBlimpStepDescription`: :func:`physics_step` of an RGBlimpModel.
+RGBLIMP_PHYSICS = "rgblimp_rk4"
 _YAW = STATE_NAMES.index("psi")
 
 
@@ -57,14 +68,10 @@ def physics_step(model):
     """``model.step`` with yaw carried continuously: ``step(states (n, 12), inputs (n, 5))``.
 
     The next yaw is the current one plus the wrapped yaw change of ``model.step``, which wraps
-    ``psi`` into [-pi, pi] as the source does.
+    ``psi`` into [-pi, pi] as the source does (:func:`validation.models.rgblimp_step.carry_yaw`).
     """
     def step(states, inputs):
-        states = np.asarray(states, dtype=float)
-        moved = np.array(model.step(states, inputs))
-        change = moved[..., _YAW] - states[..., _YAW]
-        moved[..., _YAW] = states[..., _YAW] + (change + np.pi) % (2 * np.pi) - np.pi
-        return moved
+        return carry_yaw(states, model.step(states, inputs))
 
     return step
 
@@ -151,3 +158,65 @@ def fit_rkgp(flights, model, *, n_points: int = TRAINING_POINTS, min_noise_varia
     greybox = GreyBoxGP(state_columns=GP_STATE_COLUMNS, shared=False, n_restarts=0,
                         min_noise_variance=min_noise_variance)
     return greybox.fit(states, inputs, next_states, physics_step(model), seed=seed)
+
+
+@dataclass(frozen=True)
+class RGBlimpStepDescription:
+    """What an RGBlimp grey-box model file stores as its ``physics``: every number of the
+    identified model whose :func:`physics_step` (one RK4 sample of 1/60 s, yaw carried
+    continuously) the GPs were trained with.
+
+    Attributes
+    ----------
+    model : RGBlimpModel
+        Its parameters (the published ones with the identified coefficients), thrust factor and
+        wind.
+    """
+
+    model: RGBlimpModel
+
+    def physics_step(self):
+        """:func:`physics_step` of :attr:`model`."""
+        return physics_step(self.model)
+
+    def as_dict(self) -> dict:
+        """The JSON description (``kind`` :data:`RGBLIMP_PHYSICS`): every field of the parameters
+        (:func:`validation.models.rgblimp_step.parameters_as_dict`), the thrust factor, the wind
+        (m/s, earth x and y), the sample time (s) and the state and input names; floats written by
+        JSON come back as the same doubles."""
+        return {"kind": RGBLIMP_PHYSICS, "parameters": parameters_as_dict(self.model.params),
+                "thrust_gain": float(self.model.thrust_gain), "wind": [float(w) for w in self.model.wind],
+                "sample_time": SAMPLE_TIME, "state_names": list(STATE_NAMES), "input_names": list(INPUT_NAMES)}
+
+    @classmethod
+    def from_dict(cls, description) -> RGBlimpStepDescription:
+        """The description :meth:`as_dict` wrote; ``.model`` is the model it describes, equal to
+        the one described.
+
+        Raises
+        ------
+        validation.core.errors.BadInputError
+            Not an ``rgblimp_rk4`` description, or its parameters, thrust factor, wind, sample
+            time or names are missing or unusable.
+        """
+        if not isinstance(description, dict) or description.get("kind") != RGBLIMP_PHYSICS:
+            kind = description.get("kind") if isinstance(description, dict) else None
+            raise BadInputError(f"the model's physics is {kind!r}; an RGBlimp grey-box model needs "
+                                f"{RGBLIMP_PHYSICS!r} (validation.models.rgblimp_greybox)")
+        try:
+            wind = description["wind"]
+            if not (isinstance(wind, list) and len(wind) == 2):
+                raise ValueError(f"wind must be two numbers (m/s along earth x and y), got {wind!r}")
+            model = RGBlimpModel(parameters_from_dict(description["parameters"]), float(description["thrust_gain"]),
+                                 (float(wind[0]), float(wind[1])))
+            if description["sample_time"] != SAMPLE_TIME:
+                raise ValueError(f"its sample time is {description['sample_time']!r} s; the RGBlimp's step is "
+                                 f"{SAMPLE_TIME!r} s")
+            if (list(description["state_names"]) != list(STATE_NAMES)
+                    or list(description["input_names"]) != list(INPUT_NAMES)):
+                raise ValueError("its state or input names differ from this flightgp's RGBlimp")
+        except KeyError as error:
+            raise BadInputError(f"the model's {RGBLIMP_PHYSICS} physics description lacks {error}") from None
+        except (TypeError, ValueError) as error:
+            raise BadInputError(f"the model's {RGBLIMP_PHYSICS} physics description is unusable: {error}") from None
+        return cls(model)

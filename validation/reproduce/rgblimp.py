@@ -28,7 +28,10 @@ Each entry also holds each model's fitting and free-run wall times.
 
 Scores (:func:`flight_metrics`): the source's (:func:`source_score`), the position RMSE, the
 final-position error, the wrapped-yaw RMSE and, for the RKGPs, the coverage of the 95 % position
-band. :mod:`validation.reproduce.rgblimp_report` writes the report and the figures.
+band. :mod:`validation.reproduce.rgblimp_report` writes the report and the figures. Each
+configuration's RKGP is also written as a model file (:func:`rkgp_model_path`, with its physics
+described by :class:`~validation.models.rgblimp_greybox.RGBlimpStepDescription`), from which
+``flightgp build-fmu`` builds the RGBlimp RKGP FMU (docs/fmus.md, "RGBlimp RKGP").
 """
 from __future__ import annotations
 
@@ -38,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gp_model import save_model
 from validation.core.errors import BadInputError
 from validation.core.files import write_atomically, write_json
 from validation.core.plots import png_bytes
@@ -48,6 +52,7 @@ from validation.models.rgblimp_greybox import (
     SMOOTHING_ORDER,
     SMOOTHING_WINDOW,
     TRAINING_POINTS,
+    RGBlimpStepDescription,
     continuous_states,
     fit_rkgp,
     physics_step,
@@ -83,6 +88,8 @@ FIGURE_CONFIGURATIONS = 3
 #: on the test flights there).
 GOAL_SCORE_FACTOR = 5.0
 GOAL_POSITION_RMSE_M = 0.15
+#: The folder of OUT that holds each configuration's RKGP model file (:func:`rkgp_model_path`).
+MODELS_FOLDER = "models"
 
 
 @dataclass(frozen=True)
@@ -148,6 +155,12 @@ def split_flights(data_dir, *, configurations=None) -> list[Split]:
                     f"({', '.join(f'data_{n}.csv' for n in present.get(j, ())) or 'none'}); it needs two, "
                     f"flights {4 * j + 1}..{4 * j + 4}, to fit on one and test on another")
     return [Split(j, present[j][:-1], present[j][-1]) for j in chosen]
+
+
+def rkgp_model_path(out_dir, configuration: int) -> Path:
+    """Where :func:`reproduce_rgblimp` writes configuration ``configuration``'s RKGP:
+    ``out_dir/models/rgblimp_rkgp_<configuration>.npz``."""
+    return Path(out_dir) / MODELS_FOLDER / f"rgblimp_rkgp_{configuration}.npz"
 
 
 def _describe(present: dict) -> str:
@@ -305,7 +318,8 @@ def free_runs(recorded, inputs, models: dict) -> tuple[dict, dict, dict]:
 def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpSetup = DEFAULT_SETUP,
                       seed: int = 0, progress: bool = True) -> dict:
     """Fit and test the five models on every configuration; write ``results.json``,
-    ``report.md`` and the figures to ``out_dir``.
+    ``report.md``, the figures and each configuration's RKGP model file (:func:`rkgp_model_path`)
+    to ``out_dir``.
 
     Parameters
     ----------
@@ -346,7 +360,7 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
         entries, runs = [], []
         for split in splits:
             entry, run = _run_configuration(split, flights, ranges[split.kind], global_identified.model,
-                                            global_rkgp, setup=setup, seed=seed)
+                                            global_rkgp, setup=setup, seed=seed, out_dir=out_dir)
             entries.append(entry)
             runs.append(run)
             if update:
@@ -437,12 +451,16 @@ def fit_configuration(fitting, initial: RGBlimpModel, *, setup: RGBlimpSetup, se
 
 
 def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlimpModel, global_rkgp, *,
-                       setup: RGBlimpSetup, seed: int) -> tuple[dict, FlightRun]:
-    """Fit the per-configuration models on ``split.fit``, run all four on ``split.test``."""
+                       setup: RGBlimpSetup, seed: int, out_dir: Path) -> tuple[dict, FlightRun]:
+    """Fit the per-configuration models on ``split.fit``, write the RKGP's model file to
+    ``out_dir`` (:func:`rkgp_model_path`), run all models on ``split.test``."""
     started = clock.perf_counter()
     fitting = [flights[n] for n in split.fit]
     fit_seconds = {}
     identified, rkgp = fit_configuration(fitting, global_model, setup=setup, seed=seed, seconds=fit_seconds)
+    model_file = save_model(rkgp_model_path(out_dir, split.configuration), rkgp,
+                            physics=RGBlimpStepDescription(identified.model).as_dict(),
+                            meta={"configuration": split.configuration, "fit": [f"data_{n}.csv" for n in split.fit]})
     sindyc = fit_sindyc(fitting)
     fit_seconds["sindyc"] = sindyc.fit_seconds
     test = flights[split.test].recording
@@ -454,7 +472,8 @@ def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlim
     entry = {"index": split.configuration, "kind": split.kind,
              "fit": [f"data_{n}.csv" for n in split.fit], "test": f"data_{split.test}.csv",
              "test_samples": len(test.time), "test_duration_s": float(test.time[-1]),
-             "inputs": {name: float(v) for name, v in zip(test.input_names, test.inputs[0])}}
+             "inputs": {name: float(v) for name, v in zip(test.input_names, test.inputs[0])},
+             "rkgp_model_file": model_file.relative_to(out_dir).as_posix()}
     for key in ("score", "position_rmse_m", "final_position_error_m", "yaw_rmse_rad", "score_source_literal"):
         # A free run that diverged (a SINDYc polynomial can) has no score: null, counted apart.
         entry[key] = {name: metrics[name][key] if np.all(np.isfinite(predicted[name])) else None

@@ -25,8 +25,8 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Error
 
 from fmu_src import build_blimp_rkgp_fmu, build_native_blimp_rkgp_fmu
-from fmu_src.blimp_rkgp import native
 from fmu_src.blimp_rkgp.native import MODEL_SOURCE
+from fmu_src.fmi import greybox_build
 from gp_model import GreyBoxGP, save_model
 from tests.fmu_src.blimp_rkgp.contract import (
     BLIMP_HOLD,
@@ -143,9 +143,10 @@ def test_one_gp_per_state_equals_the_pythonfmu_fmu_and_the_python_rollout(per_st
 
 def test_a_full_variance_factor_gives_the_same_outputs(blimp_model_file, case, blimp_trained, tmp_path,
                                                        monkeypatch):
-    """blimp_model.c multiplies a lower triangular V = L^-1 without the zeros above its diagonal;
-    stored full (as a non-triangular factor would be), it adds exact zeros: identical outputs."""
-    monkeypatch.setattr(native, "lower_triangular", lambda factor: False)
+    """The residual GPs (greybox.c, gp_predict.c) multiply a lower triangular V = L^-1 without the
+    zeros above its diagonal; stored full (as a non-triangular factor would be), it adds exact
+    zeros: identical outputs."""
+    monkeypatch.setattr(greybox_build, "lower_triangular", lambda factor: False)
     full = build_native_blimp_rkgp_fmu(blimp_model_file, tmp_path, name="full_factor")
     with zipfile.ZipFile(full) as archive:
         assert "LOWER_TRIANGULAR[1] = {0}" in archive.read("sources/model_config.h").decode()

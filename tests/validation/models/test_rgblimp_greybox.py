@@ -1,12 +1,18 @@
 """Tests of the RGBlimp RKGP (validation/models/rgblimp_greybox.py): yaw carried across the wrap,
-training transitions that never straddle flights, and residual GPs that learn what the physics
-leaves out (synthetic flights of a model with other coefficients)."""
+training transitions that never straddle flights, residual GPs that learn what the physics
+leaves out (synthetic flights of a model with other coefficients), and the model file's
+description of the physics."""
 import numpy as np
+import pytest
 
+from gp_model import GreyBoxGP, load_model, read_header, save_model
 from tests.validation.models.test_rgblimp_identification import INPUTS, START, synthetic_flight
+from validation.core.errors import BadInputError
 from validation.models.rgblimp_greybox import (
     GP_INPUT_NAMES,
     GP_STATE_COLUMNS,
+    RGBLIMP_PHYSICS,
+    RGBlimpStepDescription,
     continuous_states,
     fit_rkgp,
     physics_step,
@@ -74,3 +80,35 @@ def test_residual_gps_learn_what_the_physics_leaves_out():
     assert tuple(rkgp.state_columns_) == GP_STATE_COLUMNS
     assert [STATE_NAMES[c] for c in GP_STATE_COLUMNS] == ["phi", "theta", "U", "V", "W", "P", "Q", "R"]
     assert len(GP_INPUT_NAMES) == len(GP_STATE_COLUMNS) + 5
+
+
+def test_step_description_round_trips_exactly_through_a_model_file(tmp_path):
+    """RGBlimpStepDescription holds every number of the identified model as plain JSON: written
+    into a model file and read back it rebuilds the same model (equal doubles) and the same
+    physics step; descriptions of other physics or with a number missing or unusable are
+    refused."""
+    identified = RGBlimpModel().replaced({"thrust_gain": 0.91234567891, "buoyancy_mass": 0.1523456789,
+                                          "c_d0": 0.31415926535, "rate_damping_z": -1 / 70, "wind_x": 0.0123,
+                                          "wind_y": -1 / 3})
+    description = RGBlimpStepDescription(identified)
+    model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, n_restarts=0).fit(
+        np.tile(START, (4, 1)) + np.arange(4)[:, None] * 1e-3, np.tile(INPUTS, (4, 1)),
+        np.tile(START, (4, 1)), None, optimize=False)
+    path = save_model(tmp_path / "rkgp.npz", model, physics=description.as_dict())
+    physics = read_header(path)["physics"]
+    assert physics["kind"] == RGBLIMP_PHYSICS and isinstance(load_model(path), GreyBoxGP)
+    again = RGBlimpStepDescription.from_dict(physics)
+    assert again == description and again.model == identified
+    states = np.vstack([START, START + 0.01])
+    np.testing.assert_array_equal(again.physics_step()(states, np.tile(INPUTS, (2, 1))),
+                                  physics_step(identified)(states, np.tile(INPUTS, (2, 1))))
+    for change, phrase in [({"kind": "blimp_rk4"}, "needs 'rgblimp_rk4'"), ({"thrust_gain": None}, "unusable"),
+                           ({"wind": [0.1]}, "wind"), ({"sample_time": 0.01}, "sample time"),
+                           ({"input_names": ["thrust"]}, "names")]:
+        with pytest.raises(BadInputError, match=phrase):
+            RGBlimpStepDescription.from_dict({**physics, **change})
+    for name in ("parameters", "wind"):
+        with pytest.raises(BadInputError, match=name):
+            RGBlimpStepDescription.from_dict({key: value for key, value in physics.items() if key != name})
+    with pytest.raises(BadInputError, match="inertia"):
+        RGBlimpStepDescription.from_dict({**physics, "parameters": {**physics["parameters"], "inertia": [1.0, 2.0]}})

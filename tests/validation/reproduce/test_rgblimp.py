@@ -5,7 +5,8 @@ reads names only), the one-line errors of bad folders through the command, and o
 end to end on the two configurations of the excerpt shipped with the package
 (:data:`validation.vehicles.rgblimp_data.EXCERPT_FOLDER`: spirals 117 .. 119, straight flights
 121 .. 123) with hand-made score ranges and a quick setup: the results.json schema and summaries
-that follow from the entries. The measured numbers are in docs/reproductions.md.
+that follow from the entries, and the RKGP model files. The measured numbers are in
+docs/reproductions.md.
 """
 import contextlib
 import io
@@ -16,8 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gp_model import GreyBoxGP, load_model, read_header
 from validation.cli import main
 from validation.core.errors import BadInputError
+from validation.models.rgblimp_greybox import RGBlimpStepDescription
 from validation.models.rgblimp_identification import RGBlimpModel
 from validation.reproduce.rgblimp import (
     SOURCE_STATE_WIDTH,
@@ -25,6 +28,7 @@ from validation.reproduce.rgblimp import (
     flight_metrics,
     read_score_ranges,
     reproduce_rgblimp,
+    rkgp_model_path,
     source_score,
     split_flights,
 )
@@ -201,3 +205,17 @@ def test_the_published_model_is_scored_as_it_is_and_goals_follow_the_summary(sma
         assert goal["met"] in (True, False) and "measured" in goal, name
     beats = results["summary"]["beats_physics_in_score"]["rkgp"]
     assert results["goals"]["rkgp_beats_physics_on_every_test_flight"]["met"] == (beats == 2)
+
+
+@pytest.mark.slow
+def test_each_configurations_rkgp_is_written_as_a_model_file_its_fmu_is_built_from(small_run):
+    """OUT/models/rgblimp_rkgp_<j>.npz holds configuration j's RKGP with its identified model as
+    the physics (rgblimp_rk4, every coefficient as identified), which `flightgp build-fmu` takes."""
+    _, out, results = small_run
+    for entry in results["configurations"]:
+        path = rkgp_model_path(out, entry["index"])
+        assert entry["rkgp_model_file"] == f"models/{path.name}" and path.is_file()
+        assert isinstance(load_model(path), GreyBoxGP)
+        identified = RGBlimpStepDescription.from_dict(read_header(path)["physics"]).model
+        for name, fitted in entry["identification"]["parameters"].items():
+            assert identified.value(name) == fitted["value"], name
