@@ -23,7 +23,8 @@ def register(subparsers) -> None:
                         help="recording CSV files (docs/conventions.md, Recording files), starting at trim; "
                              "for rgblimp the source's data_N.csv files as they are")
     parser.add_argument("--reference", required=True, metavar="NAME",
-                        help="physics reference: bo105-<V>kt, blimp or rgblimp")
+                        help="physics reference: bo105-<V>kt, blimp, rgblimp, or a linear state-space "
+                             "model FILE.json (docs/vehicles.md; flightgp state-space writes the Bo105's)")
     parser.add_argument("--holdout", nargs="+", type=Path, metavar="RECORDING",
                         help="recordings used only to score the models (default: the last recording, "
                              "or the last 30 %% of a single one)")

@@ -25,13 +25,14 @@ from validation.cli import (
     predict,
     record,
     reproduce,
+    state_space,
     train,
 )
 from validation.core.errors import BadInputError
 
 #: The command modules, in the order ``--help`` lists their commands.
 COMMAND_MODULES = (demo, record, inspect, train, predict, reproduce, cosim, bench, build_fmu, diagnose,
-                   diagnose_bench)
+                   diagnose_bench, state_space)
 
 
 def build_parser() -> argparse.ArgumentParser:

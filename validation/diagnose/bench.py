@@ -259,7 +259,7 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
     """The diagnosed and the held-out recording of ``case`` on the reference called
     ``reference``, and the held-out truth (module docstring)."""
     reference = effect_model(reference, purpose="diagnose-bench")
-    vehicle = EffectVehicle(reference.name, case.effects, noise_sd=reference.sensor_noise_sd)
+    vehicle = EffectVehicle(reference, case.effects, noise_sd=reference.sensor_noise_sd)
     recordings = []
     for variant in (0, 1):
         time, inputs = reference.identification_manoeuvre(duration=DURATION, sample_time=reference.sample_time,

@@ -130,7 +130,7 @@ def build_models(data: PreparedData, location: Location, explanation: Explanatio
         absorbs.append(_gp_absorbs(named, data, location, reference_gps))
         if progress:
             progress(1, fitted=f"gp-check:{named.target}")
-    return Models(EffectVehicle(reference.name, explanation.effects), corrected_replay, gp_prediction,
+    return Models(EffectVehicle(reference, explanation.effects), corrected_replay, gp_prediction,
                   unexplained, absorbs, reference_gps)
 
 

@@ -107,12 +107,11 @@ from validation.vehicles.bo105 import (
     SAMPLE_TIME,
     STATE_NAMES,
     Bo105Reference,
-    cached_zero_order_hold,
     padfield_condition,
     padfield_table,
-    propagate,
 )
 from validation.vehicles.linear_discretisation import expm
+from validation.vehicles.state_space import cached_zero_order_hold, propagate
 
 _STATE = {name: i for i, name in enumerate(STATE_NAMES)}
 _INPUT = {name: i for i, name in enumerate(INPUT_NAMES)}

@@ -25,16 +25,19 @@ from validation.core.sampling import check_history, sampling_metadata
 from validation.vehicles.blimp_effects import BlimpEffects
 from validation.vehicles.bo105_effects import Bo105Effects
 from validation.vehicles.effects import EffectModel, check_effects
+from validation.vehicles.linear_effects import LinearEffects
 from validation.vehicles.registry import get_vehicle
 from validation.vehicles.rgblimp_effects import RGBlimpEffects
+from validation.vehicles.state_space import state_space_from_dict
 
 #: The references that take effects, as messages name them -> (the registry names they cover, a
 #: full-match regular expression; their effect model's class, called with the registry's vehicle
 #: of that name). A registry name no pattern matches (flight-test stand-ins, JSBSim aircraft)
 #: takes no effects.
 EFFECT_MODELS = {"bo105-<V>kt": (r"bo105-\d+kt", Bo105Effects), "blimp": (r"blimp", BlimpEffects),
-                 "rgblimp": (r"rgblimp", RGBlimpEffects)}
-#: The references that take effects, as messages name them: "bo105-<V>kt, blimp and rgblimp".
+                 "rgblimp": (r"rgblimp", RGBlimpEffects), "state-space FILE.json": (r".+\.json", LinearEffects)}
+#: The references that take effects, as messages name them: "bo105-<V>kt, blimp, rgblimp and
+#: state-space FILE.json".
 EFFECT_REFERENCES = ", ".join(list(EFFECT_MODELS)[:-1]) + " and " + list(EFFECT_MODELS)[-1]
 #: Suffix of the registry names of flight-test stand-ins (docs/vehicles.md, "Names and interface").
 _STAND_IN_SUFFIX = "-flight"
@@ -75,14 +78,19 @@ class EffectVehicle:
 
     Parameters
     ----------
-    reference_name : str
-        A reference that takes effects (:data:`EFFECT_REFERENCES`).
+    reference : str or EffectModel
+        A reference that takes effects, by name (:data:`EFFECT_REFERENCES`) or as the effect
+        model a diagnosis used.
     effects : sequence of dict
         ``{"effect", "input" | "term" | "output", "value"}`` each; extra keys are ignored.
     noise_sd : dict of str to float, optional
         White Gaussian sensor noise, standard deviation per state (state units), e.g. the
         reference's :attr:`~validation.vehicles.effects.EffectModel.sensor_noise_sd`; states not
         named are noise-free.
+    reference_model : dict, optional
+        A state-space model in the JSON format of :mod:`validation.vehicles.state_space`, the
+        reference instead of ``reference`` (a model file carries it, so it does not depend on
+        the JSON file the diagnosis read).
 
     Attributes
     ----------
@@ -96,8 +104,12 @@ class EffectVehicle:
         The reference's default recording interval, s.
     """
 
-    def __init__(self, reference_name: str, effects=(), *, noise_sd: dict | None = None):
-        reference = effect_model(reference_name, purpose="applying effects")
+    def __init__(self, reference, effects=(), *, noise_sd: dict | None = None,
+                 reference_model: dict | None = None):
+        if reference_model is not None:
+            reference = LinearEffects(state_space_from_dict(reference_model, source="reference_model"))
+        elif isinstance(reference, str):
+            reference = effect_model(reference, purpose="applying effects")
         self._reference = reference
         self.reference_name = reference.name
         self.name = f"{reference.name}+effects"
@@ -156,8 +168,11 @@ class EffectVehicle:
 
     def as_dict(self) -> dict:
         """The model file's content (see :meth:`save`)."""
-        return {"format": _FILE_FORMAT, "version": _FILE_VERSION, "reference": self.reference_name,
-                "effects": self.effects, "noise_sd": self.noise_sd}
+        content = {"format": _FILE_FORMAT, "version": _FILE_VERSION, "reference": self.reference_name,
+                   "effects": self.effects, "noise_sd": self.noise_sd}
+        if isinstance(self._reference, LinearEffects) and not isinstance(self._reference, Bo105Effects):
+            content["reference_model"] = self._reference.reference.as_dict()
+        return content
 
     def model_files(self, path) -> dict:
         """The model file at ``path`` as ``{path: text}`` (:meth:`as_dict` as indented JSON), for
@@ -179,7 +194,7 @@ class EffectVehicle:
             raise BadInputError(f"{source}: model file version {content.get('version')!r}; this "
                                 f"flightgp reads version {_FILE_VERSION}")
         return cls(content.get("reference", ""), content.get("effects", []),
-                   noise_sd=content.get("noise_sd") or None)
+                   noise_sd=content.get("noise_sd") or None, reference_model=content.get("reference_model"))
 
     @classmethod
     def load(cls, path) -> EffectVehicle:

@@ -33,6 +33,7 @@ from validation.vehicles.bo105 import BO105_SPEEDS_KT, Bo105Reference
 from validation.vehicles.bo105_flight import Bo105FlightTest
 from validation.vehicles.rgblimp import RGBlimpReference
 from validation.vehicles.rgblimp_data import is_source_file, read_rgblimp_flight
+from validation.vehicles.state_space import read_state_space
 
 #: The recording file formats :func:`read_recording` reads (docs/conventions.md, "Recording
 #: files"): flightgp's own (a ``time`` column and a sidecar) and the RGBlimp source's
@@ -80,8 +81,10 @@ def get_vehicle(name: str) -> Vehicle:
         from validation.vehicles.jsbsim import JSBSimVehicle  # loads jsbsim only when asked for
 
         return JSBSimVehicle(name.split(":", 1)[1])
+    if name.endswith(".json"):
+        return read_state_space(name)
     raise BadInputError(f"unknown vehicle {name!r}; known: {', '.join(vehicle_names())} "
-                        "(any JSBSim aircraft as jsbsim:<name>)")
+                        "(any JSBSim aircraft as jsbsim:<name>, a state-space model as FILE.json)")
 
 
 @functools.lru_cache(maxsize=1)

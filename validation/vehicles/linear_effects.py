@@ -1,0 +1,227 @@
+"""Named effects on any linear reference ``x_dot = A x + B u``
+(:class:`validation.vehicles.state_space.LinearReference`: the Bo105's and any state-space model
+read from JSON): its :class:`~validation.vehicles.effects.EffectModel`, :class:`LinearEffects`.
+
+The effect dicts are those of :mod:`validation.vehicles.effects` (docs/vehicles.md). A linear
+reference takes delays, lags and sensor biases, and as terms its derivatives:
+``stability_derivative`` ``<row>_<state>`` and ``control_derivative`` ``<row>_<input>`` with the
+reference's row letters (``X, Z, M, Y, L, N`` for a flight vehicle: ``M_q``, ``L_theta_1c`` ...).
+How each effect enters ``x_dot = A x + B u``:
+
+- derivatives replace entries of ``A`` (stability) or ``B`` (control) through
+  :meth:`~validation.vehicles.state_space.LinearReference.with_derivatives`;
+- ``input_lag`` on input ``j``: ``T z_dot = -z + u_j`` and column ``j`` of ``B`` acts on ``z``
+  (an augmented state starting at trim, 0), discretised exactly with the rest;
+- ``time_delay`` on input ``j``: ``u_j(t - tau)``. With the zero-order hold of the recordings and
+  ``tau = (m + f) h`` (integer ``m``, ``0 <= f < 1``) the delayed input switches inside each
+  interval, and ``x[k+1] = Phi x[k] + Gamma_a u_j[k-m-1] + Gamma_b u_j[k-m]`` with
+  ``Gamma_b = int_0^{(1-f)h} e^{As} ds b_j`` and ``Gamma_a = e^{A(1-f)h} int_0^{fh} e^{As} ds b_j``
+  (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
+  The result is exact and continuous in ``tau``, which a fit needs;
+- ``sensor_bias`` adds a constant to a recorded output.
+
+Replays are one exact discretisation each (milliseconds), so they are not batched, and they
+need evenly sampled recordings (one step).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from validation.core.manoeuvres import three_two_one_one, time_grid
+from validation.core.recordings import column_phrase
+from validation.core.sampling import check_history
+from validation.vehicles.effects import Hypothesis, check_trim_start, simulate_each_recording, starts_at_trim
+from validation.vehicles.linear_discretisation import zero_order_hold
+from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME, LinearReference, propagate
+
+_ACCELERATION_UNITS = {"m/s": "m/s^2", "rad/s": "rad/s^2"}
+#: Common names of derivatives (Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 4 and 7).
+DERIVATIVE_NAMES = {"M_q": "pitch damping", "L_p": "roll damping", "N_r": "yaw damping",
+                    "L_q": "roll moment due to pitch rate (off-axis coupling)",
+                    "M_p": "pitch moment due to roll rate (off-axis coupling)",
+                    "M_w": "pitch moment due to heave velocity (incidence stability)",
+                    "M_u": "speed stability", "N_v": "weathercock stability", "L_v": "dihedral effect",
+                    "X_u": "drag damping", "Z_w": "heave damping", "Y_v": "side-force damping",
+                    "M_theta_1s": "pitch control power", "L_theta_1c": "roll control power",
+                    "N_theta_0T": "yaw control power", "Z_theta_0": "heave control power"}
+#: What each derivative row is a derivative of: the body-axis forces X, Y, Z and moments L, M, N
+#: (per unit mass and inertia; Padfield 2007, ch. 4), for the derivatives without a common name.
+_ROW_WORDS = {"X": "longitudinal force", "Y": "side force", "Z": "vertical force",
+              "L": "roll moment", "M": "pitch moment", "N": "yaw moment"}
+
+
+def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
+    """``signal[k - samples]`` (trim, 0, before the start), shape like ``signal``."""
+    if samples <= 0:
+        return signal
+    shifted = np.zeros_like(signal)
+    shifted[samples:] = signal[:len(signal) - samples]
+    return shifted
+
+
+def simulate_linear_with_effects(reference: LinearReference, effects, time, inputs) -> np.ndarray:
+    """States (plus sensor biases) of a linear reference with checked ``effects`` (module
+    docstring), from trim.
+
+    Parameters
+    ----------
+    reference : LinearReference
+    effects : list of dict
+        Checked (:func:`validation.vehicles.effects.check_effects`).
+    time : ndarray, shape (n,)
+        Evenly spaced sample times, s.
+    inputs : ndarray, shape (n, n_inputs)
+        In ``reference.input_names`` order and units, zero-order hold.
+
+    Returns
+    -------
+    ndarray, shape (n, n_states)
+        The states as recorded, in ``reference.state_names`` order.
+    """
+    time, inputs, step = check_history(time, inputs, reference.input_names)
+    derivatives = {e["term"]: e["value"] for e in effects if "term" in e}
+    model = reference.with_derivatives(derivatives) if derivatives else reference
+    A, B = model.A, model.B
+    n_states, n_inputs = B.shape
+    lags = {reference.input_names.index(e["input"]): e["value"] for e in effects
+            if e["effect"] == "input_lag" and e["value"] > 0}
+    delays = {reference.input_names.index(e["input"]): e["value"] for e in effects
+              if e["effect"] == "time_delay" and e["value"] > 0}
+    # Augmented system: rigid body, then one lag state per lagged input.
+    size = n_states + len(lags)
+    F, G = np.zeros((size, size)), np.zeros((size, n_inputs))
+    F[:n_states, :n_states] = A
+    G[:n_states] = B
+    for extra, (column, time_constant) in enumerate(sorted(lags.items()), start=n_states):
+        G[:n_states, column] = 0.0
+        F[:n_states, extra] = B[:, column]
+        F[extra, extra] = -1.0 / time_constant
+        G[extra, column] = 1.0 / time_constant
+    Phi, Gamma = zero_order_hold(F, G, step)
+    held = inputs[:-1]
+    undelayed = [column for column in range(n_inputs) if column not in delays]
+    forcing = held[:, undelayed] @ Gamma[:, undelayed].T
+    for column, delay in delays.items():
+        whole = int(math.floor(delay / step + 1e-9))
+        fraction = delay / step - whole
+        late_Phi, late_Gamma = zero_order_hold(F, G[:, [column]], (1.0 - fraction) * step)
+        gamma_late = late_Gamma[:, 0]
+        gamma_early = (late_Phi @ zero_order_hold(F, G[:, [column]], fraction * step)[1])[:, 0] \
+            if fraction > 1e-12 else np.zeros(size)
+        forcing += np.outer(_delayed(held[:, column], whole), gamma_late)
+        forcing += np.outer(_delayed(held[:, column], whole + 1), gamma_early)
+    states = propagate(Phi, forcing, np.zeros(size))[:, :n_states]
+    for effect in effects:
+        if effect["effect"] == "sensor_bias":
+            states[:, reference.state_names.index(effect["output"])] += effect["value"]
+    return states
+
+
+
+class LinearEffects:
+    """The :class:`~validation.vehicles.effects.EffectModel` of a linear reference (module
+    docstring): a state-space model read from JSON (family ``"state-space"``);
+    :class:`validation.vehicles.bo105_effects.Bo105Effects` is the Bo105's.
+
+    Parameters
+    ----------
+    reference : LinearReference
+
+    Attributes
+    ----------
+    reference : LinearReference
+    sensor_noise_sd : dict of str to float
+        Zero for every state: a user's model comes with no sensor model, so the
+        concealed-effect bench's recordings of it are noise-free.
+
+    The other attributes and the methods are those of the protocol.
+    """
+
+    family = "state-space"
+    kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias")
+    batches_simulations = False
+    needs_even_sampling = True
+    min_noise_sd = {}
+    start_state = starts_at_trim
+    simulate_recordings = simulate_each_recording
+
+    def __init__(self, reference: LinearReference):
+        self.reference = reference
+        self.name, self.sample_time = reference.name, reference.sample_time
+        self.input_names, self.state_names = reference.input_names, reference.state_names
+        self.residual_gp_states = reference.state_names
+        letters = reference.row_letters
+        self.terms = {"control_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.input_names),
+                      "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names)}
+        self.sensor_noise_sd = dict.fromkeys(reference.state_names, 0.0)
+
+    def model_value(self, term: str) -> float:
+        return self.reference.derivative(term)
+
+    def term_unit(self, term: str) -> str:
+        """(row rate)/(column unit), ``1/s`` when they cancel (``M_q``): ``(rad/s^2)/(rad)``."""
+        letter, _, column = term.partition("_")
+        units = self.reference.units
+        row_unit, column_unit_ = units[self.reference.row_letters[letter]], units[column]
+        if row_unit == column_unit_:
+            return "1/s"
+        return f"({_ACCELERATION_UNITS.get(row_unit, row_unit + '/s')})/({column_unit_})"
+
+    def term_description(self, term: str) -> str:
+        """The derivative's common name (:data:`DERIVATIVE_NAMES`), else ``"<row force or moment>
+        due to <column>"`` (``"side force due to longitudinal cyclic pitch"``), else ``term``."""
+        if term in DERIVATIVE_NAMES:
+            return DERIVATIVE_NAMES[term]
+        letter, _, column = term.partition("_")
+        if letter in _ROW_WORDS and column in self.state_names + self.input_names:
+            return f"{_ROW_WORDS[letter]} due to {column_phrase(column)}"
+        return term
+
+    def term_value_problem(self, term: str, value: float) -> None:
+        """Every finite derivative is acceptable."""
+        return None
+
+    def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
+        """Every control derivative of an excited input and every stability derivative (each
+        derivative row x every state, off-axis couplings included), unbounded; screening step 5 % of the value, at
+        least 1 % of the row's largest entry (so that zero entries move too) and 1e-6."""
+        hypotheses = []
+        A, B = self.reference.A, self.reference.B
+        for letter, row_state in self.reference.row_letters.items():
+            row = self.state_names.index(row_state)
+            for columns, matrix, kind in ((self.state_names, A, "stability_derivative"),
+                                          (self.input_names, B, "control_derivative")):
+                typical = np.max(np.abs(matrix[row]))
+                for column, column_name in enumerate(columns):
+                    if kind == "control_derivative" and column_name not in excited_inputs:
+                        continue
+                    value = matrix[row, column]
+                    step = 0.05 * max(abs(value), 0.01 * typical, 1e-6)
+                    hypotheses.append(Hypothesis(kind, f"{letter}_{column_name}", float(value),
+                                                 -math.inf, math.inf, step))
+        return hypotheses
+
+    def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
+        """:func:`simulate_linear_with_effects` for each list, shape (B, n, n_states), from trim
+        (``start`` must be None: :meth:`start_state`)."""
+        check_trim_start(start, self.name)
+        return np.stack([simulate_linear_with_effects(self.reference, effects, time, inputs)
+                         for effects in effect_lists])
+
+    def identification_manoeuvre(self, *, duration: float = 20.0, sample_time: float = DEFAULT_SAMPLE_TIME,
+                                 variant: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """A 3-2-1-1 on each input in turn (Tischler & Remple 2012, ch. 5: one axis at a time),
+        each given the duration's share: 1 deg for an input in rad, 10 % of full travel
+        otherwise; variant 1 reverses the signs and the order and lengthens the steps by half."""
+        time = time_grid(duration=duration, sample_time=sample_time)
+        inputs = np.zeros((len(time), len(self.input_names)))
+        order = list(range(len(self.input_names)))[::(-1 if variant else 1)]
+        share = duration / len(order)
+        for slot, column in enumerate(order):
+            amplitude = math.radians(1.0) if self.reference.units[self.input_names[column]] == "rad" else 0.1
+            step_time = min(0.3 * (1.5 if variant else 1.0), (share - 0.5) / 7)
+            inputs[:, column] = three_two_one_one(time, amplitude=(-amplitude if variant else amplitude),
+                                                  step_time=step_time, start=slot * share + 0.5)
+        return time, inputs
