@@ -28,6 +28,9 @@ def register(subparsers) -> None:
     parser.add_argument("--holdout", nargs="+", type=Path, metavar="RECORDING",
                         help="recordings used only to score the models (default: the last recording, "
                              "or the last 30 %% of a single one)")
+    parser.add_argument("--tolerances", type=Path, metavar="FILE.json",
+                        help="tolerance bands of the fidelity scorecard, {\"q\": 0.035, ...} in each output's "
+                             "SI unit (default: 14 CFR Part 60, Appendix C, Table C2A, for the outputs it names)")
     add_format_argument(parser)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=0, help="random seed of the residual GP (default 0)")
@@ -42,15 +45,21 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from validation.core.progress import progress_bar
     from validation.diagnose import diagnose, write_diagnosis
+    from validation.diagnose.fidelity import read_tolerances
 
     check_output_folder(args.out)
+    tolerances = read_tolerances(args.tolerances) if args.tolerances is not None else None
     with progress_bar("diagnose", enabled=not args.no_progress, unit="fit") as update:
         diagnosis = diagnose(args.recordings, reference=args.reference, holdout=args.holdout,
                              seed=args.seed, folds=args.folds,
-                             file_format=args.file_format, progress=update)
+                             file_format=args.file_format, tolerances=tolerances, progress=update)
     written = write_diagnosis(diagnosis, args.out)
     result = diagnosis.as_dict()
     print(f"{result['reference']}: {result['verdict']}")
+    banded = {n: e for n, e in result["fidelity"]["outputs"].items() if e["tolerance"] is not None}
+    for key, words in (("reference", "before correction"), ("corrected", "after correction")):
+        inside = ", ".join(n for n, e in banded.items() if e[key]["passes"]) or "none"
+        print(f"inside the tolerance bands {words}: {inside} (of {', '.join(banded) or '-'})")
     for finding in result["findings"]:
         print(f"- {finding['statement']}")
     fit = result["fit"]

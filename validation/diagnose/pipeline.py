@@ -16,6 +16,8 @@ physics, model it, and prove the fit improves on data not used to fit it (docs/d
    held-out samples (:class:`~validation.diagnose.prove.Proof`);
    with ``folds``, :mod:`~validation.diagnose.replicate`: the search repeated on folds of the
    diagnosed recordings (:class:`~validation.diagnose.replicate.Replication`);
+   :mod:`~validation.diagnose.fidelity`: the scorecard (tolerance bands, Theil's U, the
+   frequency-domain cost) of the held-out fit;
 6. :mod:`~validation.diagnose.report`: the findings with their statements
    (:class:`~validation.diagnose.report.Diagnosis`, exactly diagnosis.json), which
    :func:`~validation.diagnose.report.write_diagnosis` writes with report.md and the corrected
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 from validation.diagnose.data import prepare
 from validation.diagnose.explain import explain
+from validation.diagnose.fidelity import scorecard
 from validation.diagnose.locate import locate
 from validation.diagnose.model import build_models
 from validation.diagnose.prove import prove
@@ -38,7 +41,7 @@ from validation.vehicles.effect_vehicle import effect_model
 
 
 def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: int | None = None,
-             file_format: str | None = None, progress=None) -> Diagnosis:
+             file_format: str | None = None, tolerances: dict | None = None, progress=None) -> Diagnosis:
     """Locate, explain, model and prove (module docstring) on ``recordings``.
 
     Parameters
@@ -64,6 +67,10 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     file_format : {"flightgp", "rgblimp"}, optional
         Format of the recording files (:func:`validation.vehicles.read_recording`); default:
         recognised from each file's header.
+    tolerances : dict, optional
+        Output -> (band half-width in its SI unit, source) for the fidelity scorecard
+        (:func:`validation.diagnose.fidelity.read_tolerances`); outputs not named keep the
+        default bands (:data:`validation.diagnose.fidelity.DEFAULT_TOLERANCES`).
     progress : callable, optional
         ``progress(n, **status)`` advanced once per simulation batch
         (:func:`validation.core.progress.progress_bar` yields one).
@@ -91,4 +98,7 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     proof = prove(data, location, explanation, models, reference, progress=progress)
     replication = (replicate(data, location, explanation, reference, folds=folds, progress=progress)
                    if folds is not None else None)
-    return assemble_diagnosis(reference, data, location, explanation, models, proof, replication=replication)
+    held_out = [(u, m, data.input_names) for u, m in zip(data.inputs, data.holdout_mask) if m.any()]
+    fidelity = scorecard(proof.traces, proof.fit, held_out, step=data.step, tolerances=tolerances)
+    return assemble_diagnosis(reference, data, location, explanation, models, proof, replication=replication,
+                              fidelity=fidelity)

@@ -66,11 +66,14 @@ class Diagnosis:
     corrected: EffectVehicle
     holdout_traces: dict = field(repr=False, default_factory=dict)
     replication: dict | None = None
+    fidelity: dict | None = None
 
     def as_dict(self) -> dict:
         result = {"reference": self.reference, "verdict": self.verdict, "mismatch": self.mismatch,
                   "findings": self.findings, "fit": self.fit, "locate": self.locate,
                   "untestable": self.untestable, "search": self.search}
+        if self.fidelity is not None:
+            result["fidelity"] = self.fidelity
         if self.replication is not None:
             result["replication"] = self.replication
         return result
@@ -78,7 +81,7 @@ class Diagnosis:
 
 def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Location,
                        explanation: Explanation, models: Models, proof: Proof, *,
-                       replication: Replication | None = None) -> Diagnosis:
+                       replication: Replication | None = None, fidelity: dict | None = None) -> Diagnosis:
     """The diagnosis of the stages' results (nothing is written: :func:`write_diagnosis` does
     that): one finding per named effect (most important first, each with its ``replication``
     when the search was replicated), then the ``unexplained`` ones of the model and the prove
@@ -96,7 +99,7 @@ def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Loc
                      findings=findings, fit=proof.fit, locate=location.summary,
                      untestable=data.untestable + proof.untestable, search=explanation.search,
                      corrected=models.corrected, holdout_traces=proof.traces,
-                     replication=replication.summary() if replication is not None else None)
+                     replication=replication.summary() if replication is not None else None, fidelity=fidelity)
 
 
 def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float) -> dict:
@@ -252,7 +255,7 @@ def report_markdown(diagnosis: Diagnosis, plot_names: dict) -> str:
     """``report.md``: findings first, then the held-out fit table, the findings in detail, what
     was tested, locate results and the plots (``plot_names``: output -> PNG file name)."""
     result = diagnosis.as_dict()
-    lines = []
+    lines = _fidelity_lines(result.get("fidelity"))
     if result["findings"]:
         lines += [f"- {finding['statement']}" for finding in result["findings"]]
     else:
@@ -275,6 +278,33 @@ def report_markdown(diagnosis: Diagnosis, plot_names: dict) -> str:
     lines += ["", "The corrected model is `corrected_model.json` (load it with "
               "`validation.vehicles.effect_vehicle.EffectVehicle.load` and call `.simulate(time, inputs)`).", ""]
     return "\n".join(lines)
+
+
+def _fidelity_lines(fidelity: dict | None) -> list[str]:
+    """The report's first lines: which outputs pass their tolerance bands before and after
+    correction, and the scorecard table (:mod:`validation.diagnose.fidelity`)."""
+    if not fidelity:
+        return []
+    banded = {name: entry for name, entry in fidelity["outputs"].items() if entry["tolerance"] is not None}
+
+    def passing(key):
+        return ", ".join(n for n, e in banded.items() if e[key]["passes"]) or "none"
+
+    lines = [f"**Fidelity** ({fidelity['tolerance_source']}; held-out data): inside their tolerance bands "
+             f"before correction: {passing('reference')}; after: {passing('corrected')}; with the residual "
+             f"GP: {passing('corrected_gp')} (of {', '.join(banded) or 'no output with a band'}).", "",
+             "| output | band | max error ref. -> corr. -> corr. + GP | inside band | Theil U | "
+             "frequency cost J (input) |", "|---|---|---|---|---|---|"]
+    for name, entry in fidelity["outputs"].items():
+        models = [entry[key] for key in MODEL_KEYS]
+        band = f"+-{_number(entry['tolerance'])} {column_unit(name)}" if entry["tolerance"] is not None else "-"
+        inside = " -> ".join(f"{m['inside_share']:.1%}" for m in models) if entry["tolerance"] is not None else "-"
+        cost = " -> ".join("-" if m["frequency_cost"] is None else f"{m['frequency_cost']:.3g}" for m in models)
+        errors = " -> ".join(_number(m["max_error"]) for m in models)
+        theil = " -> ".join(_number(m["theil"]) for m in models)
+        source = entry["frequency_input"] or "-"
+        lines.append(f"| {name} | {band} | {errors} | {inside} | {theil} | {cost} ({source}) |")
+    return lines + [""]
 
 
 def _fit_table(fit: dict) -> list[str]:

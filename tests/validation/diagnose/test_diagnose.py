@@ -242,7 +242,8 @@ def test_cli_writes_report_json_plots_and_a_loadable_corrected_model(tmp_path, c
     assert result["findings"][0]["effect"] == "time_delay"
     assert result["fit"]["data"] == "holdout" and set(result["fit"]["rmse_corrected_gp"]) == set(fit.output_names)
     report = (out / "report.md").read_text()
-    assert report.startswith("- The pitch rate response lags the model")
+    assert report.startswith("**Fidelity** (14 CFR Part 60")  # the scorecard first, then the findings
+    assert report.split("\n\n", 2)[2].lstrip().startswith("- The pitch rate response lags the model")
     assert (out / "holdout_q.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     corrected = EffectVehicle.load(out / "corrected_model.json")
     assert corrected.effects[0]["input"] == "theta_1s"

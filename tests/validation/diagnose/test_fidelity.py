@@ -1,0 +1,66 @@
+"""The fidelity scorecard (validation/diagnose/fidelity.py): a concealed pitch-axis delay fails
+the pitch-rate band of 14 CFR Part 60 before correction and passes after, its frequency-domain
+cost falls from above Tischler's acceptable 100 to below 50; a tolerance file overrides the
+bands; bad tolerance files exit 2."""
+import json
+import math
+
+import pytest
+
+from tests.validation.diagnose.test_diagnose import _concealed
+from validation.cli import main
+from validation.core.errors import BadInputError
+from validation.core.recordings import write_recording
+from validation.diagnose import diagnose
+from validation.diagnose.fidelity import DEFAULT_TOLERANCES, read_tolerances
+
+
+@pytest.fixture(scope="module")
+def delayed():
+    """A 40 ms delay on longitudinal cyclic (the Bo105 at 80 kt, 20 s at 100 Hz)."""
+    return _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.04}])
+
+
+def test_the_delay_fails_the_pitch_rate_band_before_correction_and_passes_after(delayed):
+    fit, held = delayed
+    fidelity = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()["fidelity"]
+    q = fidelity["outputs"]["q"]
+    assert q["tolerance"] == pytest.approx(math.radians(2.0)) and "2.c.3.b" in q["tolerance_source"]
+    assert not q["reference"]["passes"] and q["corrected"]["passes"]
+    assert q["reference"]["max_error"] > q["tolerance"] >= q["corrected"]["max_error"]
+    assert q["reference"]["inside_share"] < 1.0 == q["corrected"]["inside_share"]
+    assert q["frequency_input"] == "theta_1s"
+    assert q["reference"]["frequency_cost"] > 100 > 50 > q["corrected"]["frequency_cost"]
+    assert fidelity["outputs"]["v"]["tolerance"] is None and fidelity["outputs"]["v"]["corrected"]["passes"] is None
+
+
+def test_a_tolerance_file_overrides_the_bands_and_the_report_leads_with_them(delayed, tmp_path, capsys):
+    fit, held = delayed
+    write_recording(tmp_path / "fit.csv", fit)
+    write_recording(tmp_path / "held.csv", held)
+    bands = tmp_path / "bands.json"
+    bands.write_text(json.dumps({"q": 1.0, "w": 0.001}))
+    out = tmp_path / "out"
+    assert main(["diagnose", str(tmp_path / "fit.csv"), "--holdout", str(tmp_path / "held.csv"), "--reference",
+                 "bo105-80kt", "--tolerances", str(bands), "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "inside the tolerance bands before correction: " in printed.splitlines()[1]
+    fidelity = json.loads((out / "diagnosis.json").read_text())["fidelity"]
+    assert fidelity["outputs"]["q"]["tolerance"] == 1.0 and fidelity["outputs"]["q"]["reference"]["passes"]
+    assert fidelity["outputs"]["w"]["tolerance"] == 0.001 and not fidelity["outputs"]["w"]["corrected"]["passes"]
+    assert fidelity["outputs"]["theta"]["tolerance"] == DEFAULT_TOLERANCES["theta"][0]
+    assert (out / "report.md").read_text().startswith("**Fidelity** (tolerance file and 14 CFR Part 60")
+
+
+@pytest.mark.parametrize("content, message", [
+    ("{not json", "not a JSON tolerance file"),
+    ('{"q": -1}', "the band of 'q' must be a positive number in rad/s"),
+    ('[0.1]', "a tolerance file maps outputs to band half-widths"),
+])
+def test_bad_tolerance_files_are_refused(tmp_path, content, message):
+    path = tmp_path / "bands.json"
+    path.write_text(content)
+    with pytest.raises(BadInputError, match=message):
+        read_tolerances(path)
+    with pytest.raises(BadInputError, match="no such tolerance file"):
+        read_tolerances(tmp_path / "missing.json")

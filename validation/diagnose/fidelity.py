@@ -1,0 +1,178 @@
+"""The fidelity scorecard: per output and model, on the held-out samples, the figures simulator
+qualification speaks in (diagnosis.json's ``fidelity``, docs/diagnose.md, "fidelity").
+
+- **RMSE** and **Theil's inequality coefficient** U (0 a perfect match, 1 no skill; Theil,
+  *Applied Economic Forecasting*, 1966), as diagnosis.json's ``fit`` has them;
+- **tolerance bands**: the largest error against the output's band and the share of samples
+  inside it; an output *passes* when every held-out sample is inside. The default bands are the
+  time-history tolerances of the helicopter full flight simulator objective tests, 14 CFR
+  Part 60, Appendix C, Table C2A (14 CFR Ch. I, 1-1-19 edition) (:data:`DEFAULT_TOLERANCES`):
+  test 2.c.3.b (longitudinal short-term response: +-1.5 deg pitch or +-2 deg/s pitch rate),
+  2.d.3.a (lateral-directional oscillations, non-periodic responses: +-5 deg/s roll rate or
+  +-5 deg roll attitude, +-4 deg/s yaw rate or +-4 deg yaw angle) and 2.c.3.a (long-term
+  response: +-5 kt airspeed, applied here to the forward velocity ``u``). Other outputs have no
+  default band; a tolerance file names any output's (``--tolerances``);
+- **frequency-domain mismatch**: Tischler's cost ``J = (20 / n) sum W_coh [W_g (|T_m| - |T|)^2 +
+  W_p (phase_m - phase)^2]`` between the frequency response of the model (``T_m``) and of the
+  recording (``T``) from the input most coherent with the output, over the ``n`` = 20
+  log-spaced frequencies of the band where the recording's coherence is at least 0.6, magnitude
+  in dB and phase in deg, ``W_g = 1``, ``W_p = 0.01745`` and ``W_coh = (1.58 (1 - exp(-coh^2)))^2``
+  (Tischler & Remple, *Aircraft and Rotorcraft System Identification*, 2nd ed., 2012, ch. 11,
+  where J <= 100 counts as an acceptable and J <= 50 as a nearly indistinguishable model).
+  Responses are H1 estimates, cross over auto spectral density (Welch's method, 2 s Hann
+  segments, half overlapping). None where no input moves in the held-out data or the coherence
+  never reaches 0.6.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy import signal
+
+from validation.core.errors import BadInputError
+from validation.core.recordings import column_unit
+
+_KNOT = 1852.0 / 3600.0
+#: Where the default bands come from.
+TOLERANCE_SOURCE = "14 CFR Part 60, Appendix C, Table C2A (1-1-19 edition)"
+#: Default tolerance bands, output -> (half-width in the output's SI unit, the table's test).
+DEFAULT_TOLERANCES = {
+    "q": (math.radians(2.0), "2.c.3.b: +-2 deg/s pitch rate"),
+    "theta": (math.radians(1.5), "2.c.3.b: +-1.5 deg pitch"),
+    "p": (math.radians(5.0), "2.d.3.a: +-5 deg/s roll rate"),
+    "phi": (math.radians(5.0), "2.d.3.a: +-5 deg roll attitude"),
+    "r": (math.radians(4.0), "2.d.3.a: +-4 deg/s yaw rate"),
+    "psi": (math.radians(4.0), "2.d.3.a: +-4 deg yaw angle"),
+    "u": (5.0 * _KNOT, "2.c.3.a: +-5 kt airspeed"),
+}
+#: Tischler's cost: frequency points, weights and the coherence a point needs (Tischler &
+#: Remple 2012, ch. 11).
+N_FREQUENCIES = 20
+MAGNITUDE_WEIGHT, PHASE_WEIGHT = 1.0, 0.01745
+MIN_COHERENCE = 0.6
+#: Welch segment length, s: 2 s gives about 19 half-overlapping segments in 20 s, so the coherence
+#: of noise alone stays far below 0.6 (its estimate is biased upward when few segments are averaged).
+SEGMENT_SECONDS = 2.0
+
+
+def read_tolerances(path) -> dict:
+    """A tolerance file: JSON ``{"q": 0.03, ...}``, half-widths in each output's SI unit
+    (docs/conventions.md, "Units and axes"); BadInputError for a missing or malformed file or a
+    band that is not a positive number."""
+    path = Path(path)
+    try:
+        content = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise BadInputError(f"{path}: no such tolerance file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise BadInputError(f"{path}: not a JSON tolerance file ({error})") from None
+    if not isinstance(content, dict):
+        raise BadInputError(f"{path}: a tolerance file maps outputs to band half-widths, e.g. {{\"q\": 0.035}}")
+    for name, value in content.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise BadInputError(f"{path}: the band of {name!r} must be a positive number in {column_unit(name)}, "
+                                f"got {value!r}")
+    return {name: (float(value), f"{path.name}") for name, value in content.items()}
+
+
+def scorecard(traces: dict, fit: dict, holdout_inputs: list, *, step: float, tolerances: dict | None = None) -> dict:
+    """diagnosis.json's ``fidelity`` (module docstring).
+
+    Parameters
+    ----------
+    traces : dict
+        Per output the held-out ``measured`` and model traces (:class:`validation.diagnose.prove.Proof`).
+    fit : dict
+        diagnosis.json's ``fit`` (RMSE and Theil's U per model).
+    holdout_inputs : list of (ndarray (n_r, n_inputs), ndarray bool (n_r,), tuple of str)
+        Per held-out recording: its inputs, its held-out mask and the input names.
+    step : float
+        Sample interval, s.
+    tolerances : dict, optional
+        Output -> (half-width, source); default :data:`DEFAULT_TOLERANCES`; outputs a file does
+        not name keep their default.
+
+    Returns
+    -------
+    dict
+        ``tolerance_source`` and ``outputs``: per output ``tolerance`` (half-width or None),
+        ``tolerance_source`` and, per model (``reference``, ``corrected``, ``corrected_gp``),
+        ``rmse``, ``theil``, ``max_error``, ``inside_share`` and ``passes`` (None without a
+        band) and ``frequency_cost`` (None without a coherent input), plus the ``input`` the
+        frequency responses are taken from.
+    """
+    bands = {**DEFAULT_TOLERANCES, **(tolerances or {})}
+    outputs = {}
+    for name, trace in traces.items():
+        band = bands.get(name)
+        entry = {"tolerance": band[0] if band else None, "tolerance_source": band[1] if band else None}
+        input_name, responses = _frequency_costs(trace, holdout_inputs, step)
+        entry["frequency_input"] = input_name
+        for key in ("reference", "corrected", "corrected_gp"):
+            error = np.abs(trace[key] - trace["measured"])
+            inside = float(np.mean(error <= band[0])) if band else None
+            entry[key] = {"rmse": fit[f"rmse_{key}"][name], "theil": fit[f"theil_{key}"][name],
+                          "max_error": float(np.max(error)), "inside_share": inside,
+                          "passes": (inside == 1.0) if band else None, "frequency_cost": responses.get(key)}
+        outputs[name] = entry
+    return {"tolerance_source": TOLERANCE_SOURCE if tolerances is None else "tolerance file and " + TOLERANCE_SOURCE,
+            "outputs": outputs}
+
+
+def _frequency_costs(trace: dict, holdout_inputs: list, step: float) -> tuple[str | None, dict]:
+    """The input most coherent with the measured output on the held-out samples and each
+    model's cost J against the measurement's response from it (module docstring)."""
+    pieces = []
+    start = 0
+    for inputs, mask, names in holdout_inputs:
+        length = int(mask.sum())
+        pieces.append((inputs[mask], slice(start, start + length), names))
+        start += length
+    best = (None, None, -1.0)
+    for column in range(pieces[0][0].shape[1]) if pieces else ():
+        x = np.concatenate([p[0][:, column] for p in pieces])
+        if np.ptp(x) <= 0:
+            continue
+        frequencies, coherence = _spectra(x, trace["measured"], step)[::2]
+        score = float(np.mean(coherence[1:])) if len(coherence) > 1 else 0.0
+        if score > best[2]:
+            best = (pieces[0][2][column], column, score)
+    if best[1] is None:
+        return None, {}
+    x = np.concatenate([p[0][:, best[1]] for p in pieces])
+    frequencies, response, coherence = _spectra(x, trace["measured"], step)
+    band = frequencies[(coherence >= MIN_COHERENCE) & (frequencies > 0)]
+    if len(band) < 2:
+        return best[0], {}
+    points = np.geomspace(band.min(), band.max(), N_FREQUENCIES)
+    measured = _at(frequencies, response, points)
+    weight = (1.58 * (1 - np.exp(-np.interp(points, frequencies, coherence) ** 2))) ** 2
+    costs = {}
+    for key in ("reference", "corrected", "corrected_gp"):
+        ratio = _at(frequencies, _spectra(x, trace[key], step)[1], points) / measured
+        magnitude_error = 20 * np.log10(np.maximum(np.abs(ratio), 1e-300))  # dB
+        phase_error = np.degrees(np.angle(ratio))  # deg, within +-180
+        costs[key] = float(20.0 / N_FREQUENCIES * np.sum(
+            weight * (MAGNITUDE_WEIGHT * magnitude_error**2 + PHASE_WEIGHT * phase_error**2)))
+    return best[0], costs
+
+
+def _spectra(x: np.ndarray, y: np.ndarray, step: float):
+    """Frequencies (Hz), the H1 response ``G_xy / G_xx`` and the coherence of y with x."""
+    segment = int(min(len(x), max(16, round(SEGMENT_SECONDS / step))))
+    frequencies, pxx = signal.welch(x, fs=1.0 / step, nperseg=segment)
+    _, pxy = signal.csd(x, y, fs=1.0 / step, nperseg=segment)
+    _, coherence = signal.coherence(x, y, fs=1.0 / step, nperseg=segment)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        response = np.where(pxx > 0, pxy / pxx, 0.0)
+    return frequencies, response, np.nan_to_num(coherence)
+
+
+def _at(frequencies: np.ndarray, response: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The complex ``response`` interpolated (real and imaginary parts) at ``points``, Hz; the
+    cost compares model and measurement by their ratio, so that phases never differ by a
+    whole turn."""
+    return np.interp(points, frequencies, response.real) + 1j * np.interp(points, frequencies, response.imag)
