@@ -3,26 +3,10 @@
 :class:`~validation.vehicles.linear_effects.LinearEffects` with the Bo105's family, sensor noise
 and manoeuvre), and the multi-axis identification manoeuvre that excites them.
 
-The effect dicts are those of :mod:`validation.vehicles.effects` (docs/vehicles.md). A Bo105
-takes delays, lags and sensor biases, and as terms its derivatives: ``stability_derivative``
-``<row>_<state>`` and ``control_derivative`` ``<row>_<input>`` with the row letters ``X, Z, M,
-Y, L, N`` of :data:`validation.vehicles.bo105.ROW_LETTERS` (``M_q``, ``L_theta_1c`` ...). How each
-effect enters the linear Bo105 (``x_dot = A x + B u``):
-
-- derivatives replace entries of ``A`` (stability) or ``B`` (control) through
-  :meth:`~validation.vehicles.bo105.Bo105Reference.with_derivatives`;
-- ``input_lag`` on input ``j``: ``T z_dot = -z + u_j`` and column ``j`` of ``B`` acts on ``z``
-  (an augmented state starting at trim, 0), discretised exactly with the rest;
-- ``time_delay`` on input ``j``: ``u_j(t - tau)``. With the zero-order hold of the recordings and
-  ``tau = (m + f) h`` (integer ``m``, ``0 <= f < 1``) the delayed input switches inside each
-  interval, and ``x[k+1] = Phi x[k] + Gamma_a u_j[k-m-1] + Gamma_b u_j[k-m]`` with
-  ``Gamma_b = int_0^{(1-f)h} e^{As} ds b_j`` and ``Gamma_a = e^{A(1-f)h} int_0^{fh} e^{As} ds b_j``
-  (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
-  The result is exact and continuous in ``tau``, which a fit needs;
-- ``sensor_bias`` adds a constant to a recorded output.
-
-Replays are one exact discretisation each (milliseconds), so they are not batched, and they
-need evenly sampled recordings (one step).
+A Bo105 takes what every linear reference takes (:mod:`validation.vehicles.linear_effects` says
+how each effect enters ``x_dot = A x + B u``): delays, lags and sensor biases, and its
+derivatives ``<row>_<column>`` with the row letters ``X, Z, M, Y, L, N`` of
+:data:`validation.vehicles.bo105.ROW_LETTERS` (``M_q``, ``L_theta_1c`` ...).
 """
 from __future__ import annotations
 
