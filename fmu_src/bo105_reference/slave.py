@@ -24,6 +24,15 @@ so the inputs set at ``t_k`` are held over ``[t_k, t_{k+1})`` and ``fmi2DoStep(t
 outputs to ``x(t_{k+1})``: ``Bo105Reference.simulate_states`` on the same inputs. The outputs at
 ``t0`` (valid after initialisation) are the start state: trim (zeros), or the ``<state>_start``
 parameters.
+
+Derivatives as parameters
+-------------------------
+Every stability and control derivative is a fixed parameter named as flightgp names it
+(``<row>_<column>`` with the rows ``X, Z, M, Y, L, N`` of the ``u, w, q, v, p, r`` equations:
+``M_q``, ``L_theta_1c``; docs/vehicles.md, "Bo105"), its start value the model file's entry of
+``A`` or ``B``. Setting one before initialisation runs the model with that entry replaced, as
+``Bo105Reference.with_derivatives`` does, so a diagnosis through the FMU can correct what one
+against the built-in reference corrects.
 """
 from __future__ import annotations
 
@@ -39,6 +48,19 @@ VERSION = 1
 #: Padfield's state and input order (validation.vehicles.bo105).
 STATE_NAMES = ("u", "w", "q", "theta", "v", "p", "phi", "r")
 INPUT_NAMES = ("theta_0", "theta_1s", "theta_1c", "theta_0T")
+#: Derivative row letters and the state whose equation each names (validation.vehicles.bo105).
+ROW_LETTERS = {"X": "u", "Z": "w", "M": "q", "Y": "v", "L": "p", "N": "r"}
+
+
+def derivative_entries() -> list[tuple[str, str, int, int]]:
+    """Every derivative: (name, ``"A"`` or ``"B"``, row, column), rows in :data:`ROW_LETTERS`
+    order, columns the states then the inputs."""
+    entries = []
+    for letter, state in ROW_LETTERS.items():
+        row = STATE_NAMES.index(state)
+        entries += [(f"{letter}_{column}", "A", row, j) for j, column in enumerate(STATE_NAMES)]
+        entries += [(f"{letter}_{column}", "B", row, j) for j, column in enumerate(INPUT_NAMES)]
+    return entries
 
 
 def pack_model(*, A, B, speed_kt: int, source: str) -> dict:
@@ -49,7 +71,7 @@ def pack_model(*, A, B, speed_kt: int, source: str) -> dict:
             "state_names": np.array(STATE_NAMES), "input_names": np.array(INPUT_NAMES)}
 
 
-def bo105_reference_variables(*, inputs, states) -> tuple:
+def bo105_reference_variables(*, inputs, states, derivatives=()) -> tuple:
     """The variable table of the Bo105 reference FMU.
 
     Parameters
@@ -57,12 +79,15 @@ def bo105_reference_variables(*, inputs, states) -> tuple:
     inputs, states : sequence of (name, unit, limit, phrase)
         Controls and states in Padfield's order: name, unit (a key of :data:`fmu_src.fmi.slave.UNITS`),
         largest plausible magnitude (None: unbounded) and a phrase saying what it is.
+    derivatives : sequence of (name, unit, value, phrase)
+        The derivatives as parameters (module docstring): name, unit, the model's value and what
+        it is.
 
     Returns
     -------
     tuple of Variable
-        The controls (inputs), the states (outputs) and each state's start value (fixed
-        parameters ``<state>_start``).
+        The controls (inputs), the states (outputs), each state's start value (fixed
+        parameters ``<state>_start``) and the derivatives (fixed parameters).
     """
     limits = lambda limit: (None, None) if limit is None else (-limit, limit)  # noqa: E731
     table = [Variable(name, "input", "continuous", None, unit,
@@ -76,6 +101,9 @@ def bo105_reference_variables(*, inputs, states) -> tuple:
                        f"{phrase} at the start time, perturbation from trim (default 0: trim)", 0.0,
                        *limits(limit))
               for name, unit, limit, phrase in states]
+    table += [Variable(name, "parameter", "fixed", "exact", unit,
+                       f"{phrase} (the model's {value:.6g} by default)", float(value))
+              for name, unit, value, phrase in derivatives]
     return tuple(table)
 
 
@@ -84,7 +112,7 @@ class Bo105ReferenceSlave(FlightgpSlave):
     PACKAGE and VARIABLES)."""
 
     DEFAULT_STEP_SIZE = 0.01
-    STATE_ATTRIBUTES = ("_state", "_transition", "_input_matrix")
+    STATE_ATTRIBUTES = ("_state", "_transition", "_input_matrix", "_state_matrix", "_control_matrix")
     CONSTANT_ATTRIBUTES = ("_A", "_B")
 
     def load_constants(self) -> None:
@@ -100,13 +128,16 @@ class Bo105ReferenceSlave(FlightgpSlave):
         self.log_info(f"loaded {path.name}: Bo105, {str(arrays['source'])}")
 
     def start_model(self) -> None:
+        self._state_matrix, self._control_matrix = self._A.copy(), self._B.copy()  # with the derivatives set
+        for name, matrix, row, column in derivative_entries():
+            (self._state_matrix if matrix == "A" else self._control_matrix)[row, column] = self.values[name]
         self._state = np.array([self.values[f"{name}_start"] for name in STATE_NAMES])
         self._transition = self._input_matrix = None  # discretised at the first step
         self._set_outputs(self._state)
 
     def advance_model(self, t: float, h: float) -> None:
         if self._transition is None:
-            transition, input_matrix = zero_order_hold(self._A, self._B, h)
+            transition, input_matrix = zero_order_hold(self._state_matrix, self._control_matrix, h)
             if not (np.isfinite(transition).all() and np.isfinite(input_matrix).all()):
                 raise FloatingPointError(f"the discretisation at h = {h:.16g} s is not finite")
         else:

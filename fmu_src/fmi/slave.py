@@ -85,6 +85,12 @@ UNITS = {
     "N": ({"kg": 1, "m": 1, "s": -2}, {}),
     "rad": ({"rad": 1}, {"deg": 180.0 / math.pi}),
     "rad/s": ({"rad": 1, "s": -1}, {"deg/s": 180.0 / math.pi}),
+    # The units of a linear model's stability and control derivatives (a row's rate per column).
+    "1/s": ({"s": -1}, {}),
+    "1/s2": ({"s": -2}, {}),
+    "m/(s.rad)": ({"m": 1, "s": -1, "rad": -1}, {}),
+    "m/(s2.rad)": ({"m": 1, "s": -2, "rad": -1}, {}),
+    "rad/(m.s)": ({"rad": 1, "m": -1, "s": -1}, {}),
 }
 
 #: Relative tolerance on the communication point and step, as a fraction of the step.

@@ -90,3 +90,25 @@ def test_bo105_reference_with_changed_derivatives_runs_the_corrected_model(case,
     np.testing.assert_allclose(np.column_stack([result[name] for name in BO105_STATES]), expected,
                                rtol=0, atol=1e-9)
     assert np.abs(expected - case.reference()[0]).max() > 1e-2  # the corrections matter
+
+
+def test_every_derivative_is_a_parameter_that_changes_the_model(case, bo105_speed_kt):
+    """The 72 derivatives are fixed parameters named as flightgp names them, with the model's
+    values, units and words; set before initialisation, they run the model with those entries
+    replaced, as Bo105Reference.with_derivatives (so diagnosing through the FMU can correct what
+    the built-in reference corrects)."""
+    reference = Bo105Reference(bo105_speed_kt)
+    variables = {v.name: v for v in read_model_description(str(case.path)).modelVariables}
+    names = reference.derivative_names()
+    assert len(names) == 72 and all(variables[n].causality == "parameter" for n in names)
+    assert all(float(variables[n].start) == reference.derivative(n) for n in names)
+    assert (variables["M_q"].unit, variables["M_theta_1s"].unit, variables["X_q"].unit) == ("1/s", "1/s2", "m/(s.rad)")
+    assert variables["M_q"].description.startswith("pitch damping")
+    corrections = {"M_q": -2.4, "L_theta_1c": 0.8 * reference.derivative("L_theta_1c")}
+    result = simulate_fmu(str(case.path), input=case.signal(), stop_time=case.n_steps * case.step,
+                          step_size=case.step, output_interval=case.step, start_values=corrections)
+    time = np.arange(case.n_steps + 1) * case.step
+    expected = reference.with_derivatives(corrections).simulate_states(time, bo105_controls(time))
+    np.testing.assert_allclose(np.column_stack([result[name] for name in BO105_STATES]), expected,
+                               rtol=0, atol=1e-9)
+    assert np.abs(expected - case.reference()[0]).max() > 1e-2  # the corrections matter
