@@ -165,8 +165,8 @@ def _spectra(x: np.ndarray, y: np.ndarray, step: float):
     segment = int(min(len(x), max(16, round(SEGMENT_SECONDS / step))))
     frequencies, pxx = signal.welch(x, fs=1.0 / step, nperseg=segment)
     _, pxy = signal.csd(x, y, fs=1.0 / step, nperseg=segment)
-    _, coherence = signal.coherence(x, y, fs=1.0 / step, nperseg=segment)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # a flat output has no coherence: 0
+        _, coherence = signal.coherence(x, y, fs=1.0 / step, nperseg=segment)
         response = np.where(pxx > 0, pxy / pxx, 0.0)
     return frequencies, response, np.nan_to_num(coherence)
 
