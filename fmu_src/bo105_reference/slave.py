@@ -101,8 +101,7 @@ def bo105_reference_variables(*, inputs, states, derivatives=()) -> tuple:
                        f"{phrase} at the start time, perturbation from trim (default 0: trim)", 0.0,
                        *limits(limit))
               for name, unit, limit, phrase in states]
-    table += [Variable(name, "parameter", "fixed", "exact", unit,
-                       f"{phrase} (the model's {value:.6g} by default)", float(value))
+    table += [Variable(name, "parameter", "fixed", "exact", unit, phrase, float(value))
               for name, unit, value, phrase in derivatives]
     return tuple(table)
 

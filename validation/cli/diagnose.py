@@ -23,8 +23,9 @@ def register(subparsers) -> None:
                         help="recording CSV files (docs/conventions.md, Recording files), starting at trim; "
                              "for rgblimp the source's data_N.csv files as they are")
     parser.add_argument("--reference", required=True, metavar="NAME",
-                        help="physics reference: bo105-<V>kt, blimp, rgblimp, or a linear state-space "
-                             "model FILE.json (docs/vehicles.md; flightgp state-space writes the Bo105's)")
+                        help="physics reference: bo105-<V>kt, blimp, rgblimp, a linear state-space "
+                             "model FILE.json (docs/vehicles.md; flightgp state-space writes the Bo105's) or "
+                             "any FMI 2.0 co-simulation FILE.fmu (its parameters become candidate corrections)")
     parser.add_argument("--holdout", nargs="+", type=Path, metavar="RECORDING",
                         help="recordings used only to score the models (default: the last recording, "
                              "or the last 30 %% of a single one)")

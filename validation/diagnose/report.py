@@ -24,7 +24,7 @@ from validation.vehicles.effects import TARGET_KEYS, EffectModel
 #: The term effect kinds of the contract (:data:`validation.vehicles.effects.TARGET_KEYS`) in words,
 #: where the name with spaces would not do.
 _KIND_WORDS = {"quadratic_drag": "quadratic drag derivative", "cg_offset": "centre-of-gravity position",
-               "added_mass": "added-mass term"}
+               "added_mass": "added-mass term", "fmu_parameter": "parameter"}
 _MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_gp": "corrected + GP"}
 #: Share of a named effect's signal that a GP on the uncorrected residual must reproduce for the
 #: report to warn that a residual GP alone would hide the effect (half: it would carry more of
@@ -186,6 +186,12 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         else:
             text = (f"The {words} response is smoothed by a first-order lag of {_number(value)} s "
                     f"{interval} on {control}: unmodelled actuator or rotor dynamics.")
+    elif kind == "input_gain":
+        text = (f"The {_input_words(finding['input'])} acts {_number(value)} times as strongly as the model "
+                f"has it {interval}: a control-effectiveness (gain) error.")
+    elif kind == "output_scale":
+        text = (f"The {column_phrase(finding['output'])} reads {_number(value)} times the model's {interval}: "
+                f"a scale-factor error on {finding['output']}.")
     elif kind == "sensor_bias":
         name = finding["output"]
         text = (f"The {column_phrase(name)} sensor reads {_number(abs(value))} {unit} "

@@ -71,6 +71,8 @@ from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_
 from validation.vehicles.effects import (
     Hypothesis,
     check_trim_start,
+    delayed_interval_means,
+    lagged_interval_means,
     simulate_each_recording,
     starts_at_trim,
 )
@@ -126,61 +128,6 @@ def model_value(reference: BlimpReference, term: str) -> float:
     raise KeyError(term)
 
 
-def _delayed_mean(signal_: np.ndarray, delay: float, time: np.ndarray) -> np.ndarray:
-    """Interval means of the zero-order-held ``signal_`` delayed by ``delay`` s (module docstring).
-
-    Parameters
-    ----------
-    signal_ : ndarray, shape (n,)
-        Row k held over ``[time[k], time[k+1])``; trim (0) before ``time[0]``.
-    delay : float
-        s, >= 0.
-    time : ndarray, shape (n,)
-        Strictly increasing sample times, s (even or not).
-
-    Returns
-    -------
-    ndarray, shape (n - 1,)
-        The delayed input's mean over each interval ``[time[k], time[k+1])``.
-    """
-    steps = np.diff(time)
-    # U(time[k]) = sum_{i<k} u_i h_i; U is linear between the knots, so interpolation is exact.
-    integral = np.concatenate(([0.0], np.cumsum(signal_[:-1] * steps)))
-    shifted = np.interp(time - delay, time, integral, left=0.0)  # U(time[k] - delay)
-    return np.diff(shifted) / steps
-
-
-def _lagged_means(signals: np.ndarray, time_constants: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Interval means of first-order lags' outputs for held inputs (module docstring), each lag
-    starting at trim (0).
-
-    Parameters
-    ----------
-    signals : ndarray, shape (m, n - 1)
-        Each lag's input, row ``[:, k]`` held over interval k.
-    time_constants : ndarray, shape (m,)
-        ``T`` of each lag, s, > 0.
-    steps : ndarray, shape (n - 1,)
-        Interval lengths ``h_k``, s.
-
-    Returns
-    -------
-    ndarray, shape (m, n - 1)
-        The mean of each lag's output ``z`` over each interval.
-    """
-    ratio = steps[None, :] / time_constants[:, None]  # h_k / T
-    decay = np.exp(-ratio)  # a_k
-    rise = -np.expm1(-ratio)  # 1 - a_k
-    mean_gain = rise / ratio  # (T / h_k) (1 - a_k)
-    lag_state = np.zeros(len(time_constants))  # z[k]
-    means = np.empty_like(signals)
-    for k in range(signals.shape[1]):
-        held = signals[:, k]
-        means[:, k] = held + (lag_state - held) * mean_gain[:, k]
-        lag_state = decay[:, k] * lag_state + rise[:, k] * held  # z[k+1]
-    return means
-
-
 def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.ndarray:
     """Recorded outputs of the blimp with each list of effects, all integrated together.
 
@@ -227,12 +174,12 @@ def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarr
         for effect in effects:  # delays first: a lag acts on the delayed input
             if effect["effect"] == "time_delay" and effect["value"] > 0:
                 j = INPUT_NAMES.index(effect["input"])
-                held[b, :, j] = _delayed_mean(inputs[:, j], effect["value"], time)
+                held[b, :, j] = delayed_interval_means(inputs[:, j], effect["value"], time)
         lags += [(b, INPUT_NAMES.index(effect["input"]), effect["value"]) for effect in effects
                  if effect["effect"] == "input_lag" and effect["value"] > 0]
     if lags:
         members, columns, time_constants = (np.array(values) for values in zip(*lags))
-        held[members, :, columns] = _lagged_means(held[members, :, columns], time_constants, np.diff(time))
+        held[members, :, columns] = lagged_interval_means(held[members, :, columns], time_constants, np.diff(time))
     return held
 
 

@@ -25,6 +25,7 @@ from validation.core.sampling import check_history, sampling_metadata
 from validation.vehicles.blimp_effects import BlimpEffects
 from validation.vehicles.bo105_effects import Bo105Effects
 from validation.vehicles.effects import EffectModel, check_effects
+from validation.vehicles.fmu_reference import FMUEffects
 from validation.vehicles.linear_effects import LinearEffects
 from validation.vehicles.registry import get_vehicle
 from validation.vehicles.rgblimp_effects import RGBlimpEffects
@@ -35,9 +36,10 @@ from validation.vehicles.state_space import state_space_from_dict
 #: of that name). A registry name no pattern matches (flight-test stand-ins, JSBSim aircraft)
 #: takes no effects.
 EFFECT_MODELS = {"bo105-<V>kt": (r"bo105-\d+kt", Bo105Effects), "blimp": (r"blimp", BlimpEffects),
-                 "rgblimp": (r"rgblimp", RGBlimpEffects), "state-space FILE.json": (r".+\.json", LinearEffects)}
-#: The references that take effects, as messages name them: "bo105-<V>kt, blimp, rgblimp and
-#: state-space FILE.json".
+                 "rgblimp": (r"rgblimp", RGBlimpEffects), "state-space FILE.json": (r".+\.json", LinearEffects),
+                 "FILE.fmu": (r".+\.fmu", FMUEffects)}
+#: The references that take effects, as messages name them: "bo105-<V>kt, blimp, rgblimp,
+#: state-space FILE.json and FILE.fmu".
 EFFECT_REFERENCES = ", ".join(list(EFFECT_MODELS)[:-1]) + " and " + list(EFFECT_MODELS)[-1]
 #: Suffix of the registry names of flight-test stand-ins (docs/vehicles.md, "Names and interface").
 _STAND_IN_SUFFIX = "-flight"

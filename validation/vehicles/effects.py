@@ -42,7 +42,8 @@ from validation.core.recordings import column_unit
 TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative": "term",
                "stability_derivative": "term", "sensor_bias": "output", "quadratic_drag": "term",
                "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
-               "added_mass": "term", "steady_wind": "term"}
+               "added_mass": "term", "steady_wind": "term", "input_gain": "input", "output_scale": "output",
+               "fmu_parameter": "term"}
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.
@@ -240,6 +241,64 @@ def starts_at_trim(reference: EffectModel, recording) -> None:
     """:meth:`EffectModel.start_state` of a reference whose recordings start at its own trim or
     rest state (docs/conventions.md, "Time"): None, whatever the recording."""
     return None
+
+
+def delayed_interval_means(signal_: np.ndarray, delay: float, time: np.ndarray) -> np.ndarray:
+    """Interval means of the zero-order-held ``signal_`` delayed by ``delay`` s: exact in the
+    input's integral over each interval, continuous and piecewise linear in ``delay``
+    (docstring of :mod:`validation.vehicles.blimp_effects`).
+
+    Parameters
+    ----------
+    signal_ : ndarray, shape (n,)
+        Row k held over ``[time[k], time[k+1])``; trim (0) before ``time[0]``.
+    delay : float
+        s, >= 0.
+    time : ndarray, shape (n,)
+        Strictly increasing sample times, s (even or not).
+
+    Returns
+    -------
+    ndarray, shape (n - 1,)
+        The delayed input's mean over each interval ``[time[k], time[k+1])``.
+    """
+    steps = np.diff(time)
+    # U(time[k]) = sum_{i<k} u_i h_i; U is linear between the knots, so interpolation is exact.
+    integral = np.concatenate(([0.0], np.cumsum(signal_[:-1] * steps)))
+    shifted = np.interp(time - delay, time, integral, left=0.0)  # U(time[k] - delay)
+    return np.diff(shifted) / steps
+
+
+def lagged_interval_means(signals: np.ndarray, time_constants: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Interval means of first-order lags' outputs for held inputs, each lag starting at trim (0):
+    the exact zero-order-hold discretisation taken interval by interval (docstring of
+    :mod:`validation.vehicles.blimp_effects`).
+
+    Parameters
+    ----------
+    signals : ndarray, shape (m, n - 1)
+        Each lag's input, row ``[:, k]`` held over interval k.
+    time_constants : ndarray, shape (m,)
+        ``T`` of each lag, s, > 0.
+    steps : ndarray, shape (n - 1,)
+        Interval lengths ``h_k``, s.
+
+    Returns
+    -------
+    ndarray, shape (m, n - 1)
+        The mean of each lag's output ``z`` over each interval.
+    """
+    ratio = steps[None, :] / time_constants[:, None]  # h_k / T
+    decay = np.exp(-ratio)  # a_k
+    rise = -np.expm1(-ratio)  # 1 - a_k
+    mean_gain = rise / ratio  # (T / h_k) (1 - a_k)
+    lag_state = np.zeros(len(time_constants))  # z[k]
+    means = np.empty_like(signals)
+    for k in range(signals.shape[1]):
+        held = signals[:, k]
+        means[:, k] = held + (lag_state - held) * mean_gain[:, k]
+        lag_state = decay[:, k] * lag_state + rise[:, k] * held  # z[k+1]
+    return means
 
 
 def check_trim_start(start, name: str) -> None:

@@ -212,16 +212,29 @@ class LinearEffects:
 
     def identification_manoeuvre(self, *, duration: float = 20.0, sample_time: float = DEFAULT_SAMPLE_TIME,
                                  variant: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """A 3-2-1-1 on each input in turn (Tischler & Remple 2012, ch. 5: one axis at a time),
-        each given the duration's share: 1 deg for an input in rad, 10 % of full travel
-        otherwise; variant 1 reverses the signs and the order and lengthens the steps by half."""
-        time = time_grid(duration=duration, sample_time=sample_time)
-        inputs = np.zeros((len(time), len(self.input_names)))
-        order = list(range(len(self.input_names)))[::(-1 if variant else 1)]
-        share = duration / len(order)
-        for slot, column in enumerate(order):
-            amplitude = math.radians(1.0) if self.reference.units[self.input_names[column]] == "rad" else 0.1
-            step_time = min(0.3 * (1.5 if variant else 1.0), (share - 0.5) / 7)
-            inputs[:, column] = three_two_one_one(time, amplitude=(-amplitude if variant else amplitude),
-                                                  step_time=step_time, start=slot * share + 0.5)
-        return time, inputs
+        """:func:`sequential_three_two_one_one` of the reference's inputs."""
+        return sequential_three_two_one_one(self.input_names, self.reference.units, duration=duration,
+                                            sample_time=sample_time, variant=variant)
+
+
+def sequential_three_two_one_one(input_names, units: dict, *, duration: float, sample_time: float,
+                                 variant: int) -> tuple[np.ndarray, np.ndarray]:
+    """A 3-2-1-1 on each input in turn (Tischler & Remple 2012, ch. 5: one axis at a time), each
+    given the duration's share: 1 deg for an input in rad (``units``: name -> unit), 10 % of full
+    travel otherwise; variant 1 reverses the signs and the order and lengthens the steps by half.
+
+    Returns
+    -------
+    time : ndarray, shape (n,)
+    inputs : ndarray, shape (n, len(input_names))
+    """
+    time = time_grid(duration=duration, sample_time=sample_time)
+    inputs = np.zeros((len(time), len(input_names)))
+    order = list(range(len(input_names)))[::(-1 if variant else 1)]
+    share = duration / len(order)
+    for slot, column in enumerate(order):
+        amplitude = math.radians(1.0) if units.get(input_names[column]) == "rad" else 0.1
+        step_time = min(0.3 * (1.5 if variant else 1.0), (share - 0.5) / 7)
+        inputs[:, column] = three_two_one_one(time, amplitude=(-amplitude if variant else amplitude),
+                                              step_time=step_time, start=slot * share + 0.5)
+    return time, inputs

@@ -83,8 +83,12 @@ def get_vehicle(name: str) -> Vehicle:
         return JSBSimVehicle(name.split(":", 1)[1])
     if name.endswith(".json"):
         return read_state_space(name)
+    if name.endswith(".fmu"):
+        from validation.vehicles.fmu_reference import FMUReference  # loads fmpy only when asked for
+
+        return FMUReference(name)
     raise BadInputError(f"unknown vehicle {name!r}; known: {', '.join(vehicle_names())} "
-                        "(any JSBSim aircraft as jsbsim:<name>, a state-space model as FILE.json)")
+                        "(any JSBSim aircraft as jsbsim:<name>, a state-space model as FILE.json, an FMU as FILE.fmu)")
 
 
 @functools.lru_cache(maxsize=1)

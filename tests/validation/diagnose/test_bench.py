@@ -195,7 +195,7 @@ def test_cli_with_several_seeds_writes_the_runs_and_their_summary(tmp_path, caps
 
 @pytest.mark.parametrize("argv, message", [
     (["--cases", "no-such-case"], "unknown case(s) no-such-case"),
-    (["--reference", "blimp-flight"], "bo105-<V>kt, blimp, rgblimp and state-space FILE.json references"),
+    (["--reference", "blimp-flight"], "bo105-<V>kt, blimp, rgblimp, state-space FILE.json and FILE.fmu references"),
     (["--reference", "bo105-85kt"], "no Bo105 model at 85 kt"),
 ])
 def test_cli_bad_input_exits_2(argv, message, tmp_path, capsys):

@@ -112,7 +112,7 @@ def test_bad_effects_are_refused(effect, message):
 
 
 def test_other_references_and_bo105_effects_on_the_blimp_are_refused():
-    with pytest.raises(BadInputError, match="bo105-<V>kt, blimp, rgblimp and state-space FILE.json"):
+    with pytest.raises(BadInputError, match="bo105-<V>kt, blimp, rgblimp, state-space FILE.json and FILE.fmu"):
         EffectVehicle("blimp-flight", [])
     with pytest.raises(BadInputError, match="is not one of"):
         EffectVehicle("blimp", [{"effect": "stability_derivative", "term": "M_q", "value": -1.0}])
@@ -171,7 +171,7 @@ def test_every_diagnosable_reference_keeps_the_effect_model_contract(name):
 def test_only_the_effect_references_take_effects(name, message):
     """One lookup and one message for every caller: what it is for, the references that take
     effects, and why this one does not."""
-    needs = "^doing X needs one of the bo105-<V>kt, blimp, rgblimp and state-space FILE.json references; "
+    needs = "^doing X needs one of the bo105-<V>kt, blimp, rgblimp, state-space FILE.json and FILE.fmu references; "
     with pytest.raises(BadInputError, match=needs) as error:
         effect_model(name, purpose="doing X")
     assert str(error.value).endswith(message)
