@@ -23,12 +23,12 @@ demo: $(STAMP)
 # BLAS thread each, or they fight over the cores.
 test: $(STAMP)
 	$(BIN)/ruff check gp_model validation fmu_src tests
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadscope $(PYTEST_ARGS)
 
 # Local shortcut: skip the end-to-end tests marked slow.
 test-fast: $(STAMP)
 	$(BIN)/ruff check gp_model validation fmu_src tests
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal -m "not slow" $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadscope -m "not slow" $(PYTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) build/* .pytest_cache

@@ -54,3 +54,14 @@ def rate_predictor_fmu(bo105_model_file, tmp_path_factory):
 @pytest.fixture(scope="session")
 def bo105_reference_fmu(bo105_speed_kt, tmp_path_factory):
     return build_bo105_reference_fmu(bo105_speed_kt, tmp_path_factory.mktemp("fmu"))
+
+
+def pytest_collection_modifyitems(config, items):
+    """Run the modules holding slow end-to-end tests first: on two workers (``make test``:
+    pytest-xdist, ``--dist loadscope``, a module's tests on one worker, so its module-scoped
+    fixtures, e.g. an end-to-end run whose results its tests check, are made once) the longest
+    jobs then start early instead of leaving one worker running a minute-long fixture while the
+    other idles at the end (longest processing time first, Graham, SIAM J. Appl. Math. 17(2),
+    1969)."""
+    slow_modules = {item.module.__name__ for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.module.__name__ not in slow_modules)  # stable: order kept within

@@ -26,8 +26,8 @@ from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 #: A buoyancy imbalance and a draught, well above the floors the RGBlimp weighs residuals by.
 TRUTH = [{"effect": "force_offset", "term": "Z_0", "value": 0.12},
          {"effect": "steady_wind", "term": "wind_x", "value": 0.1}]
-#: Samples of each concealed flight (1.5 s at 60 Hz).
-SAMPLES = 90
+#: Samples of each concealed flight (1 s at 60 Hz).
+SAMPLES = 60
 
 
 def _excerpt(number: int, samples: int = SAMPLES) -> Recording:

@@ -17,8 +17,8 @@ from validation.diagnose.fidelity import DEFAULT_TOLERANCES, read_tolerances
 
 @pytest.fixture(scope="module")
 def delayed():
-    """A 40 ms delay on longitudinal cyclic (the Bo105 at 80 kt, 20 s at 100 Hz)."""
-    return _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.04}])
+    """A 40 ms delay on longitudinal cyclic (the Bo105 at 80 kt, 12 s at 100 Hz)."""
+    return _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.04}], duration=12.0)
 
 
 def test_the_delay_fails_the_pitch_rate_band_before_correction_and_passes_after(delayed):

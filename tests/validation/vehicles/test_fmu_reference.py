@@ -14,8 +14,9 @@ from validation.vehicles.bo105_effects import identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 
-#: 8 s of the Bo105 manoeuvre at 50 Hz: short replays through a Python FMU.
-DURATION, STEP = 8.0, 0.02
+#: 6 s of the Bo105 manoeuvre at 50 Hz (its longitudinal 3-2-1-1 and lateral one): short
+#: replays through a Python FMU.
+DURATION, STEP = 6.0, 0.02
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +71,8 @@ def test_diagnose_through_the_fmu_names_what_the_built_in_reference_names(fmu):
     truth = [{"effect": "time_delay", "input": "theta_1s", "value": 0.06},
              {"effect": "stability_derivative", "term": "M_q", "value": -3.0}]
     aircraft = EffectVehicle("bo105-80kt", truth, noise_sd=SENSOR_NOISE_STD)
-    fit = aircraft.simulate(*identification_manoeuvre(duration=10.0, sample_time=STEP, variant=0), seed=1)
-    held = aircraft.simulate(*identification_manoeuvre(duration=10.0, sample_time=STEP, variant=1), seed=2)
+    fit = aircraft.simulate(*identification_manoeuvre(duration=DURATION, sample_time=STEP, variant=0), seed=1)
+    held = aircraft.simulate(*identification_manoeuvre(duration=DURATION, sample_time=STEP, variant=1), seed=2)
     built_in = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()["findings"]
     through_fmu = diagnose([fit], reference=fmu, holdout=[held]).as_dict()["findings"]
     assert [f.get("input") or f.get("term") for f in through_fmu] == [f.get("input") or f.get("term") for f in built_in]

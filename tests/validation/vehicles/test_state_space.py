@@ -46,7 +46,7 @@ def test_the_bo105_written_and_read_back_is_the_same_model(bo105_file):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", ["delay", "pair_lag_derivative"])
+@pytest.mark.parametrize("case", ["delay"])
 def test_diagnose_through_the_json_file_names_what_the_built_in_bo105_names(bo105_file, case):
     fit, held = _concealed(CASES[case])
     built_in = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()["findings"]
