@@ -150,9 +150,9 @@ def prepare(recordings, reference: EffectModel, *, holdout=None, file_format: st
         raise BadInputError("the recordings share no measured output; diagnose needs the same "
                             "outputs in every recording (including --holdout)")
     excited = _excited_inputs(sources, fit_mask, reference)
-    timing = "time_delay" in reference.kinds  # references whose inputs are perturbations from trim
     untestable = [f"{name}: never moves in the fitted data, so delays, lags and control derivatives "
-                  "on it cannot be tested" for name in reference.input_names if timing and name not in excited]
+                  "on it cannot be tested" for name in reference.input_names
+                  if not reference.absolute_inputs and name not in excited]
     measured = [np.column_stack([s.recording.output(n) for n in output_names]) for s in sources]
     floors = np.array([reference.min_noise_sd.get(n, 0.0) for n in output_names])
     noise_sd = [np.maximum(floors, [estimate_noise_sd(column, time=s.recording.time) for column in m.T])
@@ -277,11 +277,11 @@ def _split(sources: list[_Source]) -> tuple[list, list, str]:
 
 def _excited_inputs(sources: list[_Source], fit_mask: list, reference: EffectModel) -> list[str]:
     """Inputs that move in the fitted samples; BadInputError when none does on a reference whose
-    inputs are perturbations from trim (one that takes delays: nothing acts there without a
-    move; the RGBlimp's absolute thrusts act in a flight that holds them)."""
+    inputs are perturbations from trim (nothing acts there without a move;
+    :attr:`~validation.vehicles.effects.EffectModel.absolute_inputs`)."""
     fit_inputs = np.vstack([s.recording.inputs[m] for s, m in zip(sources, fit_mask) if m.any()])
     excited = [name for j, name in enumerate(reference.input_names) if np.ptp(fit_inputs[:, j]) > EXCITATION_THRESHOLD]
-    if not excited and "time_delay" in reference.kinds:
+    if not excited and not reference.absolute_inputs:
         raise BadInputError("no input moves in the data to fit: nothing to identify (fly a 3-2-1-1 or "
                             "doublet on at least one control)")
     return excited

@@ -82,10 +82,10 @@ def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONF
     with progress_bar("diagnose rgblimp", enabled=progress, unit="fit") as update:
         diagnosis = diagnose(diagnosed, reference="rgblimp", holdout=held_out, seed=seed, folds=FOLDS,
                              progress=update)
-    with_gp = _corrected_gp_states(diagnosis, [read_rgblimp_flight(p).recording for p in held_out])
+    held_out_recordings = [read_rgblimp_flight(p).recording for p in held_out]
+    with_gp = _corrected_gp_states(diagnosis, held_out_recordings)
     flights = []
-    for split, path, gp_states in zip(splits, held_out, with_gp):
-        recording = read_rgblimp_flight(path).recording
+    for split, path, recording, gp_states in zip(splits, held_out, held_out_recordings, with_gp):
         predicted = {"physics": RGBlimpReference().simulate_states(recording.time, recording.inputs,
                                                                    initial_state=recording.outputs[0]),
                      "corrected": diagnosis.corrected.replay_states(recording),

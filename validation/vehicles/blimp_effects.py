@@ -313,6 +313,7 @@ class BlimpEffects:
              "force_offset")
     terms = TERMS
     batches_simulations = True
+    absolute_inputs = False
     needs_even_sampling = False
     sensor_noise_sd = SENSOR_NOISE_STD
     min_noise_sd = {}

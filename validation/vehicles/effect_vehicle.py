@@ -172,7 +172,7 @@ class EffectVehicle:
         """The model file's content (see :meth:`save`)."""
         content = {"format": _FILE_FORMAT, "version": _FILE_VERSION, "reference": self.reference_name,
                    "effects": self.effects, "noise_sd": self.noise_sd}
-        if isinstance(self._reference, LinearEffects) and not isinstance(self._reference, Bo105Effects):
+        if self._reference.family == LinearEffects.family:  # a user's state-space model: carried along
             content["reference_model"] = self._reference.reference.as_dict()
         return content
 

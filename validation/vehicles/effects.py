@@ -123,6 +123,10 @@ class EffectModel(Protocol):
         concealed-effect bench makes.
     sample_time : float
         s, the interval of its identification manoeuvre's recordings (and of the bench's).
+    absolute_inputs : bool
+        Whether its inputs are absolute values that act in a flight that holds them (the
+        RGBlimp's thrusts and gondola position) rather than perturbations from trim, where
+        nothing acts until an input moves and a diagnosis needs an input that moves.
     residual_gp_states : tuple of str
         The states whose replayed values (and rates) the residual GPs of a diagnosis see: all
         of them, or without those a residual cannot depend on (where the vehicle is and which way
@@ -143,6 +147,7 @@ class EffectModel(Protocol):
     needs_even_sampling: bool
     sensor_noise_sd: dict[str, float]
     sample_time: float
+    absolute_inputs: bool
     residual_gp_states: tuple[str, ...]
     min_noise_sd: dict[str, float]
 

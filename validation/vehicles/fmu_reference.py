@@ -42,14 +42,13 @@ from validation.vehicles.effects import (
     simulate_each_recording,
 )
 from validation.vehicles.linear_effects import sequential_three_two_one_one
+from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME
 
 _log = logging.getLogger(__name__)
 #: Suffix of the start-value parameters flightgp's FMUs (and others) expose per output.
 START_SUFFIX = "_start"
 #: Longest stretch of a recording's start averaged into the start state, s (:meth:`FMUEffects.start_state`).
 START_WINDOW = 0.5
-#: Default step of an FMU without a default experiment step, s.
-DEFAULT_SAMPLE_TIME = 0.01
 
 
 def _read_description(path: Path):
@@ -69,6 +68,17 @@ def _read_description(path: Path):
     if description.coSimulation is None:
         raise BadInputError(f"{path}: a model-exchange FMU; diagnose takes FMI 2.0 co-simulation FMUs")
     return description
+
+
+def _start(variable) -> float:
+    """A Real variable's start value (0 without one)."""
+    return float(variable.start) if variable.start is not None else 0.0
+
+
+def _unit(variable) -> str:
+    """A Real variable's unit, its declared type's, or ``"1"``."""
+    declared = variable.declaredType.unit if variable.declaredType is not None else None
+    return variable.unit or declared or "1"
 
 
 class FMUReference:
@@ -94,7 +104,8 @@ class FMUReference:
         Output -> the name of its start-value parameter and that parameter's start value, for the
         outputs that have one.
     sample_time : float
-        The default experiment's step, or :data:`DEFAULT_SAMPLE_TIME`.
+        The default experiment's step, or
+        :data:`validation.vehicles.state_space.DEFAULT_SAMPLE_TIME`.
     """
 
     def __init__(self, path):
@@ -108,17 +119,15 @@ class FMUReference:
         if not self.input_names or not self.state_names:
             raise BadInputError(f"{path}: the FMU needs Real inputs and outputs to replay recordings; it has "
                                 f"{len(self.input_names)} and {len(self.state_names)}")
-        self._references = {v.name: v.valueReference for v in real}
+        by_name = {v.name: v for v in real}
+        self._references = {name: v.valueReference for name, v in by_name.items()}
         self.start_parameters = {v.name[:-len(START_SUFFIX)]: v.name for v in real
                                  if v.causality == "parameter" and v.name.endswith(START_SUFFIX)
                                  and v.name[:-len(START_SUFFIX)] in self.state_names}
-        self.start_values = {output: float(next(v.start for v in real if v.name == parameter) or 0.0)
-                             for output, parameter in self.start_parameters.items()}
-        self.parameters = {v.name: (float(v.start) if v.start is not None else 0.0,
-                                    v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1",
-                                    v.description or v.name)
-                           for v in real if v.causality == "parameter" and v.name not in self.start_parameters.values()}
-        self.units = {v.name: v.unit or "1" for v in real if v.name in self.input_names + self.state_names}
+        self.start_values = {output: _start(by_name[parameter]) for output, parameter in self.start_parameters.items()}
+        self.parameters = {v.name: (_start(v), _unit(v), v.description or v.name) for v in real
+                           if v.causality == "parameter" and v.name not in self.start_parameters.values()}
+        self.units = {name: _unit(by_name[name]) for name in self.input_names + self.state_names}
         experiment = description.defaultExperiment
         self.sample_time = float(experiment.stepSize) if experiment is not None and experiment.stepSize else \
             DEFAULT_SAMPLE_TIME
@@ -126,19 +135,24 @@ class FMUReference:
         self._unzipdir = None
 
     def _fmu(self):
-        """The kept instance: extracted and instantiated at the first replay, reset before the next."""
+        """The kept instance: extracted and instantiated at the first replay, reset before the next
+        (instantiated afresh when it cannot be reset, e.g. after a Fatal status)."""
         from fmpy import extract
         from fmpy.fmi2 import FMU2Slave
 
-        if self._instance is None:
+        if self._unzipdir is None:
             self._unzipdir = extract(str(self.path), unzipdir=tempfile.mkdtemp(prefix="flightgp-fmu-"))
             weakref.finalize(self, shutil.rmtree, self._unzipdir, True)
-            self._instance = FMU2Slave(guid=self._description.guid, unzipDirectory=self._unzipdir,
-                                       modelIdentifier=self._description.coSimulation.modelIdentifier,
-                                       instanceName="flightgp_diagnose")
-            self._instance.instantiate()
-        else:
-            self._instance.reset()
+        if self._instance is not None:
+            try:
+                self._instance.reset()
+                return self._instance
+            except Exception:  # noqa: BLE001 - after a Fatal status the instance cannot be reset
+                self._instance.freeInstance()
+        self._instance = FMU2Slave(guid=self._description.guid, unzipDirectory=self._unzipdir,
+                                   modelIdentifier=self._description.coSimulation.modelIdentifier,
+                                   instanceName="flightgp_diagnose")
+        self._instance.instantiate()
         return self._instance
 
     def replay(self, time: np.ndarray, inputs: np.ndarray, *, parameters: dict | None = None,
@@ -186,6 +200,7 @@ class FMUEffects:
     family = "fmu"
     kinds = ("time_delay", "input_lag", "input_gain", "sensor_bias", "output_scale", "fmu_parameter")
     batches_simulations = False
+    absolute_inputs = False
     needs_even_sampling = True
     min_noise_sd = {}
     simulate_recordings = simulate_each_recording

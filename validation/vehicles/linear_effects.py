@@ -142,6 +142,7 @@ class LinearEffects:
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias")
     batches_simulations = False
+    absolute_inputs = False
     needs_even_sampling = True
     min_noise_sd = {}
     start_state = starts_at_trim

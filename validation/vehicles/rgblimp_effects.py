@@ -270,6 +270,7 @@ class RGBlimpEffects:
     kinds = tuple(TERMS)
     terms = TERMS
     batches_simulations = True
+    absolute_inputs = True
     needs_even_sampling = True
     sensor_noise_sd = SENSOR_NOISE_STD
     min_noise_sd = MIN_NOISE_SD
