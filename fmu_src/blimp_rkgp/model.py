@@ -45,7 +45,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from fmu_src.fmi.greybox import FirstOrderPropagation, ResidualGPs, pack_gp_parts
+from fmu_src.fmi.greybox import FirstOrderPropagation, ResidualGPs, checked_state_columns, pack_gp_parts
 from fmu_src.fmi.runtime import Envelope, ModelFormatError, check_header, freeze, model_header, read_model_file
 from fmu_src.fmi.slave import TIME_TOLERANCE
 from validation.vehicles.blimp_equations import INPUT_NAMES, STATE_NAMES, parameters_from_vector, rk4_advance
@@ -132,7 +132,7 @@ class RKGPModel:
         try:
             self.params = SimpleNamespace(**parameters_from_vector(arrays["parameter_names"], arrays["parameters"]))
             self.max_step = float(arrays["max_step"])
-            self.state_columns = np.asarray(arrays["state_columns"], dtype=int)
+            self.state_columns = checked_state_columns(arrays["state_columns"], len(STATE_NAMES))
             self.command_lags = np.array(arrays["command_lags"], dtype=float).reshape(-1)
             self.lag_command_columns = np.array(arrays["lag_command_columns"], dtype=int).reshape(-1)
             propagation_step = float(arrays["propagation_step"])

@@ -52,6 +52,16 @@ PER_PART = {"basis": 2, "weights": 2, "variance_factor": 2, "kernel_weights": 1,
             "output_mean": 1, "output_scale": 1}
 
 
+def checked_state_columns(columns, n_states: int) -> np.ndarray:
+    """A model file's ``state_columns`` (the states the GPs see) as distinct integer columns of
+    an ``n_states`` state; ModelFormatError otherwise (a native FMU would read outside its state)."""
+    columns = np.asarray(columns)
+    if columns.ndim != 1 or not np.issubdtype(columns.dtype, np.integer) or len(set(columns.tolist())) != len(columns) \
+            or (len(columns) and not (0 <= columns.min() and columns.max() < n_states)):
+        raise ModelFormatError(f"state_columns {columns.tolist()} must be distinct columns 0..{n_states - 1}")
+    return columns.astype(int)
+
+
 def pack_gp_parts(parts) -> dict:
     """Arrays for ``numpy.savez`` of the GP parts ``parts`` (a list of dicts of :data:`PER_PART`
     arrays), part ``p``'s under ``"<p>/"``."""

@@ -38,7 +38,7 @@ import json
 
 import numpy as np
 
-from fmu_src.fmi.greybox import FirstOrderPropagation, ResidualGPs, pack_gp_parts
+from fmu_src.fmi.greybox import FirstOrderPropagation, ResidualGPs, checked_state_columns, pack_gp_parts
 from fmu_src.fmi.runtime import Envelope, ModelFormatError, check_header, freeze, model_header, read_model_file
 from validation.models.rgblimp_step import carry_yaw, parameters_from_dict
 from validation.vehicles.rgblimp_equations import INPUT_NAMES, STATE_NAMES, advance
@@ -105,7 +105,7 @@ class RGBlimpRKGPModel:
             self.params = parameters_from_dict(physics["parameters"])
             self.thrust_gain = float(physics["thrust_gain"])
             self.wind = np.array(physics["wind"], dtype=float)
-            self.state_columns = np.asarray(arrays["state_columns"], dtype=int)
+            self.state_columns = checked_state_columns(arrays["state_columns"], len(STATE_NAMES))
             propagation_step = float(arrays["propagation_step"])
             self.input_names = tuple(str(name) for name in np.ravel(arrays["gp_input_names"]))
             envelope_low, envelope_high = arrays["envelope_low"], arrays["envelope_high"]

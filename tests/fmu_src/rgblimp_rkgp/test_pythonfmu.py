@@ -89,7 +89,7 @@ def test_refuses_model_files_it_cannot_carry(problem, rgblimp_trained, rgblimp_m
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("change", ["not JSON", "no wind", "a parameter short"])
+@pytest.mark.parametrize("change", ["not JSON", "no wind", "a parameter short", "a state column out of range"])
 def test_a_corrupt_fmu_model_file_is_refused_at_load(change, rgblimp_model_file, tmp_path):
     """Inside the FMU the model file's physics is read again (validation.models.rgblimp_step): a
     corrupt one is a ModelFormatError, which the FMU logs when it initialises."""
@@ -99,12 +99,15 @@ def test_a_corrupt_fmu_model_file_is_refused_at_load(change, rgblimp_model_file,
         arrays["physics"] = np.array("{rgblimp")
     elif change == "no wind":
         del physics["wind"]
-    else:
+    elif change == "a parameter short":
         del physics["parameters"]["hull_cg"]
+    else:  # a native FMU would read outside its state
+        arrays["state_columns"] = np.array([3, 4, 12])
     if change != "not JSON":
         arrays["physics"] = np.array(json.dumps(physics))
     with pytest.raises(ModelFormatError, match={"not JSON": "unusable", "no wind": "wind",
-                                                 "a parameter short": "hull_cg"}[change]):
+                                                 "a parameter short": "hull_cg",
+                                                 "a state column out of range": "distinct columns 0..11"}[change]):
         RGBlimpRKGPModel(arrays)
 
 
