@@ -17,6 +17,12 @@ from fmu_src.jsbsim_aircraft.slave import JSBSimAircraft, jsbsim_variables, pack
 #: Travel of each normalised JSBSim command (``fcs/<control>-cmd-norm``); every other command
 #: travels -1..1.
 COMMAND_TRAVEL = {"fcs/collective-cmd-norm": (0.0, 1.0)}
+#: The FMU's parameters (:data:`fmu_src.jsbsim_aircraft.slave.PARAMETERS`) by how it reaches its
+#: starting condition (``StartingRecipe.method``). A helicopter flown by its script to the hover
+#: has the wind only: its rotors' forces do not act at the aerodynamic reference point, which
+#: carries the fuselage's small aerodynamic forces alone (moving it 0.1 m either way changes the
+#: ah1s's starting body velocities by about 0.02 m/s, measured with JSBSim 1.3.3).
+METHOD_PARAMETERS = {"trim": ("wind_north", "wind_east", "aero_ref_shift_x"), "script": ("wind_north", "wind_east")}
 
 
 def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path:
@@ -25,7 +31,8 @@ def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path
     The FMU reaches the starting condition of :class:`validation.vehicles.jsbsim.JSBSimVehicle`
     (fixed-wing: trimmed level cruise; ``ah1s``: hover from its flight-test script) with the same
     code and recipe (:mod:`validation.vehicles.jsbsim_start`); the recipe travels in the model
-    file. The host's Python needs the ``jsbsim`` package.
+    file. Its parameters (:data:`METHOD_PARAMETERS`) change the starting condition; at their start
+    values it is the vehicle's. The host's Python needs the ``jsbsim`` package.
 
     Parameters
     ----------
@@ -58,15 +65,19 @@ def build_jsbsim_fmu(aircraft: str, out_dir, *, name: str | None = None) -> Path
     properties = vehicle.control_properties
     controls = [(n, properties[n], *COMMAND_TRAVEL.get(properties[n], (-1.0, 1.0))) for n in vehicle.input_names]
     states = [(n, *jsbsim_vehicle.STATE_PROPERTIES[n]) for n in vehicle.state_names]
-    arrays = pack_model(recipe=vehicle.recipe, jsbsim_version=jsbsim.__version__, controls=controls, states=states)
+    parameters = METHOD_PARAMETERS[vehicle.recipe.method]
+    arrays = pack_model(recipe=vehicle.recipe, jsbsim_version=jsbsim.__version__, controls=controls, states=states,
+                        parameters=parameters)
     trim = ", ".join(f"{k} {v:.4g}" for k, v in steady.metadata["trim"].items())
     description = (f"JSBSim {aircraft} {_condition_phrase(vehicle.recipe)} (trim: {trim}); inputs "
                    f"{', '.join(vehicle.input_names)} (normalised command perturbations), outputs "
-                   f"{', '.join(vehicle.state_names)} (SI, absolute); step a multiple of 0.01 s. Needs the jsbsim "
+                   f"{', '.join(vehicle.state_names)} (SI, absolute), parameters {', '.join(parameters)} "
+                   f"(applied before the start); step a multiple of 0.01 s. Needs the jsbsim "
                    f"Python package ({jsbsim.__version__}) in the host's Python")
     state_signals = [signal(n, "state") for n in vehicle.state_names]
     interface = {"inputs": tuple((n, low, high, signal(n, "input").phrase) for n, _, low, high in controls),
-                 "states": tuple((s.name, s.unit, s.phrase, float(steady.output(s.name)[0])) for s in state_signals)}
+                 "states": tuple((s.name, s.unit, s.phrase, float(steady.output(s.name)[0])) for s in state_signals),
+                 "parameters": parameters}
     return build_pythonfmu(target, slave_class=JSBSimAircraft, variables=(jsbsim_variables, interface),
                            attributes={}, description=description, arrays=arrays, runtime_packages=("jsbsim",))
 

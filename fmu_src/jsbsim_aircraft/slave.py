@@ -22,6 +22,16 @@ Inputs are normalised stick and pedal commands (``fcs/<control>-cmd-norm``) as p
 from their values at the starting condition; outputs are JSBSim's body velocities (m/s), body
 rates (rad/s) and Euler angles (rad), absolute values, in SI.
 
+FMU parameters
+--------------
+Fixed parameters (:data:`PARAMETERS`; which ones an FMU has is in its model file) change JSBSim
+before the starting procedure, so the FMU starts in the steady condition they make: a steady
+wind (``wind_north``, ``wind_east``) and, for a trimmed aircraft, the aerodynamic reference
+point (``aero_ref_shift_x``). Before, not after: a recording that starts at trim started in
+steady flight in those conditions, and a change made after the trim would be a step (a gust, a
+pitching moment) at ``t0`` that such a recording does not show. Each starts at 0, where nothing
+is written to JSBSim, so by default the FMU is the one without parameters bit for bit.
+
 Timing (docs/conventions.md, "FMU sampling convention")
 -------------------------------------------------------
 JSBSim integrates with a fixed step of 0.01 s. The communication step ``h`` must be a whole
@@ -50,17 +60,44 @@ import numpy as np
 
 from fmu_src.fmi.runtime import check_header, model_header, read_model_file
 from fmu_src.fmi.slave import FlightgpSlave, ModelFailure, Variable
-from validation.vehicles.jsbsim_start import StartingRecipe, message_buffer, routed_messages, start_fdm
+from validation.vehicles.jsbsim_start import (
+    StartingRecipe,
+    TrimFailure,
+    message_buffer,
+    routed_messages,
+    start_fdm,
+)
 
 FORMAT = "flightgp-fmu-jsbsim"
-VERSION = 2
+VERSION = 3
 #: JSBSim's integration step, s (validation.vehicles.jsbsim.JSBSimVehicle.sample_time).
 JSBSIM_STEP = 0.01
 #: Relative tolerance on "the step is a whole multiple of JSBSIM_STEP".
 _MULTIPLE_TOLERANCE = 1e-6
+#: Metres per foot and per inch (exact: the international foot and inch), JSBSim's units.
+_FOOT, _INCH = 0.3048, 0.0254
+#: The parameters of :func:`validation.vehicles.jsbsim_start.start_fdm` that move the wind.
+_WIND = ("wind_north", "wind_east")
+#: Every parameter a JSBSim aircraft FMU may have (docs/fmus.md, "JSBSim aircraft"): name ->
+#: (unit, the JSBSim property it changes, factor from the parameter to that change in JSBSim's
+#: unit, what it is). Each starts at 0 and is applied before the starting procedure
+#: (:func:`start_changes`). JSBSim's structural x axis points aft, body x forward: hence the sign
+#: of ``aero_ref_shift_x``'s factor.
+PARAMETERS = {
+    "wind_north": ("m/s", "atmosphere/wind-north-fps", 1.0 / _FOOT,
+                   "steady wind, the air's velocity toward the north, present before the starting "
+                   "condition is reached (default 0: still air)"),
+    "wind_east": ("m/s", "atmosphere/wind-east-fps", 1.0 / _FOOT,
+                  "steady wind, the air's velocity toward the east, present before the starting "
+                  "condition is reached (default 0: still air)"),
+    "aero_ref_shift_x": ("m", "metrics/aero-rp-x-in", -1.0 / _INCH,
+                         "forward shift of the aerodynamic reference point, where JSBSim applies the "
+                         "aerodynamic forces, made before trim: for the aerodynamic moments, the centre of "
+                         "gravity that much further aft (default 0: as in the aircraft file)"),
+}
 
 
-def pack_model(*, recipe: StartingRecipe, jsbsim_version: str, controls, states) -> dict:
+def pack_model(*, recipe: StartingRecipe, jsbsim_version: str, controls, states, parameters=()) -> dict:
     """Arrays of the FMU's model file (strings as numpy unicode arrays; no pickle).
 
     Parameters
@@ -73,7 +110,12 @@ def pack_model(*, recipe: StartingRecipe, jsbsim_version: str, controls, states)
     controls : sequence of (input name, property, low, high)
         Each input, the JSBSim command it perturbs and that command's travel.
     states : sequence of (output name, property, factor to SI)
+    parameters : sequence of str
+        The FMU's parameters, names of :data:`PARAMETERS`.
     """
+    unknown = [name for name in parameters if name not in PARAMETERS]
+    if unknown:
+        raise ValueError(f"unknown JSBSim FMU parameters {unknown}; known: {list(PARAMETERS)}")
     return {**model_header(FORMAT, VERSION), "recipe": np.array(recipe.to_json()),
             "jsbsim_version": np.array(jsbsim_version),
             "input_names": np.array([c[0] for c in controls], dtype=str),
@@ -82,10 +124,31 @@ def pack_model(*, recipe: StartingRecipe, jsbsim_version: str, controls, states)
             "control_high": np.array([c[3] for c in controls], dtype=float),
             "state_names": np.array([s[0] for s in states], dtype=str),
             "state_properties": np.array([s[1] for s in states], dtype=str),
-            "state_factors": np.array([s[2] for s in states], dtype=float)}
+            "state_factors": np.array([s[2] for s in states], dtype=float),
+            "parameter_names": np.array(list(parameters), dtype=str)}
 
 
-def jsbsim_variables(*, inputs, states) -> tuple:
+def start_changes(parameters: dict) -> dict:
+    """The ``wind`` and ``shifts`` of :func:`validation.vehicles.jsbsim_start.start_fdm` for
+    parameter values.
+
+    Parameters
+    ----------
+    parameters : dict of str -> float
+        Names of :data:`PARAMETERS` and their values in SI units (m/s, m); an absent one is 0.
+
+    Returns
+    -------
+    dict
+        ``{"wind": (north, east) in ft/s, "shifts": ((property, amount in JSBSim's unit), ...)}``.
+    """
+    wind = tuple(parameters.get(name, 0.0) * PARAMETERS[name][2] for name in _WIND)
+    shifts = tuple((PARAMETERS[name][1], value * PARAMETERS[name][2])
+                   for name, value in parameters.items() if name not in _WIND)
+    return {"wind": wind, "shifts": shifts}
+
+
+def jsbsim_variables(*, inputs, states, parameters=()) -> tuple:
     """The variable table of a JSBSim aircraft FMU.
 
     Parameters
@@ -94,13 +157,18 @@ def jsbsim_variables(*, inputs, states) -> tuple:
         Controls: name, the command's travel (normalised) and what it is.
     states : sequence of (name, unit, phrase, start)
         ``start``: the value at the starting condition (measured at build time, so that the
-        outputs' ``initial="exact"`` start values are the values after initialisation).
+        outputs' ``initial="exact"`` start values are the values after initialisation with the
+        parameters at their start values).
+    parameters : sequence of str
+        Names of :data:`PARAMETERS`.
 
     Returns
     -------
     tuple of Variable
         The control perturbations (inputs; declared range: the travel's width either way, the
-        command itself is checked against the travel at each step) and the states (outputs).
+        command itself is checked against the travel at each step), the states (outputs) and
+        the parameters (fixed, start 0, any finite value: the starting procedure says at
+        initialisation what JSBSim cannot start with).
     """
     table = [Variable(name, "input", "continuous", None, "1",
                       f"{phrase} (normalised, full travel {low:g}..{high:g}): perturbation from its "
@@ -110,6 +178,9 @@ def jsbsim_variables(*, inputs, states) -> tuple:
     table += [Variable(name, "output", "continuous", "exact", unit, f"{phrase} (JSBSim, absolute value)",
                        float(start))
               for name, unit, phrase, start in states]
+    table += [Variable(name, "parameter", "fixed", "exact", PARAMETERS[name][0],
+                       f"{PARAMETERS[name][3]}; JSBSim {PARAMETERS[name][1]}", 0.0)
+              for name in parameters]
     return tuple(table)
 
 
@@ -136,6 +207,11 @@ class JSBSimAircraft(FlightgpSlave):
         missing = [str(n) for n in (*model["input_names"], *model["state_names"]) if str(n) not in declared]
         if missing:
             raise ValueError(f"the model file's signals {missing} have no FMU variables")
+        parameters = sorted(str(n) for n in model["parameter_names"])
+        declared_parameters = sorted(v.name for v in self.VARIABLES if v.causality == "parameter")
+        if parameters != declared_parameters or not set(parameters) <= set(PARAMETERS):
+            raise ValueError(f"the model file's parameters {parameters} are not the FMU's parameter "
+                             f"variables {declared_parameters} (known parameters: {list(PARAMETERS)})")
         self._jsbsim, self._model = jsbsim, model
         self._recipe = StartingRecipe.from_json(str(model["recipe"]))
         self._log_sink = message_buffer(_fmi_log_of(self))
@@ -150,10 +226,17 @@ class JSBSimAircraft(FlightgpSlave):
         if not (root / "aircraft" / aircraft / f"{aircraft}.xml").is_file():
             raise FileNotFoundError(f"the host's JSBSim ({root}) has no aircraft {aircraft!r}")
         self._fdm = None  # until started: input_problems checks no travel against an old trim
+        parameters = {str(name): self.values[str(name)] for name in model["parameter_names"]}
+        changed = ", ".join(f"{name} = {value:.6g} {PARAMETERS[name][0]}"
+                            for name, value in parameters.items() if value)
         with routed_messages(self._log_sink):
-            fdm = start_fdm(self._recipe, dt=JSBSIM_STEP)
+            try:
+                fdm = start_fdm(self._recipe, dt=JSBSIM_STEP, **start_changes(parameters))
+            except TrimFailure as failure:
+                raise TrimFailure(f"{failure} (parameters {changed})" if changed else str(failure)) from None
             trim = np.array([fdm[str(name)] for name in model["control_properties"]])
-        self.log_info(f"JSBSim {self._jsbsim.__version__}, {aircraft} at its starting condition: "
+        self.log_info(f"JSBSim {self._jsbsim.__version__}, {aircraft} at its starting condition"
+                      + (f" with {changed}" if changed else "") + ": "
                       + ", ".join(f"{n} trim {v:.6g}" for n, v in zip(model["input_names"], trim.tolist()))
                       + f"; {fdm['velocities/vc-kts']:.4g} kt calibrated, {fdm['position/h-sl-ft']:.6g} ft")
         self._fdm, self._trim = fdm, trim

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import math
 from dataclasses import asdict, dataclass
 
 #: How a recipe reaches the starting condition: trimmed by JSBSim, or flown by a script.
@@ -82,7 +83,8 @@ class StartingRecipe:
         return cls(**json.loads(text))
 
 
-def start_fdm(recipe: StartingRecipe, *, dt: float, output_dir: str | None = None):
+def start_fdm(recipe: StartingRecipe, *, dt: float, output_dir: str | None = None,
+              wind: tuple = (0.0, 0.0), shifts: tuple = ()):
     """A JSBSim instance at the steady starting condition of ``recipe``.
 
     Parameters
@@ -94,6 +96,21 @@ def start_fdm(recipe: StartingRecipe, *, dt: float, output_dir: str | None = Non
         Where output files that the aircraft or script asks for would go (JSBSim's default: the
         current folder). Output is disabled once the model or script is loaded, so none is
         written; the folder guards against one that is enabled later.
+    wind : (float, float)
+        A steady horizontal wind, ft/s: the air's velocity toward the north and toward the east
+        (JSBSim's ``atmosphere/wind-north-fps``, ``wind-east-fps``). It blows from before the
+        starting condition is reached: it goes into JSBSim's initial conditions (``ic/vw-mag-fps``
+        and ``ic/vw-dir-deg``, the direction the air moves toward), from which ``run_ic`` and every
+        trim iteration start the atmosphere. ``"trim"``: the airspeed, heading and climb angle
+        that the initial conditions set stay, the airspeed and climb angle relative to the air,
+        and the ground velocity takes the wind (``ic/vn-fps``, ``ic/ve-fps``); JSBSim's full trim
+        leaves the sideslip alone, so the aircraft trims as in still air (to the trim's
+        tolerance), crabbing, and drifts with the air. ``"script"``: the script's initial ground
+        velocity (at rest on the ground) stays, and the script flies in the wind.
+    shifts : sequence of (str, float)
+        JSBSim properties and amounts added to their values as the model or script loaded them,
+        before the initial conditions, ``run_ic`` and the trim or script (e.g.
+        ``("metrics/aero-rp-x-in", -3.9)``: the aerodynamic reference point 3.9 in forward).
 
     Returns
     -------
@@ -104,6 +121,14 @@ def start_fdm(recipe: StartingRecipe, *, dt: float, output_dir: str | None = Non
     ------
     TrimFailure
         ``method == "trim"`` and JSBSim cannot trim the aircraft there.
+    RuntimeError
+        JSBSim's atmosphere does not hold ``wind`` once the initial conditions are run (a JSBSim
+        whose initial conditions treat the wind otherwise than 1.3.3's).
+
+    Notes
+    -----
+    With no wind and no shift nothing is set beyond the recipe, so the start is the recipe's
+    bit for bit.
     """
     import jsbsim
 
@@ -115,25 +140,73 @@ def start_fdm(recipe: StartingRecipe, *, dt: float, output_dir: str | None = Non
         fdm.load_script(recipe.script)
         fdm.disable_output()
         fdm.set_dt(dt)
+        _shift(fdm, shifts)
+        _blow(fdm, wind, keep_airspeed=False)
         fdm.run_ic()
+        _check_wind(fdm, wind)
         for _ in range(int(round(recipe.script_time / dt))):
             fdm.run()
     else:
         fdm.load_model(recipe.aircraft)
         fdm.disable_output()
         fdm.set_dt(dt)
+        _shift(fdm, shifts)
         for name, value in recipe.initial_conditions:
             fdm[name] = value
+        _blow(fdm, wind, keep_airspeed=True)
         fdm.run_ic()
+        _check_wind(fdm, wind)
         fdm["propulsion/set-running"] = -1  # -1: all engines
         try:
             fdm.do_trim(1)  # 1 = tFull: all six accelerations to zero
         except jsbsim.TrimFailureError:
             conditions = ", ".join(f"{name} = {value:g}" for name, value in recipe.initial_conditions)
-            raise TrimFailure(f"JSBSim cannot trim {recipe.aircraft} at {conditions}") from None
+            changes = "".join(f", {name} {amount:+g}" for name, amount in shifts if amount)
+            changes += f", wind {wind[0]:g} ft/s north, {wind[1]:g} ft/s east" if any(wind) else ""
+            raise TrimFailure(f"JSBSim cannot trim {recipe.aircraft} at {conditions}{changes}") from None
     for name, value in recipe.after_start:
         fdm[name] = value
     return fdm
+
+
+def _shift(fdm, shifts) -> None:
+    """Add each amount of ``shifts`` to its property (zeros are not written)."""
+    for name, amount in shifts:
+        if amount:
+            fdm[name] = fdm[name] + amount
+
+
+def _blow(fdm, wind, *, keep_airspeed: bool) -> None:
+    """Put the horizontal ``wind`` (ft/s north, east) into the initial conditions
+    (:func:`start_fdm`); nothing when it is calm. JSBSim's wind setters keep the ground
+    velocity, so to keep the airspeed the ground velocity is then moved by the wind."""
+    north, east = (float(w) for w in wind)
+    if not (north or east):
+        return
+    ground = (fdm["ic/vn-fps"] + north, fdm["ic/ve-fps"] + east)
+    fdm["ic/vw-mag-fps"] = math.hypot(north, east)
+    fdm["ic/vw-dir-deg"] = math.degrees(math.atan2(east, north))
+    if keep_airspeed:
+        fdm["ic/vn-fps"], fdm["ic/ve-fps"] = ground
+
+
+def _check_wind(fdm, wind) -> None:
+    """Raise RuntimeError unless JSBSim's atmosphere holds ``wind`` (ft/s north, east) after
+    ``run_ic``; nothing is read when it is calm."""
+    import jsbsim
+
+    if not any(wind):
+        return
+    held = (fdm["atmosphere/wind-north-fps"], fdm["atmosphere/wind-east-fps"])
+    if any(abs(h - w) > _WIND_ROUNDING * abs(complex(*wind)) for h, w in zip(held, wind)):
+        raise RuntimeError(f"JSBSim {jsbsim.__version__} started the atmosphere with the wind {held[0]:g}, "
+                           f"{held[1]:g} ft/s (north, east), not the {wind[0]:g}, {wind[1]:g} ft/s asked for")
+
+
+#: Tolerance of :func:`_check_wind`, relative to the wind speed: the initial conditions store the
+#: wind as a magnitude and a direction in degrees, a round trip that costs a few units in the last
+#: place (about 1e-15); a wind taken the other way or not at all is off by the whole wind.
+_WIND_ROUNDING = 1e-9
 
 
 def message_buffer(deliver):

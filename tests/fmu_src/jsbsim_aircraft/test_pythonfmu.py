@@ -1,6 +1,7 @@
 """The JSBSim aircraft FMU (fmu_src/jsbsim_aircraft): the FMU contract on the c172x, then what is
 particular to it: JSBSimVehicle step for step, steps that are whole multiples of JSBSim's, a host
-without jsbsim, and the ah1s in the hover."""
+without jsbsim, the ah1s in the hover, and the parameters (declared as diagnose reads them, no
+change at their start values, each moving the response the way its physics says)."""
 from __future__ import annotations
 
 import json
@@ -10,14 +11,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from fmpy import extract
+from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Error
 from fmpy.validation import validate_fmu
 
 from fmu_src import build_jsbsim_fmu
+from fmu_src.jsbsim_aircraft.slave import PARAMETERS
 from tests.fmu_src.contract import FMI_FATAL, FmuCase, FmuContract, Host, standard_run
 from validation.core.manoeuvres import doublet, three_two_one_one
+from validation.vehicles.fmu_reference import FMUReference
 from validation.vehicles.jsbsim import JSBSimVehicle
 
 JSBSIM_STEP = JSBSimVehicle.sample_time
@@ -31,6 +34,14 @@ def c172x_controls(time: np.ndarray) -> np.ndarray:
     rudder still; shape (len(time), 3), normalised perturbations from trim."""
     return np.column_stack([three_two_one_one(time, amplitude=0.15, step_time=0.5, start=0.5),
                             doublet(time, amplitude=0.1, step_time=0.5, start=2.5), np.zeros_like(time)])
+
+
+def body_from_ned(phi: float, theta: float, psi: float) -> np.ndarray:
+    """The rotation from north-east-down to body axes (ZYX Euler angles, rad), shape (3, 3)."""
+    cf, sf, ct, st, cp, sp = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta), np.cos(psi), np.sin(psi)
+    return np.array([[ct * cp, ct * sp, -st],
+                     [sf * st * cp - cf * sp, sf * st * sp + cf * cp, sf * ct],
+                     [cf * st * cp + sf * sp, cf * st * sp - sf * cp, cf * ct]])
 
 
 def jsbsim_reference(h: float, n: int, controls: np.ndarray, aircraft: str = "c172x") -> np.ndarray:
@@ -120,6 +131,19 @@ def test_jsbsim_fmu_in_a_host_without_jsbsim_says_what_to_install(case):
 def test_jsbsim_ah1s_fmu_hovers_and_responds_like_the_vehicle(tmp_path):
     path = build_jsbsim_fmu("ah1s", tmp_path)
     assert validate_fmu(str(path)) == []
+    # The hovering helicopter has the wind only (build.METHOD_PARAMETERS); heading south (psi about
+    # pi) and holding attitude, it flies its script in the wind and drifts with the air: 2 m/s toward
+    # the north makes most of 2 m/s backwards (body x points south; 1.76 m/s measured after the
+    # script's 100 s), 2 m/s toward the east 2 m/s to its left.
+    reference = FMUReference(path)
+    assert {name: unit for name, (_, unit, _) in reference.parameters.items()} == {"wind_north": "m/s",
+                                                                                 "wind_east": "m/s"}
+    time, still_inputs = np.array([0.0, 0.01]), np.zeros((2, 4))
+    still = reference.replay(time, still_inputs)[0]
+    assert abs(still[8] - np.pi) < 0.01
+    north = reference.replay(time, still_inputs, parameters={"wind_north": 2.0})[0] - still
+    east = reference.replay(time, still_inputs, parameters={"wind_east": 2.0})[0] - still
+    assert -2.0 < north[0] < -1.5 and -2.1 < east[1] < -1.9
     names = JSBSimVehicle("ah1s").input_names
     h, n = 0.02, 100
     controls = np.zeros((n + 1, len(names)))
@@ -138,3 +162,89 @@ def test_jsbsim_ah1s_fmu_hovers_and_responds_like_the_vehicle(tmp_path):
         assert "outside its travel 0..1" in host.messages[-1][2]
     finally:
         host.close()
+
+
+# -- the parameters -------------------------------------------------------------------------------
+C172X_PARAMETERS = {"wind_north": "m/s", "wind_east": "m/s", "aero_ref_shift_x": "m"}
+
+
+@pytest.fixture(scope="module")
+def c172x(jsbsim_fmu):
+    """The c172x FMU as ``flightgp diagnose --reference`` sees and replays it."""
+    return FMUReference(jsbsim_fmu)
+
+
+def test_jsbsim_parameters_are_declared_for_diagnose_with_units_and_descriptions(jsbsim_fmu, c172x):
+    declared = {v.name: v for v in read_model_description(str(jsbsim_fmu)).modelVariables
+                if v.causality == "parameter"}
+    assert {name: v.unit for name, v in declared.items()} == C172X_PARAMETERS
+    for name, variable in declared.items():
+        assert (variable.type, variable.variability, float(variable.start)) == ("Real", "fixed", 0.0)
+        assert f"JSBSim {PARAMETERS[name][1]}" in variable.description  # the property it maps to
+    # diagnose's candidates: every one, with its unit and the FMU's description (no <output>_start).
+    assert {name: (start, unit) for name, (start, unit, _) in c172x.parameters.items()} == {
+        name: (0.0, unit) for name, unit in C172X_PARAMETERS.items()}
+    assert all(c172x.parameters[name][2] == declared[name].description for name in declared)
+
+
+def test_jsbsim_parameters_at_their_start_values_are_jsbsimvehicle_bit_for_bit(c172x):
+    """Set explicitly to their start values (as diagnose sets a candidate), the parameters write
+    nothing to JSBSim: the replay is the vehicle's, bit for bit (see jsbsim_case), as without them."""
+    n = 200
+    controls = c172x_controls(np.arange(n + 1) * JSBSIM_STEP)
+    outputs = c172x.replay(np.arange(n + 1) * JSBSIM_STEP, controls, parameters=dict.fromkeys(C172X_PARAMETERS, 0.0))
+    np.testing.assert_array_equal(outputs, jsbsim_reference(JSBSIM_STEP, n, controls))
+
+
+def test_jsbsim_wind_moves_the_ground_velocity_by_the_wind_and_leaves_the_trim(c172x):
+    """A wind present from the start is trimmed in: the same flight relative to the air (heading
+    east, attitude and rates as in still air) carried by the air, so the body velocities (relative
+    to the ground) differ by the wind in body axes, at the start and along a pitch pulse."""
+    time = np.arange(101) * 0.02
+    inputs = np.zeros((len(time), 3))
+    inputs[:, 0] = np.where((time >= 0.1) & (time < 0.6), 0.15, 0.0)
+    still = c172x.replay(time, inputs)
+    windy = c172x.replay(time, inputs, parameters={"wind_north": 3.0, "wind_east": -2.0})
+    in_body = np.array([body_from_ned(*angles) @ [3.0, -2.0, 0.0] for angles in windy[:, 6:9]])
+    # 0.01 m/s: JSBSim's trim stops within its tolerance (accelerations below 1e-3 ft/s^2), so the
+    # trim in the wind is still air's to 0.002 m/s (measured); along the pulse the two part by at
+    # most 0.006 m/s (measured) as JSBSim's wind terms (e.g. its alpha-dot from the ground-relative
+    # accelerations) are not exactly those of still air.
+    np.testing.assert_allclose(windy[:, :3] - still[:, :3], in_body, atol=0.01)
+    assert abs(windy[0, 1] - still[0, 1] + 3.0) < 0.01 and abs(windy[0, 0] - still[0, 0] + 2.0) < 0.01  # heading east
+    # 1e-3 rad/s and rad: 1 % of the pulse's peak pitch rate (0.11 rad/s), for the same reasons.
+    np.testing.assert_allclose(windy[:, 3:], still[:, 3:], atol=1e-3)
+
+
+def test_jsbsim_aero_ref_shift_forward_lowers_the_pitch_stability(c172x):
+    """Moving the aerodynamic reference point forward is, for the aerodynamic moments, moving the
+    centre of gravity aft: less static margin, so the same elevator pulse pitches the c172x further
+    (the trim is found with the shift, so every run starts steady)."""
+    time = np.arange(101) * 0.02
+    inputs = np.zeros((len(time), 3))
+    inputs[:, 0] = np.where((time >= 0.1) & (time < 0.6), 0.15, 0.0)
+    peaks = []
+    for shift in (-0.1, 0.0, 0.1):
+        outputs = c172x.replay(time, inputs, parameters={"aero_ref_shift_x": shift})
+        assert np.abs(outputs[1, 3:6]).max() < 1e-6  # steady at the start: trimmed with the shift
+        peaks.append(np.abs(outputs[:, 7] - outputs[0, 7]).max())
+    assert peaks[0] < peaks[1] < peaks[2]
+
+
+def test_jsbsim_parameter_jsbsim_cannot_trim_with_is_a_logged_error_naming_it(jsbsim_fmu, tmp_path):
+    """3 m forward puts the reference point far ahead of the neutral point: JSBSim finds no trim,
+    initialisation logs an Error naming the parameter, and the steps are refused, never fatal."""
+    host = Host(extract(str(jsbsim_fmu), unzipdir=str(tmp_path / "u")))
+    try:
+        host.set({"aero_ref_shift_x": 3.0})
+        host.fmu.setupExperiment(startTime=0.0)
+        host.fmu.enterInitializationMode()
+        host.fmu.exitInitializationMode()
+        with pytest.raises(FMICallException) as refused:
+            host.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=JSBSIM_STEP)
+        assert refused.value.status == fmi2Discard
+    finally:
+        host.close()
+    errors = [message for status, _, message in host.messages if status == fmi2Error]
+    assert any("cannot trim c172x" in message and "aero_ref_shift_x = 3 m" in message for message in errors), errors
+    assert FMI_FATAL not in host.statuses()
