@@ -5,6 +5,7 @@ import argparse
 from pathlib import Path
 
 from validation.cli.arguments import add_format_argument, seed
+from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder
 
 
@@ -32,6 +33,12 @@ def register(subparsers) -> None:
     parser.add_argument("--tolerances", type=Path, metavar="FILE.json",
                         help="tolerance bands of the fidelity scorecard, {\"q\": 0.035, ...} in each output's "
                              "SI unit (default: 14 CFR Part 60, Appendix C, Table C2A, for the outputs it names)")
+    parser.add_argument("--map", type=Path, metavar="MAP.json", dest="column_map",
+                        help="rename recording columns to the reference's names, {\"column\": \"name\", ...} "
+                             "(e.g. an FMU's variable names)")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="processes that replay candidates side by side for an FMU reference "
+                             "(default: the cores available)")
     add_format_argument(parser)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=0, help="random seed of the residual GP (default 0)")
@@ -46,13 +53,17 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from validation.core.progress import progress_bar
     from validation.diagnose import diagnose, write_diagnosis
+    from validation.diagnose.data import read_column_map
     from validation.diagnose.fidelity import read_tolerances
 
     check_output_folder(args.out)
     tolerances = read_tolerances(args.tolerances) if args.tolerances is not None else None
+    column_map = read_column_map(args.column_map) if args.column_map is not None else None
+    if args.workers is not None and args.workers < 1:
+        raise BadInputError(f"--workers must be at least 1, got {args.workers}")
     with progress_bar("diagnose", enabled=not args.no_progress, unit="fit") as update:
         diagnosis = diagnose(args.recordings, reference=args.reference, holdout=args.holdout,
-                             seed=args.seed, folds=args.folds,
+                             seed=args.seed, folds=args.folds, column_map=column_map, workers=args.workers,
                              file_format=args.file_format, tolerances=tolerances, progress=update)
     written = write_diagnosis(diagnosis, args.out)
     result = diagnosis.as_dict()

@@ -1,4 +1,4 @@
-"""``flightgp diagnose-bench [--cases NAME...] [--reference bo105-<V>kt | blimp] [--seed N...] [--out DIR]``: the
+"""``flightgp diagnose-bench [--cases NAME...] [--reference NAME] [--through REFERENCE] [--seed N...] [--out DIR]``: the
 concealed-effect benchmark of ``flightgp diagnose`` (:mod:`validation.diagnose.bench`)."""
 from __future__ import annotations
 
@@ -24,7 +24,17 @@ def register(subparsers) -> None:
                         help="run only these cases (default: all; --list shows them)")
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
     parser.add_argument("--reference", default="bo105-80kt", metavar="NAME",
-                        help="bo105-<V>kt or blimp reference to conceal the effects in (default bo105-80kt)")
+                        help="reference to conceal the effects in: bo105-<V>kt, blimp or an FMI 2.0 "
+                             "co-simulation FILE.fmu (default bo105-80kt)")
+    parser.add_argument("--through", metavar="REFERENCE",
+                        help="diagnose through this reference instead of --reference: an FMU or a "
+                             "state-space FILE.json of the same vehicle (e.g. flightgp's Bo105 reference "
+                             "FMU, or flightgp state-space bo105-80kt); scored against the effects as "
+                             "it names them")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="length of each recording, s (default 20)")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="replay processes of an FMU reference (default: the cores available)")
     parser.add_argument("--seed", type=seed, nargs="+", default=[0], metavar="N",
                         help="sensor-noise and diagnosis seed(s) (default 0); with several, every case "
                              "runs once per seed and a summary gives the rates over seeds")
@@ -54,10 +64,17 @@ def run(args: argparse.Namespace) -> int:
             raise BadInputError(f"unknown case(s) {', '.join(unknown)}; see flightgp diagnose-bench --list")
         cases = [case for case in cases if case.name in args.cases]
     check_output_folder(args.out)
+    if args.duration is not None and not args.duration >= 5:
+        raise BadInputError(f"--duration must be at least 5 s (a 3-2-1-1 on each input), got {args.duration}")
+    if args.workers is not None and args.workers < 1:
+        raise BadInputError(f"--workers must be at least 1, got {args.workers}")
+    options = {"through": args.through, "workers": args.workers}
+    if args.duration is not None:
+        options["duration"] = args.duration
     seeds = list(dict.fromkeys(args.seed))
     with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases) * len(seeds),
                       unit="case") as update:
-        reports = [run_bench(cases, reference=args.reference, seed=s, progress=update) for s in seeds]
+        reports = [run_bench(cases, reference=args.reference, seed=s, progress=update, **options) for s in seeds]
     tables = [format_scorecard(report) for report in reports]
     if len(reports) == 1:
         result = reports[0]

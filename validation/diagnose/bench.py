@@ -56,7 +56,7 @@ from validation.vehicles import get_vehicle
 from validation.vehicles.blimp_equations import rk4
 from validation.vehicles.bo105 import STATE_NAMES
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
-from validation.vehicles.effects import TARGET_KEYS, EffectModel
+from validation.vehicles.effects import TARGET_KEYS, EffectModel, dead_band_inputs
 
 #: Held-out RMSE cut of the affected output that a named effect must achieve: the corrected model
 #: must remove most of the error the effect causes (docs/diagnose.md, "The concealed-effect
@@ -213,9 +213,55 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
     return cases
 
 
+def fmu_cases(*, reference: EffectModel) -> list[ConcealedCase]:
+    """The suite of an FMU reference (``--reference FILE.fmu``): effects on the FMU's own inputs
+    and outputs, whatever the vehicle: a 100 ms delay on its first input, a 150 ms lag on its
+    second, a rate-sensor bias of 5x the noise on its first output among ``q``, ``p``, ``r``
+    (else its first output), and none. On a JSBSim fixed-wing FMU (inputs ``elevator``,
+    ``aileron``, ``rudder``) that is an elevator delay, an aileron lag and a pitch-rate bias."""
+    inputs, noise = reference.input_names, reference.sensor_noise_sd
+    rate = next((n for n in ("q", "p", "r") if n in reference.state_names), reference.state_names[0])
+    cases = [_single_case({"effect": "time_delay", "input": inputs[0], "value": 0.1}, f"delay-{inputs[0]}-100ms",
+                          f"transport delay 100 ms on {inputs[0]}")]
+    if len(inputs) > 1:
+        cases.append(_single_case({"effect": "input_lag", "input": inputs[1], "value": 0.15},
+                                  f"lag-{inputs[1]}-150ms", f"first-order lag 150 ms on {inputs[1]}"))
+    cases += [_single_case({"effect": "sensor_bias", "output": rate, "value": 5 * noise[rate]}, f"bias-{rate}-5sd",
+                           f"{rate} sensor bias {5 * noise[rate]:g} (5x noise)"),
+              ConcealedCase("none", "none", description="the reference itself, with sensor noise")]
+    return cases
+
+
 #: The concealed-effect suite of each family of references
 #: (:attr:`validation.vehicles.effects.EffectModel.family`), called with the reference's effect model.
-SUITES = {"bo105": bo105_cases, "blimp": blimp_cases}
+SUITES = {"bo105": bo105_cases, "blimp": blimp_cases, "fmu": fmu_cases}
+
+
+def diagnosed_truth(case: ConcealedCase, model: EffectModel) -> ConcealedCase:
+    """``case`` as a diagnosis through ``model`` names it, when the recordings are flown on
+    another reference (``diagnose-bench --through``): a derivative is an FMU's parameter of the
+    same name (:class:`~validation.vehicles.fmu_reference.FMUEffects`), and a dead band outside
+    the flying reference's list is a named ``dead_band`` where ``model`` takes one. Effects
+    ``model`` cannot name make a BadInputError."""
+    effects = []
+    for effect in case.effects:
+        kind = effect["effect"]
+        if kind not in model.kinds and "term" in effect and effect["term"] in model.terms.get("fmu_parameter", ()):
+            effect = {"effect": "fmu_parameter", "term": effect["term"], "value": effect["value"]}
+        elif kind not in model.kinds or effect[TARGET_KEYS[kind]] not in _targets(model, kind):
+            raise BadInputError(f"case {case.name}: {model.name} cannot name {kind} "
+                                f"{effect[TARGET_KEYS[kind]]}")
+        effects.append(effect)
+    if case.outside and case.outside[0] == "dead_band" and "dead_band" in model.kinds:
+        effect = {"effect": "dead_band", "input": case.outside[1], "value": case.outside[2]}
+        return ConcealedCase(case.name, "single", (effect,), description=case.description.replace(
+            " (not a named effect)", ""))
+    return ConcealedCase(case.name, case.kind, tuple(effects), case.outside, case.description)
+
+
+def _targets(model: EffectModel, kind: str) -> tuple:
+    key = TARGET_KEYS[kind]
+    return model.terms[kind] if key == "term" else (model.input_names if key == "input" else model.state_names)
 
 
 def concealed_cases(*, reference: str = "bo105-80kt") -> list[ConcealedCase]:
@@ -255,14 +301,15 @@ class CaseRecordings:
     truth_states: np.ndarray
 
 
-def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed: int = 0) -> CaseRecordings:
+def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed: int = 0,
+                    duration: float = DURATION) -> CaseRecordings:
     """The diagnosed and the held-out recording of ``case`` on the reference called
-    ``reference``, and the held-out truth (module docstring)."""
+    ``reference`` (``duration`` s each), and the held-out truth (module docstring)."""
     reference = effect_model(reference, purpose="diagnose-bench")
     vehicle = EffectVehicle(reference, case.effects, noise_sd=reference.sensor_noise_sd)
     recordings = []
     for variant in (0, 1):
-        time, inputs = reference.identification_manoeuvre(duration=DURATION, sample_time=reference.sample_time,
+        time, inputs = reference.identification_manoeuvre(duration=duration, sample_time=reference.sample_time,
                                                           variant=variant)
         if case.outside is None:
             states = vehicle.simulate_states(time, inputs)
@@ -288,7 +335,7 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
 #: speed squared when the command sets the speed; the parameter is unused); saturation at
 #: ``+/- limit``.
 COMMAND_MAPS = {
-    "dead_band": lambda u, width: np.sign(u) * np.maximum(np.abs(u) - width, 0.0),
+    "dead_band": lambda u, width: dead_band_inputs(u, width),
     "quadratic_thrust": lambda u, _: u * np.abs(u),
     "saturation": lambda u, limit: np.clip(u, -limit, limit),
 }
@@ -433,31 +480,45 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     return score
 
 
-def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=None) -> dict:
+def run_bench(cases, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
+              duration: float = DURATION, workers: int | None = None, progress=None) -> dict:
     """Diagnose every case; returns the scorecard report (JSON-ready).
 
     Parameters
     ----------
     cases : sequence of ConcealedCase
     reference : str
-        ``bo105-<V>kt`` or ``blimp``.
+        The reference the cases are flown on: ``bo105-<V>kt``, ``blimp`` or an FMU file.
+    through : str, optional
+        Diagnose through this reference instead (an FMU or a state-space JSON of the same
+        vehicle, named like ``reference``'s variables); the truth is the case as it names it
+        (:func:`diagnosed_truth`). Default: ``reference`` itself.
     seed : int
         Sensor-noise seed (the held-out recording uses its own stream) and the diagnosis seed.
+    duration : float
+        Length of each recording, s.
+    workers : int, optional
+        Replay processes of an FMU reference (:func:`validation.diagnose.diagnose`).
     progress : callable, optional
         Called as ``progress(1, case=name)`` after each case.
     """
     sample_time = effect_model(reference, purpose="diagnose-bench").sample_time
+    diagnosing = through or reference
+    model = effect_model(diagnosing, purpose="diagnose-bench") if through else None
     rows = []
     for case in cases:
-        recordings = case_recordings(case, reference=reference, seed=seed)
+        recordings = case_recordings(case, reference=reference, seed=seed, duration=duration)
+        truth = diagnosed_truth(case, model) if model is not None else case
         start = clock.perf_counter()
-        diagnosis = diagnose([recordings.fit], reference=reference, holdout=[recordings.holdout], seed=seed).as_dict()
+        diagnosis = diagnose([recordings.fit], reference=diagnosing, holdout=[recordings.holdout], seed=seed,
+                             workers=workers).as_dict()
         seconds = clock.perf_counter() - start
-        rows.append(score_case(case, diagnosis, truth_states=recordings.truth_states, holdout=recordings.holdout,
+        rows.append(score_case(truth, diagnosis, truth_states=recordings.truth_states, holdout=recordings.holdout,
                                reference=reference, seconds=seconds))
         if progress:
             progress(1, case=case.name)
-    return {"reference": reference, "seed": seed, "duration_s": DURATION, "sample_time_s": sample_time,
+    return {"reference": reference, "through": through, "seed": seed, "duration_s": duration,
+            "sample_time_s": sample_time,
             "required_cut": REQUIRED_CUT, "cases": [row.as_dict() for row in rows],
             "passed": sum(row.passed for row in rows), "total": len(rows),
             "max_seconds": max((row.seconds for row in rows), default=0.0)}
@@ -466,7 +527,8 @@ def run_bench(cases, *, reference: str = "bo105-80kt", seed: int = 0, progress=N
 def format_scorecard(report: dict) -> str:
     """The scorecard as a plain-text table."""
     width = max([26, *(len(row["case"]) for row in report["cases"])])
-    lines = [f"diagnose-bench on {report['reference']} ({report['duration_s']:g} s at "
+    through = f" through {report['through']}" if report.get("through") else ""
+    lines = [f"diagnose-bench on {report['reference']}{through} ({report['duration_s']:g} s at "
              f"{1 / report['sample_time_s']:g} Hz, seed {report['seed']}): {report['passed']} of "
              f"{report['total']} cases pass",
              f"{'case':<{width}} {'named':>5} {'in CI':>5} {'output':>6} {'ref RMSE':>9} {'corr.':>9} "
@@ -510,7 +572,8 @@ def summarise_seeds(reports: list) -> dict:
                       "median_cut": float(np.median(cuts)) if cuts else None,
                       "max_seconds": max(row["seconds"] for row in rows)})
     named_runs = [c for c in cases if c["kind"] in ("single", "pair")]
-    return {"reference": reports[0]["reference"], "seeds": [report["seed"] for report in reports],
+    return {"reference": reports[0]["reference"], "through": reports[0].get("through"),
+            "seeds": [report["seed"] for report in reports],
             "cases": cases, "passed": sum(c["passed"] for c in cases),
             "total": sum(c["runs"] for c in cases),
             "interval_coverage": (sum(c["in_interval"] for c in named_runs)
@@ -522,7 +585,8 @@ def format_seed_summary(summary: dict) -> str:
     """:func:`summarise_seeds` as a plain-text table (counts out of the runs per case)."""
     width = max([26, *(len(c["case"]) for c in summary["cases"])])
     seeds = summary["seeds"]
-    lines = [f"diagnose-bench on {summary['reference']} over seeds {', '.join(map(str, seeds))}: "
+    through = f" through {summary['through']}" if summary.get("through") else ""
+    lines = [f"diagnose-bench on {summary['reference']}{through} over seeds {', '.join(map(str, seeds))}: "
              f"{summary['passed']} of {summary['total']} runs pass; true value inside the interval "
              f"in {summary['interval_coverage']:.0%} of the runs that name the effects",
              f"{'case':<{width}} {'pass':>5} {'named':>5} {'in CI':>5} {'false':>5} {'unexp.':>6} "

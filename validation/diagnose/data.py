@@ -24,8 +24,10 @@ state), and each output's noise standard deviation is floored at the reference's
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -119,10 +121,42 @@ class _Source:
     held_out: bool
 
 
-def prepare(recordings, reference: EffectModel, *, holdout=None, file_format: str | None = None) -> PreparedData:
+def read_column_map(path) -> dict[str, str]:
+    """The column map in the JSON file ``path``: ``{"recording column": "reference name", ...}``
+    (docs/diagnose.md, "FMU references"), checked as far as it can be without a reference: an
+    object of distinct, non-empty names that does not rename ``time``.
+
+    Raises
+    ------
+    BadInputError
+        A missing or unreadable file, or a map that is not as above.
+    """
+    path = Path(path)
+    try:
+        column_map = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise BadInputError(f"{path}: cannot read the column map ({error.strerror or error})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise BadInputError(f"{path}: not a JSON column map ({error})") from None
+    if not isinstance(column_map, dict) or not all(isinstance(k, str) and k and isinstance(v, str) and v
+                                                   for k, v in column_map.items()):
+        raise BadInputError(f'{path}: a column map is a JSON object of names, {{"recording column": '
+                            '"reference name", ...}')
+    if "time" in column_map or "time" in column_map.values():
+        raise BadInputError(f"{path}: the column map cannot rename time")
+    targets = list(column_map.values())
+    doubled = sorted({t for t in targets if targets.count(t) > 1})
+    if doubled:
+        raise BadInputError(f"{path}: the column map gives {', '.join(doubled)} to more than one column")
+    return column_map
+
+
+def prepare(recordings, reference: EffectModel, *, holdout=None, file_format: str | None = None,
+            column_map: dict | None = None) -> PreparedData:
     """Read and check ``recordings`` (and ``holdout``; files in ``file_format``,
-    :func:`validation.vehicles.read_recording`), split them (module docstring) and estimate their
-    noise (:func:`validation.diagnose.noise.estimate_noise_sd`).
+    :func:`validation.vehicles.read_recording`; columns renamed by ``column_map``,
+    :func:`read_column_map`), split them (module docstring) and estimate their noise
+    (:func:`validation.diagnose.noise.estimate_noise_sd`).
 
     Raises
     ------
@@ -130,13 +164,21 @@ def prepare(recordings, reference: EffectModel, *, holdout=None, file_format: st
         No recordings; recordings that miss the reference's inputs, hold another vehicle's
         columns, have no outputs, hold NaN, are too short to identify anything, are unevenly
         sampled for a reference that needs even sampling, or are sampled at different nominal
-        rates; no output measured in every recording; no input moving in the fitted data.
+        rates; no output measured in every recording; no input moving in the fitted data; a
+        column map that renames a column to none of the reference's variables, or names a
+        column no recording has.
     """
     if not recordings:
         raise BadInputError("no recordings to diagnose")
-    sources = _load(recordings, reference, held_out=False, file_format=file_format)
+    column_map = _checked_column_map(column_map or {}, reference)
+    sources = _load(recordings, reference, held_out=False, file_format=file_format, column_map=column_map)
     if holdout:
-        sources += _load(holdout, reference, held_out=True, start_index=len(sources), file_format=file_format)
+        sources += _load(holdout, reference, held_out=True, start_index=len(sources), file_format=file_format,
+                         column_map=column_map)
+    present = {n for s in sources for n in (*s.recording.input_names, *s.recording.output_names)}
+    unused = [column for column, name in column_map.items() if name not in present]
+    if unused:
+        raise BadInputError(f"the column map names column(s) {', '.join(unused)}, which no recording has")
     elif len(sources) > 1:
         sources[-1].held_out = True
     step, even = _common_step(sources)
@@ -172,17 +214,38 @@ def evenly_sampled(time: np.ndarray) -> bool:
     return not len(uneven_steps(time))
 
 
+def _checked_column_map(column_map: dict, reference: EffectModel) -> dict:
+    """``column_map`` if every name it gives is one of ``reference``'s inputs or outputs."""
+    known = (*reference.input_names, *reference.state_names)
+    wrong = [f"{column} -> {name}" for column, name in column_map.items() if name not in known]
+    if wrong:
+        raise BadInputError(f"the column map renames {', '.join(wrong)}, which is none of {reference.name}'s "
+                            f"inputs ({', '.join(reference.input_names)}) or outputs "
+                            f"({', '.join(reference.state_names)})")
+    return dict(column_map)
+
+
+def _renamed(recording: Recording, column_map: dict) -> Recording:
+    """``recording`` with its columns renamed by ``column_map`` (columns not in it keep their names)."""
+    if not column_map:
+        return recording
+    return Recording(recording.time, recording.inputs, tuple(column_map.get(n, n) for n in recording.input_names),
+                     recording.outputs, tuple(column_map.get(n, n) for n in recording.output_names),
+                     recording.metadata)
+
+
 def _load(items, reference: EffectModel, *, held_out: bool, start_index: int = 0,
-          file_format: str | None = None) -> list[_Source]:
-    """Recordings (paths or :class:`Recording`) checked against ``reference``."""
+          file_format: str | None = None, column_map: dict | None = None) -> list[_Source]:
+    """Recordings (paths or :class:`Recording`) checked against ``reference``, their columns
+    renamed by ``column_map`` first."""
     sources = []
     for index, item in enumerate(items, start=start_index + 1):
         if isinstance(item, Recording):
             name = str(item.metadata.get("name", f"recording {index}"))
-            recording = _checked_recording(item, name, reference)
+            recording = _checked_recording(_renamed(item, column_map), name, reference)
         else:
             name = Path(item).name
-            recording = _read(Path(item), reference, file_format)
+            recording = _renamed(_read(Path(item), reference, file_format, column_map or {}), column_map)
         if len(recording.time) < 3:
             raise BadInputError(f"{name}: {len(recording.time)} samples; too short to identify anything")
         steps = np.diff(recording.time)
@@ -197,14 +260,20 @@ def _load(items, reference: EffectModel, *, held_out: bool, start_index: int = 0
     return sources
 
 
-def _read(path: Path, reference: EffectModel, file_format: str | None) -> Recording:
-    """The recording file at ``path`` (in ``file_format``, or recognised) read as one of ``reference``."""
+def _read(path: Path, reference: EffectModel, file_format: str | None, column_map: dict) -> Recording:
+    """The recording file at ``path`` (in ``file_format``, or recognised) read as one of
+    ``reference`` whose variables carry the names ``column_map`` gives them in the file."""
+    in_file = {name: column for column, name in column_map.items()}
+    expected = SimpleNamespace(name=reference.name,
+                               input_names=tuple(in_file.get(n, n) for n in reference.input_names),
+                               state_names=tuple(in_file.get(n, n) for n in reference.state_names))
     try:
-        return read_recording(path, vehicle=reference, file_format=file_format)
+        return read_recording(path, vehicle=expected if column_map else reference, file_format=file_format)
     except BadInputError as error:
-        if "unknown column" in str(error):
-            raise BadInputError(f"{error} (is this a recording of another vehicle than "
-                                f"{reference.name}?)") from None
+        if "unknown column" in str(error) or "missing input column" in str(error):
+            raise BadInputError(f"{error} (a recording of another vehicle than {reference.name}? Its inputs are "
+                                f"{', '.join(reference.input_names)}, its outputs "
+                                f"{', '.join(reference.state_names)}; --map renames columns)") from None
         raise
 
 

@@ -61,6 +61,9 @@ MAX_EVIDENCE_RATIO = 1e6
 #: constants (the Bo105's flap, 0.07 s, Padfield 2007, ch. 3), so that one Gauss-Newton step
 #: stays in the range where the response is nearly linear in the value.
 _TIMING_STEP = 0.01
+#: Screening step of a dead band, a fraction of the input's largest excursion from its start in
+#: the fitted data: small enough that one Gauss-Newton step stays near linear.
+_DEAD_BAND_STEP = 0.05
 
 
 @dataclass
@@ -166,7 +169,7 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
     ``progress(n, **status)``, optional, advances once per simulation batch.
     """
     hypotheses = hypotheses_for(reference, excited_inputs=data.excited, output_names=data.output_names,
-                                noise_sd=data.typical_noise_sd)
+                                noise_sd=data.typical_noise_sd, excursions=_excursions(data))
     selection = select_effects(data, reference, hypotheses, progress=progress)
     fitted, steps = selection.model, {step["key"]: step for step in selection.steps}
     named = []
@@ -183,6 +186,14 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
               "final_rss": fitted.rss, "n_residuals": data.n_residuals,
               "rejected": _describe_rejected(selection.rejected)}
     return Explanation(fitted.effects(), sorted(named, key=lambda n: -n.likelihood_ratio), search)
+
+
+def _excursions(data: PreparedData) -> dict:
+    """Per excited input, its largest distance from its value at the start of a recording, over
+    the fitted samples of all recordings (the input's unit)."""
+    return {name: max(float(np.max(np.abs(u[mask, j] - u[0, j]), initial=0.0))
+                      for u, mask in zip(data.inputs, data.fit_mask))
+            for j, name in enumerate(data.input_names) if name in data.excited}
 
 
 def _main_output(data: PreparedData, alone: list, reference_replay: list) -> int:
@@ -202,18 +213,25 @@ def _describe_rejected(rejected: dict | None) -> dict | None:
             "likelihood_ratio": rejected["lr"], "threshold": rejected["threshold"]}
 
 
-def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd) -> list[Hypothesis]:
-    """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``) and a lag (up to
-    ``MAX_LAG``) on each excited input, the reference's term hypotheses, a bias on each measured
-    output (each kind where the reference takes it, :attr:`EffectModel.kinds`).
+def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd,
+                   excursions=None) -> list[Hypothesis]:
+    """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``), a lag (up to
+    ``MAX_LAG``) and a dead band (up to the input's largest excursion) on each excited input, the
+    reference's term hypotheses, a bias on each measured output (each kind where the reference
+    takes it, :attr:`EffectModel.kinds`).
 
-    ``noise_sd`` (dict output -> typical noise standard deviation) sets the bias screening step.
+    ``noise_sd`` (dict output -> typical noise standard deviation) sets the bias screening step;
+    ``excursions`` (dict input -> largest ``|u - u[0]|`` in the fitted data, the input's unit)
+    the dead band's step and bound (no dead band hypothesis without it).
     """
     hypotheses = []
     for name in reference.input_names:
         if name in excited_inputs:
             hypotheses.append(Hypothesis("time_delay", name, 0.0, 0.0, MAX_DELAY, _TIMING_STEP))
             hypotheses.append(Hypothesis("input_lag", name, 0.0, 0.0, MAX_LAG, _TIMING_STEP))
+            excursion = (excursions or {}).get(name, 0.0)
+            if excursion > 0:
+                hypotheses.append(Hypothesis("dead_band", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
     hypotheses += reference.term_hypotheses(excited_inputs)
     for name in output_names:
         hypotheses.append(Hypothesis("sensor_bias", name, 0.0, -math.inf, math.inf, float(noise_sd[name])))

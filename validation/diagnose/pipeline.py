@@ -41,7 +41,8 @@ from validation.vehicles.effect_vehicle import effect_model
 
 
 def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: int | None = None,
-             file_format: str | None = None, tolerances: dict | None = None, progress=None) -> Diagnosis:
+             file_format: str | None = None, tolerances: dict | None = None, column_map: dict | None = None,
+             workers: int | None = None, progress=None) -> Diagnosis:
     """Locate, explain, model and prove (module docstring) on ``recordings``.
 
     Parameters
@@ -71,6 +72,13 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
         Output -> (band half-width in its SI unit, source) for the fidelity scorecard
         (:func:`validation.diagnose.fidelity.read_tolerances`); outputs not named keep the
         default bands (:data:`validation.diagnose.fidelity.DEFAULT_TOLERANCES`).
+    column_map : dict of str to str, optional
+        Recording column -> the reference's name for it (:func:`validation.diagnose.data.read_column_map`),
+        for recordings whose columns are named otherwise than the reference's variables.
+    workers : int, optional
+        Processes that replay candidates side by side, for references that replay in processes
+        of their own (an FMU, :class:`validation.vehicles.fmu_reference.FMUReference`); default:
+        the cores this process may use.
     progress : callable, optional
         ``progress(n, **status)`` advanced once per simulation batch
         (:func:`validation.core.progress.progress_bar` yields one).
@@ -89,7 +97,9 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
         recordings.
     """
     reference = effect_model(reference, purpose="diagnose")  # the name's EffectModel from here on
-    data = prepare(recordings, reference, holdout=holdout, file_format=file_format)
+    if workers is not None and hasattr(reference, "workers"):
+        reference.workers = workers
+    data = prepare(recordings, reference, holdout=holdout, file_format=file_format, column_map=column_map)
     if folds is not None:
         fold_recordings(data, folds)  # refuses impossible folds before the long stages
     location = locate(data, reference)

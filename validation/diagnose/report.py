@@ -186,6 +186,10 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         else:
             text = (f"The {words} response is smoothed by a first-order lag of {_number(value)} s "
                     f"{interval} on {control}: unmodelled actuator or rotor dynamics.")
+    elif kind == "dead_band":
+        text = (f"The {_input_words(finding['input'])} moves nothing within {_number(value)} {unit} {interval} "
+                "of where it started, and beyond that arrives short by as much: a dead band (free play) on "
+                f"{finding['input']}.")
     elif kind == "input_gain":
         text = (f"The {_input_words(finding['input'])} acts {_number(value)} times as strongly as the model "
                 f"has it {interval}: a control-effectiveness (gain) error.")

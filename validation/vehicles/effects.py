@@ -43,7 +43,7 @@ TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative"
                "stability_derivative": "term", "sensor_bias": "output", "quadratic_drag": "term",
                "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
                "added_mass": "term", "steady_wind": "term", "input_gain": "input", "output_scale": "output",
-               "fmu_parameter": "term"}
+               "fmu_parameter": "term", "dead_band": "input"}
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.
@@ -135,6 +135,10 @@ class EffectModel(Protocol):
         Per state, a floor under the noise standard deviation that weighs its residuals (state
         units; states not named have none): where recordings are filtered so smooth that their
         estimated noise says nothing of how well any model could fit them (the RGBlimp's).
+
+    Optional attributes: ``signal_units`` (dict input or state -> unit, where the reference
+    declares its own, :func:`effect_unit`) and ``workers`` (settable: processes its replays
+    run on, :func:`validation.diagnose.diagnose`); an FMU reference has both.
     """
 
     name: str
@@ -306,6 +310,30 @@ def lagged_interval_means(signals: np.ndarray, time_constants: np.ndarray, steps
     return means
 
 
+def dead_band_inputs(signal_: np.ndarray, half_width: float, *, centre: float = 0.0) -> np.ndarray:
+    """A command through a dead band (free play) of ``half_width`` about ``centre``: nothing
+    passes while the command stays within ``half_width`` of the centre, and beyond it the command
+    arrives short by ``half_width`` (continuous, slope 1 outside: the dead-zone nonlinearity of
+    Slotine and Li, *Applied Nonlinear Control*, 1991, sec. 5.2).
+
+    Parameters
+    ----------
+    signal_ : ndarray, any shape
+        Commands, in the input's unit.
+    half_width : float
+        >= 0, the input's unit.
+    centre : float
+        Where the dead band sits: trim (0 for inputs that are perturbations from trim), or the
+        command held at the start of a recording.
+
+    Returns
+    -------
+    ndarray, the shape of ``signal_``
+    """
+    deviation = signal_ - centre
+    return centre + np.sign(deviation) * np.maximum(np.abs(deviation) - half_width, 0.0)
+
+
 def check_trim_start(start, name: str) -> None:
     """BadInputError unless ``start`` is None: the ``name`` reference replays from its own start."""
     if start is not None:
@@ -314,13 +342,18 @@ def check_trim_start(start, name: str) -> None:
 
 
 def effect_unit(effect: dict, reference: EffectModel) -> str:
-    """Unit of ``effect["value"]`` on ``reference``: s for delays and lags, the output's unit for
-    a bias (:func:`validation.core.recordings.column_unit`), the reference's unit of a term."""
+    """Unit of ``effect["value"]`` on ``reference``: s for delays and lags, 1 for a gain or a
+    scale, the input's unit for a dead band, the output's unit for a bias, the reference's unit
+    of a term. A signal's unit is the reference's own (an FMU's declared units, its optional
+    ``signal_units`` mapping) or else flightgp's (:func:`validation.core.recordings.column_unit`)."""
     kind = effect["effect"]
     if kind in ("time_delay", "input_lag"):
         return "s"
-    if kind == "sensor_bias":
-        return column_unit(effect["output"])
+    if kind in ("input_gain", "output_scale"):
+        return "1"
+    if kind in ("dead_band", "sensor_bias"):
+        name = effect[TARGET_KEYS[kind]]
+        return getattr(reference, "signal_units", {}).get(name) or column_unit(name)
     return reference.term_unit(effect["term"])
 
 
@@ -356,6 +389,8 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
         limit = {"time_delay": MAX_DELAY, "input_lag": MAX_LAG}.get(kind)
         if limit is not None and not 0.0 <= value <= limit:
             raise BadInputError(f"{where} ({kind} on {target}): {value} s is outside 0 .. {limit} s")
+        if kind == "dead_band" and value < 0:
+            raise BadInputError(f"{where} ({kind} on {target}): a half-width cannot be negative, got {value}")
         problem = reference.term_value_problem(target, value) if key == "term" else None
         if problem:
             raise BadInputError(f"{where} ({kind} on {target}): {problem}")

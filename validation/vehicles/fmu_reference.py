@@ -25,10 +25,16 @@ from __future__ import annotations
 
 import logging
 import math
+import multiprocessing
+import os
 import shutil
 import tempfile
 import weakref
+import zipfile
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 
@@ -37,6 +43,7 @@ from validation.core.recordings import Recording
 from validation.core.sampling import check_history
 from validation.vehicles.effects import (
     Hypothesis,
+    dead_band_inputs,
     delayed_interval_means,
     lagged_interval_means,
     simulate_each_recording,
@@ -47,24 +54,37 @@ from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME
 _log = logging.getLogger(__name__)
 #: Suffix of the start-value parameters flightgp's FMUs (and others) expose per output.
 START_SUFFIX = "_start"
+#: Interval between the states a replay saves to resume later replays from, s (:meth:`FMUReference.replay`).
+CHECKPOINT_INTERVAL = 0.5
+#: Replays kept to resume from (:meth:`FMUReference.replay`).
+KEPT_REPLAYS = 8
+#: Sensor noise standard deviation of the concealed-effect bench's recordings through an FMU
+#: (:attr:`FMUEffects.sensor_noise_sd`), per output unit: the Bo105 flight-test stand-in's
+#: (:data:`validation.vehicles.bo105_flight.SENSOR_NOISE_STD`: velocities, rates, attitudes);
+#: outputs in other units are recorded without noise.
+BENCH_NOISE_BY_UNIT = {"m/s": 0.1, "rad/s": 0.003, "rad": 0.002}
 #: Longest stretch of a recording's start averaged into the start state, s (:meth:`FMUEffects.start_state`).
 START_WINDOW = 0.5
 
 
 def _read_description(path: Path):
     """fmpy's model description of ``path``, checked: FMI 2.0, co-simulation, Real inputs and
-    outputs; BadInputError in one line otherwise."""
+    outputs; BadInputError in one line otherwise. The version is read from the description's
+    root element before fmpy parses the rest, so that an FMU of another version is named as such
+    whatever else its description holds."""
     from fmpy import read_model_description  # fmpy loads only when an FMU reference is used
 
     if not path.is_file():
         raise BadInputError(f"{path}: no such FMU")
     try:
-        description = read_model_description(str(path), validate=False)
-    except Exception as error:  # noqa: BLE001 - fmpy raises many kinds for a file that is not an FMU
+        with zipfile.ZipFile(path) as archive:
+            version = ElementTree.fromstring(archive.read("modelDescription.xml")).get("fmiVersion")
+        description = read_model_description(str(path), validate=False) if version == "2.0" else None
+    except Exception as error:  # noqa: BLE001 - zipfile, the XML parser and fmpy raise many kinds
         raise BadInputError(f"{path}: not an FMU ({type(error).__name__}: {str(error).splitlines()[0][:200]})") \
             from None
-    if description.fmiVersion != "2.0":
-        raise BadInputError(f"{path}: an FMI {description.fmiVersion} FMU; diagnose takes FMI 2.0 co-simulation FMUs")
+    if version != "2.0":
+        raise BadInputError(f"{path}: an FMI {version} FMU; diagnose takes FMI 2.0 co-simulation FMUs")
     if description.coSimulation is None:
         raise BadInputError(f"{path}: a model-exchange FMU; diagnose takes FMI 2.0 co-simulation FMUs")
     return description
@@ -81,6 +101,11 @@ def _unit(variable) -> str:
     return variable.unit or declared or "1"
 
 
+def available_cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 class FMUReference:
     """An FMU as a reference vehicle (module docstring).
 
@@ -88,6 +113,9 @@ class FMUReference:
     ----------
     path : path-like
         The ``.fmu`` file.
+    workers : int, optional
+        Processes that run the replays of :meth:`replay_many` side by side, each with its own
+        instance (default: :func:`available_cores`; 1: all in this process).
 
     Attributes
     ----------
@@ -106,9 +134,14 @@ class FMUReference:
     sample_time : float
         The default experiment's step, or
         :data:`validation.vehicles.state_space.DEFAULT_SAMPLE_TIME`.
+    workers : int
+        As the parameter; may be changed between calls.
+    steps_resumed : int
+        Communication steps that replays in this process did not integrate because they resumed
+        from a kept replay's saved state (:meth:`replay`).
     """
 
-    def __init__(self, path):
+    def __init__(self, path, *, workers: int | None = None):
         self.path = Path(path)
         description = _read_description(self.path)
         self._description = description
@@ -133,10 +166,16 @@ class FMUReference:
             DEFAULT_SAMPLE_TIME
         self._instance = None
         self._unzipdir = None
+        self._can_save = bool(description.coSimulation.canGetAndSetFMUstate)
+        self._bases = []  # kept replays: (settings and time key, inputs, outputs, [(row, state)])
+        self.workers = available_cores() if workers is None else max(1, int(workers))
+        self._executor, self._executor_size = None, 0
+        self.steps_resumed = 0
 
     def _fmu(self):
         """The kept instance: extracted and instantiated at the first replay, reset before the next
-        (instantiated afresh when it cannot be reset, e.g. after a Fatal status)."""
+        (instantiated afresh when it cannot be reset, e.g. after a Fatal status, which also drops
+        the saved states :meth:`replay` resumes from)."""
         from fmpy import extract
         from fmpy.fmi2 import FMU2Slave
 
@@ -148,6 +187,7 @@ class FMUReference:
                 self._instance.reset()
                 return self._instance
             except Exception:  # noqa: BLE001 - after a Fatal status the instance cannot be reset
+                self._bases.clear()
                 self._instance.freeInstance()
         self._instance = FMU2Slave(guid=self._description.guid, unzipDirectory=self._unzipdir,
                                    modelIdentifier=self._description.coSimulation.modelIdentifier,
@@ -162,6 +202,14 @@ class FMUReference:
         ``parameters`` (name -> value) and the start values ``start`` (output -> value, for the
         outputs with a ``<output>_start`` parameter) are set before initialisation. Returns shape
         (n, n_outputs); raises what fmpy raises when the FMU refuses a call.
+
+        When the FMU can save its state (``canGetAndSetFMUstate``), each replay saves it every
+        :data:`CHECKPOINT_INTERVAL` s, and a later replay with the same settings and time grid
+        whose inputs agree with a kept one's up to some row resumes from the last state saved
+        before that row: outputs up to row ``k`` depend only on the inputs of rows before ``k``
+        (zero-order hold), so the shared beginning is not integrated again. Candidates that
+        change one input of a manoeuvre that moves the inputs one after the other share most of
+        their replay. The last :data:`KEPT_REPLAYS` replays are kept.
         """
         fmu = self._fmu()
         settings = dict(parameters or {})
@@ -175,18 +223,138 @@ class FMUReference:
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
         outputs = np.empty((len(time), len(output_refs)))
-        outputs[0] = fmu.getReal(output_refs)
-        for k in range(len(time) - 1):
+        key = (tuple(sorted(settings.items())), time.tobytes())
+        resumed, checkpoints = self._resume(fmu, key, inputs, outputs)
+        if not resumed:
+            outputs[0] = fmu.getReal(output_refs)
+        every = max(1, round(CHECKPOINT_INTERVAL / float(time[1] - time[0]))) if len(time) > 1 else 1
+        for k in range(resumed, len(time) - 1):
+            if self._can_save and k % every == 0 and k > resumed:
+                checkpoints.append((k, fmu.getFMUstate()))
             fmu.setReal(input_refs, [float(v) for v in inputs[k]])
             fmu.doStep(currentCommunicationPoint=float(time[k]), communicationStepSize=float(time[k + 1] - time[k]))
             outputs[k + 1] = fmu.getReal(output_refs)
+        if self._can_save:
+            self._keep(fmu, key, inputs, outputs, checkpoints)
         return outputs
+
+    def _resume(self, fmu, key, inputs: np.ndarray, outputs: np.ndarray) -> tuple[int, list]:
+        """Restore the kept replay that shares the longest beginning with ``inputs`` (same
+        ``key``: settings and time grid): the row it resumes at (0: none), with ``outputs`` filled
+        up to it, and the checkpoints up to it (the new replay's own)."""
+        best, best_row = None, 0
+        for base in self._bases:
+            if base[0] != key:
+                continue
+            differ = np.flatnonzero(np.any(base[1] != inputs, axis=1))
+            agree = int(differ[0]) if len(differ) else len(inputs) - 1
+            usable = [c for c in base[3] if c[0] <= agree]
+            if usable and usable[-1][0] > best_row:
+                best, best_row = base, usable[-1][0]
+        if best is None:
+            return 0, []
+        row, state = [c for c in best[3] if c[0] <= best_row][-1]
+        fmu.setFMUstate(state)
+        outputs[:row + 1] = best[2][:row + 1]
+        self.steps_resumed += row
+        return row, [c for c in best[3] if c[0] <= row]
+
+    def _keep(self, fmu, key, inputs: np.ndarray, outputs: np.ndarray, checkpoints: list) -> None:
+        """Keep this replay for :meth:`_resume`, dropping (and freeing the states of) the oldest
+        beyond :data:`KEPT_REPLAYS`; states shared with a kept replay are freed with the last."""
+        self._bases.append((key, inputs.copy(), outputs.copy(), checkpoints))
+        while len(self._bases) > KEPT_REPLAYS:
+            dropped = self._bases.pop(0)
+            kept = {id(state) for base in self._bases for _, state in base[3]}
+            for _, state in dropped[3]:
+                if id(state) not in kept:
+                    fmu.freeFMUstate(state)
+
+    def replay_many(self, requests) -> list:
+        """:meth:`replay` of each request, on :attr:`workers` processes when there are several.
+
+        Parameters
+        ----------
+        requests : sequence of (time, inputs, parameters, start)
+            The arguments of :meth:`replay`.
+
+        Returns
+        -------
+        list
+            Per request, its outputs (n, n_outputs), or a message in words when the FMU refused
+            the replay (Error or Fatal) or its process died during it (a crash inside the FMU;
+            only parallel replays survive that: the crashed replay is found by running the
+            unfinished ones again one by one, each in a fresh process).
+        """
+        if self.workers <= 1 or len(requests) < 2:
+            return [_replay_or_message(self, request) for request in requests]
+        results = []
+        try:
+            chunk = -(-len(requests) // self.workers)  # one chunk per worker: its kept replays serve its chunk
+            for result in self._pool().map(_replay_in_worker, requests, chunksize=chunk):
+                results.append(result)
+        except BrokenProcessPool:
+            self._executor = None
+            for request in requests[len(results):]:
+                results.append(self._replay_alone(request))
+        return results
+
+    def _pool(self) -> ProcessPoolExecutor:
+        """The worker processes (started at the first parallel batch, each extracting and
+        instantiating its own copy of the FMU; :data:`_WORKER_CONTEXT`)."""
+        if self._executor is None or self._executor_size != self.workers:
+            if self._executor is not None:
+                self._executor.shutdown(cancel_futures=True)
+            self._executor_size = self.workers
+            self._executor = ProcessPoolExecutor(max_workers=self.workers,
+                                                 mp_context=_WORKER_CONTEXT,
+                                                 initializer=_start_worker, initargs=(str(self.path),))
+            weakref.finalize(self, self._executor.shutdown, wait=False, cancel_futures=True)
+        return self._executor
+
+    def _replay_alone(self, request):
+        """One replay in a fresh process of its own: its outputs, its refusal, or the crash."""
+        with ProcessPoolExecutor(max_workers=1, mp_context=_WORKER_CONTEXT,
+                                 initializer=_start_worker, initargs=(str(self.path),)) as alone:
+            try:
+                return alone.submit(_replay_in_worker, request).result()
+            except BrokenProcessPool:
+                return "the FMU's process died during the replay (a crash inside the FMU)"
 
     def simulate(self, time, inputs, *, seed: int = 0) -> Recording:
         """Replay ``inputs`` from the FMU's own start; ``seed`` is accepted for the Vehicle interface."""
         time, inputs, step = check_history(time, inputs, self.input_names)
         return Recording(time, inputs, self.input_names, self.replay(time, inputs), self.state_names,
                          {"vehicle": self.name, "sample_time": step})
+
+
+#: How worker processes start: forked where the system can (they only step their own FMU
+#: instance, so nothing this process holds is used in them, and a caller's script needs no
+#: ``if __name__ == "__main__"`` guard, as it would to be imported again by a spawned process),
+#: spawned elsewhere.
+_WORKER_CONTEXT = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
+                                              else "spawn")
+#: The FMU reference of a worker process (:meth:`FMUReference.replay_many`).
+_WORKER_REFERENCE = None
+
+
+def _start_worker(path: str) -> None:
+    global _WORKER_REFERENCE
+    _WORKER_REFERENCE = FMUReference(path, workers=1)
+
+
+def _replay_in_worker(request):
+    return _replay_or_message(_WORKER_REFERENCE, request)
+
+
+def _replay_or_message(reference: FMUReference, request):
+    """``reference.replay(*request)``, or the first line of what the FMU said when it refused."""
+    time, inputs, parameters, start = request
+    try:
+        with np.errstate(all="ignore"):  # a candidate that blows the FMU up is refused, not warned about
+            return reference.replay(time, inputs, parameters=parameters, start=start)
+    except Exception as error:  # noqa: BLE001 - fmpy raises its own kinds for Error/Fatal
+        return str(error).splitlines()[0] if str(error) else type(error).__name__
 
 
 class FMUEffects:
@@ -198,8 +366,8 @@ class FMUEffects:
     """
 
     family = "fmu"
-    kinds = ("time_delay", "input_lag", "input_gain", "sensor_bias", "output_scale", "fmu_parameter")
-    batches_simulations = False
+    kinds = ("time_delay", "input_lag", "dead_band", "input_gain", "sensor_bias", "output_scale", "fmu_parameter")
+    batches_simulations = True  # a batch's replays run side by side on the reference's workers
     absolute_inputs = False
     needs_even_sampling = True
     min_noise_sd = {}
@@ -211,8 +379,19 @@ class FMUEffects:
         self.input_names, self.state_names = reference.input_names, reference.state_names
         self.residual_gp_states = reference.state_names
         self.terms = {"fmu_parameter": tuple(reference.parameters)}
-        self.sensor_noise_sd = dict.fromkeys(reference.state_names, 0.0)
+        self.sensor_noise_sd = {name: BENCH_NOISE_BY_UNIT.get(reference.units[name], 0.0)
+                                for name in reference.state_names}
+        self.signal_units = reference.units
         self._refusals = set()
+
+    @property
+    def workers(self) -> int:
+        """The reference's worker processes (:class:`FMUReference`)."""
+        return self.reference.workers
+
+    @workers.setter
+    def workers(self, count: int) -> None:
+        self.reference.workers = max(1, int(count))
 
     def model_value(self, term: str) -> float:
         """The parameter's start value in the FMU."""
@@ -265,46 +444,52 @@ class FMUEffects:
         return start
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
-        """One replay per effect list (module docstring), shape (B, n, n_outputs); a refused
-        replay gives NaN."""
+        """One replay per effect list (module docstring; side by side on the reference's
+        workers), shape (B, n, n_outputs); a refused replay gives NaN."""
         time = np.asarray(time, dtype=float)
         inputs = np.asarray(inputs, dtype=float)
         starts = {} if start is None else {n: v for n, v in zip(self.state_names, start) if np.isfinite(v)}
+        requests = [(time, self._effective_inputs(effects, time, inputs),
+                     {e["term"]: e["value"] for e in effects if e["effect"] == "fmu_parameter"}, starts)
+                    for effects in effect_lists]
         replays = []
-        for effects in effect_lists:
-            held = self._effective_inputs(effects, time, inputs)
-            parameters = {e["term"]: e["value"] for e in effects if e["effect"] == "fmu_parameter"}
-            try:
-                with np.errstate(all="ignore"):  # a candidate that blows the FMU up is refused, not warned about
-                    outputs = self.reference.replay(time, held, parameters=parameters, start=starts)
-            except Exception as error:  # noqa: BLE001 - fmpy raises its own kinds for Error/Fatal
-                message = str(error).splitlines()[0] if str(error) else type(error).__name__
-                if message not in self._refusals:
-                    self._refusals.add(message)
-                    _log.warning("%s refused a replay with %s: %s", self.name, effects, message)
-                outputs = np.full((len(time), len(self.state_names)), math.nan)
+        for effects, result in zip(effect_lists, self.reference.replay_many(requests)):
+            if isinstance(result, str):
+                if result not in self._refusals:
+                    self._refusals.add(result)
+                    _log.warning("%s refused a replay with %s: %s", self.name, effects, result)
+                result = np.full((len(time), len(self.state_names)), math.nan)
             for effect in effects:
                 if effect["effect"] == "output_scale":
-                    outputs[:, self.state_names.index(effect["output"])] *= effect["value"]
+                    result[:, self.state_names.index(effect["output"])] *= effect["value"]
             for effect in effects:
                 if effect["effect"] == "sensor_bias":
-                    outputs[:, self.state_names.index(effect["output"])] += effect["value"]
-            replays.append(outputs)
+                    result[:, self.state_names.index(effect["output"])] += effect["value"]
+            replays.append(result)
         return np.stack(replays)
 
     def _effective_inputs(self, effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """The inputs the FMU sees: delayed, lagged (interval means, so row k is the mean over
-        interval k; the last row repeats) and scaled."""
+        """The inputs the FMU sees: through a dead band about the recording's first value, then
+        delayed and lagged as changes from that value (interval means, so row k is the mean over
+        interval k; the last row repeats; before the recording, the input held its first value),
+        then scaled (``gain * u``)."""
+        first = inputs[0].copy()
         held = inputs.copy()
         steps = np.diff(time)
         for effect in effects:
+            if effect["effect"] == "dead_band" and effect["value"] > 0:
+                j = self.input_names.index(effect["input"])
+                held[:, j] = dead_band_inputs(held[:, j], effect["value"], centre=first[j])
+        moved = held.copy()
+        for effect in effects:
             if effect["effect"] == "time_delay" and effect["value"] > 0:
                 j = self.input_names.index(effect["input"])
-                held[:-1, j] = delayed_interval_means(inputs[:, j], effect["value"], time)
+                held[:-1, j] = first[j] + delayed_interval_means(moved[:, j] - first[j], effect["value"], time)
         for effect in effects:
             if effect["effect"] == "input_lag" and effect["value"] > 0:
                 j = self.input_names.index(effect["input"])
-                held[:-1, j] = lagged_interval_means(held[None, :-1, j], np.array([effect["value"]]), steps)[0]
+                held[:-1, j] = first[j] + lagged_interval_means(held[None, :-1, j] - first[j],
+                                                                np.array([effect["value"]]), steps)[0]
         for effect in effects:
             if effect["effect"] == "input_gain":
                 held[:, self.input_names.index(effect["input"])] *= effect["value"]

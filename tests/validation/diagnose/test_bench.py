@@ -197,8 +197,64 @@ def test_cli_with_several_seeds_writes_the_runs_and_their_summary(tmp_path, caps
     (["--cases", "no-such-case"], "unknown case(s) no-such-case"),
     (["--reference", "blimp-flight"], "bo105-<V>kt, blimp, rgblimp, state-space FILE.json and FILE.fmu references"),
     (["--reference", "bo105-85kt"], "no Bo105 model at 85 kt"),
+    (["--duration", "2"], "--duration must be at least 5 s"),
+    (["--workers", "0"], "--workers must be at least 1"),
+    (["--through", "missing.fmu", "--cases", "none"], "missing.fmu: no such FMU"),
 ])
 def test_cli_bad_input_exits_2(argv, message, tmp_path, capsys):
     assert main(["diagnose-bench", *argv, "--out", str(tmp_path / "o")]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture(scope="module")
+def bo105_fmu(tmp_path_factory):
+    from fmu_src import build_bo105_reference_fmu
+
+    return str(build_bo105_reference_fmu(80, tmp_path_factory.mktemp("bench_fmu")))
+
+
+def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, tmp_path):
+    """Through the Bo105 reference FMU a derivative is the FMU parameter of the same name and the
+    dead band outside bo105-80kt's list is a named dead band; through a state-space JSON of the
+    same model every case is unchanged; an effect the diagnosing reference cannot name is a
+    BadInputError."""
+    from validation.core.errors import BadInputError
+    from validation.diagnose.bench import diagnosed_truth
+    from validation.vehicles.effect_vehicle import effect_model
+
+    cases = {case.name: case for case in concealed_cases(reference="bo105-80kt")}
+    through_fmu = effect_model(bo105_fmu, purpose="test")
+    pair = diagnosed_truth(cases["pair-lag+M_q"], through_fmu)
+    assert pair.kind == "pair" and [e["effect"] for e in pair.effects] == ["input_lag", "fmu_parameter"]
+    assert pair.effects[1]["term"] == "M_q" and pair.effects[1]["value"] == cases["pair-lag+M_q"].effects[1]["value"]
+    dead_band = diagnosed_truth(cases["outside-dead-band"], through_fmu)
+    assert dead_band.kind == "single" and dead_band.effects == (
+        {"effect": "dead_band", "input": "theta_1s", "value": math.radians(0.3)},)
+    assert diagnosed_truth(cases["outside-quadratic-damping"], through_fmu).kind == "outside"
+    state_space = tmp_path / "bo105.json"
+    assert main(["state-space", "bo105-80kt", "--out", str(state_space)]) == 0
+    linear = effect_model(str(state_space), purpose="test")
+    assert all(diagnosed_truth(case, linear) == case for case in cases.values())
+    blimp_case = ConcealedCase("x", "single", ({"effect": "quadratic_drag", "term": "X_UU", "value": -1.0},))
+    with pytest.raises(BadInputError, match="cannot name quadratic_drag X_UU"):
+        diagnosed_truth(blimp_case, through_fmu)
+
+
+def test_the_fmu_suite_acts_on_the_fmus_own_inputs_and_outputs(bo105_fmu):
+    cases = concealed_cases(reference=bo105_fmu)
+    assert [case.name for case in cases] == ["delay-theta_0-100ms", "lag-theta_1s-150ms", "bias-q-5sd", "none"]
+    assert cases[2].effects[0]["value"] == pytest.approx(5 * 0.003)  # the stand-in's rate noise
+
+
+@pytest.mark.slow
+def test_a_dead_band_hidden_in_the_bo105_is_named_through_its_fmu(bo105_fmu, tmp_path, capsys):
+    """The outside-dead-band case, flown on bo105-80kt and diagnosed through the Bo105 reference
+    FMU (which takes dead bands): named, the true half-width inside the interval, the affected
+    output's held-out error cut (8 s recordings on two workers, to keep the test short)."""
+    out = tmp_path / "bench"
+    assert main(["diagnose-bench", "--cases", "outside-dead-band", "--through", bo105_fmu, "--duration", "8",
+                 "--workers", "2", "--out", str(out), "--no-progress"]) == 0
+    row = json.loads((out / "scorecard.json").read_text())["cases"][0]
+    assert row["passed"] and row["named"] and row["in_interval"] and not row["false_findings"], row
+    assert f"through {bo105_fmu}" in capsys.readouterr().out

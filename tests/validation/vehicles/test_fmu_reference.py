@@ -92,3 +92,167 @@ def test_bad_fmus_exit_2_with_one_line(tmp_path, capsys):
         assert code == 2 and message in err and err.count("\n") == 1, err
     with pytest.raises(BadInputError, match="no such FMU"):
         effect_model(str(tmp_path / "none.fmu"), purpose="test")
+
+
+def _description_only_fmu(path, *, version: str, kind: str) -> str:
+    """A zip holding only a model description of FMI ``version`` and ``kind`` (CoSimulation or
+    ModelExchange) with one Real input and output: enough for diagnose to read and refuse."""
+    import zipfile
+
+    variables = ('<ScalarVariable name="u" valueReference="0" causality="input"><Real start="0"/></ScalarVariable>'
+                 '<ScalarVariable name="q" valueReference="1" causality="output"><Real/></ScalarVariable>')
+    xml = (f'<?xml version="1.0" encoding="UTF-8"?><fmiModelDescription fmiVersion="{version}" modelName="m" '
+           f'guid="{{00000000-0000-0000-0000-000000000000}}" numberOfEventIndicators="0">'
+           f'<{kind} modelIdentifier="m"/><ModelVariables>{variables}</ModelVariables>'
+           '<ModelStructure><Outputs><Unknown index="2"/></Outputs></ModelStructure></fmiModelDescription>')
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("modelDescription.xml", xml)
+    return str(path)
+
+
+def test_fmus_of_another_kind_or_version_and_unmatched_columns_exit_2_with_one_line(fmu, tmp_path, capsys):
+    recording = tmp_path / "run.csv"
+    recording.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,q\n0,0,0,0,0,0\n0.01,0,0,0,0,0\n")
+    other = tmp_path / "other.csv"
+    other.write_text("time,elevator,pitch_rate\n0,0,0\n0.01,0,0\n")
+    cases = ((_description_only_fmu(tmp_path / "me.fmu", version="2.0", kind="ModelExchange"), recording,
+              "a model-exchange FMU"),
+             (_description_only_fmu(tmp_path / "v1.fmu", version="1.0", kind="CoSimulation"), recording,
+              "an FMI 1.0 FMU"),
+             (fmu, other, "--map renames columns"))
+    for reference, data, message in cases:
+        code = main(["diagnose", str(data), "--reference", str(reference), "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_column_map_renames_recording_columns_to_the_fmus_names(fmu, manoeuvre, tmp_path, capsys):
+    """A recording whose columns carry other names is diagnosed through the map exactly as the
+    same recording under the FMU's names; maps that name unknown variables or columns no
+    recording has, or are not JSON objects of names, exit 2 with one line."""
+    from validation.core.recordings import write_recording
+    from validation.diagnose.data import prepare, read_column_map
+
+    time, inputs = manoeuvre
+    flown = Bo105Reference(80).simulate(time, inputs)
+    flown = type(flown)(flown.time, flown.inputs, flown.input_names, flown.outputs[:, :-1], flown.output_names[:-1],
+                        {})  # without r
+    renames = {"theta_1s": "long_cyclic", "q": "pitch_rate"}
+    renamed = type(flown)(flown.time, flown.inputs, tuple(renames.get(n, n) for n in flown.input_names),
+                          flown.outputs, tuple(renames.get(n, n) for n in flown.output_names), {})
+    path = tmp_path / "renamed.csv"
+    write_recording(path, renamed)
+    column_map = tmp_path / "map.json"
+    column_map.write_text('{"long_cyclic": "theta_1s", "pitch_rate": "q"}')
+    model = effect_model(fmu, purpose="test")
+    mapped = prepare([path], model, column_map=read_column_map(column_map))
+    direct = prepare([flown], model)
+    assert mapped.output_names == direct.output_names
+    np.testing.assert_array_equal(mapped.measured[0], direct.measured[0])
+    np.testing.assert_array_equal(mapped.inputs[0], direct.inputs[0])
+    for text, message in (('{"long_cyclic": "theta_9", "pitch_rate": "q"}', "none of"),
+                          ('{"long_cyclic": "theta_1s", "pitch_rate": "q", "yaw_gyro": "r"}',
+                           "which no recording has"),
+                          ('{"long_cyclic": "theta_1s", "pitch_rate": "q", "stick": "theta_1c"}',
+                           "--map renames columns"),
+                          ('["long_cyclic"]', "a JSON object of names"),
+                          ('{"long_cyclic": "q", "pitch_rate": "q"}', "more than one column")):
+        column_map.write_text(text)
+        code = main(["diagnose", str(path), "--reference", fmu, "--map", str(column_map),
+                     "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and err.count("\n") == 1, err
+
+
+def test_dead_band_and_delay_act_about_the_inputs_first_value(fmu, manoeuvre):
+    """A dead band passes nothing within its half-width of the recording's first input value and
+    the rest short by it; a delay holds the first value before the recording (an input that
+    does not start at zero is not delayed from zero): both as the built-in reference with those
+    inputs (1e-9)."""
+    time, inputs = manoeuvre
+    offset, width = np.radians(0.5), np.radians(0.4)
+    shifted = inputs + np.array([0.0, offset, 0.0, 0.0])
+    shifted[-50:, 1] += np.radians(0.2)  # a last second inside the dead band
+    through_fmu, built_in = effect_model(fmu, purpose="test"), Bo105Reference(80)
+    replays = through_fmu.simulate_many([[{"effect": "dead_band", "input": "theta_1s", "value": width}],
+                                         [{"effect": "time_delay", "input": "theta_1s", "value": 3 * STEP}]],
+                                        time, shifted)
+    deviation = shifted[:, 1] - offset
+    banded = shifted.copy()
+    banded[:, 1] = offset + np.sign(deviation) * np.maximum(np.abs(deviation) - width, 0.0)
+    delayed = shifted.copy()
+    delayed[:, 1] = np.concatenate([np.full(3, offset), shifted[:-3, 1]])
+    assert np.any(np.abs(deviation) > width) and np.any((np.abs(deviation) < width) & (deviation != 0))
+    for replay, flown in zip(replays, (banded, delayed)):
+        np.testing.assert_allclose(replay, built_in.simulate_states(time, flown), rtol=0, atol=1e-9)
+
+
+def test_parallel_and_resumed_replays_equal_fresh_ones(fmu, manoeuvre):
+    """Replays on two worker processes, and replays that resume from a kept replay's saved FMU
+    state, are bit for bit the replays of a fresh instance, one at a time."""
+    from validation.vehicles.fmu_reference import FMUReference
+
+    time, inputs = manoeuvre
+    later = inputs.copy()
+    later[len(time) // 2:, 2] *= 1.5  # differs from the first replay only in its second half
+    requests = [(time, inputs, {}, {}), (time, later, {}, {}), (time, inputs, {"M_q": -3.0}, {}),
+                (time, later, {"M_q": -3.0}, {"q": 0.01})]
+    fresh = [FMUReference(fmu, workers=1).replay(t, u, parameters=p, start=s) for t, u, p, s in requests]
+    kept = FMUReference(fmu, workers=1)
+    serial = kept.replay_many(requests)
+    assert kept.steps_resumed >= len(time) // 2 - 1  # the second replay resumed halfway
+    parallel = FMUReference(fmu, workers=2).replay_many(requests)
+    for expected, one, other in zip(fresh, serial, parallel):
+        np.testing.assert_array_equal(one, expected)
+        np.testing.assert_array_equal(other, expected)
+
+
+_CRASHING_SLAVE = '''
+import os
+import signal
+
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+
+
+class Crashing(Fmi2Slave):
+    """A first-order lag whose process dies at its second step when the parameter crash is 1."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.u, self.y, self.crash = 0.0, 0.0, 0.0
+        self.register_variable(Real("u", causality=Fmi2Causality.input))
+        self.register_variable(Real("y", causality=Fmi2Causality.output))
+        self.register_variable(Real("crash", causality=Fmi2Causality.parameter,
+                                    variability=Fmi2Variability.fixed))
+
+    def do_step(self, current_time, step_size):
+        if self.crash > 0.5 and current_time > 0.5 * step_size:
+            os.kill(os.getpid(), signal.SIGKILL)
+        self.y += step_size * (self.u - self.y)
+        return True
+'''
+
+
+@pytest.mark.slow
+def test_an_fmu_whose_process_dies_ends_only_that_candidate(tmp_path, caplog):
+    """Replays run in worker processes, so an FMU that kills its process (a crash inside it)
+    ends the candidate that made it crash, with a message; the other candidates of the batch
+    are replayed, and the next batch runs on fresh workers."""
+    from pythonfmu.builder import FmuBuilder
+
+    script = tmp_path / "crashing.py"
+    script.write_text(_CRASHING_SLAVE)
+    path = str(FmuBuilder.build_FMU(script, dest=tmp_path))
+    model = effect_model(path, purpose="test")
+    model.workers = 2
+    time = np.arange(20) * 0.1
+    inputs = np.ones((20, 1))
+    crash, fine, also_fine = model.simulate_many(
+        [[{"effect": "fmu_parameter", "term": "crash", "value": 1.0}], [], [{"effect": "input_gain", "input": "u",
+                                                                          "value": 2.0}]], time, inputs)
+    assert np.isnan(crash).all() and np.isfinite(fine).all()
+    np.testing.assert_allclose(also_fine, 2 * fine, rtol=1e-12)
+    assert any("process died" in record.message for record in caplog.records)
+    again = model.simulate_many([[], []], time, inputs)
+    np.testing.assert_array_equal(again[0], fine)
