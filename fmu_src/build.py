@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from fmu_src.blimp_reference.build import build_blimp_reference_fmu
 from fmu_src.blimp_rkgp.build import build_blimp_rkgp_fmu
 from fmu_src.blimp_rkgp.native import build_native_blimp_rkgp_fmu
 from fmu_src.bo105_reference.build import build_bo105_reference_fmu
@@ -72,13 +73,13 @@ def build_model_fmu(model_path, out_dir, *, name: str | None = None, native: boo
 
 def reference_fmu_names() -> list[str]:
     """The names :func:`build_reference_fmu` accepts (``jsbsim:<aircraft>`` as a pattern)."""
-    return [f"bo105-{v}kt" for v in BO105_SPEEDS_KT] + ["jsbsim:<aircraft>"]
+    return [f"bo105-{v}kt" for v in BO105_SPEEDS_KT] + ["blimp", "jsbsim:<aircraft>"]
 
 
 def build_reference_fmu(reference: str, out_dir, *, name: str | None = None) -> Path:
     """Build the FMU of a physics reference by its vehicle name (docs/conventions.md, "Vehicle
-    and reference names"): ``bo105-<V>kt`` (:func:`build_bo105_reference_fmu`) or
-    ``jsbsim:<aircraft>`` (:func:`build_jsbsim_fmu`).
+    and reference names"): ``bo105-<V>kt`` (:func:`build_bo105_reference_fmu`), ``blimp``
+    (:func:`build_blimp_reference_fmu`) or ``jsbsim:<aircraft>`` (:func:`build_jsbsim_fmu`).
 
     Raises
     ------
@@ -88,7 +89,9 @@ def build_reference_fmu(reference: str, out_dir, *, name: str | None = None) -> 
     match = re.fullmatch(r"bo105-(\d+)kt", reference)
     if match and int(match.group(1)) in BO105_SPEEDS_KT:
         return build_bo105_reference_fmu(int(match.group(1)), out_dir, name=name)
+    if reference == "blimp":
+        return build_blimp_reference_fmu(out_dir, name=name)
     if reference.startswith("jsbsim:") and reference != "jsbsim:":
         return build_jsbsim_fmu(reference.split(":", 1)[1], out_dir, name=name)
     raise BadInputError(f"no reference FMU {reference!r}; valid: {', '.join(reference_fmu_names())} "
-                        "(e.g. jsbsim:c172x, jsbsim:ah1s; flight-test stand-ins and the blimp have none)")
+                        "(e.g. jsbsim:c172x, jsbsim:ah1s; flight-test stand-ins and the RGBlimp have none)")

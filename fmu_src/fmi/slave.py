@@ -91,6 +91,13 @@ UNITS = {
     "m/(s.rad)": ({"m": 1, "s": -1, "rad": -1}, {}),
     "m/(s2.rad)": ({"m": 1, "s": -2, "rad": -1}, {}),
     "rad/(m.s)": ({"rad": 1, "m": -1, "s": -1}, {}),
+    # The units of the blimp's physical parameters (validation.vehicles.blimp.BlimpParameters).
+    "kg": ({"kg": 1}, {}),
+    "kg.m2": ({"kg": 1, "m": 2}, {}),
+    "kg/m": ({"kg": 1, "m": -1}, {}),
+    "N.s/m": ({"kg": 1, "s": -1}, {}),
+    "N.s2/m2": ({"kg": 1, "m": -1}, {}),
+    "N.m.s/rad": ({"kg": 1, "m": 2, "s": -1, "rad": -1}, {}),
 }
 
 #: Relative tolerance on the communication point and step, as a fraction of the step.

@@ -47,6 +47,7 @@ def test_build_fmu_bad_input_exits_2_and_writes_nothing(bo105_model_file, bo105_
 
 
 @pytest.mark.parametrize("reference, file_name", [("bo105-80kt", "bo105_80kt_reference.fmu"),
+                                                  ("blimp", "blimp_reference.fmu"),
                                                   ("jsbsim:c172x", "jsbsim_c172x.fmu")])
 def test_build_fmu_command_builds_reference_fmus(reference, file_name, tmp_path, capsys):
     assert main(["build-fmu", "--reference", reference, "--out", str(tmp_path / "out")]) == 0
@@ -56,7 +57,7 @@ def test_build_fmu_command_builds_reference_fmus(reference, file_name, tmp_path,
 
 
 @pytest.mark.parametrize("arguments", [["--reference", "bo105-85kt"], ["--reference", "bo105-80kt-flight"],
-                                       ["--reference", "blimp"], ["--reference", "jsbsim:"],
+                                       ["--reference", "blimp-flight"], ["--reference", "jsbsim:"],
                                        ["--reference", "jsbsim:nope"], ["--reference", "jsbsim:ZLT-NT"],
                                        [], ["model.npz", "--reference", "bo105-80kt"]])
 def test_build_fmu_bad_reference_exits_2_naming_the_valid_ones(arguments, tmp_path, capsys):

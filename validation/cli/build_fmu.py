@@ -3,7 +3,8 @@ FMI 2.0 co-simulation FMU of a trained model (a GP-NARX model: the rate predicto
 :mod:`fmu_src.rate_predictor`; a grey-box ``GreyBoxGP``, by the physics its model file
 describes: ``blimp_rk4`` the blimp RKGP FMU of :mod:`fmu_src.blimp_rkgp`, ``rgblimp_rk4`` the
 RGBlimp RKGP FMU of :mod:`fmu_src.rgblimp_rkgp`) or of a physics reference (``bo105-<V>kt``:
-:mod:`fmu_src.bo105_reference`; ``jsbsim:<aircraft>``: :mod:`fmu_src.jsbsim_aircraft`).
+:mod:`fmu_src.bo105_reference`; ``blimp``: :mod:`fmu_src.blimp_reference`; ``jsbsim:<aircraft>``:
+:mod:`fmu_src.jsbsim_aircraft`).
 
 With ``--native``, a trained model's FMU is built as C compiled with the system gcc, with the
 same interface and numbers and no Python at run time (docs/fmus.md, "Native FMUs (no Python in the host)")."""
@@ -29,12 +30,13 @@ def register(subparsers) -> None:
                     "propagated along the run out, RK4 physics plus GP residual inside. With --native, any "
                     "of these model FMUs is native C instead (same interface and outputs, compiled with the "
                     "system gcc, no Python at run time). With --reference: a physics reference, "
-                    "bo105-<V>kt (Padfield's linear Bo105, V in 0, 20, ..., 140) or jsbsim:<aircraft> "
+                    "bo105-<V>kt (Padfield's linear Bo105, V in 0, 20, ..., 140), blimp (the blimp ODE, every "
+                    "physical parameter an FMU parameter) or jsbsim:<aircraft> "
                     "(a JSBSim aircraft, e.g. jsbsim:c172x or jsbsim:ah1s; the host needs the jsbsim "
                     "Python package).")
     parser.add_argument("model", type=Path, nargs="?", metavar="MODEL_FILE", help="trained model (.npz)")
     parser.add_argument("--reference", metavar="NAME",
-                        help="build a reference FMU instead: bo105-<V>kt or jsbsim:<aircraft>")
+                        help="build a reference FMU instead: bo105-<V>kt, blimp or jsbsim:<aircraft>")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for the FMU")
     parser.add_argument("--native", action="store_true",
                         help="build MODEL_FILE's FMU (the GP-NARX rate predictor, the blimp RKGP or the "
@@ -42,8 +44,8 @@ def register(subparsers) -> None:
                              "time (fmu_src/rate_predictor/native.py, fmu_src/blimp_rkgp/native.py, "
                              "fmu_src/rgblimp_rkgp/native.py)")
     parser.add_argument("--name", help="FMU name and model identifier (letters, digits, underscores; "
-                                       "default: the model file's name, bo105_<V>kt_reference or "
-                                       "jsbsim_<aircraft>)")
+                                       "default: the model file's name, bo105_<V>kt_reference, "
+                                       "blimp_reference or jsbsim_<aircraft>)")
     parser.set_defaults(func=run)
 
 
@@ -52,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
     if (args.model is None) == (args.reference is None):
         raise BadInputError("give either MODEL_FILE (a trained GP-NARX or grey-box model) or "
-                            "--reference NAME (bo105-<V>kt or jsbsim:<aircraft>), not both or neither")
+                            "--reference NAME (bo105-<V>kt, blimp or jsbsim:<aircraft>), not both or neither")
     if args.reference is not None and args.native:
         raise BadInputError("--native builds the FMU of a trained MODEL_FILE (GP-NARX rate predictor, "
                             "blimp RKGP or RGBlimp RKGP); reference FMUs have no native build (drop --native)")
