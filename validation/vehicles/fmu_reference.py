@@ -450,7 +450,8 @@ class FMUEffects:
         inputs = np.asarray(inputs, dtype=float)
         starts = {} if start is None else {n: v for n, v in zip(self.state_names, start) if np.isfinite(v)}
         requests = [(time, self._effective_inputs(effects, time, inputs),
-                     {e["term"]: e["value"] for e in effects if e["effect"] == "fmu_parameter"}, starts)
+                     {e["term"]: e["value"] for e in effects if e["effect"] == "fmu_parameter"},
+                     starts if start is None else self._true_start(effects, starts))
                     for effects in effect_lists]
         replays = []
         for effects, result in zip(effect_lists, self.reference.replay_many(requests)):
@@ -467,6 +468,20 @@ class FMUEffects:
                     result[:, self.state_names.index(effect["output"])] += effect["value"]
             replays.append(result)
         return np.stack(replays)
+
+    def _true_start(self, effects, starts: dict) -> dict:
+        """The start values of a replay from a recording with ``effects``: the recorded start
+        (``starts``, or the FMU's own start value where the recording agrees with it) with the
+        effects' sensor bias and scale taken off (``y = (m - b) / s``), so that a sensor that
+        reads high from the first sample is a bias and not a state the aircraft started in."""
+        corrected = dict(starts)
+        for name in self.reference.start_parameters:
+            bias = sum(e["value"] for e in effects if e["effect"] == "sensor_bias" and e["output"] == name)
+            scale = math.prod(e["value"] for e in effects if e["effect"] == "output_scale" and e["output"] == name)
+            if bias != 0 or scale != 1:
+                recorded = starts.get(name, self.reference.start_values[name])
+                corrected[name] = (recorded - bias) / scale if scale != 0 else recorded
+        return corrected
 
     def _effective_inputs(self, effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """The inputs the FMU sees: through a dead band about the recording's first value, then

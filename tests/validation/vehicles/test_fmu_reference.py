@@ -256,3 +256,43 @@ def test_an_fmu_whose_process_dies_ends_only_that_candidate(tmp_path, caplog):
     assert any("process died" in record.message for record in caplog.records)
     again = model.simulate_many([[], []], time, inputs)
     np.testing.assert_array_equal(again[0], fine)
+
+
+def test_a_sensor_bias_from_the_first_sample_is_not_a_start_state(fmu, manoeuvre):
+    """A roll-attitude sensor that reads 0.01 rad high starts the recording at phi = 0.01: the
+    replay without effects starts there (a tilted aircraft), and the replay with that bias
+    starts at the trim the sensor hides and reads the recording exactly (1e-9)."""
+    from validation.core.recordings import Recording
+
+    time, inputs = manoeuvre
+    flown = Bo105Reference(80).simulate(time, inputs)
+    phi, bias = flown.output_names.index("phi"), 0.01
+    outputs = flown.outputs.copy()
+    outputs[:, phi] += bias
+    recording = Recording(time, inputs, flown.input_names, outputs, flown.output_names, {})
+    model = effect_model(fmu, purpose="test")
+    start = model.start_state(recording)
+    assert start[model.state_names.index("phi")] == pytest.approx(bias)
+    tilted, biased = model.simulate_many([[], [{"effect": "sensor_bias", "output": "phi", "value": bias}]],
+                                         time, inputs, start=start)
+    np.testing.assert_allclose(biased, outputs, rtol=0, atol=1e-9)
+    assert tilted[0, phi] == pytest.approx(bias) and np.abs(tilted - outputs).max() > 2 * bias  # 4x in 6 s
+
+
+@pytest.mark.slow
+def test_a_dead_band_is_named_when_the_manoeuvre_has_two_amplitudes(fmu):
+    """A 0.3 deg dead band on longitudinal cyclic, flown through the FMU with 3-2-1-1s of 1 deg
+    and then 2.5 deg (at one amplitude a dead band is a lower gain, exactly, on a 3-2-1-1):
+    named first, the true half-width inside its interval."""
+    width = np.radians(0.3)
+    time, small = identification_manoeuvre(duration=DURATION, sample_time=STEP)
+    inputs = np.vstack([small, 2.5 * small[1:]])
+    time = np.arange(len(inputs)) * STEP
+    aircraft = EffectVehicle(effect_model(fmu, purpose="test"), [{"effect": "dead_band", "input": "theta_1s",
+                                                                 "value": width}], noise_sd=SENSOR_NOISE_STD)
+    fit, held = aircraft.simulate(time, inputs, seed=1), aircraft.simulate(time, -inputs, seed=2)
+    findings = diagnose([fit], reference=fmu, holdout=[held], workers=1).as_dict()["findings"]
+    first = findings[0]
+    assert (first["effect"], first["input"]) == ("dead_band", "theta_1s"), findings
+    assert first["interval"][0] <= width <= first["interval"][1]
+    assert "dead band (free play) on theta_1s" in first["statement"]
