@@ -53,19 +53,46 @@ def cached_zero_order_hold(cache: dict, A: np.ndarray, B: np.ndarray, step: floa
     return cache[key]
 
 
+#: Steps per block of :func:`propagate`: long enough that its Python loops are short (about
+#: ``2 sqrt(n)`` iterations for ``n`` steps near the optimum), short enough that the powers of
+#: the transition matrix it keeps stay few.
+PROPAGATE_BLOCK = 32
+
+
 def propagate(transition: np.ndarray, forcing: np.ndarray, state: np.ndarray, *,
               every: int = 1) -> np.ndarray:
     """``x[j+1] = transition @ x[j] + forcing[j]`` from ``x[0] = state``; every ``every``-th ``x``.
 
+    Computed in blocks of :data:`PROPAGATE_BLOCK` steps rather than step by step, with the same
+    result up to rounding (about 1e-15 relative; tested against the step-by-step recursion): the
+    response to each block's forcing from rest, ``c[b, i] = sum_{j<i} T^(i-1-j) f[b, j]``, for all
+    blocks at once; the block starts ``x0[b+1] = T^L x0[b] + c[b, L]`` one block at a time; then
+    ``x[b, i] = T^i x0[b] + c[b, i]`` for all blocks at once. That is ``L + n/L`` short Python
+    iterations instead of ``n``, which is what a step of a small system costs.
+
     Returns shape (len(forcing) // every + 1, len(state)): ``x[0], x[every], ..., x[len(forcing)]``.
     """
-    states = np.empty((len(forcing) // every + 1, len(state)))
-    for j, push in enumerate(forcing):
-        if j % every == 0:
-            states[j // every] = state
-        state = transition @ state + push
-    states[-1] = state
-    return states
+    forcing = np.asarray(forcing, dtype=float)
+    state = np.asarray(state, dtype=float)
+    n_steps, size, block = len(forcing), len(state), PROPAGATE_BLOCK
+    n_blocks = -(-n_steps // block)
+    padded = np.zeros((n_blocks * block, size))
+    padded[:n_steps] = forcing
+    padded = padded.reshape(n_blocks, block, size)
+    powers = np.empty((block + 1, size, size))  # T^0 .. T^L
+    powers[0] = np.eye(size)
+    for i in range(1, block + 1):
+        powers[i] = transition @ powers[i - 1]
+    from_rest = np.zeros((n_blocks, block + 1, size))  # c[b, i], i = 0 .. L
+    for i in range(1, block + 1):
+        from_rest[:, i] = from_rest[:, i - 1] @ transition.T + padded[:, i - 1]
+    starts = np.empty((n_blocks + 1, size))
+    starts[0] = state
+    for b in range(n_blocks):
+        starts[b + 1] = powers[block] @ starts[b] + from_rest[b, block]
+    states = np.einsum("inm,bm->bin", powers[:block], starts[:-1]) + from_rest[:, :block]
+    states = np.concatenate([states.reshape(-1, size), starts[-1:]])[:n_steps + 1]
+    return np.concatenate([states[0:n_steps:every][:n_steps // every], states[-1:]])
 
 
 class LinearReference:

@@ -117,3 +117,23 @@ def test_missing_and_malformed_files_and_non_linear_exports_exit_2(tmp_path, cap
                           (tmp_path / "broken.json", "not a JSON state-space model")):
         with pytest.raises(BadInputError, match=message):
             get_vehicle(str(path))
+
+
+@pytest.mark.parametrize("steps", [0, 1, 31, 32, 33, 100, 2000])
+@pytest.mark.parametrize("every", [1, 3])
+def test_blocked_propagation_is_the_step_by_step_recursion(steps, every):
+    """validation.vehicles.state_space.propagate works in blocks; it returns what
+    x[j+1] = T x[j] + f[j] gives step by step, every ``every``-th state and the last, to rounding."""
+    from validation.vehicles.state_space import propagate
+
+    rng = np.random.default_rng(steps)
+    transition = rng.standard_normal((9, 9))
+    transition *= 0.99 / np.abs(np.linalg.eigvals(transition)).max()
+    forcing, state = rng.standard_normal((steps, 9)), rng.standard_normal(9)
+    expected = [state]
+    for push in forcing:
+        expected.append(transition @ expected[-1] + push)
+    expected = np.array(expected)
+    np.testing.assert_allclose(propagate(transition, forcing, state, every=every),
+                               np.concatenate([expected[:steps:every][:steps // every], expected[-1:]]),
+                               rtol=0, atol=1e-12)
