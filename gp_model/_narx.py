@@ -9,7 +9,7 @@ from the cyclic input and the previous rates). Two kinds of prediction:
 
   * ``"monte_carlo"`` (the paper's): R runs, each drawing its output at every step from the
     GP's predictive distribution, each run with hyperparameters drawn from the annealing
-    samples; vectorised over runs;
+    samples; vectorised over runs and outputs, the runs that share a sample evaluated together;
   * ``"moment_matching"``: the exact mean and covariance of the GP output at a Gaussian input
     (Girard et al., NIPS 2003), propagated as a joint Gaussian over the lagged outputs;
   * ``"mean"``: the naive rollout that feeds back the mean and reports the GP variance at it.
@@ -19,6 +19,8 @@ row k is sample k of an evenly sampled recording.
 """
 from __future__ import annotations
 
+import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -225,7 +227,7 @@ class GPNarx:
     # -- free run ---------------------------------------------------------------------------
     def free_run(self, inputs, initial_outputs, *, method: str = "monte_carlo", n_runs: int = 1000,
                  seed: int = 0, include_noise: bool = True, feedback_noise: bool = True,
-                 use_samples: bool = True, keep_runs: bool = False, n_threads: int = 2,
+                 use_samples: bool = True, keep_runs: bool = False, n_threads: int | None = None,
                  progress=None) -> FreeRunResult:
         """Free-run (full-model) prediction over the whole input history.
 
@@ -255,9 +257,12 @@ class GPNarx:
             ``theta_``.
         keep_runs : bool
             Keep the individual Monte Carlo runs in the result.
-        n_threads : int, default 2
-            Threads sharing the Monte Carlo runs; the result does not depend on it (up to
-            rounding in the last bits).
+        n_threads : int, optional
+            Threads sharing each Monte Carlo step, by default one per core available to the
+            process. They meet after every step (each step needs all outputs of the last), so
+            more threads than free cores slow the run down. The result does not depend on it
+            beyond rounding in the last bits (none where the threads' shares end between
+            hyperparameter samples).
         progress : callable, optional
             Called as ``progress(k)`` after every ``k`` predicted steps (Monte Carlo).
         """
@@ -282,29 +287,44 @@ class GPNarx:
                                                   feedback_noise=feedback_noise, use_samples=use_samples)
         raise ValueError(f"unknown free-run method {method!r}; use monte_carlo, moment_matching or mean")
 
-    def _regressor_rows(self, inputs, history, k):
-        """Regressors of step ``k`` for every run: ``history`` (R, n, n_outputs)."""
+    def _regressors(self, inputs, history, k, out):
+        """Regressors of step ``k`` for every run, one row per regressor (the order of
+        :attr:`NarxStructure.regressor_names`), into ``out``, shape (n_regressors, R).
+
+        ``history`` has shape (n, n_outputs * R): row ``k`` holds output ``c`` of run ``r`` in
+        column ``c * R + r``.
+        """
         s = self.structure
-        u_part = [np.broadcast_to(inputs[k - i, c], (history.shape[0],))
-                  for c in range(inputs.shape[1]) for i in s.input_lags]
-        y_part = [history[:, k - j, c] for c in range(history.shape[2]) for j in s.output_lags]
-        return np.column_stack(u_part + y_part)
+        n_runs = out.shape[1]
+        row = 0
+        for c in range(inputs.shape[1]):
+            for i in s.input_lags:
+                out[row] = inputs[k - i, c]
+                row += 1
+        for c in range(history.shape[1] // n_runs):
+            for j in s.output_lags:
+                out[row] = history[k - j, c * n_runs:(c + 1) * n_runs]
+                row += 1
+        return out
 
     def _free_run_mean(self, inputs, initial, *, include_noise, use_samples):
         n, n_out, start = len(inputs), len(self.structure.output_names), self.structure.max_lag
-        predictors = [_BatchPredictor.for_mixture(gp, use_samples=use_samples) for gp in self.model.gps]
-        history = np.zeros((1, n, n_out))
-        history[0, :start] = initial
+        # One "run" per hyperparameter sample, all at the same regressors: the mixture's parts.
+        predictors = [_BatchPredictor([gp], [np.arange(_n_samples(gp, use_samples))],
+                                      use_samples=use_samples).parts[0] for gp in self.model.gps]
+        history = np.zeros((n, n_out))
+        history[:start] = initial
         var = np.zeros((n, n_out))
+        x = np.empty((len(self.structure.regressor_names), 1))
         for k in range(start, n):
-            x = self._regressor_rows(inputs, history, k)
+            self._regressors(inputs, history, k, x)
             for j, predictor in enumerate(predictors):
                 # Mixture over hyperparameter samples, as GaussianProcess.predict.
-                means, variances = predictor(np.repeat(x, len(predictor.assignment), axis=0))
-                history[0, k, j], var[k, j] = mixture_moments(means, variances)
+                means, variances = predictor(np.repeat(x, len(predictor.runs), axis=1))
+                history[k, j], var[k, j] = mixture_moments(means, variances)
                 if include_noise:
                     var[k, j] += predictor.noise_variance.mean()
-        return FreeRunResult(history[0], var, None, "mean")
+        return FreeRunResult(history, var, None, "mean")
 
     def _free_run_monte_carlo(self, inputs, initial, *, n_runs, seed, include_noise,
                               feedback_noise, use_samples, keep_runs, progress, n_threads):
@@ -313,42 +333,53 @@ class GPNarx:
         gps = self.model.gps
         # All random numbers first, in a fixed order (hyperparameter sample of each run per
         # output, then one standard normal per step, output and run), so the result does not
-        # depend on how the runs are split between threads (beyond rounding).
+        # depend on how the work is split between threads.
         assignments = [rng.permutation(n_runs) % _n_samples(gp, use_samples) for gp in gps]
-        normals = rng.standard_normal((n - start, n_out, n_runs))
-        bounds = np.linspace(0, n_runs, max(1, min(n_threads, n_runs)) + 1).astype(int)
-        chunks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+        normals = rng.standard_normal((n - start, n_out * n_runs))  # column c * R + r
+        n_threads = _available_cores() if n_threads is None else n_threads
+        predictor = _BatchPredictor(gps, assignments, use_samples=use_samples,
+                                    n_parts=max(1, min(n_threads, n_out * n_runs)))
+        history = np.empty((n, n_out * n_runs))  # row k: output c of run r in column c * R + r
+        history[:start] = np.repeat(initial, n_runs, axis=1)
+        n_regressors = len(self.structure.regressor_names)
+        # Step k needs every output of step k - 1, which other threads computed: the threads
+        # meet at a barrier after every step.
+        barrier = threading.Barrier(len(predictor.parts))
 
-        def run(rows, report):
-            predictors = [_BatchPredictor(gp, a[rows], use_samples=use_samples)
-                          for gp, a in zip(gps, assignments)]
-            history = np.zeros((rows.stop - rows.start, n, n_out))
-            history[:, :start] = initial
-            for k in range(start, n):
-                X = self._regressor_rows(inputs, history, k)
-                for j, predictor in enumerate(predictors):
-                    mean, var = predictor(X)
+        def run(part, report):
+            x = np.empty((n_regressors, n_runs))
+            try:
+                for k in range(start, n):
+                    mean, var = part(self._regressors(inputs, history, k, x))
                     if feedback_noise:
-                        var = var + predictor.noise_variance
-                    history[:, k, j] = mean + np.sqrt(var) * normals[k - start, j, rows]
-                if report is not None:
-                    report(1)
-            return history
+                        var += part.noise_variance
+                    np.sqrt(var, out=var)
+                    var *= normals[k - start, part.columns]
+                    history[k, part.columns] = mean + var
+                    if len(predictor.parts) > 1:
+                        barrier.wait()
+                    if report is not None:
+                        report(1)
+            except BaseException:
+                barrier.abort()  # the other threads stop at the barrier instead of waiting
+                raise
 
-        # Runs are independent: each thread carries a share of them through the whole horizon
-        # (numpy releases the GIL in the batched products, so two threads use two cores).
-        reports = [progress] + [None] * (len(chunks) - 1)
-        if len(chunks) == 1:
-            parts = [run(chunks[0], progress)]
+        reports = [progress] + [None] * (len(predictor.parts) - 1)
+        if len(predictor.parts) == 1:
+            run(predictor.parts[0], progress)
         else:
-            with ThreadPoolExecutor(len(chunks)) as pool:
-                parts = list(pool.map(run, chunks, reports))
-        history = np.concatenate(parts)
-        var = history.var(axis=0)
+            with ThreadPoolExecutor(len(predictor.parts)) as pool:
+                futures = [pool.submit(run, part, report) for part, report in zip(predictor.parts, reports)]
+            errors = [f.exception() for f in futures if f.exception() is not None]
+            if errors:  # the cause, not another thread's broken barrier
+                raise next((e for e in errors if not isinstance(e, threading.BrokenBarrierError)), errors[0])
+        runs = history.reshape(n, n_out, n_runs).transpose(2, 0, 1)  # (R, n, n_outputs)
+        var = runs.var(axis=0)
         if include_noise and not feedback_noise:
             var += [np.mean(_noise_variances(gp, use_samples)[a]) for gp, a in zip(gps, assignments)]
         var[:start] = 0.0
-        return FreeRunResult(history.mean(axis=0), var, history if keep_runs else None, "monte_carlo")
+        return FreeRunResult(runs.mean(axis=0), var, np.ascontiguousarray(runs) if keep_runs else None,
+                             "monte_carlo")
 
     def _free_run_moment_matching(self, inputs, initial, *, include_noise, feedback_noise, use_samples):
         from ._moment_matching import moment_matcher
@@ -398,83 +429,184 @@ def _noise_variances(gp, use_samples: bool) -> np.ndarray:
     return np.exp(thetas[:, -1]) * gp.output_scaler_.scale_[0] ** 2
 
 
+def _available_cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 class _BatchPredictor:
-    """Predictive mean and latent variance of one GP for many rows at once, row ``r`` with the
-    hyperparameter sample ``assignment[r]`` (of the GP's samples, or its point estimate).
+    """Predictive means and latent variances of several GPs (one per output) for R runs at
+    once, where run ``r`` predicts output ``j`` with hyperparameter sample ``assignments[j][r]``
+    (of the GP's samples, or its point estimate).
 
     Works on any GP that offers ``predictive_forms`` (:class:`~gp_model._gp.PredictiveForm`):
-    per sample, kernel weights, signal variance, mean weights and variance factor. With few
-    distinct samples the rows are grouped by sample and each group costs one matrix product;
-    with many, the per-sample arrays are gathered per row once and a call is one batched
-    (R, n, n) product (memory R n^2 doubles).
+    per sample, kernel weights, signal variance, mean weights and variance factor, for kernel
+    (1) of ``gp_model/_kernels.py``, ``k(x, x') = sigma_f^2 exp(-sum_i w_i (x_i - x'_i)^2)`` on
+    standardised inputs.
+
+    Layout. Every (output, run) pair is a *slot*; the slots are ordered so that the runs sharing
+    an output's sample (an *item*) are adjacent, and items with equal numbers of runs are
+    adjacent, so that one batched matrix product per group of equal-sized items evaluates the
+    predictive mean and variance of all their runs, each item's arrays read once per step (the
+    variance products stream every sample's factor each step and bound the cost). The slots
+    are cut into ``n_parts`` contiguous :class:`_BatchPart` s, one per thread.
+
+    Parameters
+    ----------
+    gps : list of GP
+        One per output, all with the same regressors (d inputs).
+    assignments : list of ndarray, shape (R,) each
+        Hyperparameter sample of every run, per output.
+    use_samples : bool
+        Predict with the GPs' samples (else their point hyperparameters).
+    n_parts : int, default 1
     """
 
-    #: Up to this many distinct samples, rows are grouped by sample (a loop of matrix products);
-    #: above it, a Python loop over groups costs more than the batched product.
-    MAX_GROUPS = 16
-    #: Largest per-row gather (R n^2 doubles) accepted, bytes.
-    MAX_BYTES = 1 << 30
+    def __init__(self, gps, assignments, *, use_samples: bool, n_parts: int = 1) -> None:
+        forms = [gp.predictive_forms(use_samples=use_samples) for gp in gps]
+        n_runs = len(assignments[0])
+        # Bases of fewer points are padded with zeros to n points: their kernel values meet
+        # only zero weights.
+        n = max(len(f[0].basis) for f in forms)
+        # Items: (runs, output, sample), larger ones first, then by output and sample.
+        items = []
+        for j, a in enumerate(assignments):
+            order = np.argsort(a, kind="stable")
+            bounds = np.concatenate(([0], np.cumsum(np.bincount(a, minlength=len(forms[j])))))
+            items += [(order[lo:hi], j, s) for s, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])) if hi > lo]
+        items.sort(key=lambda item: (-len(item[0]), item[1], item[2]))
+        item_output = np.array([j for _, j, _ in items])
+        item_sample = np.array([s for _, _, s in items])
+        sizes = np.array([len(r) for r, _, _ in items])
+        slot_item = np.repeat(np.arange(len(items)), sizes)
+        slot_output = item_output[slot_item]
+        runs = np.concatenate([r for r, _, _ in items])
 
-    def __init__(self, gp, assignment: np.ndarray, *, use_samples: bool) -> None:
-        forms = gp.predictive_forms(use_samples=use_samples)
-        n, n_rows = forms[0].basis.shape[0], len(assignment)
-        thetas = np.array([f.theta for f in forms])
-        self.weights = np.array([gp.kernel.weights(t[:-1]) for t in thetas])  # (S, d)
-        self.signal = np.exp(thetas[:, 0])  # (S,)
-        self.alpha = np.array([f.weights for f in forms])  # (S, n)
-        self.L_inv = np.array([f.variance_factor for f in forms])  # (S, n, n)
-        self.log_signal = thetas[:, 0]  # (S,)
-        self.offset = self.log_signal[:, None] - self.weights @ (forms[0].basis ** 2).T  # (S, n)
-        self.assignment = np.asarray(assignment)
-        self.groups = None
-        if len(forms) <= self.MAX_GROUPS:
-            self.groups = [(s, np.flatnonzero(self.assignment == s)) for s in range(len(forms))]
-        elif n_rows * n * n * 8 > self.MAX_BYTES:
-            raise ValueError(f"Monte Carlo with {n_rows} runs and {len(forms)} hyperparameter "
-                             f"samples on {n} basis points needs {n_rows * n * n * 8 / 2**30:.1f} "
-                             "GiB; use fewer runs, use_samples=False, or fewer training points")
-        else:
-            self.row_weights = self.weights[self.assignment]
-            self.row_signal = self.signal[self.assignment]
-            self.row_log_signal = self.log_signal[self.assignment]
-            self.row_offset = self.offset[self.assignment]
-            self.row_alpha = self.alpha[self.assignment][:, :, None]
-            self.row_L_inv = self.L_inv[self.assignment]
-        self.X_train = forms[0].basis
-        self.input_scaler, self.output_scaler = gp.input_scaler_, gp.output_scaler_
-        self.noise_variance = _noise_variances(gp, use_samples)[self.assignment]
+        # Per output and sample: theta (S, p), weights w (S, d); per output: the basis.
+        thetas = [np.array([f.theta for f in fs]) for fs in forms]
+        weights = [np.array([gp.kernel.weights(t[:-1]) for t in th]) for gp, th in zip(gps, thetas)]
+        scales = [gp.output_scaler_.scale_[0] for gp in gps]
 
-    @classmethod
-    def for_mixture(cls, gp, *, use_samples: bool):
-        """One row per hyperparameter sample (evaluate all at the same input for the mixture)."""
-        return cls(gp, np.arange(_n_samples(gp, use_samples)), use_samples=use_samples)
+        def per_slot(values):  # values[j][s] -> array over slots (last axis)
+            return np.stack([np.asarray(values[j][s], dtype=float)
+                             for j, s in zip(item_output, item_sample)], axis=-1)[..., slot_item]
 
-    def _kernel_rows(self, Xs, weights, offset, log_signal):
-        """``k(x_r, X_train)`` for rows ``Xs`` (R, d) with per-row (or shared) ``weights``.
+        # The exponent ln k(x, X_m) = ln sigma_f^2 - sum_i w_i (x_i - X_mi)^2, expanded, is one
+        # matrix product per step: a (2d + 1, slots) column [w * x; w; ln sigma_f^2 - w . x^2]
+        # times G = [2 X^T; -(X^2)^T; 1] (2d + 1, n); rows d..2d - 1 of ``a`` never change.
+        self.input_mean = per_slot([[gp.input_scaler_.mean_] * len(f) for gp, f in zip(gps, forms)])
+        self.input_scale = per_slot([[gp.input_scaler_.scale_] * len(f) for gp, f in zip(gps, forms)])
+        self.weights = per_slot(weights)  # (d, slots)
+        self.log_signal = per_slot([th[:, 0] for th in thetas])  # (slots,)
+        self.signal = per_slot([np.exp(th[:, 0]) * sc**2 for th, sc in zip(thetas, scales)])
+        self.output_mean = per_slot([[gp.output_scaler_.mean_[0]] * len(f) for gp, f in zip(gps, forms)])
+        self.noise_variance = per_slot([_noise_variances(gp, use_samples) for gp in gps])
+        self.runs, self.columns = runs, slot_output * n_runs + runs
+        products = []
+        for fs in forms:
+            X = np.zeros((n, fs[0].basis.shape[1]))
+            X[:len(fs[0].basis)] = fs[0].basis
+            products.append(np.vstack([2.0 * X.T, -(X**2).T, np.ones((1, n))]))
+        # Outputs with equal bases (the usual case: all fitted on the same regressors) share
+        # one product.
+        first_equal = [next(i for i in range(j + 1) if np.array_equal(products[i], products[j]))
+                       for j in range(len(products))]
+        slot_product = np.array(first_equal)[slot_output]
 
-        ``ln k = ln sigma_f^2 - sum_i w_i (x_i - X_ni)^2`` expanded into products, with the part
-        that depends on the training points only, ``offset = ln sigma_f^2 - w . X_n^2``,
-        precomputed: no (R, n, d) temporary, one (R, d) x (d, n) product per call. The cap at
-        ``ln sigma_f^2`` removes rounding that would make a squared distance negative.
-        """
-        weighted = weights * Xs
-        exponent = offset + 2.0 * (weighted @ self.X_train.T) - (weighted * Xs).sum(axis=1)[:, None]
-        return np.exp(np.minimum(exponent, np.asarray(log_signal)[..., None]))
+        # Mean and variance weights, in output units, per item: mean = k . (alpha * scale),
+        # latent variance = sigma_f^2 scale^2 - |scale L^-1 k|^2 (Rasmussen & Williams, Alg.
+        # 2.1, lines 4-6, with V = L^-1 precomputed). When every L^-1 is lower triangular (exact
+        # GPs), its rows are taken in two blocks, the first ignoring the zero upper-right
+        # quarter: rows [0, h) need k[:h] only; rows [h, n) need all of k.
+        alpha, factor = np.zeros((len(items), n)), np.zeros((len(items), n, n))
+        for i, (_, j, s) in enumerate(items):
+            m = len(forms[j][s].weights)
+            alpha[i, :m] = forms[j][s].weights * scales[j]
+            factor[i, :m, :m] = forms[j][s].variance_factor * scales[j]
+        h = n // 2 if not np.any(np.triu(factor, 1)) else 0
+        # (kernel values used, weights (I, those, block rows [+ 1 for the mean]))
+        blocks = [] if h == 0 else [(h, np.ascontiguousarray(factor[:, :h, :h].transpose(0, 2, 1)))]
+        last = np.concatenate([factor[:, h:, :].transpose(0, 2, 1), alpha[:, :, None]], axis=2)
+        blocks.append((n, np.ascontiguousarray(last)))
+
+        edges = np.linspace(0, len(runs), n_parts + 1).astype(int)
+        item_start = np.concatenate(([0], np.cumsum(sizes)))
+        self.parts = []
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            if hi == lo:
+                continue
+            # Groups of adjacent items with equal numbers of slots in [lo, hi) (the items at
+            # the cuts keep only their share of slots).
+            groups = []
+            for i in range(slot_item[lo], slot_item[hi - 1] + 1):
+                a, b = max(item_start[i], lo) - lo, min(item_start[i + 1], hi) - lo
+                if groups and groups[-1][2] == b - a and groups[-1][1] == a:
+                    groups[-1] = (groups[-1][0], b, b - a, groups[-1][3], i + 1)
+                else:
+                    groups.append((a, b, b - a, i, i + 1))
+            cuts = np.flatnonzero(np.diff(slot_product[lo:hi])) + 1
+            segments = [(a, b, products[slot_product[lo + a]])
+                        for a, b in zip(np.concatenate(([0], cuts)), np.concatenate((cuts, [hi - lo])))]
+            self.parts.append(_BatchPart(self, slice(lo, hi), groups, segments, blocks, n))
+
+
+class _BatchPart:
+    """The slots ``rows`` of a :class:`_BatchPredictor`, evaluated together (one thread's share).
+
+    Attributes
+    ----------
+    runs, columns : ndarray of int, shape (m,)
+        Run of each slot, and its column ``c * R + r`` (output c, run r).
+    noise_variance : ndarray, shape (m,)
+        Noise variance of each slot's GP and sample, output units.
+    """
+
+    def __init__(self, batch: _BatchPredictor, rows: slice, groups, segments, blocks, n: int) -> None:
+        self.runs, self.columns = batch.runs[rows], batch.columns[rows]
+        self.noise_variance = batch.noise_variance[rows]
+        self.input_mean, self.input_scale = batch.input_mean[:, rows], batch.input_scale[:, rows]
+        self.log_signal, self.signal = batch.log_signal[rows], batch.signal[rows]
+        self.output_mean = batch.output_mean[rows]
+        self.groups = [(slice(a, b), size, slice(i, j)) for a, b, size, i, j in groups]
+        self.segments = [(slice(a, b), G) for a, b, G in segments]
+        self.blocks, self.n = blocks, n
+        widths = np.cumsum([0] + [w.shape[2] for _, w in blocks])
+        self.block_rows = list(zip(widths[:-1], widths[1:]))  # columns of each block's product
+        m, d = len(self.runs), batch.weights.shape[0]
+        self.a = np.empty((2 * d + 1, m))  # the exponent's left factor, see _BatchPredictor
+        self.a[d:2 * d] = batch.weights[:, rows]
+        self.weights = self.a[d:2 * d]
+        self.exponent = np.empty((m, n))
+        self.products = np.empty((m, n + 1))
+        self.mean, self.var = np.empty(m), np.empty(m)
 
     def __call__(self, X):
-        """Mean and latent variance, each shape (R,), in output units, at rows of ``X`` (R, d)."""
-        Xs = self.input_scaler.transform(X)
-        mean, var = np.empty(len(Xs)), np.empty(len(Xs))
-        if self.groups is not None:
-            for s, rows in self.groups:
-                k = self._kernel_rows(Xs[rows], self.weights[s], self.offset[s], self.log_signal[s])
-                mean[rows] = k @ self.alpha[s]
-                v = k @ self.L_inv[s].T
-                var[rows] = self.signal[s] - np.einsum("rm,rm->r", v, v)
-        else:
-            k = self._kernel_rows(Xs, self.row_weights, self.row_offset, self.row_log_signal)
-            mean = (k[:, None, :] @ self.row_alpha)[:, 0, 0]
-            v = (self.row_L_inv @ k[:, :, None])[:, :, 0]
-            var = self.row_signal - np.einsum("rm,rm->r", v, v)
-        scale = self.output_scaler.scale_[0]
-        return mean * scale + self.output_scaler.mean_[0], np.maximum(var, 0.0) * scale**2
+        """Mean and latent variance of every slot, each shape (m,), in output units, for the
+        regressors ``X`` (d, R) of all runs (each slot reads its run's column). The arrays are
+        reused by the next call."""
+        d = len(self.weights)
+        x = X[:, self.runs]
+        x -= self.input_mean
+        x /= self.input_scale
+        wx = np.multiply(x, self.weights, out=self.a[:d])
+        np.subtract(self.log_signal, np.einsum("ij,ij->j", wx, x), out=self.a[2 * d])
+        k = self.exponent
+        for rows, G in self.segments:
+            np.matmul(self.a[:, rows].T, G, out=k[rows])
+        # k(x_slot, X_m), shape (m, n); where x_slot meets a basis point, rounding may lift it a
+        # few ulp above sigma_f^2, which the variance's clipping at zero absorbs.
+        np.exp(k, out=k)
+        for rows, size, items in self.groups:
+            k_group = k[rows].reshape(-1, size, self.n)  # (items, runs each, n)
+            v = self.products[rows].reshape(-1, size, self.n + 1)  # [scale L^-1 k, mean]
+            for (cols, factors), (first, last) in zip(self.blocks, self.block_rows):
+                np.matmul(k_group[:, :, :cols], factors[items], out=v[:, :, first:last])
+            np.einsum("ipm,ipm->ip", v[:, :, :self.n], v[:, :, :self.n], out=self.var[rows].reshape(-1, size))
+            self.mean[rows] = v[:, :, self.n].ravel()
+        np.subtract(self.signal, self.var, out=self.var)
+        np.maximum(self.var, 0.0, out=self.var)
+        self.mean += self.output_mean
+        return self.mean, self.var

@@ -1,8 +1,18 @@
 """GP-NARX: regressors, one-step and free-run prediction, agreement of the propagation methods."""
+import copy
+
 import numpy as np
 import pytest
 
-from gp_model import GaussianProcess, GPNarx, NarxStructure, PerOutputGP, SquaredExponentialARD
+from gp_model import (
+    GaussianProcess,
+    GPNarx,
+    HigdonKernel,
+    NarxStructure,
+    PerOutputGP,
+    SparseGaussianProcess,
+    SquaredExponentialARD,
+)
 
 
 def test_regressors_of_a_known_sequence():
@@ -121,10 +131,16 @@ def test_monte_carlo_is_reproducible_from_seed(ml_model):
     assert not np.array_equal(runs[0], runs[2])
 
 
-def test_annealed_model_draws_hyperparameters_per_run():
+@pytest.fixture(scope="module")
+def annealed_model():
+    """GP-NARX with 64 annealing samples per output on 33 points of the test system."""
     u = excitation(200, seed=8)
     y = simulate_system(u, noise=0.01, seed=9)
-    model = GPNarx.fit(STRUCTURE, [(u[:, None], y)], stride=6, seed=0, n_samples=64)
+    return GPNarx.fit(STRUCTURE, [(u[:, None], y)], stride=6, seed=0, n_samples=64)
+
+
+def test_annealed_model_draws_hyperparameters_per_run(annealed_model):
+    model = annealed_model
     assert all(gp.theta_samples_.shape == (64, 5) for gp in model.model.gps)
     u_test = excitation(40, seed=10)[:, None]
     with_samples = model.free_run(u_test, [[0.0, 0.0]], n_runs=400, seed=0)
@@ -132,6 +148,73 @@ def test_annealed_model_draws_hyperparameters_per_run():
     assert not np.allclose(with_samples.mean, point.mean)  # the samples are really used
     y_test = simulate_system(u_test[:, 0])
     assert np.sqrt(np.mean((with_samples.mean - y_test) ** 2)) < 0.05
+
+
+def monte_carlo_loop(model, inputs, initial, *, n_runs, seed, runs, use_samples=True):
+    """The Monte Carlo free run written the obvious way, for the runs ``runs`` only: the same
+    random numbers as ``free_run`` (per output a permutation of the runs modulo the number of
+    samples, then standard normals of shape (steps, outputs, runs)), and run by run, step by
+    step, each output drawn from ``GaussianProcess.predict`` of a copy of its GP set to the
+    run's hyperparameter sample."""
+    rng = np.random.default_rng(seed)
+    gps = model.model.gps
+    thetas = [gp.theta_samples_ if use_samples and gp.theta_samples_ is not None else gp.theta_[None]
+              for gp in gps]
+    assignment = [rng.permutation(n_runs) % len(t) for t in thetas]
+    start, n = model.structure.max_lag, len(inputs)
+    normals = rng.standard_normal((n - start, len(gps), n_runs))
+    sample_gps = [[copy.deepcopy(gp).set_hyperparameters(theta) for theta in t] for gp, t in zip(gps, thetas)]
+    s = model.structure
+    result = np.zeros((len(runs), n, len(gps)))
+    for row, r in enumerate(runs):
+        history = result[row]
+        history[:start] = initial
+        for k in range(start, n):
+            x = np.array([[inputs[k - i, c] for c in range(inputs.shape[1]) for i in s.input_lags]
+                          + [history[k - j, c] for c in range(len(gps)) for j in s.output_lags]])
+            for j in range(len(gps)):
+                mean, var = sample_gps[j][assignment[j][r]].predict(x, return_var=True, include_noise=True,
+                                                                     use_samples=False)
+                history[k, j] = mean[0] + np.sqrt(var[0]) * normals[k - start, j, r]
+    return result
+
+
+# The batched free run expands squared distances into products and sums in another order than
+# GaussianProcess.predict; with mean weights of up to ~1e3 that rounding reaches ~1e-11 after 30
+# fed-back steps (measured: 1.4e-11). Another sample, draw or regressor would differ by the 0.01
+# noise level or more.
+AGREEMENT = 1e-9
+
+
+@pytest.mark.parametrize("n_runs, n_threads", [(150, 1), (150, 2), (150, 3), (40, 2)])
+def test_monte_carlo_equals_the_run_by_run_loop(annealed_model, n_runs, n_threads):
+    """64 samples: 150 runs give samples 3 or 2 runs each, 40 runs leave samples unused; 3
+    threads cut through a sample's runs."""
+    u = excitation(30, seed=14)[:, None]
+    y0 = [[0.1, -0.1]]
+    result = annealed_model.free_run(u, y0, n_runs=n_runs, seed=5, keep_runs=True, n_threads=n_threads)
+    runs = [0, 1, n_runs // 2, n_runs - 1]
+    loop = monte_carlo_loop(annealed_model, u, y0, n_runs=n_runs, seed=5, runs=runs)
+    np.testing.assert_allclose(result.runs[runs], loop, rtol=0, atol=AGREEMENT)
+
+
+def test_monte_carlo_equals_the_loop_for_mixed_gps():
+    """An exact GP with samples next to a sparse GP (its variance factor is not triangular) on
+    fewer basis points, and point hyperparameters (every run shares one GP)."""
+    u = excitation(200, seed=15)
+    y = simulate_system(u, noise=0.01, seed=16)
+    X, Y = STRUCTURE.regressors(u[:, None], y)
+    exact = GaussianProcess(HigdonKernel(1.0, [0.5, 0.5, 0.5])).fit(X[::5], Y[::5, 0])
+    exact.set_hyperparameters(exact.theta_, samples=exact.theta_ + np.random.default_rng(0).normal(0, 0.1, (7, 5)))
+    sparse = SparseGaussianProcess(SquaredExponentialARD(1.0, [1.0, 1.0, 1.0]), n_inducing=12).fit(X, Y[:, 1])
+    model = GPNarx(STRUCTURE, PerOutputGP([exact, sparse]))
+    u_test = excitation(25, seed=17)[:, None]
+    for use_samples in (True, False):
+        result = model.free_run(u_test, [[0.0, 0.0]], n_runs=30, seed=6, keep_runs=True, n_threads=2,
+                                use_samples=use_samples)
+        loop = monte_carlo_loop(model, u_test, [[0.0, 0.0]], n_runs=30, seed=6, runs=[0, 7, 29],
+                                use_samples=use_samples)
+        np.testing.assert_allclose(result.runs[[0, 7, 29]], loop, rtol=0, atol=AGREEMENT)
 
 
 def test_relevance_finds_the_irrelevant_regressor():
@@ -158,8 +241,21 @@ def test_monte_carlo_result_does_not_depend_on_the_thread_split(ml_model):
     u = excitation(25, seed=13)[:, None]
     runs = [ml_model.free_run(u, [[0.0, 0.0]], n_runs=101, seed=2, keep_runs=True, n_threads=t).runs
             for t in (1, 2, 3)]
-    # Same draws for every split; only BLAS blocking of the (runs x d) x (d x n) product differs
-    # with the number of rows per thread, which changes the last bits; the 25-step feedback
-    # amplifies them to ~1e-11 on outputs of ~0.1.
-    np.testing.assert_allclose(runs[0], runs[1], rtol=1e-8, atol=1e-12)
-    np.testing.assert_allclose(runs[0], runs[2], rtol=1e-8, atol=1e-12)
+    # Same draws for every split. Two threads split the 202 (output, run) pairs between the
+    # outputs: bit for bit the same products. Three cut through an output's runs, whose matrix
+    # products then have other shapes, which BLAS rounds differently in the last bits; the
+    # 25-step feedback carries that to ~1e-11 on outputs of ~0.1 (measured).
+    np.testing.assert_array_equal(runs[0], runs[1])
+    np.testing.assert_allclose(runs[0], runs[2], rtol=0, atol=1e-10)
+
+
+def test_an_error_in_one_thread_stops_the_monte_carlo_run(ml_model):
+    """The threads meet after every step: an error in one must end the others, not leave them
+    waiting, and it is the error that is raised."""
+    def progress(k):
+        progress.calls += 1
+        if progress.calls == 3:
+            raise RuntimeError("stop at step 3")
+    progress.calls = 0
+    with pytest.raises(RuntimeError, match="stop at step 3"):
+        ml_model.free_run(np.zeros((20, 1)), [[0.0, 0.0]], n_runs=50, n_threads=2, progress=progress)

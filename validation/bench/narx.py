@@ -12,13 +12,14 @@ from gp_model import (
     HigdonKernel,
     NarxStructure,
 )
+from validation.bench.rows import SummaryRow
 from validation.core.progress import progress_bar
 
 #: Training: every 25th regressor row (as the paper) of a recording long enough for 40 points.
 NARX_STRIDE, NARX_TRAINING_POINTS = 25, 40
 #: The goal (docs/benchmarks.md): at 1000 runs x 800 steps, the vectorised free run at least 50x faster than
-#: the loop and under 2 s on the project's 2-core machine.
-NARX_GOAL_RUNS, NARX_GOAL_STEPS, NARX_GOAL_SPEEDUP, NARX_GOAL_SECONDS = 1000, 800, 50.0, 2.0
+#: the loop and at most 1 s on the project's 2-core machine.
+NARX_GOAL_RUNS, NARX_GOAL_STEPS, NARX_GOAL_SPEEDUP, NARX_GOAL_SECONDS = 1000, 800, 50.0, 1.0
 
 
 #: Regressors of ``bench narx``, shaped like the Bo105 case (Bo105 GP-NARX paper, AHS 74th Forum,
@@ -27,10 +28,11 @@ NARX_STRUCTURE = NarxStructure(("theta_1s",), ("p", "q", "r"), input_lags=(1, 2)
 
 
 #: Largest difference (output units) accepted between the loop's and the vectorised runs fed
-#: the same random numbers. Rounding alone gives a few 1e-12 after 800 steps (measured; the
-#: vectorised kernel expands squared distances into products); a real discrepancy (another
-#: sample, draw or regressor) shows at the 0.01 noise level or above, on outputs of unit size.
-NARX_AGREEMENT_TOLERANCE = 1e-8
+#: the same random numbers. Rounding alone gives 1e-11 to 2e-11 after 800 steps (measured; the
+#: vectorised kernel expands squared distances into products and sums in another order), so
+#: 1e-9 leaves a margin of 50x; a real discrepancy (another sample, draw or regressor) shows at
+#: the 0.01 noise level or above, on outputs of unit size.
+NARX_AGREEMENT_TOLERANCE = 1e-9
 
 
 def _rate_response(n: int, seed: int, *, noise: float = 0.01):
@@ -128,10 +130,11 @@ def run(*, n_runs: int = 1000, n_steps: int = 800, loop_runs: int = 10, seed: in
     :func:`_rate_response`; the free run starts from rest under a new input of the same kind.
 
     Timing. The vectorised free run is timed once from cold, including the factorisation of
-    every hyperparameter sample. The loop's set-up (one GP per sample and output, fitted to the
-    same training points with that sample's hyperparameters) is timed once; its runs cost the
-    same each, so it is timed on the first ``loop_runs`` runs and scaled linearly to
-    ``n_runs`` (the full loop would take minutes).
+    every hyperparameter sample, with its default threads (one per available core). The loop's
+    set-up (one GP per sample and output, fitted to the same training points with that
+    sample's hyperparameters) is timed once; its runs cost the same each, so it is timed on the
+    first ``loop_runs`` runs and scaled linearly to ``n_runs`` (the full loop would take
+    minutes).
 
     Agreement. The loop is fed exactly the random numbers the vectorised free run consumes
     (:func:`_monte_carlo_draws`), so on the runs it computes both must give the same
@@ -218,7 +221,11 @@ def format_table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def summary_rows(report: dict) -> list:
-    return [("Monte Carlo free run vs run-by-run loop", f"{report['speedup']:.0f}x faster, "
-             f"{report['vectorised_s']:.2f} s", f">= {report['goal_speedup']:g}x, "
-             f"<= {report['goal_seconds']:g} s", report["goal_met"])]
+def summary_rows(report: dict) -> list[SummaryRow]:
+    """Headline rows: the vectorised free run's seconds and its speed-up over the loop peer."""
+    size = f"{report['runs']} runs x {report['steps']} steps"
+    at_goal_size = report["goal_met"] is not None  # the goals are set at 1000 x 800 only
+    return [SummaryRow("narx.montecarlo.seconds", f"Monte Carlo free run, {size}", report["vectorised_s"], "s",
+                       report["goal_seconds"] if at_goal_size else None, at_least=False),
+            SummaryRow("narx.montecarlo.speedup", "Monte Carlo free run vs run-by-run loop", report["speedup"], "x",
+                       report["goal_speedup"] if at_goal_size else None)]

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from validation.bench import cosim, diagnose, fmu, gp, narx
+from validation.bench.rows import SummaryRow
 
 
 @dataclass(frozen=True)
@@ -24,8 +25,8 @@ class Benchmark:
     options : dict
         Command-line option of ``flightgp bench`` (argparse dest) -> keyword of ``run``.
     summary : callable
-        ``summary(report) -> [(measure, value, goal, met)]``: the headline rows of the combined
-        ``flightgp bench`` table (``value`` and ``goal`` as text, ``met`` True/False/None).
+        ``summary(report) -> [SummaryRow]``: the headline rows of the combined ``flightgp bench``
+        table and of ``build/bench.json``.
     """
 
     run: Callable[..., dict]
@@ -45,11 +46,19 @@ BENCHMARKS = {
 }
 
 
+def summary_rows(reports: dict) -> list[SummaryRow]:
+    """Every benchmark's headline rows, in the order of ``reports`` (name -> report)."""
+    return [row for name, report in reports.items() for row in BENCHMARKS[name].summary(report)]
+
+
 def format_summary(reports: dict) -> str:
     """One table of every benchmark's headline rows (``flightgp bench``)."""
-    rows = [row for name, report in reports.items() for row in BENCHMARKS[name].summary(report)]
-    width = max(len(row[0]) for row in rows)
-    lines = [f"{'measure':<{width}}  {'measured':<34} {'goal':<16} met"]
-    for measure, value, goal, met in rows:
-        lines.append(f"{measure:<{width}}  {value:<34} {goal:<16} {'-' if met is None else 'yes' if met else 'no'}")
+    rows = summary_rows(reports)
+    width = max(len(row.measure) for row in rows)
+    id_width = max(len(row.id) for row in rows)
+    lines = [f"{'id':<{id_width}}  {'measure':<{width}}  {'measured':<34} {'goal':<18} met"]
+    for row in rows:
+        value, goal = row.text()
+        met = "-" if row.met is None else "yes" if row.met else "no"
+        lines.append(f"{row.id:<{id_width}}  {row.measure:<{width}}  {value:<34} {goal:<18} {met}")
     return "\n".join(lines)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from validation.bench.summary import BENCHMARKS, format_summary
+from validation.bench.summary import BENCHMARKS, format_summary, summary_rows
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder, write_json
 
@@ -80,8 +80,7 @@ def run(args: argparse.Namespace) -> int:
         reports[name] = report
     summary = format_summary(reports)
     print(summary)
-    rows = [{"benchmark": name, "measure": measure, "measured": value, "goal": goal, "met": met}
-            for name, report in reports.items() for measure, value, goal, met in BENCHMARKS[name].summary(report)]
+    rows = [{"benchmark": name, **row.as_dict()} for name in reports for row in summary_rows({name: reports[name]})]
     path = write_json(args.summary, {"summary": rows, "reports": reports})
     print(f"written {path}")
     return 0

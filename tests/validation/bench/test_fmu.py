@@ -18,5 +18,13 @@ def test_times_the_gp_fmu_against_a_bare_one_and_the_native_fmus():
     times = [value for key, value in blimp.items() if key.endswith("us_per_step")]
     assert len(times) >= 3 and all(math.isfinite(t) and t > 0 for t in times)
     assert "bare us/step" in fmu.format_table(report)
-    # Headline rows: the pythonfmu FMU against the bare one, each native rate predictor, the blimp.
-    assert len(fmu.summary_rows(report)) == 1 + len(report["native"]) + 1
+    # Headline rows: the pythonfmu FMU against the bare one, each native rate predictor (the
+    # 500-point ones also in us), the blimp; the paper's native step against 200x real time.
+    rows = {row.id: row for row in fmu.summary_rows(report)}
+    assert list(rows) == ["fmu.pythonfmu.gp_over_bare", "fmu.paper.native.step_us", "fmu.single.native.speedup",
+                          "fmu.n500.native.speedup", "fmu.n500.native.step_us", "fmu.sparse50.native.speedup",
+                          "fmu.sparse50.native.step_us", "fmu.blimp_rkgp.native.speedup"]
+    paper = rows["fmu.paper.native.step_us"]
+    assert paper.value == report["native"][0]["native_c_host_us_per_step"]
+    assert paper.goal == pytest.approx(report["narx_step_s"] * 1e6 / 200) and not paper.at_least
+    assert paper.met == (paper.value <= paper.goal)

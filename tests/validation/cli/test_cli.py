@@ -18,8 +18,11 @@ def test_bench_writes_each_report_and_the_combined_summary(tmp_path, capsys):
     assert [row["n"] for row in report["rows"]] == [30]
     assert (report["n_restarts"], report["blas_threads"]) == (0, 1)
     assert combined["reports"] == {"gp": report}
-    assert [(row["benchmark"], row["measure"]) for row in combined["summary"]] == [
-        ("gp", "GP fit vs scikit-learn, n = 30")]
+    # Each headline row: a stable id, a number with its unit, a numeric goal, met or not.
+    [row] = combined["summary"]
+    assert (row["benchmark"], row["id"], row["unit"], row["goal"], row["goal_is"]) == (
+        "gp", "gp.fit.speedup.n30", "x", 6.0, "at least")
+    assert row["value"] == report["rows"][0]["fit_speedup"] and row["met"] == (row["value"] >= 6.0)
     out = capsys.readouterr().out
     assert "speedup" in out and "met" in out  # the benchmark's table, then the combined one
 
