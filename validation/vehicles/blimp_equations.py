@@ -147,10 +147,22 @@ def rotation_body_to_earth(angles: np.ndarray) -> np.ndarray:
     sf, cf = np.sin(angles[..., 0]), np.cos(angles[..., 0])
     st, ct = np.sin(angles[..., 1]), np.cos(angles[..., 1])
     sp, cp = np.sin(angles[..., 2]), np.cos(angles[..., 2])
-    entries = [cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st,
-               sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf,
-               -st, ct * sf, ct * cf]
-    return np.stack(entries, axis=-1).reshape(angles.shape[:-1] + (3, 3))
+    return _rotation(sf, cf, st, ct, sp, cp)
+
+
+def _rotation(sf, cf, st, ct, sp, cp) -> np.ndarray:
+    """:func:`rotation_body_to_earth` from the sines and cosines of roll, pitch and yaw."""
+    rotation = np.empty(np.shape(sf) + (3, 3))
+    rotation[..., 0, 0] = cp * ct
+    rotation[..., 0, 1] = -sp * cf + cp * st * sf
+    rotation[..., 0, 2] = sp * sf + cp * cf * st
+    rotation[..., 1, 0] = sp * ct
+    rotation[..., 1, 1] = cp * cf + sf * st * sp
+    rotation[..., 1, 2] = -cp * sf + st * sp * cf
+    rotation[..., 2, 0] = -st
+    rotation[..., 2, 1] = ct * sf
+    rotation[..., 2, 2] = ct * cf
+    return rotation
 
 
 def euler_rates(angles: np.ndarray, rates: np.ndarray) -> np.ndarray:
@@ -197,12 +209,13 @@ def states_from_poses(positions: np.ndarray, angles: np.ndarray, position_rates:
     return np.concatenate([positions, angles, velocity, body_rates(angles, angle_rates)], axis=1)
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` over the last axis (3), broadcasting; several times faster than ``np.cross`` on
-    small arrays."""
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+#: Columns of ``[v, w]`` for the cross products ``v x p``, ``w x p`` and ``w x h`` of
+#: :func:`blimp_dynamics` at once: ``a x b = a[1, 2, 0] b[2, 0, 1] - a[2, 0, 1] b[1, 2, 0]``, with
+#: ``a`` = ``[v, w, w]`` taken from ``nu`` and ``b`` = ``[p, p, h]`` from ``M nu``.
+_CROSS_A1 = np.array([1, 2, 0, 4, 5, 3, 4, 5, 3])
+_CROSS_A2 = np.array([2, 0, 1, 5, 3, 4, 5, 3, 4])
+_CROSS_B1 = np.array([1, 2, 0, 1, 2, 0, 4, 5, 3])
+_CROSS_B2 = np.array([2, 0, 1, 2, 0, 1, 5, 3, 4])
 
 
 def blimp_dynamics(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
@@ -246,41 +259,61 @@ def blimp_dynamics(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
     v, w = nu[..., :3], nu[..., 3:]
     matrix, inverse = mass_matrix(params.mass, params.added_mass, params.inertia,
                                   params.added_inertia, params.cg_position)
-
-    position_dot = np.einsum("...ij,...j->...i", rotation_body_to_earth(angles), v)
-    angles_dot = euler_rates(angles, w)
-
-    generalised_momentum = nu @ matrix.T  # [p, h] = M nu
-    momentum, angular_momentum = generalised_momentum[..., :3], generalised_momentum[..., 3:]
-    down = np.stack([-np.sin(angles[..., 1]),
-                     np.cos(angles[..., 1]) * np.sin(angles[..., 0]),
-                     np.cos(angles[..., 1]) * np.cos(angles[..., 0])], axis=-1)
-    weight = params.mass * STANDARD_GRAVITY
+    # The formulas above term by term, each sum in its order (a - b as a + (-b) is the same
+    # rounding): small arrays, so the number of numpy calls, not the arithmetic, sets the cost.
+    sf, cf = np.sin(angles[..., 0]), np.cos(angles[..., 0])
+    st, ct = np.sin(angles[..., 1]), np.cos(angles[..., 1])
+    sp, cp = np.sin(angles[..., 2]), np.cos(angles[..., 2])
+    tt = np.tan(angles[..., 1])
 
     u_gondola, mu, u_tail = inputs[..., 0], inputs[..., 1], inputs[..., 2]
     gondola = u_gondola * np.where(u_gondola >= 0, params.gondola_thrust_forward,
                                    params.gondola_thrust_backward)
     tail = u_tail * np.where(u_tail >= 0, params.tail_thrust_positive, params.tail_thrust_negative)
-    thrust_force = np.stack([gondola * np.cos(mu), -tail, -gondola * np.sin(mu)], axis=-1)
-    thrust_moment = np.stack([np.zeros_like(gondola), params.gondola_arm * gondola * np.cos(mu),
-                              params.tail_arm * tail], axis=-1)
+    cos_mu = np.cos(mu)
+    arm = params.tail_arm
     fin_gain = params.fin_lift * np.abs(v[..., 0])
-    fin_side = -fin_gain * (v[..., 1] - params.tail_arm * w[..., 2])
-    fin_normal = -fin_gain * (v[..., 2] + params.tail_arm * w[..., 1])
-    fin_force = np.stack([np.zeros_like(fin_side), fin_side, fin_normal], axis=-1)
-    fin_moment = np.stack([np.zeros_like(fin_side), params.tail_arm * fin_normal,
-                           -params.tail_arm * fin_side], axis=-1)
+    fin_side = -fin_gain * (v[..., 1] - arm * w[..., 2])
+    fin_normal = -fin_gain * (v[..., 2] + arm * w[..., 1])
+    side_force = -tail + fin_side  # thrust plus fins, y
+    leading = np.shape(side_force)  # of state and inputs, broadcast
 
-    force = (thrust_force + fin_force - params.net_lift * down
-             - np.asarray(params.linear_drag) * v - np.asarray(params.quadratic_drag) * np.abs(v) * v
-             - _cross(w, momentum))
-    moment = (thrust_moment + fin_moment + _cross(np.asarray(params.cg_position), weight * down)
-              - np.asarray(params.rotational_damping) * w
-              - _cross(v, momentum) - _cross(w, angular_momentum))
-    nu_dot = np.concatenate([force, moment], axis=-1) @ inverse.T
-    kinematics = np.concatenate([position_dot, angles_dot], axis=-1)
-    kinematics = np.broadcast_to(kinematics, nu_dot.shape[:-1] + (6,))
-    return np.concatenate([kinematics, nu_dot], axis=-1)
+    derivative = np.empty(leading + (12,))
+    derivative[..., :3] = np.einsum("...ij,...j->...i", _rotation(sf, cf, st, ct, sp, cp), v)
+    p, q, r = w[..., 0], w[..., 1], w[..., 2]  # Euler angle rates (euler_rates)
+    derivative[..., 3] = p + sf * tt * q + cf * tt * r
+    derivative[..., 4] = cf * q - sf * r
+    derivative[..., 5] = (sf * q + cf * r) / ct
+
+    # [force, moment]: thrust + fins, then - net_lift n and + r_g x (m g n), then the drag and
+    # damping, then - quadratic drag and - v x p, then - w x p and - w x h.
+    generalised_momentum = nu @ matrix.T  # [p, h] = M nu
+    tau = np.empty(leading + (6,))
+    tau[..., 0] = gondola * cos_mu + 0.0
+    tau[..., 1] = side_force
+    tau[..., 2] = -gondola * np.sin(mu) + fin_normal
+    tau[..., 3] = 0.0
+    tau[..., 4] = params.gondola_arm * gondola * cos_mu + arm * fin_normal
+    tau[..., 5] = arm * tail + -arm * fin_side
+    down = np.empty(np.shape(sf) + (5,))  # n, then n[0], n[1] again: n[1, 2, 0] and n[2, 0, 1] are slices
+    down[..., 0] = -st
+    down[..., 1] = ct * sf
+    down[..., 2] = ct * cf
+    down[..., 3:] = down[..., :2]
+    weight_down = params.mass * STANDARD_GRAVITY * down
+    cg = np.asarray(params.cg_position)
+    tau[..., :3] -= params.net_lift * down[..., :3]
+    tau[..., 3:] += (cg.take(_CROSS_A1[:3], axis=-1) * weight_down[..., 2:]
+                     - cg.take(_CROSS_A2[:3], axis=-1) * weight_down[..., 1:4])
+    tau[..., :3] -= np.asarray(params.linear_drag) * v
+    tau[..., 3:] -= np.asarray(params.rotational_damping) * w
+    crosses = (nu.take(_CROSS_A1, axis=-1) * generalised_momentum.take(_CROSS_B2, axis=-1)
+               - nu.take(_CROSS_A2, axis=-1) * generalised_momentum.take(_CROSS_B1, axis=-1))  # v x p, w x p, w x h
+    tau[..., :3] -= np.asarray(params.quadratic_drag) * np.abs(v) * v
+    tau[..., 3:] -= crosses[..., :3]
+    tau -= crosses[..., 3:]
+    derivative[..., 6:] = tau @ inverse.T
+    return derivative
 
 
 def rk4(derivative, state: np.ndarray, dt) -> np.ndarray:

@@ -6,14 +6,21 @@ from validation.bench import cosim
 
 @pytest.mark.slow
 def test_reports_real_time_factors_of_both_models_and_both_fmu_kinds():
-    report = cosim.run(progress=False)
-    assert report["simulated_s"] == pytest.approx(8.0)
+    # Each time from one run instead of the best of 3 (a third of the co-simulations): what is
+    # checked here is the report, not the timings' noise.
+    report = cosim.run(repeats=1, progress=False)
+    assert report["simulated_s"] == pytest.approx(8.0) and report["repeats"] == 1
     assert {(r["model"].split(":")[0], r["fmu"]) for r in report["rows"]} == {
         ("paper", "pythonfmu"), ("paper", "native"),
         ("32 points, 1 sample (max. likelihood)", "pythonfmu"),
         ("32 points, 1 sample (max. likelihood)", "native")}
     for row in report["rows"]:
         assert row["real_time_factor"] == pytest.approx(8.0 / row["seconds"])
-        assert row["goal_met"] == (row["real_time_factor"] >= cosim.COSIM_GOAL_REAL_TIME)
+        goal = cosim.COSIM_GOAL_REAL_TIME if row["fmu"] == "native" else cosim.COSIM_GOAL_REAL_TIME_PYTHONFMU
+        assert row["goal_met"] == (row["real_time_factor"] >= goal)
         assert row["over_reference_alone"] > 0
-    assert [met for *_, met in cosim.summary_rows(report)] == [r["goal_met"] for r in report["rows"]]
+    rows = cosim.summary_rows(report)
+    assert [row.met for row in rows] == [r["goal_met"] for r in report["rows"]]
+    assert {row.id for row in rows} == {"cosim.paper.native.realtime", "cosim.paper.pythonfmu.realtime",
+                                        "cosim.single.native.realtime", "cosim.single.pythonfmu.realtime"}
+    assert "best of 1;" in cosim.format_table(report)

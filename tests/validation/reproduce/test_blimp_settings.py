@@ -1,4 +1,6 @@
 """Tests of the blimp RKGP settings study (validation/reproduce/blimp_settings.py) and its command."""
+import contextlib
+import io
 import json
 import math
 
@@ -6,6 +8,31 @@ import pytest
 
 from validation.cli import main
 from validation.reproduce.blimp_settings import CANDIDATES, CHOSEN, VALIDATION_FLIGHT, choose_settings, format_settings
+
+#: The quick study's candidates: the chosen, recorded states, a process-noise variant.
+QUICK_CANDIDATES = (CANDIDATES[0], CANDIDATES[1], CANDIDATES[-1])
+
+
+@pytest.fixture(scope="module")
+def quick_study(tmp_path_factory):
+    """``flightgp reproduce blimp-settings --quick`` with :data:`QUICK_CANDIDATES` (the full list
+    takes minutes), run once for the module: the output folder, what choose_settings returned
+    and what the command printed."""
+    from validation.reproduce import blimp_settings
+
+    out = tmp_path_factory.mktemp("blimp_settings")
+    returned = []
+
+    def three_candidates(**kwargs):
+        returned.append(choose_settings(candidates=QUICK_CANDIDATES, **kwargs))
+        return returned[-1]
+
+    printed = io.StringIO()
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(printed):
+        patch.setattr(blimp_settings, "choose_settings", three_candidates)
+        assert main(["reproduce", "blimp-settings", "--out", str(out), "--quick"]) == 0
+    assert len(returned) == 1
+    return out, returned[0], printed.getvalue()
 
 
 def test_candidates_change_one_setting_of_the_chosen_configuration():
@@ -18,12 +45,12 @@ def test_candidates_change_one_setting_of_the_chosen_configuration():
 
 
 @pytest.mark.slow
-def test_quick_study_scores_candidates_on_the_validation_flight(tmp_path, capsys):
+def test_quick_study_scores_candidates_on_the_validation_flight(quick_study):
     """Three candidates (the chosen, recorded states, a process-noise variant) in the quick
     setup: finite scores for RKGP and RK from the same starts, their ratios; the process-noise
     variant reuses the chosen model's fit (only the start filter differs)."""
-    results = choose_settings(candidates=(CANDIDATES[0], CANDIDATES[1], CANDIDATES[-1]), quick=True)
-    assert list(results["candidates"]) == [CANDIDATES[0].name, CANDIDATES[1].name, CANDIDATES[-1].name]
+    _, results, _ = quick_study
+    assert list(results["candidates"]) == [c.name for c in QUICK_CANDIDATES]
     for name, entry in results["candidates"].items():
         for model in ("RKGP", "RK"):
             assert all(math.isfinite(v) and v > 0 for v in entry[model].values()), (name, model)
@@ -41,14 +68,10 @@ def test_cli_settings_study_refuses_seeds(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_cli_settings_study_writes_settings_json(tmp_path, capsys, monkeypatch):
-    """The command with a two-candidate list (the full list takes minutes)."""
-    from validation.reproduce import blimp_settings
-
-    original = blimp_settings.choose_settings
-    monkeypatch.setattr(blimp_settings, "choose_settings",
-                        lambda **kwargs: original(candidates=CANDIDATES[:2], **kwargs))
-    assert main(["reproduce", "blimp-settings", "--out", str(tmp_path), "--quick"]) == 0
-    written = json.loads((tmp_path / "settings.json").read_text())
-    assert list(written["candidates"]) == [c.name for c in CANDIDATES[:2]]
-    assert "settings.json" in capsys.readouterr().out
+def test_cli_settings_study_writes_settings_json(quick_study):
+    """The command writes the study it ran to settings.json and prints its table."""
+    out, results, printed = quick_study
+    written = json.loads((out / "settings.json").read_text())
+    assert list(written["candidates"]) == [c.name for c in QUICK_CANDIDATES]
+    assert written == json.loads(json.dumps(results))
+    assert format_settings(results) in printed and "settings.json" in printed
