@@ -56,6 +56,21 @@ class PredictiveForm:
 
 
 @dataclass(frozen=True)
+class _LikelihoodTerms:
+    """The log marginal likelihood at one hyperparameter vector and the two parts of its gradient
+    (Rasmussen & Williams eq. 5.9, summed over the m outputs ``y_k``, ``alpha_k = K^-1 y_k``):
+
+        d lml / d theta_j = 1/2 (data_j - m trace_j),
+        data_j = sum_k alpha_k^T (dK/dtheta_j) alpha_k,     trace_j = tr(K^-1 dK/dtheta_j).
+    """
+
+    lml: float
+    fit: float  # sum_k y_k^T alpha_k, the data-fit term
+    data: np.ndarray | None  # (p,), None when the gradient was not asked for
+    trace: np.ndarray | None  # (p,)
+
+
+@dataclass(frozen=True)
 class _Posterior:
     """Everything prediction needs for one hyperparameter vector."""
 
@@ -395,9 +410,12 @@ class GaussianProcess(BaseGaussianProcess):
         """The posterior at ``theta`` and the noise-free kernel matrix, shape (n, n)."""
         # Rasmussen & Williams Alg. 2.1, lines 2-3: L = chol(K + sigma_n^2 I), alpha = L^T\(L\y).
         K = self.kernel(self.X_train_, theta=theta[:-1])
-        K_noisy = K.copy()
-        K_noisy.flat[:: len(K) + 1] += np.exp(theta[-1])
-        L, jitter = robust_cholesky(K_noisy, quiet=quiet)
+        diagonal = K.diagonal().copy()
+        K.flat[:: len(K) + 1] += np.exp(theta[-1])
+        # K is symmetric, so K.T is the same matrix in the Fortran order LAPACK works in: the
+        # factorisation copies it as it is instead of transposing it.
+        L, jitter = robust_cholesky(K.T, quiet=quiet)
+        K.flat[:: len(K) + 1] = diagonal
         alpha = linalg.cho_solve((L, True), self.Y_train_, check_finite=False)
         return _Posterior(np.asarray(theta, dtype=float), L, alpha, jitter), K
 
@@ -423,27 +441,87 @@ class GaussianProcess(BaseGaussianProcess):
             Only when ``return_gradient``.
         """
         theta = self.theta_ if theta is None else np.asarray(theta, dtype=float)
+        terms = self._likelihood_terms(theta, gradient=return_gradient)
+        if terms is None:
+            return (-np.inf, np.zeros_like(theta)) if return_gradient else -np.inf
+        if not return_gradient:
+            return terms.lml
+        return terms.lml, 0.5 * (terms.data - self.Y_train_.shape[1] * terms.trace)
+
+    def _likelihood_terms(self, theta, *, gradient: bool = True) -> _LikelihoodTerms | None:
+        """:class:`_LikelihoodTerms` at ``theta``, or None if the kernel matrix cannot be factorised.
+
+        The gradient costs one LAPACK ``dpotri`` (``K^-1`` from the Cholesky factor) and no
+        other O(n^3) work: the ``alpha alpha^T`` part contracts with the kernel through one
+        matrix product (eq. 4 of :mod:`gp_model._kernels`), the ``K^-1`` part through one
+        elementwise product with ``K`` and one matrix product (eq. 3 there).
+        """
         try:
             post, K = self._factorise(theta, quiet=True)
         except GPNumericalError:
-            return (-np.inf, np.zeros_like(theta)) if return_gradient else -np.inf
+            return None
         n, m = self.Y_train_.shape
-        lml = (-0.5 * np.einsum("ij,ij->", self.Y_train_, post.alpha)
-               - m * np.log(np.diag(post.L)).sum() - 0.5 * m * n * LOG_2PI)
-        if not return_gradient:
-            return float(lml)
-        K_inv, info = lapack.dpotri(post.L, lower=1)  # inverse from the Cholesky factor
+        fit = float(np.einsum("ij,ij->", self.Y_train_, post.alpha))
+        lml = float(-0.5 * fit - m * np.log(np.diag(post.L)).sum() - 0.5 * m * n * LOG_2PI)
+        if not gradient:
+            return _LikelihoodTerms(lml, fit, None, None)
+        # K^-1 from the Cholesky factor, overwriting it; dpotri fills the lower triangle only and
+        # the upper one keeps the zeros of L.
+        K_inv_lower, info = lapack.dpotri(post.L, lower=1, overwrite_c=1)
         if info != 0:
             raise GPNumericalError(f"LAPACK dpotri failed (info={info})")
-        # dpotri fills the lower triangle only; the upper one is still the zeros of L.
-        K_inv += K_inv.T
-        K_inv.flat[:: n + 1] *= 0.5
-        W = post.alpha @ post.alpha.T - m * K_inv
-        gradient = 0.5 * np.append(
-            self.kernel.gradient_contraction(self.X_train_, K, W, theta=theta[:-1]),
-            np.exp(theta[-1]) * np.trace(W),
+        X, kernel_theta, noise = self.X_train_, theta[:-1], np.exp(theta[-1])
+        # K^-1 and K are symmetric: the full sum over a, b is twice the sum over the lower
+        # triangle less the diagonal, where only the signal term is non-zero (x_a - x_a = 0).
+        # K.T is K in the Fortran order of K_inv_lower, so their elementwise product runs in order.
+        trace = 2.0 * self.kernel.gradient_contraction(X, K.T, K_inv_lower, theta=kernel_theta)
+        trace[0] -= np.diag(K_inv_lower) @ np.diag(K)
+        data = self.kernel.low_rank_gradient_contraction(X, K, post.alpha, theta=kernel_theta)
+        return _LikelihoodTerms(
+            lml, fit,
+            data=np.append(data, noise * np.einsum("ij,ij->", post.alpha, post.alpha)),
+            trace=np.append(trace, noise * np.trace(K_inv_lower)),
         )
-        return float(lml), gradient
+
+    def concentrated_log_marginal_likelihood(self, x):
+        """The log marginal likelihood maximised over the signal variance in closed form (the
+        "concentrated" likelihood; DiceKriging's, Roustant, Ginsbourger & Deville, J. Stat. Softw.
+        51(1), 2012, with the noise as a ratio to the signal variance): what
+        :func:`~gp_model.maximize_marginal_likelihood` searches over.
+
+        With ``K = sigma_f^2 (C + r I)``, ``C`` the kernel matrix at unit signal variance and
+        ``r = sigma_n^2 / sigma_f^2``, the likelihood at fixed ``x = [kernel.theta[1:]..., ln r]``
+        is largest at ``sigma_f^2 = s = sum_k y_k^T (C + r I)^-1 y_k / (n m)``, where
+
+            lml(x) = -n m / 2 (1 + ln 2 pi s) - m sum_i ln L_ii,     L L^T = C + r I.
+
+        As ``s`` is a stationary point, the gradient is the full likelihood's at ``theta`` (below)
+        with respect to ``theta[1:-1]`` and ``ln sigma_n^2``, ``sigma_f^2`` held (R&W eq. 5.9,
+        with ``alpha`` scaled by ``1/s``).
+
+        Parameters
+        ----------
+        x : ndarray, shape (p - 1,)
+            ``[kernel.theta[1:]..., ln(sigma_n^2 / sigma_f^2)]``.
+
+        Returns
+        -------
+        lml : float
+            ``-inf`` where the kernel matrix cannot be factorised or every output is constant.
+        gradient : ndarray, shape (p - 1,)
+        theta : ndarray, shape (p,) or None
+            The hyperparameters ``[ln s, kernel.theta[1:]..., ln s + ln r]`` with that likelihood
+            (None with ``-inf``).
+        """
+        terms = self._likelihood_terms(np.concatenate(([0.0], x)))
+        n, m = self.Y_train_.shape
+        if terms is None or not terms.fit > 0:  # no fit term: all outputs constant
+            return -np.inf, np.zeros_like(x), None
+        signal = terms.fit / (n * m)
+        lml = terms.lml + 0.5 * terms.fit - 0.5 * n * m * (1.0 + np.log(signal))
+        gradient = 0.5 * (terms.data[1:] / signal - m * terms.trace[1:])
+        theta = np.concatenate(([np.log(signal)], x[:-1], [x[-1] + np.log(signal)]))
+        return float(lml), gradient, theta
 
     # -- prediction ---------------------------------------------------------------------------
     def _predict_one(self, post: _Posterior, Xs, want, include_noise):

@@ -21,17 +21,24 @@ need no bounds: ``theta = [ln sigma_f^2, ln l_1 .. ln l_d]`` for the SE kernel a
 ``theta = [ln sigma_f^2, logit alpha_1 .. logit alpha_d]`` for Higdon's.
 
 Gradients never form the (n, n, n_theta) tensor ``dK/dtheta``: what the likelihood needs is the
-contraction ``g_j = sum_ab M_ab dK_ab/dtheta_j`` with a symmetric matrix ``M``, and for kernel
-(1) ``dK_ab/dw_i = -K_ab (x_ai - x_bi)^2``, so
+contraction ``g_j = sum_ab M_ab dK_ab/dtheta_j`` with a weighting matrix ``M``. For kernel (1)
+``dK_ab/d ln sigma_f^2 = K_ab`` and ``dK_ab/dw_i = -K_ab (x_ai - y_bi)^2``, so with ``R = M∘K``
 
-    sum_ab M_ab dK_ab/dw_i = -2 [ sum_a (M∘K 1)_a x_ai^2  -  sum_a x_ai ((M∘K) X)_ai ],    (3)
+    sum_ab M_ab dK_ab/dw_i = -[ (R 1)^T x_i^2 + 1^T R y_i^2 - 2 x_i^T R y_i ],             (3)
 
-two matrix products instead of an n^2 n_theta tensor.
+one matrix product ``R [Y, Y^2, 1]`` instead of an n^2 n_theta tensor. When ``M = A A^T`` has
+low rank r (the ``alpha alpha^T`` of the likelihood gradient), ``R`` is not needed at all: for a
+symmetric ``K`` (``Y = X``)
+
+    sum_ab M_ab dK_ab/dw_i = -2 sum_k [ (a_k∘x_i^2)^T K a_k - (a_k∘x_i)^T K (a_k∘x_i) ],   (4)
+
+one product of ``K`` with the r (d + 1) columns ``[a_k, a_k∘x_i]``.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy import stats
+from scipy.spatial.distance import pdist, squareform
 from scipy.special import expit, logit
 
 from ._priors import IndependentPrior, LogitBeta
@@ -67,6 +74,10 @@ class StationaryKernel:
         """Weights ``w`` of eq. (1) and ``dw/dtheta_scale`` (elementwise), each shape (d,)."""
         raise NotImplementedError
 
+    def _theta_scale_from_weights(self, weights: np.ndarray) -> np.ndarray:
+        """``theta[1:]`` with the weights ``w`` of eq. (1) (the inverse map), shape (d,)."""
+        raise NotImplementedError
+
     def scale_parameters(self) -> np.ndarray:
         """The kernel's own per-dimension parameters (length scales or alphas), shape (d,)."""
         raise NotImplementedError
@@ -94,6 +105,12 @@ class StationaryKernel:
         theta = self.theta if theta is None else theta
         return self._weights_and_derivative(theta[1:])[0]
 
+    def theta_from_weights(self, weights) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of :meth:`weights`: ``theta[1:]`` with weights ``w`` (positive) and
+        ``dw/dtheta[1:]`` there (elementwise), each shape (d,)."""
+        theta_scale = self._theta_scale_from_weights(np.asarray(weights, dtype=float))
+        return theta_scale, self._weights_and_derivative(theta_scale)[1]
+
     def length_scales(self) -> np.ndarray:
         """Equivalent ARD length scales ``l_i = 1 / sqrt(2 w_i)``, shape (d,)."""
         return 1.0 / np.sqrt(2.0 * self.weights())
@@ -115,10 +132,17 @@ class StationaryKernel:
         """
         theta = self.theta if theta is None else theta
         scale = np.sqrt(self.weights(theta))
-        Xs = np.asarray(X) * scale
-        Ys = Xs if Y is None else np.asarray(Y) * scale
-        sq = _squared_distances(Xs, Ys)
-        return np.exp(theta[0] - sq)
+        Xs = np.asarray(X, dtype=float) * scale
+        if Y is None and len(Xs) > 1:
+            # Symmetric: the n (n - 1) / 2 distinct squared distances, each computed directly as
+            # sum_i (x_ai - x_bi)^2 (no cancellation), then one exp per pair.
+            condensed = pdist(Xs, "sqeuclidean")
+            np.subtract(theta[0], condensed, out=condensed)
+            K = squareform(np.exp(condensed, out=condensed))
+            np.fill_diagonal(K, np.exp(theta[0]))
+            return K
+        Ys = Xs if Y is None else np.asarray(Y, dtype=float) * scale
+        return np.exp(theta[0] - _squared_distances(Xs, Ys))
 
     def diag(self, X, *, theta=None) -> np.ndarray:
         """``k(x_a, x_a)`` for each row of ``X``, shape (n,)."""
@@ -126,7 +150,7 @@ class StationaryKernel:
         return np.full(len(X), np.exp(theta[0]))
 
     def gradient_contraction(self, X, K, M, *, theta=None) -> np.ndarray:
-        """``g_j = sum_ab M_ab dK_ab/dtheta_j`` for a symmetric ``M`` (eq. 3).
+        """``g_j = sum_ab M_ab dK_ab/dtheta_j`` for ``K = k(X, X)`` (eq. 3 with ``Y = X``).
 
         Parameters
         ----------
@@ -134,7 +158,7 @@ class StationaryKernel:
         K : ndarray, shape (n, n)
             ``self(X, theta=theta)``, passed in because the caller already has it.
         M : ndarray, shape (n, n)
-            Symmetric weighting matrix.
+            Weighting matrix.
 
         Returns
         -------
@@ -143,17 +167,12 @@ class StationaryKernel:
         return self.cross_gradient_contraction(X, X, K, M, theta=theta)
 
     def cross_gradient_contraction(self, X, Y, K, M, *, theta=None) -> np.ndarray:
-        """``g_j = sum_ab M_ab dK_ab/dtheta_j`` for ``K = k(X, Y)`` and any ``M`` of its shape.
+        """``g_j = sum_ab M_ab dK_ab/dtheta_j`` for ``K = k(X, Y)`` and any ``M`` of its shape (eq. 3).
 
-        Eq. (3) without the symmetry: ``dK_ab/dw_i = -K_ab (x_ai^2 - 2 x_ai y_bi + y_bi^2)``, so
-
-            sum_ab M_ab dK_ab/dw_i = -[ (M∘K 1)^T X^2 + (1^T M∘K) Y^2 - 2 sum_a x_ai ((M∘K) Y)_ai ]_i,
-
-        again two matrix products (sparse GPs need it for ``K_mn`` between inducing and
-        training inputs). ``dK_ab/d ln sigma_f^2 = K_ab``, so ``g_0 = sum(M∘K)``; a jitter
-        proportional to ``sigma_f^2`` added where ``x_a = y_b`` (the diagonal of ``K_mm``) is
-        differentiated correctly too, at a fixed relative jitter, since the weight terms vanish
-        there.
+        Sparse GPs need it for ``K_mn`` between inducing and training inputs. ``g_0 = sum(M∘K)``;
+        a jitter proportional to ``sigma_f^2`` added where ``x_a = y_b`` (the diagonal of
+        ``K_mm``) is differentiated correctly too, at a fixed relative jitter, since the weight
+        terms vanish there.
 
         Parameters
         ----------
@@ -168,12 +187,44 @@ class StationaryKernel:
         -------
         g : ndarray, shape (d + 1,)
         """
+        d = X.shape[1]
+        products = (M * K) @ np.column_stack([Y, Y * Y, np.ones(len(Y))])  # R [Y, Y^2, 1]
+        row_sums = products[:, -1]
+        distance_sums = row_sums @ (X * X) + products[:, d:2 * d].sum(axis=0) \
+            - 2.0 * np.einsum("ai,ai->i", X, products[:, :d])
+        return self._gradient_from_sums(row_sums.sum(), distance_sums, theta)
+
+    def low_rank_gradient_contraction(self, X, K, A, *, theta=None) -> np.ndarray:
+        """``g_j = sum_ab (A A^T)_ab dK_ab/dtheta_j`` for ``K = k(X, X)`` (eq. 4), without
+        forming the n x n matrix ``A A^T``.
+
+        Parameters
+        ----------
+        X : ndarray, shape (n, d)
+        K : ndarray, shape (n, n)
+            ``self(X, theta=theta)``, passed in because the caller already has it.
+        A : ndarray, shape (n, r)
+
+        Returns
+        -------
+        g : ndarray, shape (d + 1,)
+        """
+        n, d = X.shape
+        A = A.reshape(n, -1)
+        columns = np.concatenate([A[:, :, None], A[:, :, None] * X[:, None, :]], axis=2)  # (n, r, d + 1)
+        products = (K @ columns.reshape(n, -1)).reshape(columns.shape)  # K [a_k, a_k∘x_i]
+        quadratic = np.einsum("ak,ak->", A, products[:, :, 0])  # sum_k a_k^T K a_k
+        distance_sums = 2.0 * (np.einsum("ak,ai,ak->i", A, X * X, products[:, :, 0])
+                               - np.einsum("aki,aki->i", columns[:, :, 1:], products[:, :, 1:]))
+        return self._gradient_from_sums(quadratic, distance_sums, theta)
+
+    def _gradient_from_sums(self, total, distance_sums, theta) -> np.ndarray:
+        """``g = [total, -distance_sums * dw/dtheta_scale]``: the contraction's gradient from
+        ``total = sum_ab M_ab K_ab`` and ``distance_sums_i = sum_ab M_ab K_ab (x_ai - y_bi)^2``
+        (eq. 3), shape (d + 1,)."""
         theta = self.theta if theta is None else theta
-        MK = M * K
-        d_w = -(MK.sum(axis=1) @ (X * X) + MK.sum(axis=0) @ (Y * Y)
-                - 2.0 * np.einsum("ai,ai->i", X, MK @ Y))
         _, dw_dtheta = self._weights_and_derivative(theta[1:])
-        return np.concatenate(([MK.sum()], d_w * dw_dtheta))
+        return np.concatenate(([total], -np.asarray(distance_sums) * dw_dtheta))
 
     def clone_with_theta(self, theta) -> StationaryKernel:
         """A copy with hyperparameters ``theta``."""
@@ -212,6 +263,9 @@ class SquaredExponentialARD(StationaryKernel):
     def _weights_and_derivative(self, theta_scale):
         weights = 0.5 * np.exp(-2.0 * theta_scale)  # w = 1/(2 l^2), l = e^theta
         return weights, -2.0 * weights
+
+    def _theta_scale_from_weights(self, weights):
+        return -0.5 * np.log(2.0 * weights)
 
     def scale_parameters(self):
         return np.exp(self.theta[1:])
@@ -254,6 +308,9 @@ class HigdonKernel(StationaryKernel):
         # dw/dz = -4 (1 - alpha).
         weights = 4.0 * np.logaddexp(0.0, -theta_scale)
         return weights, -4.0 * expit(-theta_scale)
+
+    def _theta_scale_from_weights(self, weights):
+        return -np.log(np.expm1(0.25 * weights))  # w = 4 ln(1 + e^-z)
 
     def scale_parameters(self):
         return expit(self.theta[1:])

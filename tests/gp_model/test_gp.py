@@ -38,6 +38,24 @@ def test_matches_scikit_learn_for_the_same_fixed_kernel():
     assert ours.log_marginal_likelihood() == pytest.approx(theirs.log_marginal_likelihood_value_, rel=1e-10)
 
 
+def test_concentrated_likelihood_is_the_likelihood_at_its_best_signal_variance(make_kernel):
+    X, Y = make_data(n=40, n_outputs=2)
+    gp = GaussianProcess(make_kernel(2), noise_variance=0.05).fit(X, Y)
+    x = np.append(gp.theta_[1:-1], gp.theta_[-1] - gp.theta_[0]) + 0.2  # [kernel scales, ln r]
+    lml, gradient, theta = gp.concentrated_log_marginal_likelihood(x)
+    np.testing.assert_allclose(theta[1:-1], x[:-1])
+    assert theta[-1] - theta[0] == pytest.approx(x[-1], rel=1e-12)  # the noise-to-signal ratio kept
+    assert gp.log_marginal_likelihood(theta) == pytest.approx(lml, rel=1e-12)
+    # Scaling signal and noise variance together (the ratio fixed) only lowers the likelihood.
+    for shift in (-0.05, 0.05):
+        assert gp.log_marginal_likelihood(theta + shift * np.eye(len(theta))[[0, -1]].sum(0)) < lml
+    step = 1e-6
+    numeric = [(gp.concentrated_log_marginal_likelihood(x + step * e)[0]
+                - gp.concentrated_log_marginal_likelihood(x - step * e)[0]) / (2 * step) for e in np.eye(len(x))]
+    # Central differences, as the contract's likelihood-gradient test: rounding ~1e-7 here.
+    np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-5)
+
+
 @pytest.mark.parametrize("length_scale", [1.0, 50.0])
 def test_duplicate_and_ill_conditioned_inputs_escalate_jitter_and_log(caplog, length_scale):
     X, y = make_data(n=20)

@@ -1,6 +1,7 @@
 """Hyperparameter inference: maximum likelihood, Metropolis, simulated annealing."""
 import numpy as np
 import pytest
+from scipy import optimize
 
 from gp_model import (
     GaussianProcess,
@@ -60,6 +61,40 @@ def test_noise_floor_binds_only_where_the_likelihood_wants_less_noise():
     np.testing.assert_allclose(loose.theta_, plain.theta_, rtol=1e-6)
     with pytest.raises(ValueError, match="min_noise_variance"):
         maximize_marginal_likelihood(loose, min_noise_variance=-1.0)
+
+
+def plain_maximum_likelihood(gp, *, n_restarts, seed):
+    """Best log likelihood and evaluations of L-BFGS-B over theta itself, with SciPy's defaults,
+    from the starts maximize_marginal_likelihood uses: the search that module replaced."""
+    starts = [gp.theta_] + list(np.clip(gp.prior().sample(n_restarts, np.random.default_rng(seed)), -15, 15))
+    evaluations = 0
+
+    def negative_lml(theta):
+        nonlocal evaluations
+        evaluations += 1
+        lml, gradient = gp.log_marginal_likelihood(theta, return_gradient=True)
+        return (-lml, -gradient) if np.isfinite(lml) else (1e25, np.zeros_like(theta))
+
+    results = [optimize.minimize(negative_lml, start, jac=True, method="L-BFGS-B", bounds=[(-15, 15)] * len(start))
+               for start in starts]
+    return max(-result.fun for result in results), evaluations
+
+
+@pytest.mark.parametrize("kernel", [SquaredExponentialARD(1.0, [1.0, 1.0, 1.0]), HigdonKernel(1.0, [0.5, 0.5, 0.5])],
+                         ids=["se_ard", "higdon"])
+def test_maximum_likelihood_reaches_the_plain_search_optimum_in_fewer_evaluations(kernel):
+    X, y = gp_sample_data(seed=1)
+    X = np.column_stack([X, np.random.default_rng(11).uniform(-3, 3, len(X))])  # an input y does not use
+    plain_lml, plain_evaluations = plain_maximum_likelihood(raw_gp(kernel).fit(X, y), n_restarts=2, seed=0)
+    gp = raw_gp(kernel).fit(X, y)
+    result = maximize_marginal_likelihood(gp, n_restarts=2, seed=0)
+    # The same maximum (1e-8: both stop at L-BFGS-B's tolerances, ~1e-10 apart here) in about
+    # two thirds of the evaluations (81 and 92 against 125 and 144 with SciPy 1.17).
+    assert result.log_marginal_likelihood >= plain_lml - 1e-8
+    assert result.n_evaluations < 0.8 * plain_evaluations
+    # The unused input ends at the bound of its scale (l = e^15, alpha = expit(15)), the
+    # likelihood's supremum, where the plain search creeps towards it.
+    assert result.theta[3] == pytest.approx(15.0)
 
 
 def test_maximum_likelihood_at_least_as_good_as_scikit_learn():

@@ -38,8 +38,7 @@ def test_cross_matrix_matches_square_matrix_blocks(kernel, X):
 
 def test_gradient_contraction_matches_finite_differences(kernel, X):
     rng = np.random.default_rng(2)
-    M = rng.normal(size=(len(X), len(X)))
-    M = M + M.T  # the contraction is defined for symmetric M
+    M = rng.normal(size=(len(X), len(X)))  # any M: the likelihood passes a triangle of K^-1
     analytic = kernel.gradient_contraction(X, kernel(X), M)
     step = 1e-6
     numeric = np.empty_like(analytic)
@@ -50,6 +49,25 @@ def test_gradient_contraction_matches_finite_differences(kernel, X):
         numeric[j] = (np.sum(M * kernel(X, theta=up)) - np.sum(M * kernel(X, theta=down))) / (2 * step)
     # Central differences with h = 1e-6 are accurate to ~1e-8 relative on these O(10) sums.
     np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-7)
+
+
+def test_low_rank_contraction_equals_the_contraction_with_the_full_matrix(kernel, X):
+    A = np.random.default_rng(3).normal(size=(len(X), 2))
+    K = kernel(X)
+    # Eq. (4) is eq. (3) with M = A A^T rearranged: equal to rounding.
+    np.testing.assert_allclose(kernel.low_rank_gradient_contraction(X, K, A),
+                               kernel.gradient_contraction(X, K, A @ A.T), rtol=1e-10, atol=1e-12)
+
+
+def test_theta_from_weights_inverts_weights_with_their_derivative(kernel):
+    theta_scale, dw_dtheta = kernel.theta_from_weights(kernel.weights())
+    np.testing.assert_allclose(theta_scale, kernel.theta[1:], rtol=1e-12)
+    step = 1e-6
+    up, down = kernel.theta.copy(), kernel.theta.copy()
+    up[1:] += step
+    down[1:] -= step
+    # Each weight depends on its own theta only; central differences are accurate to ~1e-10.
+    np.testing.assert_allclose(dw_dtheta, (kernel.weights(up) - kernel.weights(down)) / (2 * step), rtol=1e-7)
 
 
 def test_clone_with_theta_round_trips(kernel, X):
