@@ -242,7 +242,7 @@ class FMUReference:
         """Restore the kept replay that shares the longest beginning with ``inputs`` (same
         ``key``: settings and time grid): the row it resumes at (0: none), with ``outputs`` filled
         up to it, and the checkpoints up to it (the new replay's own)."""
-        best, best_row = None, 0
+        best, best_row, best_state = None, 0, None
         for base in self._bases:
             if base[0] != key:
                 continue
@@ -250,10 +250,10 @@ class FMUReference:
             agree = int(differ[0]) if len(differ) else len(inputs) - 1
             usable = [c for c in base[3] if c[0] <= agree]
             if usable and usable[-1][0] > best_row:
-                best, best_row = base, usable[-1][0]
+                best, (best_row, best_state) = base, usable[-1]
         if best is None:
             return 0, []
-        row, state = [c for c in best[3] if c[0] <= best_row][-1]
+        row, state = best_row, best_state
         fmu.setFMUstate(state)
         outputs[:row + 1] = best[2][:row + 1]
         self.steps_resumed += row
