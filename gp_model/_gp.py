@@ -297,7 +297,12 @@ class BaseGaussianProcess:
         if self.theta_samples_ is None:
             return [self._posterior]
         if self._sample_posteriors is None:
-            self._sample_posteriors = [self._posterior_at(t) for t in self.theta_samples_]
+            # Annealing repeats samples (a rejected move keeps the last one): each distinct
+            # sample is factorised once and its posterior shared by its repeats.
+            _, first, inverse = np.unique(self.theta_samples_, axis=0, return_index=True,
+                                                 return_inverse=True)
+            posteriors = [self._posterior_at(self.theta_samples_[i]) for i in first]
+            self._sample_posteriors = [posteriors[i] for i in inverse.ravel()]
         return self._sample_posteriors
 
     # -- portable state (one part of a model file, gp_model._model_file) ---------------------
@@ -549,9 +554,12 @@ class GaussianProcess(BaseGaussianProcess):
         posteriors = self._posteriors() if use_samples else [self._posterior]
         eye = np.eye(len(self.X_train_))
         single = self.Y_train_.shape[1] == 1
-        return [PredictiveForm(p.theta, self.X_train_, p.alpha[:, 0] if single else p.alpha,
-                               linalg.solve_triangular(p.L, eye, lower=True, check_finite=False))
-                for p in posteriors]
+        forms = {}  # one form per distinct posterior, shared by the samples that repeat it
+        for p in posteriors:
+            if id(p) not in forms:
+                forms[id(p)] = PredictiveForm(p.theta, self.X_train_, p.alpha[:, 0] if single else p.alpha,
+                                              linalg.solve_triangular(p.L, eye, lower=True, check_finite=False))
+        return [forms[id(p)] for p in posteriors]
 
     def __repr__(self) -> str:
         return f"GaussianProcess({self.kernel!r}, noise_variance={self.noise_variance:.4g})"

@@ -259,8 +259,9 @@ class GPNarx:
             Keep the individual Monte Carlo runs in the result.
         n_threads : int, optional
             Threads sharing each Monte Carlo step, by default one per core available to the
-            process. They meet after every step (each step needs all outputs of the last), so
-            more threads than free cores slow the run down. The result does not depend on it
+            process and per ``MIN_SLOTS_PER_THREAD`` (output, run) pairs. They meet after every
+            step (each step needs all outputs of the last), so more threads than free cores
+            slow the run down, and so do threads with too little work between meetings. The result does not depend on it
             beyond rounding in the last bits (none where the threads' shares end between
             hyperparameter samples).
         progress : callable, optional
@@ -336,7 +337,8 @@ class GPNarx:
         # depend on how the work is split between threads.
         assignments = [rng.permutation(n_runs) % _n_samples(gp, use_samples) for gp in gps]
         normals = rng.standard_normal((n - start, n_out * n_runs))  # column c * R + r
-        n_threads = _available_cores() if n_threads is None else n_threads
+        if n_threads is None:
+            n_threads = min(_available_cores(), max(1, n_out * n_runs // MIN_SLOTS_PER_THREAD))
         predictor = _BatchPredictor(gps, assignments, use_samples=use_samples,
                                     n_parts=max(1, min(n_threads, n_out * n_runs)))
         history = np.empty((n, n_out * n_runs))  # row k: output c of run r in column c * R + r
@@ -429,12 +431,34 @@ def _noise_variances(gp, use_samples: bool) -> np.ndarray:
     return np.exp(thetas[:, -1]) * gp.output_scaler_.scale_[0] ** 2
 
 
+#: Fewest (output, run) pairs per thread of the Monte Carlo free run by default: with fewer, a
+#: step's work per thread (about 0.3 us per pair with samples repeated as annealing repeats
+#: them) is too short to pay for the threads' meeting after it. Measured on 2 cores, 3 outputs
+#: and 200 steps, one thread against two: 1000 runs 0.18 s and 0.20 s, 4000 runs 0.67 s and
+#: 0.67 s, 16000 runs 3.4 s and 3.2 s (another job held one core); on a quiet machine, before
+#: items were cut at ``ITEM_RUNS``, 16000 runs took 3.2 s and 1.6 s.
+MIN_SLOTS_PER_THREAD = 6000
+
+#: Most runs in one item of the Monte Carlo free run (a sample's runs beyond it form further
+#: items): the items' sizes then take at most this many values, and every group of equal-sized
+#: items costs a few numpy calls per step whatever its size.
+#: 8 measured fastest of 4, 8, 16, 32 and unlimited on the 1000 x 800 benchmark (0.62 s against
+#: 0.68, 0.67, 0.77 and 0.92 s, one thread).
+ITEM_RUNS = 8
+
+
 def _available_cores() -> int:
     """CPU cores this process may run on."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         return os.cpu_count() or 1
+
+
+def _first_repeat(forms) -> np.ndarray:
+    """Index of the first form that is the same object as each of ``forms`` (shape (S,))."""
+    first = {}
+    return np.array([first.setdefault(id(f), i) for i, f in enumerate(forms)], dtype=int)
 
 
 class _BatchPredictor:
@@ -448,7 +472,8 @@ class _BatchPredictor:
     standardised inputs.
 
     Layout. Every (output, run) pair is a *slot*; the slots are ordered so that the runs sharing
-    an output's sample (an *item*) are adjacent, and items with equal numbers of runs are
+    an output's sample (an *item*, of at most ``ITEM_RUNS`` runs; repeats of a sample count as
+    one sample) are adjacent, and items with equal numbers of runs are
     adjacent, so that one batched matrix product per group of equal-sized items evaluates the
     predictive mean and variance of all their runs, each item's arrays read once per step (the
     variance products stream every sample's factor each step and bound the cost). The slots
@@ -468,6 +493,9 @@ class _BatchPredictor:
     def __init__(self, gps, assignments, *, use_samples: bool, n_parts: int = 1) -> None:
         forms = [gp.predictive_forms(use_samples=use_samples) for gp in gps]
         n_runs = len(assignments[0])
+        # Runs on repeats of one sample (predictive_forms shares their form) become one item:
+        # each distinct sample's arrays are then read once per step, whichever repeat a run drew.
+        assignments = [_first_repeat(f)[a] for f, a in zip(forms, assignments)]
         # Bases of fewer points are padded with zeros to n points: their kernel values meet
         # only zero weights.
         n = max(len(f[0].basis) for f in forms)
@@ -476,7 +504,8 @@ class _BatchPredictor:
         for j, a in enumerate(assignments):
             order = np.argsort(a, kind="stable")
             bounds = np.concatenate(([0], np.cumsum(np.bincount(a, minlength=len(forms[j])))))
-            items += [(order[lo:hi], j, s) for s, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])) if hi > lo]
+            items += [(order[c:min(c + ITEM_RUNS, hi)], j, s)
+                      for s, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])) for c in range(lo, hi, ITEM_RUNS)]
         items.sort(key=lambda item: (-len(item[0]), item[1], item[2]))
         item_output = np.array([j for _, j, _ in items])
         item_sample = np.array([s for _, _, s in items])
