@@ -62,7 +62,7 @@ fitted :class:`~gp_model.GaussianProcess` objects.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -139,6 +139,11 @@ class MomentMatcher:
     ``E[f] = E_s[m_s]``, ``Cov[f] = E_s[C_s] + Cov_s[m_s]`` (law of total covariance) and
     ``Cov[x, f] = E_s[Cov_s[x, f]]`` (x does not depend on s), which the matched Gaussian keeps.
 
+    Repeated samples (annealing keeps its last sample when it rejects a move, so a chain of 400
+    may hold only 100 distinct ones) are computed once and counted as often as they occur: the
+    moments are the same. Terms of one output use its distinct samples; the covariances between
+    outputs ``a != b`` use the distinct pairs ``(s_a, s_b)`` of the joint samples.
+
     Parameters
     ----------
     frames : sequence of FrameGP, length m
@@ -156,6 +161,17 @@ class MomentMatcher:
         if len(counts) != 1:
             raise ValueError(f"the GPs have different numbers of hyperparameter samples {sorted(counts)}; "
                              "moment matching pairs sample s of every GP")
+        # Per GP: its distinct samples (in order of first occurrence), which of them each joint
+        # sample is, and how often each occurs.
+        self._distinct, self._rows, self._index, self._counts = [], [], [], []
+        for frame in self.frames:
+            keep, index = _distinct_samples(frame)
+            self._distinct.append(_frame_samples(frame, keep))
+            self._rows.append(keep)
+            self._index.append(index)
+            self._counts.append(np.bincount(index, minlength=len(keep)).astype(float))
+        self._pairs = {(a, b): _pair_counts(self._index, (a, b))
+                       for a in range(len(self.frames)) for b in range(a + 1, len(self.frames))}
 
     @property
     def n_dims(self) -> int:
@@ -164,6 +180,21 @@ class MomentMatcher:
     @property
     def n_outputs(self) -> int:
         return len(self.frames)
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.frames[0].beta)
+
+    def sample_pairs(self) -> dict:
+        """The sample pairs of the covariances between outputs: ``{(a, b): (rows_a, rows_b,
+        counts)}`` for ``a < b``, rows into each GP's distinct samples (:meth:`distinct_samples`),
+        each pair counted as often as the joint samples hold it (the counts sum to S)."""
+        return self._pairs
+
+    def distinct_samples(self) -> list:
+        """Per GP: ``(rows, index)``, the rows (shape (T,)) of its distinct samples among the S,
+        in order of first occurrence, and which of them each joint sample is (shape (S,))."""
+        return [(rows, index) for rows, index in zip(self._rows, self._index)]
 
     def __call__(self, mean, cov, *, include_noise: bool = True):
         """Exact mean and covariance of the m GP predictions at ``x ~ N(mean, cov)``.
@@ -193,47 +224,54 @@ class MomentMatcher:
             semi-definite.
         """
         m, S = self._standardise(mean, cov)
-        # Per GP and sample (leading axis s): u_ai (eq. 3), M_a and ln|I + T_a| (eq. 6), q_a (eq. 1
-        # in the Woodbury form -1/2 nu^T (S + Lambda)^-1 nu = -1/2 nu^T u + 1/2 u^T M_a u).
+        # Per GP and distinct sample (leading axis t): u_ai (eq. 3), M_a and ln|I + T_a| (eq. 6),
+        # q_a (eq. 1 in the Woodbury form -1/2 nu^T (S + Lambda)^-1 nu = -1/2 nu^T u + 1/2 u^T M_a u).
         singles = []
-        for gp in self.frames:
+        for gp in self._distinct:
             nu = gp.inputs - m  # (n, d)
-            u = nu * gp.precision[:, None, :]  # (S, n, d)
-            M, log_det = _woodbury_terms(gp.precision, S)  # (S, d, d), (S,)
+            u = nu * gp.precision[:, None, :]  # (T, n, d)
+            M, log_det = _woodbury_terms(gp.precision, S)  # (T, d, d), (T,)
             uMu = _quadratic_forms(u, M)
             q = np.exp(gp.log_signal_variance[:, None] - 0.5 * log_det[:, None]
-                       - 0.5 * np.einsum("ij,sij->si", nu, u) + 0.5 * uMu)  # (S, n)
+                       - 0.5 * np.einsum("ij,sij->si", nu, u) + 0.5 * uMu)  # (T, n)
             singles.append((u, M, log_det, q))
 
-        n_out, n_samples = len(self.frames), len(self.frames[0].beta)
-        mean_s = np.column_stack([np.einsum("sn,sn->s", gp.beta, q)
-                                  for gp, (_, _, _, q) in zip(self.frames, singles)])  # (S, m), eq. 1
-        # Eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i.
-        cross_s = np.stack([np.einsum("sde,se->sd", M, np.einsum("snd,sn->sd", u, gp.beta * q))
-                            for gp, (u, M, _, q) in zip(self.frames, singles)], axis=2)  # (S, d, m)
-        cov_s = np.empty((n_samples, n_out, n_out))
+        n_out, n_samples = len(self.frames), self.n_samples
+        mean_s = np.column_stack([np.einsum("sn,sn->s", gp.beta, q)[index] for gp, (_, _, _, q), index
+                                  in zip(self._distinct, singles, self._index)])  # (S, m), eq. 1
+        # Eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i, summed over the samples.
+        cross_sum = np.column_stack([counts @ np.einsum("sde,se->sd", M, np.einsum("snd,sn->sd", u, gp.beta * q))
+                                     for gp, (u, M, _, q), counts
+                                     in zip(self._distinct, singles, self._counts)])  # (d, m)
+        cov_sum = np.empty((n_out, n_out))  # sum over the samples of C_s
         for a in range(n_out):
-            gp_a, (u_a, M_a, log_det_a, q_a) = self.frames[a], singles[a]
+            gp_a, (u_a, M_a, log_det_a, q_a) = self._distinct[a], singles[a]
             for b in range(a, n_out):
-                gp_b, (u_b, M_b, log_det_b, q_b) = self.frames[b], singles[b]
-                M_ab, log_det_ab = _woodbury_terms(gp_a.precision + gp_b.precision, S)
+                if b == a:
+                    rows_a = rows_b = slice(None)
+                    counts = self._counts[a]
+                else:
+                    rows_a, rows_b, counts = self._pairs[a, b]
+                gp_b, (u_b, M_b, log_det_b, q_b) = self._distinct[b], singles[b]
+                u_a_, M_a_, q_a_ = u_a[rows_a], M_a[rows_a], q_a[rows_a]
+                u_b_, M_b_, q_b_ = u_b[rows_b], M_b[rows_b], q_b[rows_b]
+                M_ab, log_det_ab = _woodbury_terms(gp_a.precision[rows_a] + gp_b.precision[rows_b], S)
                 # Eq. 6: z^T M_ab z expanded over z_ij = u_ai + u_bj.
-                D = (0.5 * _quadratic_forms(u_a, M_ab - M_a)[:, :, None]
-                     + 0.5 * _quadratic_forms(u_b, M_ab - M_b)[:, None, :]
-                     + (u_a @ M_ab) @ np.swapaxes(u_b, 1, 2)
-                     - 0.5 * (log_det_ab - log_det_a - log_det_b)[:, None, None])
+                D = (0.5 * _quadratic_forms(u_a_, M_ab - M_a_)[:, :, None]
+                     + 0.5 * _quadratic_forms(u_b_, M_ab - M_b_)[:, None, :]
+                     + (u_a_ @ M_ab) @ np.swapaxes(u_b_, 1, 2)
+                     - 0.5 * (log_det_ab - log_det_a[rows_a] - log_det_b[rows_b])[:, None, None])
                 excess = np.expm1(D)  # (Q^ab - q_a q_b^T) / (q_a q_b^T), elementwise
-                weighted_a, weighted_b = gp_a.beta * q_a, gp_b.beta * q_b
-                cov_s[:, a, b] = cov_s[:, b, a] = (
-                    (weighted_a[:, None, :] @ excess) @ weighted_b[:, :, None])[:, 0, 0]
+                weighted_a, weighted_b = gp_a.beta[rows_a] * q_a_, gp_b.beta[rows_b] * q_b_
+                cov_t = ((weighted_a[:, None, :] @ excess) @ weighted_b[:, :, None])[:, 0, 0]
                 if b == a:
                     # Eq. 4 with Q^aa of eq. 3, clipped at zero as GaussianProcess.predict clips
                     # its variance; eq. 5 adds it and the noise to the diagonal.
                     Q_aa = q_a[:, :, None] * q_a[:, None, :] * (1.0 + excess)
                     expected_var = (np.exp(gp_a.log_signal_variance)  # tr(K_inv Q), Q symmetric
                                     - (gp_a.K_inv * Q_aa).sum(axis=(1, 2)))
-                    cov_s[:, a, a] += (np.maximum(expected_var, 0.0)
-                                       + (gp_a.noise_variance if include_noise else 0.0))
+                    cov_t = cov_t + np.maximum(expected_var, 0.0) + (gp_a.noise_variance if include_noise else 0.0)
+                cov_sum[a, b] = cov_sum[b, a] = counts @ cov_t
 
         # Back to raw units (eq. 5 scaled): y = mu_y + s_y f and x = mu_0 + s_0 z; then the
         # mixture over samples (class docstring), centred so that S = 1 adds exact zeros.
@@ -241,9 +279,9 @@ class MomentMatcher:
         means = np.array([gp.output_mean for gp in self.frames]) + output_scale * mean_s  # (S, m)
         out_mean = means.mean(axis=0)
         spread = means - out_mean
-        out_cov = (cov_s.mean(axis=0) * np.outer(output_scale, output_scale)
+        out_cov = (cov_sum / n_samples * np.outer(output_scale, output_scale)
                    + np.einsum("si,sj->ij", spread, spread) / n_samples)
-        cross_cov = cross_s.mean(axis=0) * self.input_scale[:, None] * output_scale[None, :]
+        cross_cov = cross_sum / n_samples * self.input_scale[:, None] * output_scale[None, :]
         return out_mean, out_cov, cross_cov
 
     def _standardise(self, mean, cov) -> tuple[np.ndarray, np.ndarray]:
@@ -275,6 +313,34 @@ class MomentMatcher:
                 f"cov is not positive semi-definite: the standardised covariance has eigenvalue "
                 f"{eigenvalues[0]:.3g} (largest {eigenvalues[-1]:.3g}); check how it was formed")
         return m, S
+
+
+def _distinct_samples(frame: FrameGP) -> tuple[np.ndarray, np.ndarray]:
+    """The rows (T,) of ``frame``'s distinct samples in order of first occurrence, and which of
+    them each of its S samples is (S,)."""
+    n_samples = len(frame.beta)
+    rows = np.column_stack([frame.precision, frame.beta, frame.log_signal_variance, frame.noise_variance,
+                            frame.K_inv.reshape(n_samples, -1)])
+    _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # distinct samples by first occurrence
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[inverse.ravel()]
+
+
+def _frame_samples(frame: FrameGP, rows: np.ndarray) -> FrameGP:
+    """``frame`` at the samples ``rows`` only."""
+    return replace(frame, precision=frame.precision[rows], beta=frame.beta[rows],
+                   log_signal_variance=frame.log_signal_variance[rows], K_inv=frame.K_inv[rows],
+                   noise_variance=frame.noise_variance[rows])
+
+
+def _pair_counts(index: list, pair: tuple) -> tuple:
+    """The distinct sample pairs of GPs ``pair = (a, b)`` among the joint samples, each with how
+    often it occurs: ``(rows_a, rows_b, counts)``, rows into each GP's distinct samples."""
+    a, b = pair
+    combos, counts = np.unique(np.column_stack([index[a], index[b]]), axis=0, return_counts=True)
+    return combos[:, 0], combos[:, 1], counts.astype(float)
 
 
 def _quadratic_forms(u: np.ndarray, M: np.ndarray) -> np.ndarray:

@@ -76,7 +76,8 @@ def check_platform() -> None:
                             "on the FMU's sources on the target")
 
 
-def package_native_fmu(target: Path, *, slave_class, model_source: Path, config, data: bytes) -> Path:
+def package_native_fmu(target: Path, *, slave_class, model_source: Path, config, data: bytes,
+                       extra_flags=()) -> Path:
     """Compile and package one native FMU (what every native builder ends with).
 
     Parameters
@@ -93,6 +94,8 @@ def package_native_fmu(target: Path, *, slave_class, model_source: Path, config,
         ``config(guid) -> str``: the FMU's ``model_config.h`` (:func:`config_header`).
     data : bytes
         ``resources/model.bin``, the model constants read at ``fmi2Instantiate``.
+    extra_flags : sequence of str
+        gcc flags the model needs besides :data:`COMPILE_FLAGS` (named in its C file).
 
     Returns
     -------
@@ -103,7 +106,7 @@ def package_native_fmu(target: Path, *, slave_class, model_source: Path, config,
     xml, guid = _model_description(slave_class, [path.name for path in c_files])
     sources = {path.name: path.read_bytes() for path in (*c_files, *LAYER_HEADERS)}
     sources[CONFIG_HEADER] = config(guid).encode()
-    binary = compile_shared_library(sources, target.stem)
+    binary = compile_shared_library(sources, target.stem, extra_flags=extra_flags)
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
         archive.writestr("modelDescription.xml", xml)

@@ -7,18 +7,26 @@
  * sizes) is compiled in from model_config.h; the GP arrays are read at fmi2Instantiate from
  * resources/DATA_FILE, written by fmu_src/rate_predictor/native.py:
  *
- *   8 bytes  "FGPNARX1"
+ *   8 bytes  "FGPNARX2"
  *   8 bytes  number of doubles that follow (uint64, native byte order)
- *   doubles  per output j (d = N_REGRESSORS, m = BASIS_POINTS[j], S = HYPERPARAMETER_SAMPLES[j]):
+ *   doubles  per output j (d = N_REGRESSORS, m = BASIS_POINTS[j], T = DISTINCT_SAMPLES[j]):
  *              input_mean (d), input_scale (d), output_mean, output_scale, basis (m x d),
- *              then per hyperparameter sample s:
+ *              then per distinct hyperparameter sample t (in order of first occurrence):
  *                weights (m), kernel_weights (d), log_signal_variance, noise_variance,
- *                variance factor V_s stored as gp_predict.h says (by columns, packed if
- *                LOWER_TRIANGULAR[j]).
+ *                variance factor V_t stored as gp_predict.h says (by columns, packed if
+ *                LOWER_TRIANGULAR[j]);
+ *            the joint table: per joint sample s < JOINT_SAMPLES, per output j, which distinct
+ *              sample of output j it is;
+ *            per output pair p = (a, b), a < b, in the order (0, 1), (0, 2), ..., (1, 2), ...:
+ *              PAIR_COUNT[p] distinct sample pairs (t_a, t_b, how many joint samples hold it).
+ * Annealing repeats samples (a rejected move keeps the last one: the paper's model has 100, 71
+ * and 108 distinct samples of 400), so every term of one output is computed once per distinct
+ * sample and counted as often as it occurs, and the covariance between two outputs once per
+ * distinct pair (MomentMatcher in gp_model/uncertain_input.py does the same).
  *
  * Each instance reads its own copy (no memory shared between instances) and computes its own
- * free-run constants from it (prepare_free_run; A_s is S m^2 doubles per output, 10 MB for the
- * paper's 400-sample model).
+ * free-run constants from it (prepare_free_run; A_t is T m^2 doubles per output, 2.3 MB for the
+ * paper's model).
  *
  * Prediction of output j at regressor x (all GP arrays in standardised units; each sample's
  * kernel row, mean and latent variance by the FMI layer's gp_predict.c):
@@ -29,8 +37,8 @@
  *   output: mean * output_scale + output_mean, variance spread * output_scale^2.
  * V_s = L_s^-1 is lower triangular for an exact GP (LOWER_TRIANGULAR[j]); it is then stored and
  * multiplied without the zeros above the diagonal. The step's cost is dominated by streaming
- * the S variance factors from memory (the paper's model: 1200 factors of 32 x 32, 5 MB packed),
- * so halving them halves the time.
+ * the distinct samples' variance factors from memory (the paper's model: 279 factors of 32 x 32,
+ * 1.2 MB packed).
  *
  * Free run (free_run = true): a Gaussian belief over the lagged outputs, propagated by exact
  * moment matching over the hyperparameter mixture, as NarxPredictor.free_run_step: eqs. (1)-(6)
@@ -44,6 +52,15 @@
  * covariance (covariance_problem): finite, symmetric and positive semi-definite to
  * COVARIANCE_TOLERANCE, or the step is refused. Both use one symmetric eigen-solver
  * (symmetric_eigen, cyclic Jacobi).
+ *
+ * Free-run cost. Eq. 6 takes one expm1 per pair of basis points, for every distinct sample of
+ * each output and every distinct sample pair of each output pair: the paper's model has 279
+ * own blocks (symmetric: 528 of the 1024 terms needed) and 487 cross blocks of 32 x 32, about
+ * 650 000 terms per step. Three things keep a term cheap, none of them an approximation: the
+ * known regressors have zero variance, so the exponents need the N_Z uncertain ones only (3 of
+ * the paper's 5); expm1 is a branch-free polynomial (expm1_branchless) so that the loops over a
+ * block's columns vectorise; and the kernels are compiled for AVX-512 and AVX2 besides plain
+ * x86-64, picked at load. The FMU then runs the formulas of MomentMatcher exactly (to rounding).
  */
 #include <float.h>
 #include <math.h>
@@ -56,7 +73,7 @@
 #include "model.h"
 #include "model_config.h"
 
-#define DATA_MAGIC "FGPNARX1"
+#define DATA_MAGIC "FGPNARX2"
 #define SIGNALS (N_INPUTS + N_OUTPUTS)
 
 /* Where the hidden state lives in the model's state array (model.h). */
@@ -70,43 +87,55 @@
 #define D N_REGRESSORS
 #define KNOWN_REGRESSORS (N_INPUTS * N_INPUT_LAGS)     /* the exact part of the regressor */
 #define N_Z (N_OUTPUTS * N_OUTPUT_LAGS)                /* lagged outputs that are regressors */
+#define N_PRODUCTS (N_Z * (N_Z + 1) / 2)               /* products u_c u_e, c <= e, of their u */
 
 /* One output's GP (pointers into Model.data). */
 typedef struct {
-    int m, S, lower_triangular;
-    size_t sample_size;                      /* doubles per hyperparameter sample */
+    int m, T, lower_triangular;              /* basis points, distinct hyperparameter samples */
+    size_t sample_size;                      /* doubles per distinct sample */
     const double *input_mean, *input_scale;  /* (d,) */
     double output_mean, output_scale;
     const double *basis;                     /* (m, d) */
-    const double *samples;                   /* S blocks of sample_size doubles */
-    double *signal_variance;                 /* (S,) exp(log_signal_variance) */
+    const double *samples;                   /* T blocks of sample_size doubles */
+    double *signal_variance;                 /* (T,) exp(log_signal_variance) */
+    double *count;                           /* (T,) joint samples that are distinct sample t */
     /* The GP in the common frame (output 0's input standardisation; frame_gp): */
     double *frame_basis;                     /* (m, d) X_a */
-    double *precision;                       /* (S, d) diagonal of Lambda_a^-1 = 2 w / ratio^2 */
-    double *K_inv;                           /* (S, m, m) A_s = V_s^T V_s */
-    /* moment-matching scratch for the current sample s (eq. numbers of uncertain_input.py): */
-    double *u;                               /* (m, d) u_ai = Lambda_a^-1 nu_ai */
-    double *q;                               /* (m,) q_ai, eq. 1 */
-    double *weighted;                        /* (m,) beta_ai q_ai */
-    double M[D * D], log_det;                /* M_a and ln|I + T_a| (eq. 6) */
+    double *precision;                       /* (T, d) diagonal of Lambda_a^-1 = 2 w / ratio^2 */
+    double *K_inv;                           /* (T, m, m) A_t = V_t^T V_t */
+    /* A step's eqs. 1-2 per distinct sample t (sample_terms), read by pair_covariance: */
+    double *uz;                              /* (T, N_Z, m) u_ati on the uncertain regressors */
+    double *uu;                              /* (T, N_PRODUCTS, m) u_ati,c u_ati,e for c <= e */
+    double *q;                               /* (T, m) q_ati, eq. 1 */
+    double *weighted;                        /* (T, m) beta_ati q_ati */
+    double *M;                               /* (T, N_Z, N_Z) M_at on the uncertain regressors */
+    double *log_det;                         /* (T,) ln|I + T_at| (eq. 6) */
+    double *mean;                            /* (T,) E[f_a] of sample t, standardised */
 } OutputGP;
 
-/* Scratch of _woodbury_terms (d x d each). */
+/* One output pair a < b: its distinct sample pairs (pointers into Model.data). */
 typedef struct {
-    double root[D], T[D * D], L[D * D], Y[D * D];
+    int a, b, n;
+    const double *combos;                    /* (n, 3): t_a, t_b, joint samples holding it */
+} SamplePairs;
+
+/* Scratch of woodbury_terms (at most N_Z x N_Z each). */
+typedef struct {
+    double root[N_Z], T[N_Z * N_Z], L[N_Z * N_Z], Y[N_Z * N_Z];
 } WoodburyScratch;
 
 struct Model {
     double *data;
     OutputGP gp[N_OUTPUTS];
+    const double *joint;                              /* (JOINT_SAMPLES, N_OUTPUTS) */
+    SamplePairs pairs[N_PAIRS > 0 ? N_PAIRS : 1];
     double *squared;                                  /* scratch (m_max, d) */
     double *k, *v;                                    /* scratch (m_max,) */
     /* free-run scratch */
-    double *sample_means;                             /* (S, N_OUTPUTS) mixture components */
-    double *u_M;                                      /* (m_max, d) */
+    double *sample_means;                             /* (JOINT_SAMPLES, N_OUTPUTS) mixture components */
+    double *u_M;                                      /* (N_Z, m_max) */
     double *half_a, *half_b;                          /* (m_max,) */
     double frame_mean[D], frame_scale[D];             /* output 0's input standardisation */
-    double M_ab[D * D], M_diff[D * D];
     WoodburyScratch woodbury;
     double next_state[MODEL_STATE_SIZE];              /* a step's result before its commit */
 };
@@ -116,12 +145,17 @@ void model_free(Model *model) {
     for (int j = 0; j < N_OUTPUTS; j++) {
         OutputGP *gp = &model->gp[j];
         free(gp->signal_variance);
+        free(gp->count);
         free(gp->frame_basis);
         free(gp->precision);
         free(gp->K_inv);
-        free(gp->u);
+        free(gp->uz);
+        free(gp->uu);
         free(gp->q);
         free(gp->weighted);
+        free(gp->M);
+        free(gp->log_det);
+        free(gp->mean);
     }
     free(model->data);
     free(model->squared);
@@ -142,7 +176,7 @@ static Model *fail(Model *model, char **error, char *message) {
 
 /* The free run's constants and scratch (fmu_src/rate_predictor/predictor.py, _moment_matcher): every output's
  * GP in output 0's input frame, z_0 = (s_a z_a + mu_a - mu_0) / s_0 (frame_gp: basis * ratio +
- * offset, precision 2 w / ratio^2), and A_s = V_s^T V_s from the stored variance factors (by
+ * offset, precision 2 w / ratio^2), and A_t = V_t^T V_t from the stored variance factors (by
  * columns, packed if lower triangular). Returns 0 if out of memory. */
 static int prepare_free_run(Model *model, int m_max) {
     const OutputGP *lead = &model->gp[0];
@@ -150,24 +184,28 @@ static int prepare_free_run(Model *model, int m_max) {
         model->frame_mean[c] = lead->input_mean[c];
         model->frame_scale[c] = lead->input_scale[c];
     }
-    double *dense = malloc(sizeof(double) * (size_t)m_max * (size_t)m_max); /* V_s, row-major */
-    model->sample_means = malloc(sizeof(double) * (size_t)lead->S * N_OUTPUTS);
-    model->u_M = malloc(sizeof(double) * (size_t)m_max * D);
+    double *dense = malloc(sizeof(double) * (size_t)m_max * (size_t)m_max); /* V_t, row-major */
+    model->sample_means = malloc(sizeof(double) * (size_t)JOINT_SAMPLES * N_OUTPUTS);
+    model->u_M = malloc(sizeof(double) * (size_t)m_max * N_Z);
     model->half_a = malloc(sizeof(double) * (size_t)m_max);
     model->half_b = malloc(sizeof(double) * (size_t)m_max);
     int ok = dense != NULL && model->sample_means != NULL && model->u_M != NULL && model->half_a != NULL
              && model->half_b != NULL;
     for (int j = 0; j < N_OUTPUTS && ok; j++) {
         OutputGP *gp = &model->gp[j];
-        const size_t m = (size_t)gp->m, S = (size_t)gp->S;
+        const size_t m = (size_t)gp->m, T = (size_t)gp->T;
         gp->frame_basis = malloc(sizeof(double) * m * D);
-        gp->precision = malloc(sizeof(double) * S * D);
-        gp->K_inv = malloc(sizeof(double) * S * m * m);
-        gp->u = malloc(sizeof(double) * m * D);
-        gp->q = malloc(sizeof(double) * m);
-        gp->weighted = malloc(sizeof(double) * m);
-        ok = gp->frame_basis != NULL && gp->precision != NULL && gp->K_inv != NULL && gp->u != NULL
-             && gp->q != NULL && gp->weighted != NULL;
+        gp->precision = malloc(sizeof(double) * T * D);
+        gp->K_inv = malloc(sizeof(double) * T * m * m);
+        gp->uz = malloc(sizeof(double) * T * N_Z * m);
+        gp->uu = malloc(sizeof(double) * T * N_PRODUCTS * m);
+        gp->q = malloc(sizeof(double) * T * m);
+        gp->weighted = malloc(sizeof(double) * T * m);
+        gp->M = malloc(sizeof(double) * T * N_Z * N_Z);
+        gp->log_det = malloc(sizeof(double) * T);
+        gp->mean = malloc(sizeof(double) * T);
+        ok = gp->frame_basis != NULL && gp->precision != NULL && gp->K_inv != NULL && gp->uz != NULL && gp->uu != NULL
+             && gp->q != NULL && gp->weighted != NULL && gp->M != NULL && gp->log_det != NULL && gp->mean != NULL;
         if (!ok) break;
         double ratio[D], offset[D];
         for (int c = 0; c < D; c++) {
@@ -176,18 +214,18 @@ static int prepare_free_run(Model *model, int m_max) {
         }
         for (size_t i = 0; i < m; i++)
             for (int c = 0; c < D; c++) gp->frame_basis[i * D + c] = gp->basis[i * D + c] * ratio[c] + offset[c];
-        for (size_t s = 0; s < S; s++) {
-            const double *sample = gp->samples + s * gp->sample_size;
+        for (size_t t = 0; t < T; t++) {
+            const double *sample = gp->samples + t * gp->sample_size;
             const double *kernel_weights = sample + m, *factor = sample + m + D + 2;
-            for (int c = 0; c < D; c++) gp->precision[s * D + c] = 2.0 * kernel_weights[c] / (ratio[c] * ratio[c]);
-            /* unpack V_s (stored by columns) into dense[row * m + column] */
+            for (int c = 0; c < D; c++) gp->precision[t * D + c] = 2.0 * kernel_weights[c] / (ratio[c] * ratio[c]);
+            /* unpack V_t (stored by columns) into dense[row * m + column] */
             for (size_t column = 0; column < m; column++)
                 for (size_t row = 0; row < m; row++) {
                     int stored = !gp->lower_triangular || row >= column;
                     dense[row * m + column] = stored ? *factor++ : 0.0;
                 }
-            /* A_s[i][k] = sum_r V_s[r][i] V_s[r][k] (frame_gp: einsum "sji,sjk->sik") */
-            double *A = gp->K_inv + s * m * m;
+            /* A_t[i][k] = sum_r V_t[r][i] V_t[r][k] (frame_gp: einsum "sji,sjk->sik") */
+            double *A = gp->K_inv + t * m * m;
             for (size_t i = 0; i < m; i++)
                 for (size_t k = i; k < m; k++) {
                     double sum = 0.0;
@@ -200,6 +238,48 @@ static int prepare_free_run(Model *model, int m_max) {
     return ok;
 }
 
+/* The joint table and the sample pairs (layout above), checked: every index names a distinct
+ * sample of its output, and each pair's counts sum to JOINT_SAMPLES. Returns NULL or a
+ * malloc'd message. */
+static char *read_mixture(Model *model, const double *p) {
+    model->joint = p;
+    p += (size_t)JOINT_SAMPLES * N_OUTPUTS;
+    for (int j = 0; j < N_OUTPUTS; j++) {
+        OutputGP *gp = &model->gp[j];
+        gp->count = calloc((size_t)gp->T, sizeof(double));
+        if (gp->count == NULL) return format_message("out of memory");
+        for (int s = 0; s < JOINT_SAMPLES; s++) {
+            double t = model->joint[(size_t)s * N_OUTPUTS + j];
+            if (!(t >= 0.0 && t < gp->T && t == floor(t)))
+                return format_message("corrupt %s: joint sample %d names sample %g of output %d, which has %d",
+                                      DATA_FILE, s, t, j, gp->T);
+            gp->count[(int)t] += 1.0;
+        }
+    }
+    int index = 0;
+    for (int a = 0; a < N_OUTPUTS; a++)
+        for (int b = a + 1; b < N_OUTPUTS; b++, index++) {
+            SamplePairs *pair = &model->pairs[index];
+            pair->a = a, pair->b = b, pair->n = PAIR_COUNT[index], pair->combos = p;
+            double total = 0.0;
+            for (int k = 0; k < pair->n; k++) {
+                const double *combo = p + 3 * k;
+                if (!(combo[0] >= 0.0 && combo[0] < model->gp[a].T && combo[0] == floor(combo[0]) && combo[1] >= 0.0
+                      && combo[1] < model->gp[b].T && combo[1] == floor(combo[1]) && combo[2] >= 1.0))
+                    return format_message("corrupt %s: sample pair %d of outputs %d and %d is (%g, %g, %g)", DATA_FILE,
+                                          k, a, b, combo[0], combo[1], combo[2]);
+                total += combo[2];
+            }
+            if (total != JOINT_SAMPLES)
+                return format_message("corrupt %s: the sample pairs of outputs %d and %d count %g joint samples, "
+                                      "not %d", DATA_FILE, a, b, total, JOINT_SAMPLES);
+            p += 3 * (size_t)pair->n;
+        }
+    return NULL;
+}
+
+static void select_block_kernels(void); /* the pair blocks' vectorised kernels (below) */
+
 Model *model_load(const char *resources_dir, char **error) {
     Model *model = calloc(1, sizeof(Model));
     if (model == NULL) return fail(NULL, error, NULL);
@@ -211,7 +291,7 @@ Model *model_load(const char *resources_dir, char **error) {
     for (int j = 0; j < N_OUTPUTS; j++) {
         OutputGP *gp = &model->gp[j];
         gp->m = BASIS_POINTS[j];
-        gp->S = HYPERPARAMETER_SAMPLES[j];
+        gp->T = DISTINCT_SAMPLES[j];
         gp->lower_triangular = LOWER_TRIANGULAR[j];
         size_t m = (size_t)gp->m;
         gp->sample_size = m + N_REGRESSORS + 2 + gp_factor_size(gp->m, gp->lower_triangular);
@@ -220,32 +300,35 @@ Model *model_load(const char *resources_dir, char **error) {
         gp->output_mean = *p++;
         gp->output_scale = *p++;
         gp->basis = p, p += (size_t)gp->m * N_REGRESSORS;
-        gp->samples = p, p += (size_t)gp->S * gp->sample_size;
-        gp->signal_variance = malloc(sizeof(double) * (size_t)gp->S);
+        gp->samples = p, p += (size_t)gp->T * gp->sample_size;
+        gp->signal_variance = malloc(sizeof(double) * (size_t)gp->T);
         if (gp->signal_variance == NULL) return fail(model, error, NULL);
-        for (int s = 0; s < gp->S; s++)
-            gp->signal_variance[s] = exp(gp->samples[(size_t)s * gp->sample_size + m + N_REGRESSORS]);
+        for (int t = 0; t < gp->T; t++)
+            gp->signal_variance[t] = exp(gp->samples[(size_t)t * gp->sample_size + m + N_REGRESSORS]);
         if (gp->m > m_max) m_max = gp->m;
     }
+    char *problem = read_mixture(model, p);
+    if (problem != NULL) return fail(model, error, problem);
     model->squared = malloc(sizeof(double) * (size_t)m_max * N_REGRESSORS);
     model->k = malloc(sizeof(double) * (size_t)m_max);
     model->v = malloc(sizeof(double) * (size_t)m_max);
     if (model->squared == NULL || model->k == NULL || model->v == NULL) return fail(model, error, NULL);
     if (!prepare_free_run(model, m_max)) return fail(model, error, NULL);
+    select_block_kernels();
     return model;
 }
 
 /* Mean and variance (measurement noise included) of output gp at regressor x (physical
  * units): the mixture over its hyperparameter samples (predictor.py, _Block.predict), each
- * sample's mean and latent variance by gp_predict.c. */
+ * distinct sample's mean and latent variance by gp_predict.c, counted as often as it occurs. */
 static void predict_output(const Model *model, const OutputGP *gp, const double x[N_REGRESSORS],
                            double *mean_out, double *var_out) {
     const int m = gp->m, d = N_REGRESSORS;
     double xs[N_REGRESSORS];
     gp_standardise(d, x, gp->input_mean, gp->input_scale, xs);
     gp_squared_distances(m, d, xs, gp->basis, model->squared);
-    double sum_mean = 0.0, sum_second = 0.0;
-    for (int s = 0; s < gp->S; s++) {
+    double sum_mean = 0.0, sum_second = 0.0; /* over the joint samples: each distinct one count[t] times */
+    for (int s = 0; s < gp->T; s++) {
         const double *sample = gp->samples + (size_t)s * gp->sample_size;
         const double *weights = sample, *kernel_weights = sample + m;
         const double log_signal_variance = sample[m + d], noise_variance = sample[m + d + 1];
@@ -254,70 +337,73 @@ static void predict_output(const Model *model, const OutputGP *gp, const double 
         const double mu = gp_mean(m, model->k, weights, 1);
         const double variance = gp_latent_variance(m, factor, gp->lower_triangular, model->k,
                                                    gp->signal_variance[s], model->v) + noise_variance;
-        sum_mean += mu;
-        sum_second += variance + mu * mu;
+        sum_mean += gp->count[s] * mu;
+        sum_second += gp->count[s] * (variance + mu * mu);
     }
-    const double mean = sum_mean / gp->S;
+    const double mean = sum_mean / JOINT_SAMPLES;
     *mean_out = mean * gp->output_scale + gp->output_mean;
-    *var_out = gp_spread(sum_second / gp->S, mean) * gp->output_scale * gp->output_scale;
+    *var_out = gp_spread(sum_second / JOINT_SAMPLES, mean) * gp->output_scale * gp->output_scale;
 }
 
 /* -- free run: moment matching (gp_model/uncertain_input.py) ----------------------------- */
 
-/* _woodbury_terms: M(P) = (P + S^-1)^-1 = P^-1/2 (I + T)^-1 T P^-1/2 with T = P^1/2 S P^1/2,
- * and ln|I + T| (eq. 6), for a positive diagonal precision P (d,) and the standardised input
- * covariance S (d x d, symmetric positive semi-definite, may be singular). I + T has all
- * eigenvalues >= 1, so its Cholesky factor exists; returns 0 if it does not (S is then far from
- * positive semi-definite: a bug, refused as a step). M is symmetrised as there. */
-static int woodbury_terms(WoodburyScratch *w, const double precision[D], const double S[D * D],
-                          double M[D * D], double *log_det) {
+/* _woodbury_terms on the uncertain regressors: M(P) = (P + S^-1)^-1 = P^-1/2 (I + T)^-1 T P^-1/2
+ * with T = P^1/2 S P^1/2, and ln|I + T| (eq. 6), for a positive diagonal precision P (N_Z,) and
+ * the standardised covariance S (N_Z x N_Z, symmetric positive semi-definite, may be singular) of
+ * the uncertain regressors. The known regressors have zero variance, so on them T is zero, I + T
+ * the identity and M zero: eqs. 1-6 need the N_Z x N_Z block only. I + T has all eigenvalues
+ * >= 1, so its Cholesky factor exists; returns 0 if it does not (S is then far from positive
+ * semi-definite: a bug, refused as a step). M is symmetrised as there. */
+static int woodbury_terms(WoodburyScratch *w, const double precision[N_Z], const double S[N_Z * N_Z],
+                          double M[N_Z * N_Z], double *log_det) {
     double *root = w->root, *T = w->T, *L = w->L, *Y = w->Y;
-    for (int i = 0; i < D; i++) root[i] = sqrt(precision[i]);
-    for (int i = 0; i < D; i++)
-        for (int j = 0; j < D; j++) T[i * D + j] = S[i * D + j] * (root[i] * root[j]);
+    for (int i = 0; i < N_Z; i++) root[i] = sqrt(precision[i]);
+    for (int i = 0; i < N_Z; i++)
+        for (int j = 0; j < N_Z; j++) T[i * N_Z + j] = S[i * N_Z + j] * (root[i] * root[j]);
     /* L L^T = I + T (Cholesky, lower) */
     double sum_log = 0.0;
-    for (int j = 0; j < D; j++) {
-        double pivot = 1.0 + T[j * D + j];
-        for (int k = 0; k < j; k++) pivot -= L[j * D + k] * L[j * D + k];
+    for (int j = 0; j < N_Z; j++) {
+        double pivot = 1.0 + T[j * N_Z + j];
+        for (int k = 0; k < j; k++) pivot -= L[j * N_Z + k] * L[j * N_Z + k];
         if (!(pivot > 0.0)) return 0;
-        L[j * D + j] = sqrt(pivot);
-        sum_log += log(L[j * D + j]);
-        for (int i = j + 1; i < D; i++) {
-            double value = T[i * D + j];
-            for (int k = 0; k < j; k++) value -= L[i * D + k] * L[j * D + k];
-            L[i * D + j] = value / L[j * D + j];
+        L[j * N_Z + j] = sqrt(pivot);
+        sum_log += log(L[j * N_Z + j]);
+        for (int i = j + 1; i < N_Z; i++) {
+            double value = T[i * N_Z + j];
+            for (int k = 0; k < j; k++) value -= L[i * N_Z + k] * L[j * N_Z + k];
+            L[i * N_Z + j] = value / L[j * N_Z + j];
         }
-        for (int i = 0; i < j; i++) L[i * D + j] = 0.0;
+        for (int i = 0; i < j; i++) L[i * N_Z + j] = 0.0;
     }
     /* Y = L^-1 T (forward substitution), then M P^1/2..P^1/2 = L^-T Y (back substitution), in M */
-    for (int c = 0; c < D; c++) {
-        for (int i = 0; i < D; i++) {
-            double value = T[i * D + c];
-            for (int k = 0; k < i; k++) value -= L[i * D + k] * Y[k * D + c];
-            Y[i * D + c] = value / L[i * D + i];
+    for (int c = 0; c < N_Z; c++) {
+        for (int i = 0; i < N_Z; i++) {
+            double value = T[i * N_Z + c];
+            for (int k = 0; k < i; k++) value -= L[i * N_Z + k] * Y[k * N_Z + c];
+            Y[i * N_Z + c] = value / L[i * N_Z + i];
         }
-        for (int i = D - 1; i >= 0; i--) {
-            double value = Y[i * D + c];
-            for (int k = i + 1; k < D; k++) value -= L[k * D + i] * M[k * D + c];
-            M[i * D + c] = value / L[i * D + i];
+        for (int i = N_Z - 1; i >= 0; i--) {
+            double value = Y[i * N_Z + c];
+            for (int k = i + 1; k < N_Z; k++) value -= L[k * N_Z + i] * M[k * N_Z + c];
+            M[i * N_Z + c] = value / L[i * N_Z + i];
         }
     }
-    for (int i = 0; i < D; i++)
-        for (int j = 0; j < D; j++) M[i * D + j] /= root[i] * root[j];
-    for (int i = 0; i < D; i++)
-        for (int j = i + 1; j < D; j++) M[i * D + j] = M[j * D + i] = 0.5 * (M[i * D + j] + M[j * D + i]);
+    for (int i = 0; i < N_Z; i++)
+        for (int j = 0; j < N_Z; j++) M[i * N_Z + j] /= root[i] * root[j];
+    for (int i = 0; i < N_Z; i++)
+        for (int j = i + 1; j < N_Z; j++)
+            M[i * N_Z + j] = M[j * N_Z + i] = 0.5 * (M[i * N_Z + j] + M[j * N_Z + i]);
     *log_det = 2.0 * sum_log;
     return 1;
 }
 
-/* u^T M u for u (d,) and a symmetric M (d x d). */
-static double quadratic_form(const double u[D], const double M[D * D]) {
+/* u^T M u for u (N_Z,), entry c at u[c * stride], and a symmetric M (N_Z x N_Z). */
+static double quadratic_form(const double *u, size_t stride, const double M[N_Z * N_Z]) {
     double total = 0.0;
-    for (int i = 0; i < D; i++) {
+    for (int i = 0; i < N_Z; i++) {
         double row = 0.0;
-        for (int j = 0; j < D; j++) row += M[i * D + j] * u[j];
-        total += row * u[i];
+        for (int j = 0; j < N_Z; j++) row += M[i * N_Z + j] * u[j * stride];
+        total += row * u[i * stride];
     }
     return total;
 }
@@ -454,91 +540,269 @@ static char *cholesky_failure(void) {
                           "I + T, eq. 6 of gp_model/uncertain_input.py, failed); please report");
 }
 
-/* Eqs. 1 and 2 of sample s, every output a (MomentMatcher.__call__, singles, mean_s, cross_s): u_ai,
- * M_a, ln|I + T_a| and q_a (eq. 1 in the Woodbury form -1/2 nu^T (S + Lambda)^-1 nu =
- * -1/2 nu^T u + 1/2 u^T M_a u), kept in the OutputGP scratch for sample_pair_covariance;
- * E[f_a] = beta_a^T q_a (eq. 1) into model->sample_means in raw units; Cov[x, f_a] =
- * M_a sum_i u_ai beta_ai q_ai (eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i) added to
- * cross_sum (standardised input, standardised output). m: the standardised input mean, S its
- * covariance. Returns 0 if a Cholesky factor of eq. 6 fails. */
-static int sample_means_and_cross_covariances(Model *model, int s, const double m[D], const double S[D * D],
-                                              double cross_sum[D * N_OUTPUTS]) {
-    for (int a = 0; a < N_OUTPUTS; a++) {
-        OutputGP *gp = &model->gp[a];
-        const double *sample = gp->samples + (size_t)s * gp->sample_size;
-        const double *precision = gp->precision + (size_t)s * D;
-        const double *beta = sample, log_signal_variance = sample[gp->m + D];
-        if (!woodbury_terms(&model->woodbury, precision, S, gp->M, &gp->log_det)) return 0;
-        double mean = 0.0, sum_u[D] = {0.0};
-        for (int i = 0; i < gp->m; i++) {
-            double *u = gp->u + (size_t)i * D, nu_u = 0.0;
-            for (int c = 0; c < D; c++) {
-                double nu = gp->frame_basis[(size_t)i * D + c] - m[c];
-                u[c] = nu * precision[c];
-                nu_u += nu * u[c];
-            }
-            gp->q[i] = exp(log_signal_variance - 0.5 * gp->log_det - 0.5 * nu_u + 0.5 * quadratic_form(u, gp->M));
-            gp->weighted[i] = beta[i] * gp->q[i];
-            mean += gp->weighted[i];
-            for (int c = 0; c < D; c++) sum_u[c] += u[c] * gp->weighted[i];
+/* -- the pair blocks of eq. 6, vectorised ---------------------------------------------------- */
+
+/* Cody and Waite's split of ln 2 (the high part has trailing zero bits, so k ln2_hi is exact for
+ * |k| < 2^11), 1 / ln 2, and 1.5 * 2^52, which rounds a double below 2^51 in magnitude to an
+ * integer held in the low bits of its mantissa. */
+#define LN2_HI 6.93147180369123816490e-01
+#define LN2_LO 1.90821492927058770002e-10
+#define INV_LN2 1.44269504088896338700e+00
+#define ROUNDING_SHIFT 6755399441055744.0
+/* The argument's bound: expm1 is -1 to double precision below -EXPM1_BOUND, and eq. 6's exponents
+ * stay far below +EXPM1_BOUND (a q_ai q_bj of e^700 would have overflowed eq. 1 long before). */
+#define EXPM1_BOUND 700.0
+
+/* expm1(x) without branches or library calls, so that gcc vectorises the loops that call it:
+ * x = k ln2 + r with k = round(x / ln2) and |r| <= ln2 / 2; expm1(r) by its Taylor series to
+ * r^14 / 14! (the first term left out is below 1.1e-17 |expm1(r)| for |r| <= 0.347: Horner's
+ * rounding dominates, a few ulp); expm1(x) = 2^k expm1(r) + (2^k - 1), which for k = 0 is
+ * expm1(r) itself, so the relative accuracy holds for tiny x, where exp(x) - 1 would lose it.
+ * 2^k is built in the exponent bits from the rounded k (k + 1023 in [3, 2033]). Checked against
+ * libm's expm1 in the tests: 2 ulp at most over [-EXPM1_BOUND, EXPM1_BOUND], the test allows 4. */
+static inline __attribute__((always_inline)) double expm1_branchless(double x) {
+    x = x < -EXPM1_BOUND ? -EXPM1_BOUND : x;
+    x = x > EXPM1_BOUND ? EXPM1_BOUND : x;
+    double shifted = x * INV_LN2 + ROUNDING_SHIFT;
+    int64_t bits;
+    memcpy(&bits, &shifted, sizeof bits);
+    const double k = shifted - ROUNDING_SHIFT;
+    const double r = (x - k * LN2_HI) - k * LN2_LO;
+    double p = 1.0 / 87178291200.0; /* 1/14! */
+    p = p * r + 1.0 / 6227020800.0;
+    p = p * r + 1.0 / 479001600.0;
+    p = p * r + 1.0 / 39916800.0;
+    p = p * r + 1.0 / 3628800.0;
+    p = p * r + 1.0 / 362880.0;
+    p = p * r + 1.0 / 40320.0;
+    p = p * r + 1.0 / 5040.0;
+    p = p * r + 1.0 / 720.0;
+    p = p * r + 1.0 / 120.0;
+    p = p * r + 1.0 / 24.0;
+    p = p * r + 1.0 / 6.0;
+    p = p * r + 0.5;
+    p = p * (r * r) + r; /* expm1(r) */
+    const int64_t exponent = (bits + 1023) << 52; /* the low 12 bits of bits hold k mod 2^12 */
+    double two_k;
+    memcpy(&two_k, &exponent, sizeof two_k);
+    return two_k * p + (two_k - 1.0);
+}
+
+/* The sums over j below vectorise only if their terms may be added in another order: OpenMP's
+ * SIMD reductions, on when built with -fopenmp-simd -DFLIGHTGP_OPENMP_SIMD (native.py,
+ * MODEL_FLAGS); without them (e.g. rebuilt from these sources by other tools) the same loops run
+ * scalar, with the same results up to rounding. */
+#ifdef FLIGHTGP_OPENMP_SIMD
+#define SIMD_SUM_ROW _Pragma("omp simd reduction(+ : row)")
+#define SIMD_SUM_ROW_AND_TRACE _Pragma("omp simd reduction(+ : row, row_trace)")
+#else
+#define SIMD_SUM_ROW
+#define SIMD_SUM_ROW_AND_TRACE
+#endif
+
+/* The arrays of one pair block (pair_covariance): rows i of output a's sample, columns j of
+ * output b's, N_Z uncertain regressors. */
+typedef struct {
+    int ma, mb;
+    const double *half_a, *half_b;  /* (ma,), (mb,) the exponent's parts of i and of j alone */
+    const double *u_M, *u_b;        /* (N_Z, ma) M_ab u_ai, (N_Z, mb) u_bj */
+    const double *weighted_a, *weighted_b; /* (ma,), (mb,) beta q */
+    const double *K_inv, *q;        /* a == b only: (m, m) A_t and (m,) q_t */
+} PairBlock;
+
+/* sum_ij w_ai w_bj expm1(D_ij), D_ij = half_a_i + half_b_j + (M_ab u_ai) . u_bj (eq. 6). */
+static inline __attribute__((always_inline)) double cross_block_body(const PairBlock *block) {
+    const int ma = block->ma, mb = block->mb;
+    const double *restrict half_b = block->half_b, *restrict u_b = block->u_b, *restrict w_b = block->weighted_b;
+    double sum = 0.0;
+    for (int i = 0; i < ma; i++) {
+        double x[N_Z], row = 0.0;
+        const double half_a = block->half_a[i];
+        for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * ma + i];
+SIMD_SUM_ROW
+        for (int j = 0; j < mb; j++) {
+            double exponent = half_a + half_b[j];
+#pragma GCC unroll 16
+            for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
+            row += expm1_branchless(exponent) * w_b[j];
         }
-        model->sample_means[(size_t)s * N_OUTPUTS + a] = gp->output_mean + gp->output_scale * mean;
+        sum += block->weighted_a[i] * row;
+    }
+    return sum;
+}
+
+/* A block of one sample with itself (a == b, same t): D is symmetric, so each pair i < j counts
+ * twice and only j >= i is computed. Returns the sum as cross_block_body and sets *trace to
+ * tr(A_t Q^aa) = sum_ij A_ij q_i q_j (1 + expm1(D_ij)) (eq. 4). Row i starts at the multiple of
+ * 8 below i, with the columns j < i weighted zero: every row is then whole vectors of 8 (4)
+ * doubles when m is a multiple of 8, where a start at i would leave up to 7 columns per row to
+ * the scalar remainder loop (measured 1.6x slower). */
+static inline __attribute__((always_inline)) double own_block_body(const PairBlock *block, double *trace) {
+    const int m = block->ma;
+    const double *restrict half = block->half_b, *restrict u = block->u_b, *restrict w = block->weighted_b;
+    const double *restrict q = block->q;
+    double sum = 0.0, total_trace = 0.0;
+    for (int i = 0; i < m; i++) {
+        double x[N_Z];
+        const double half_a = block->half_a[i];
+        const double *restrict A = block->K_inv + (size_t)i * m;
+        for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * m + i];
+        double row = 0.0, row_trace = 0.0;
+SIMD_SUM_ROW_AND_TRACE
+        for (int j = i & ~7; j < m; j++) {
+            double exponent = half_a + half[j];
+#pragma GCC unroll 16
+            for (int c = 0; c < N_Z; c++) exponent += x[c] * u[c * m + j];
+            const double excess = expm1_branchless(exponent);
+            const double count = j < i ? 0.0 : (j == i ? 1.0 : 2.0);
+            row += count * excess * w[j];
+            row_trace += count * A[j] * q[j] * (1.0 + excess);
+        }
+        sum += w[i] * row;
+        total_trace += q[i] * row_trace;
+    }
+    *trace = total_trace;
+    return sum;
+}
+
+/* The bodies compiled three times, for AVX-512, for AVX2 with FMA and for any x86-64, and the
+ * widest the processor runs picked once at load (select_block_kernels): the FMU stays portable
+ * while the loops above run 8 or 4 doubles wide where they can. */
+typedef double (*CrossBlockKernel)(const PairBlock *);
+typedef double (*OwnBlockKernel)(const PairBlock *, double *);
+#define BLOCK_KERNELS(suffix, target)                                                                     \
+    target static double cross_block_##suffix(const PairBlock *block) { return cross_block_body(block); } \
+    target static double own_block_##suffix(const PairBlock *block, double *trace) {                      \
+        return own_block_body(block, trace);                                                              \
+    }
+#if defined(__x86_64__) && defined(__GNUC__)
+BLOCK_KERNELS(avx512, __attribute__((target("avx512f,avx512dq,avx2,fma"))))
+BLOCK_KERNELS(avx2, __attribute__((target("avx2,fma"))))
+#endif
+BLOCK_KERNELS(generic, )
+
+static CrossBlockKernel cross_block = cross_block_generic;
+static OwnBlockKernel own_block = own_block_generic;
+
+static void select_block_kernels(void) {
+#if defined(__x86_64__) && defined(__GNUC__)
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq")) {
+        cross_block = cross_block_avx512, own_block = own_block_avx512;
+    } else if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
+        cross_block = cross_block_avx2, own_block = own_block_avx2;
+    }
+#endif
+}
+
+/* -- eqs. 1-6 per distinct sample and per distinct sample pair ------------------------------ */
+
+/* Eqs. 1 and 2 of output a's distinct sample t (MomentMatcher.__call__, singles, mean_s,
+ * cross_s): u_ati on the uncertain regressors, M_at, ln|I + T_at| and q_at (eq. 1 in the
+ * Woodbury form -1/2 nu^T (S + Lambda)^-1 nu = -1/2 nu^T u + 1/2 u^T M_a u), kept in the
+ * OutputGP for pair_covariance; E[f_a] = beta_a^T q_a (eq. 1, standardised) in gp->mean[t];
+ * Cov[x, f_a] = M_a sum_i u_ai beta_ai q_ai (eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i, zero
+ * on the known regressors) added count[t] times to cross_sum. m: the standardised input mean,
+ * S_z the uncertain regressors' covariance. Returns 0 if a Cholesky factor of eq. 6 fails. */
+static int sample_terms(Model *model, int a, int t, const double m[D], const double S_z[N_Z * N_Z],
+                        double cross_sum[D * N_OUTPUTS]) {
+    OutputGP *gp = &model->gp[a];
+    const size_t n = (size_t)gp->m;
+    const double *sample = gp->samples + (size_t)t * gp->sample_size;
+    const double *beta = sample, log_signal_variance = sample[n + D];
+    const double *precision = gp->precision + (size_t)t * D;
+    double *M = gp->M + (size_t)t * N_Z * N_Z, *u_z = gp->uz + (size_t)t * N_Z * n;
+    double *q = gp->q + (size_t)t * n, *weighted = gp->weighted + (size_t)t * n;
+    if (!woodbury_terms(&model->woodbury, precision + KNOWN_REGRESSORS, S_z, M, &gp->log_det[t])) return 0;
+    double mean = 0.0, sum_u[N_Z] = {0.0};
+    for (size_t i = 0; i < n; i++) {
+        double nu_u = 0.0;
         for (int c = 0; c < D; c++) {
-            double value = 0.0;
-            for (int e = 0; e < D; e++) value += gp->M[c * D + e] * sum_u[e];
-            cross_sum[c * N_OUTPUTS + a] += value;
+            const double nu = gp->frame_basis[i * D + c] - m[c], u = nu * precision[c];
+            nu_u += nu * u;
+            if (c >= KNOWN_REGRESSORS) u_z[(c - KNOWN_REGRESSORS) * n + i] = u;
         }
+        q[i] = exp(log_signal_variance - 0.5 * gp->log_det[t] - 0.5 * nu_u + 0.5 * quadratic_form(u_z + i, n, M));
+        weighted[i] = beta[i] * q[i];
+        mean += weighted[i];
+        for (int c = 0; c < N_Z; c++) sum_u[c] += u_z[c * n + i] * weighted[i];
+    }
+    gp->mean[t] = mean;
+    double *products = gp->uu + (size_t)t * N_PRODUCTS * n; /* for pair_covariance's quadratic forms */
+    for (int c = 0, k = 0; c < N_Z; c++)
+        for (int e = c; e < N_Z; e++, k++)
+            for (size_t i = 0; i < n; i++) products[k * n + i] = u_z[c * n + i] * u_z[e * n + i];
+    for (int c = 0; c < N_Z; c++) {
+        double value = 0.0;
+        for (int e = 0; e < N_Z; e++) value += M[c * N_Z + e] * sum_u[e];
+        cross_sum[(KNOWN_REGRESSORS + c) * N_OUTPUTS + a] += gp->count[t] * value;
     }
     return 1;
 }
 
-/* Eqs. 3-6 of sample s for the outputs a <= b (MomentMatcher.__call__, cov_s), from the scratch of
- * sample_means_and_cross_covariances: Cov[f_a, f_b] = beta_a^T (Q^ab - q_a q_b^T) beta_b with
+/* out_i = 1/2 u_i^T M u_i + constant for n vectors u_i and a symmetric M (N_Z x N_Z), from the
+ * products u_i,c u_i,e (c <= e) that sample_terms keeps (products[k * n + i], k counting the
+ * pairs c <= e row by row): one pass over i, N_PRODUCTS multiply-adds each. */
+static void half_quadratic_forms(size_t n, const double *restrict products, const double M[N_Z * N_Z],
+                                 double constant, double *restrict out) {
+    double factor[N_PRODUCTS];
+    for (int c = 0, k = 0; c < N_Z; c++)
+        for (int e = c; e < N_Z; e++, k++) factor[k] = (e == c ? 0.5 : 1.0) * M[c * N_Z + e]; /* c < e twice */
+    for (size_t i = 0; i < n; i++) {
+        double value = constant;
+#pragma GCC unroll 64
+        for (int k = 0; k < N_PRODUCTS; k++) value += factor[k] * products[k * n + i];
+        out[i] = value;
+    }
+}
+
+/* Eqs. 3-6 of output a's sample t_a with output b's sample t_b (MomentMatcher.__call__, cov_s),
+ * from sample_terms' results: Cov[f_a, f_b] = beta_a^T (Q^ab - q_a q_b^T) beta_b with
  * Q^ab_ij - q_ai q_bj = q_ai q_bj expm1(D_ij) (eq. 6), z^T M_ab z expanded over z_ij = u_ai + u_bj;
- * for a == b plus the expected variance (eq. 4, clipped at zero as GaussianProcess.predict) and
- * the noise (eq. 5). Standardised output units. Returns 0 if a Cholesky factor of eq. 6 fails. */
-static int sample_pair_covariance(Model *model, int s, int a, int b, const double S[D * D], double *covariance) {
+ * for a == b (then t_a == t_b) plus the expected variance (eq. 4, clipped at zero as
+ * GaussianProcess.predict) and the noise (eq. 5). Standardised output units. Returns 0 if a
+ * Cholesky factor of eq. 6 fails. */
+static int pair_covariance(Model *model, int a, int t_a, int b, int t_b, const double S_z[N_Z * N_Z],
+                           double *covariance) {
     const OutputGP *ga = &model->gp[a], *gb = &model->gp[b];
-    const double *precision_a = ga->precision + (size_t)s * D, *precision_b = gb->precision + (size_t)s * D;
-    double precision_ab[D], log_det_ab;
-    for (int c = 0; c < D; c++) precision_ab[c] = precision_a[c] + precision_b[c];
-    if (!woodbury_terms(&model->woodbury, precision_ab, S, model->M_ab, &log_det_ab)) return 0;
-    const double constant = -0.5 * (log_det_ab - ga->log_det - gb->log_det);
-    /* half_a_i = 1/2 u_ai^T (M_ab - M_a) u_ai + the constant; half_b_j likewise; u_M = u_a M_ab */
-    for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - ga->M[c];
-    for (int i = 0; i < ga->m; i++) {
-        const double *u = ga->u + (size_t)i * D;
-        model->half_a[i] = 0.5 * quadratic_form(u, model->M_diff) + constant;
-        for (int c = 0; c < D; c++) {
-            double value = 0.0;
-            for (int e = 0; e < D; e++) value += u[e] * model->M_ab[e * D + c];
-            model->u_M[(size_t)i * D + c] = value;
+    const size_t ma = (size_t)ga->m, mb = (size_t)gb->m;
+    const double *precision_a = ga->precision + (size_t)t_a * D + KNOWN_REGRESSORS;
+    const double *precision_b = gb->precision + (size_t)t_b * D + KNOWN_REGRESSORS;
+    double precision_ab[N_Z], M_ab[N_Z * N_Z], M_diff[N_Z * N_Z], log_det_ab;
+    for (int c = 0; c < N_Z; c++) precision_ab[c] = precision_a[c] + precision_b[c];
+    if (!woodbury_terms(&model->woodbury, precision_ab, S_z, M_ab, &log_det_ab)) return 0;
+    const double constant = -0.5 * (log_det_ab - ga->log_det[t_a] - gb->log_det[t_b]);
+    const double *u_a = ga->uz + (size_t)t_a * N_Z * ma, *u_b = gb->uz + (size_t)t_b * N_Z * mb;
+    /* half_a_i = 1/2 u_ai^T (M_ab - M_a) u_ai + the constant; half_b_j likewise; u_M = M_ab u_a */
+    const double *M_a = ga->M + (size_t)t_a * N_Z * N_Z, *M_b = gb->M + (size_t)t_b * N_Z * N_Z;
+    for (int c = 0; c < N_Z * N_Z; c++) M_diff[c] = M_ab[c] - M_a[c];
+    half_quadratic_forms(ma, ga->uu + (size_t)t_a * N_PRODUCTS * ma, M_diff, constant, model->half_a);
+    if (a == b) { /* the same sample: half_b = half_a without the constant */
+        for (size_t j = 0; j < mb; j++) model->half_b[j] = model->half_a[j] - constant;
+    } else {
+        for (int c = 0; c < N_Z * N_Z; c++) M_diff[c] = M_ab[c] - M_b[c];
+        half_quadratic_forms(mb, gb->uu + (size_t)t_b * N_PRODUCTS * mb, M_diff, 0.0, model->half_b);
+    }
+    for (int c = 0; c < N_Z; c++) {
+        double *restrict u_M = model->u_M + c * ma;
+        for (size_t i = 0; i < ma; i++) u_M[i] = 0.0;
+        for (int e = 0; e < N_Z; e++) {
+            const double M_ce = M_ab[c * N_Z + e], *restrict u = u_a + e * ma;
+            for (size_t i = 0; i < ma; i++) u_M[i] += M_ce * u[i];
         }
     }
-    for (int c = 0; c < D * D; c++) model->M_diff[c] = model->M_ab[c] - gb->M[c];
-    for (int j = 0; j < gb->m; j++) model->half_b[j] = 0.5 * quadratic_form(gb->u + (size_t)j * D, model->M_diff);
-    const double *K_inv = ga->K_inv + (size_t)s * ga->m * ga->m;
-    double sum = 0.0, trace = 0.0; /* trace: tr(K_inv Q^aa) (eq. 4), a == b only */
-    for (int i = 0; i < ga->m; i++) {
-        const double *u_M = model->u_M + (size_t)i * D;
-        double row = 0.0, row_trace = 0.0;
-        for (int j = 0; j < gb->m; j++) {
-            const double *u_b = gb->u + (size_t)j * D;
-            double exponent = model->half_a[i] + model->half_b[j];
-            for (int c = 0; c < D; c++) exponent += u_M[c] * u_b[c];
-            double excess = expm1(exponent);
-            row += excess * gb->weighted[j];
-            if (a == b) row_trace += K_inv[(size_t)i * ga->m + j] * (ga->q[j] * (1.0 + excess));
-        }
-        sum += ga->weighted[i] * row;
-        trace += ga->q[i] * row_trace;
+    PairBlock block = {(int)ma, (int)mb, model->half_a, model->half_b, model->u_M, u_b,
+                       ga->weighted + (size_t)t_a * ma, gb->weighted + (size_t)t_b * mb,
+                       ga->K_inv + (size_t)t_a * ma * ma, ga->q + (size_t)t_a * ma};
+    if (a != b) {
+        *covariance = cross_block(&block);
+        return 1;
     }
-    if (a == b) {
-        const double *sample = ga->samples + (size_t)s * ga->sample_size;
-        double expected_var = ga->signal_variance[s] - trace;
-        sum += (expected_var > 0.0 ? expected_var : 0.0) + sample[ga->m + D + 1];
-    }
-    *covariance = sum;
+    double trace; /* tr(A_t Q^aa) (eq. 4) */
+    double sum = own_block(&block, &trace);
+    const double *sample = ga->samples + (size_t)t_a * ga->sample_size;
+    const double expected_var = ga->signal_variance[t_a] - trace;
+    *covariance = sum + (expected_var > 0.0 ? expected_var : 0.0) + sample[ma + D + 1];
     return 1;
 }
 
@@ -572,40 +836,56 @@ static void mixture_moments(const Model *model, int n_samples, const double cov_
 
 /* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance
  * (N_OUTPUTS x N_OUTPUTS, row-major) and input-output cross-covariance (d x N_OUTPUTS) of the
- * mixture over the S hyperparameter samples (sample s of every output forms model s) at a
- * regressor x ~ N(x_mean, x_cov) (raw units): the input standardised and checked
- * (covariance_problem), then per sample eqs. 1-2 (sample_means_and_cross_covariances) and
- * eqs. 3-6 (sample_pair_covariance), then the mixture (mixture_moments). Returns 0 and sets
- * *problem (a malloc'd message; NULL if out of memory) if x_cov fails the checks of
+ * mixture over the JOINT_SAMPLES hyperparameter samples (sample s of every output forms model s)
+ * at a regressor x ~ N(x_mean, x_cov) (raw units): the input standardised and checked
+ * (covariance_problem), then eqs. 1-2 per distinct sample (sample_terms), eqs. 3-6 per distinct
+ * sample of each output and per distinct sample pair of each output pair (pair_covariance), each
+ * counted as often as the joint samples hold it, then the mixture (mixture_moments). Returns 0
+ * and sets *problem (a malloc'd message; NULL if out of memory) if x_cov fails the checks of
  * covariance_problem or a Cholesky factor of eq. 6 fails. */
 static int moment_match(Model *model, const double x_mean[D], const double x_cov[D * D], double out_mean[N_OUTPUTS],
                         double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS], char **problem) {
-    double m[D], S[D * D];
+    double m[D], S[D * D], S_z[N_Z * N_Z];
     int failed;
     /* MomentMatcher._standardise: into the common frame, checked, S symmetrised */
     *problem = covariance_problem(model, x_mean, x_cov, S, &failed);
     if (failed) return 0;
     for (int i = 0; i < D; i++) m[i] = (x_mean[i] - model->frame_mean[i]) / model->frame_scale[i];
-    const int n_samples = model->gp[0].S;
+    for (int i = 0; i < N_Z; i++)
+        for (int j = 0; j < N_Z; j++) S_z[i * N_Z + j] = S[(KNOWN_REGRESSORS + i) * D + KNOWN_REGRESSORS + j];
     double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
-    for (int s = 0; s < n_samples; s++) {
-        if (!sample_means_and_cross_covariances(model, s, m, S, cross_sum)) {
-            *problem = cholesky_failure();
-            return 0;
+    for (int a = 0; a < N_OUTPUTS; a++)
+        for (int t = 0; t < model->gp[a].T; t++)
+            if (!sample_terms(model, a, t, m, S_z, cross_sum)) goto cholesky_failed;
+    for (int s = 0; s < JOINT_SAMPLES; s++)
+        for (int a = 0; a < N_OUTPUTS; a++) {
+            const OutputGP *gp = &model->gp[a];
+            const int t = (int)model->joint[(size_t)s * N_OUTPUTS + a];
+            model->sample_means[(size_t)s * N_OUTPUTS + a] = gp->output_mean + gp->output_scale * gp->mean[t];
         }
-        for (int a = 0; a < N_OUTPUTS; a++)
-            for (int b = a; b < N_OUTPUTS; b++) {
-                double covariance;
-                if (!sample_pair_covariance(model, s, a, b, S, &covariance)) {
-                    *problem = cholesky_failure();
-                    return 0;
-                }
-                cov_sum[a * N_OUTPUTS + b] += covariance;
-                if (b != a) cov_sum[b * N_OUTPUTS + a] += covariance;
-            }
+    for (int a = 0; a < N_OUTPUTS; a++)
+        for (int t = 0; t < model->gp[a].T; t++) {
+            double covariance;
+            if (!pair_covariance(model, a, t, a, t, S_z, &covariance)) goto cholesky_failed;
+            cov_sum[a * N_OUTPUTS + a] += model->gp[a].count[t] * covariance;
+        }
+    for (int p = 0; p < N_PAIRS; p++) {
+        const SamplePairs *pair = &model->pairs[p];
+        double total = 0.0;
+        for (int k = 0; k < pair->n; k++) {
+            const double *combo = pair->combos + 3 * k;
+            double covariance;
+            if (!pair_covariance(model, pair->a, (int)combo[0], pair->b, (int)combo[1], S_z, &covariance))
+                goto cholesky_failed;
+            total += combo[2] * covariance;
+        }
+        cov_sum[pair->a * N_OUTPUTS + pair->b] = cov_sum[pair->b * N_OUTPUTS + pair->a] = total;
     }
-    mixture_moments(model, n_samples, cov_sum, cross_sum, out_mean, out_cov, cross_cov);
+    mixture_moments(model, JOINT_SAMPLES, cov_sum, cross_sum, out_mean, out_cov, cross_cov);
     return 1;
+cholesky_failed:
+    *problem = cholesky_failure();
+    return 0;
 }
 
 /* narx_belief_step (include_noise = True): predict y(k) from the belief over y(k-1), ..., y(k-L)

@@ -43,8 +43,12 @@ from fmu_src.rate_predictor.slave import RatePredictor, rate_predictor_variables
 
 #: The model's C file, compiled with the FMI layer.
 MODEL_SOURCE = Path(__file__).with_name("narx_model.c")
+#: gcc flags of ``narx_model.c``: its sums over the pair blocks of eq. 6 vectorise only with
+#: OpenMP's SIMD reductions on (``FLIGHTGP_OPENMP_SIMD`` switches them on in the source), and
+#: with fused multiply-adds allowed.
+MODEL_FLAGS = ("-fopenmp-simd", "-DFLIGHTGP_OPENMP_SIMD", "-ffp-contract=fast")
 
-_DATA_MAGIC = b"FGPNARX1"
+_DATA_MAGIC = b"FGPNARX2"
 
 
 def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
@@ -86,7 +90,7 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     return package_native_fmu(
         parts.target, slave_class=slave_class, model_source=MODEL_SOURCE,
         config=lambda guid: _narx_config(guid, identifier, variables, predictor, parts.arrays),
-        data=_narx_data(parts.arrays, len(predictor.output_names)))
+        data=_narx_data(parts.arrays, predictor), extra_flags=MODEL_FLAGS)
 
 
 def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredictor, arrays: dict) -> str:
@@ -94,6 +98,7 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredicto
     reference = {v.name: vr for vr, v in enumerate(variables)}
     outputs = predictor.output_names
     parts = [_part(arrays, j) for j in range(len(outputs))]
+    rows, _, pairs = _mixture_layout(predictor)
     return config_header(name, guid, generator="fmu_src/rate_predictor/native.py", body=[
         "/* Communication step = NARX step, s */",
         f"#define STEP_SIZE {c_number(predictor.step)}", "",
@@ -123,9 +128,14 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredicto
         *envelope_lines("REGRESSOR_NAMES", predictor.envelope), "",
         f"/* GP arrays in resources/{DATA_FILE} (layout: narx_model.c) */",
         f"#define DATA_FILE {c_string(DATA_FILE)}",
-        f"#define DATA_DOUBLES {sum(_part_size(p) for p in parts)}",
+        f"#define DATA_DOUBLES {_data_doubles(arrays, predictor)}",
         c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
-        c_array("int", "HYPERPARAMETER_SAMPLES", [len(p["weights"]) for p in parts]).rstrip(),
+        "/* Hyperparameter mixture: joint samples, distinct samples per output, distinct sample",
+        "   pairs per output pair (0, 1), (0, 2), ..., (1, 2), ... */",
+        f"#define JOINT_SAMPLES {predictor.n_samples}",
+        c_array("int", "DISTINCT_SAMPLES", [len(r) for r in rows]).rstrip(),
+        f"#define N_PAIRS {len(pairs)}",
+        c_array("int", "PAIR_COUNT", [len(c) for _, _, c in pairs]).rstrip(),
         c_array("int", "LOWER_TRIANGULAR", [int(lower_triangular(p["variance_factor"])) for p in parts]).rstrip()])
 
 
@@ -133,24 +143,45 @@ def _part(arrays: dict, j: int) -> dict:
     return {key: np.asarray(arrays[f"{j}/{key}"], dtype=float) for key in PER_OUTPUT}
 
 
-def _part_size(part: dict) -> int:
-    (m, d), S = part["basis"].shape, len(part["weights"])
+def _mixture_layout(predictor: NarxPredictor) -> tuple[list, list, list]:
+    """What the native FMU stores of the hyperparameter mixture: per output the rows of its
+    distinct samples; the joint table (S, n_outputs) of which distinct sample each joint sample
+    is; per output pair a < b the distinct sample pairs and their counts (rows_a, rows_b, counts)
+    (:class:`gp_model.uncertain_input.MomentMatcher`, which computes each once)."""
+    distinct = predictor.matcher.distinct_samples()
+    pairs = list(predictor.matcher.sample_pairs().values())
+    return [rows for rows, _ in distinct], [index for _, index in distinct], pairs
+
+
+def _part_size(part: dict, n_distinct: int) -> int:
+    (m, d) = part["basis"].shape
     factor = m * (m + 1) // 2 if lower_triangular(part["variance_factor"]) else m * m
-    return 2 * d + 2 + m * d + S * (m + d + 2 + factor)
+    return 2 * d + 2 + m * d + n_distinct * (m + d + 2 + factor)
 
 
-def _narx_data(arrays: dict, n_outputs: int) -> bytes:
-    """``model.bin``: magic, count, and the doubles of every output in the layout of
-    ``narx_model.c`` (little-endian)."""
+def _data_doubles(arrays: dict, predictor: NarxPredictor) -> int:
+    """The number of doubles in ``model.bin`` (:func:`_narx_data`)."""
+    rows, index, pairs = _mixture_layout(predictor)
+    parts = [_part(arrays, j) for j in range(len(rows))]
+    return (sum(_part_size(p, len(r)) for p, r in zip(parts, rows)) + len(index[0]) * len(index)
+            + sum(3 * len(counts) for _, _, counts in pairs))
+
+
+def _narx_data(arrays: dict, predictor: NarxPredictor) -> bytes:
+    """``model.bin``: magic, count, and the doubles in the layout of ``narx_model.c``
+    (little-endian): every output's distinct samples, the joint table, the sample pairs."""
+    rows, index, pairs = _mixture_layout(predictor)
     chunks = []
-    for j in range(n_outputs):
+    for j, distinct in enumerate(rows):
         p = _part(arrays, j)
         # one storage for every sample: packed when all of them are lower triangular
         triangular = lower_triangular(p["variance_factor"])
         chunks += [p["input_mean"], p["input_scale"], [p["output_mean"], p["output_scale"]], p["basis"].ravel()]
-        for s in range(len(p["weights"])):
+        for s in distinct:
             chunks += [p["weights"][s], p["kernel_weights"][s],
                        [p["log_signal_variance"][s], p["noise_variance"][s]],
                        packed_variance_factor(p["variance_factor"][s], triangular=triangular)]
+    chunks.append(np.column_stack(index).ravel())
+    chunks += [np.column_stack(pair).ravel() for pair in pairs]
     data = np.concatenate([np.ravel(np.asarray(c, dtype="<f8")) for c in chunks])
     return _DATA_MAGIC + struct.pack("<Q", len(data)) + data.tobytes()

@@ -180,6 +180,9 @@ class NarxPredictor:
         Training range of each regressor.
     n_samples : int
         Hyperparameter samples of the mixture (of the first output).
+    matcher : gp_model.uncertain_input.MomentMatcher
+        The free run's moment matcher (its distinct samples and sample pairs are what the
+        native FMU stores).
     """
 
     def __init__(self, arrays: dict) -> None:
@@ -210,7 +213,7 @@ class NarxPredictor:
             raise ModelFormatError(f"model file lacks the array {error}") from None
         if len({len(part["weights"]) for part in parts}) != 1:
             raise ModelFormatError("every output must have the same number of hyperparameter samples")
-        self._matcher = _moment_matcher(parts)
+        self.matcher = _moment_matcher(parts)
         self.n_samples = len(parts[0]["weights"])
         # Outputs sharing basis and input scaling form one block; order[j] = (block, row).
         self._order, members = [], []
@@ -287,7 +290,7 @@ class NarxPredictor:
         belief : tuple of ndarray
             For the next step.
         """
-        y_mean, y_cov, *belief = narx_belief_step(self._matcher, self.known_regressors(input_history),
+        y_mean, y_cov, *belief = narx_belief_step(self.matcher, self.known_regressors(input_history),
                                                   *belief, output_lags=self.output_lags,
                                                   include_noise=True)
         return y_mean, np.diag(y_cov).copy(), tuple(belief)

@@ -246,3 +246,25 @@ def test_gps_with_different_sample_counts_are_refused():
     gps[0].set_hyperparameters(gps[0].theta_, samples=np.vstack([gps[0].theta_] * 2))
     with pytest.raises(ValueError, match="different numbers of hyperparameter samples"):
         moment_matcher(gps, use_samples=True)
+
+
+def test_repeated_samples_are_computed_once_and_counted_as_often_as_they_occur():
+    """Annealing repeats samples; the matcher computes each distinct one once. Its moments must
+    be the law of total covariance over the S joint samples, each model matched on its own."""
+    gps = fit_pair()
+    shifts = np.array([[0.0] * 5, [0.4, -0.3, 0.2, 0.1, -0.5], [0.0] * 5, [-0.3, 0.5, -0.4, 0.3, 0.6]])
+    order = ([0, 1, 2, 3, 1, 1], [0, 0, 2, 3, 3, 1])  # output 1 pairs the repeats differently
+    for gp, rows in zip(gps, order):
+        gp.set_hyperparameters(gp.theta_, samples=gp.theta_ + shifts[rows])
+    matcher = moment_matcher(gps, use_samples=True)
+    assert [len(rows) for rows, _ in matcher.distinct_samples()] == [3, 3]  # shifts 0 and 2 are equal
+    assert len(matcher.sample_pairs()[0, 1][0]) == 5  # of 6 joint pairs, one occurs twice
+    out_mean, out_cov, cross_cov = matcher(MEAN, COV)
+
+    models = [predict_uncertain_input([refit_at(gp, gp.theta_samples_[s]) for gp in gps], MEAN, COV)
+              for s in range(len(order[0]))]
+    means = np.array([m for m, _, _ in models])
+    expected_cov = np.mean([c for _, c, _ in models], axis=0) + np.cov(means.T, bias=True)
+    np.testing.assert_allclose(out_mean, means.mean(axis=0), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(out_cov, expected_cov, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(cross_cov, np.mean([x for _, _, x in models], axis=0), rtol=0, atol=1e-12)

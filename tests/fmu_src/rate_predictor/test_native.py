@@ -264,3 +264,49 @@ def test_bad_start_value_fails_initialisation_with_an_error_until_reset(case, un
         host.close()
     assert FMI_FATAL not in host.statuses()
 
+
+
+def test_the_vectorised_expm1_is_within_4_ulp_of_libm(tmp_path):
+    """The pair blocks of eq. 6 use narx_model.c's branch-free expm1 (so that they vectorise);
+    against the C library's expm1 on 4e5 points of [-700, 700], scaled by 1, 1e-6 and 1e-12 (the
+    tiny arguments are where exp(x) - 1 would lose every digit). Measured: 2 ulp."""
+    import subprocess
+
+    source = MODEL_SOURCE.read_text()
+    body = source[source.index("#define LN2_HI"):source.index("/* The sums over j below vectorise")]
+    (tmp_path / "check.c").write_text("""#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+""" + body + """
+int main(void) {
+    double worst = 0.0;
+    for (long n = 0; n <= 400000; n++) {
+        const double x = -700.0 + 1400.0 * n / 400000.0, scales[3] = {1.0, 1e-6, 1e-12};
+        for (int v = 0; v < 3; v++) {
+            const double exact = expm1(x * scales[v]), got = expm1_branchless(x * scales[v]);
+            const double ulp = nextafter(fabs(exact), INFINITY) - fabs(exact);
+            if (exact != 0.0 && fabs(got - exact) / ulp > worst) worst = fabs(got - exact) / ulp;
+            if (exact == 0.0 && got != 0.0) worst = INFINITY;
+        }
+    }
+    printf("%.17g\\n", worst);
+    return 0;
+}
+""")
+    for flags in ((), ("-ffp-contract=fast", "-mavx2", "-mfma")):  # the generic and the AVX2 + FMA kernels
+        subprocess.run(["gcc", "-O2", "-std=c99", *flags, str(tmp_path / "check.c"), "-o", str(tmp_path / "check"),
+                        "-lm"], check=True)
+        worst = float(subprocess.run([str(tmp_path / "check")], capture_output=True, text=True, check=True).stdout)
+        assert worst <= 4.0, f"{worst} ulp with {flags}"
+
+
+def test_each_distinct_annealing_sample_is_stored_once(native_rate_predictor_fmu, bo105_trained):
+    """Annealing repeats samples; the native FMU stores (and computes) each distinct one once,
+    and its outputs still equal the pythonfmu FMU's over all 400 (test_outputs_equal_the_pythonfmu_fmu)."""
+    with zipfile.ZipFile(native_rate_predictor_fmu) as archive:
+        config = archive.read("sources/model_config.h").decode()
+    distinct = [int(n) for n in config.split("DISTINCT_SAMPLES[")[1].split("{")[1].split("}")[0].split(",")]
+    expected = [len(np.unique(gp.theta_samples_, axis=0)) for gp in bo105_trained.model.model.gps]
+    assert distinct == expected and max(distinct) < 400
+    assert "#define JOINT_SAMPLES 400" in config
