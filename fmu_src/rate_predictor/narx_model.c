@@ -88,6 +88,9 @@
 #define KNOWN_REGRESSORS (N_INPUTS * N_INPUT_LAGS)     /* the exact part of the regressor */
 #define N_Z (N_OUTPUTS * N_OUTPUT_LAGS)                /* lagged outputs that are regressors */
 #define N_PRODUCTS (N_Z * (N_Z + 1) / 2)               /* products u_c u_e, c <= e, of their u */
+/* Terms of a pair block of eq. 6 computed per tile (block_body): whole rows, at most TILE_TERMS
+   terms (a 32 KB tile of doubles stays in the first-level cache), or one row if a row is longer. */
+#define TILE_TERMS 4096
 
 /* One output's GP (pointers into Model.data). */
 typedef struct {
@@ -134,6 +137,10 @@ struct Model {
     /* free-run scratch */
     double *sample_means;                             /* (JOINT_SAMPLES, N_OUTPUTS) mixture components */
     double *u_M;                                      /* (N_Z, m_max) */
+    double *tile;                                     /* a pair block's tile (PairBlock) */
+    float *tile_single;                               /* the same in single precision */
+    double *column_sum, *column_trace;                /* (m_max,) */
+    int single_precision;                             /* the step's pair blocks: !exact_moments */
     double *half_a, *half_b;                          /* (m_max,) */
     double frame_mean[D], frame_scale[D];             /* output 0's input standardisation */
     WoodburyScratch woodbury;
@@ -163,6 +170,10 @@ void model_free(Model *model) {
     free(model->v);
     free(model->sample_means);
     free(model->u_M);
+    free(model->tile);
+    free(model->tile_single);
+    free(model->column_sum);
+    free(model->column_trace);
     free(model->half_a);
     free(model->half_b);
     free(model);
@@ -187,9 +198,16 @@ static int prepare_free_run(Model *model, int m_max) {
     double *dense = malloc(sizeof(double) * (size_t)m_max * (size_t)m_max); /* V_t, row-major */
     model->sample_means = malloc(sizeof(double) * (size_t)JOINT_SAMPLES * N_OUTPUTS);
     model->u_M = malloc(sizeof(double) * (size_t)m_max * N_Z);
+    const size_t tile_terms = m_max > TILE_TERMS ? (size_t)m_max : TILE_TERMS;
+    model->tile = malloc(sizeof(double) * tile_terms);
+    model->tile_single = malloc(sizeof(float) * tile_terms);
+    model->column_sum = malloc(sizeof(double) * (size_t)m_max);
+    model->column_trace = malloc(sizeof(double) * (size_t)m_max);
     model->half_a = malloc(sizeof(double) * (size_t)m_max);
     model->half_b = malloc(sizeof(double) * (size_t)m_max);
-    int ok = dense != NULL && model->sample_means != NULL && model->u_M != NULL && model->half_a != NULL
+    int ok = dense != NULL && model->sample_means != NULL && model->u_M != NULL && model->tile != NULL
+             && model->tile_single != NULL && model->column_sum != NULL && model->column_trace != NULL
+             && model->half_a != NULL
              && model->half_b != NULL;
     for (int j = 0; j < N_OUTPUTS && ok; j++) {
         OutputGP *gp = &model->gp[j];
@@ -588,16 +606,41 @@ static inline __attribute__((always_inline)) double expm1_branchless(double x) {
     return two_k * p + (two_k - 1.0);
 }
 
-/* The sums over j below vectorise only if their terms may be added in another order: OpenMP's
- * SIMD reductions, on when built with -fopenmp-simd -DFLIGHTGP_OPENMP_SIMD (native.py,
- * MODEL_FLAGS); without them (e.g. rebuilt from these sources by other tools) the same loops run
- * scalar, with the same results up to rounding. */
+/* expm1 in single precision, the steps of expm1_branchless in float: Taylor series to r^7 / 7!
+ * (the first term left out is below 6e-9 |expm1(r)|, a tenth of float's rounding), 2^k in
+ * float's exponent bits (k + 127 in [2, 252] for |x| <= SINGLE_BOUND). Relative error a few
+ * float ulp (about 1e-7): the fast path's pair blocks (single_precision). */
+#define SINGLE_BOUND 87.0f
+static inline __attribute__((always_inline)) float expm1_single(float x) {
+    x = x < -SINGLE_BOUND ? -SINGLE_BOUND : x;
+    x = x > SINGLE_BOUND ? SINGLE_BOUND : x;
+    const float shifted = x * 1.44269504f + 12582912.0f; /* 1.5 * 2^23 */
+    int32_t bits;
+    memcpy(&bits, &shifted, sizeof bits);
+    const float k = shifted - 12582912.0f;
+    const float r = (x - k * 0.693145752f) - k * 1.42860677e-6f; /* ln 2 split for float */
+    float p = 1.0f / 5040.0f;
+    p = p * r + 1.0f / 720.0f;
+    p = p * r + 1.0f / 120.0f;
+    p = p * r + 1.0f / 24.0f;
+    p = p * r + 1.0f / 6.0f;
+    p = p * r + 0.5f;
+    p = p * (r * r) + r;
+    const int32_t exponent = (bits + 127) << 23;
+    float two_k;
+    memcpy(&two_k, &exponent, sizeof two_k);
+    return two_k * p + (two_k - 1.0f);
+}
+
+/* The loops over a pair block's terms below vectorise (the clamps of expm1 becoming blends,
+ * and gcc told that a row's small array of N_Z numbers does not alias them) only under OpenMP's
+ * SIMD directive, on when built with -fopenmp-simd -DFLIGHTGP_OPENMP_SIMD (native.py, MODEL_FLAGS);
+ * without it (e.g. rebuilt from these sources by other tools) they may run scalar, with the same
+ * results. */
 #ifdef FLIGHTGP_OPENMP_SIMD
-#define SIMD_SUM_ROW _Pragma("omp simd reduction(+ : row)")
-#define SIMD_SUM_ROW_AND_TRACE _Pragma("omp simd reduction(+ : row, row_trace)")
+#define SIMD_LOOP _Pragma("omp simd")
 #else
-#define SIMD_SUM_ROW
-#define SIMD_SUM_ROW_AND_TRACE
+#define SIMD_LOOP
 #endif
 
 /* The arrays of one pair block (pair_covariance): rows i of output a's sample, columns j of
@@ -608,89 +651,137 @@ typedef struct {
     const double *u_M, *u_b;        /* (N_Z, ma) M_ab u_ai, (N_Z, mb) u_bj */
     const double *weighted_a, *weighted_b; /* (ma,), (mb,) beta q */
     const double *K_inv, *q;        /* a == b only: (m, m) A_t and (m,) q_t */
+    double *tile;                   /* scratch (max(TILE_TERMS, mb),): expm1(D_ij) of a tile */
+    float *tile_single;             /* the same in single precision */
+    double *column_sum, *column_trace; /* scratch (mb,) */
 } PairBlock;
 
-/* sum_ij w_ai w_bj expm1(D_ij), D_ij = half_a_i + half_b_j + (M_ab u_ai) . u_bj (eq. 6). */
-static inline __attribute__((always_inline)) double cross_block_body(const PairBlock *block) {
+/* The block's sums in passes over tiles of whole rows, each pass a loop gcc vectorises without
+ * reordering a sum (so without SIMD reductions): the exponents D_ij = half_a_i + half_b_j +
+ * (M_ab u_ai) . u_bj (eq. 6), then expm1 over the tile as one flat array (single: of the
+ * exponents rounded to float, 16 (8) lanes wide where double has 8 (4)), then the rows
+ * accumulated per column, column_sum_j += w_ai expm1(D_ij) (and, own, column_trace_j +=
+ * q_i A_ij (1 + expm1(D_ij))). Returns sum_j w_bj column_sum_j = sum_ij w_ai w_bj expm1(D_ij);
+ * own (a == b, same t) also sets *trace = sum_j q_j column_trace_j = tr(A_t Q^aa) (eq. 4). The
+ * own block's symmetry is not used: whole rows vectorise better than a triangle's. */
+static inline __attribute__((always_inline)) double block_body(const PairBlock *block, double *trace, int own,
+                                                               int single) {
     const int ma = block->ma, mb = block->mb;
-    const double *restrict half_b = block->half_b, *restrict u_b = block->u_b, *restrict w_b = block->weighted_b;
-    double sum = 0.0;
-    for (int i = 0; i < ma; i++) {
-        double x[N_Z], row = 0.0;
-        const double half_a = block->half_a[i];
-        for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * ma + i];
-SIMD_SUM_ROW
-        for (int j = 0; j < mb; j++) {
-            double exponent = half_a + half_b[j];
+    const int rows_per_tile = mb >= TILE_TERMS ? 1 : TILE_TERMS / mb;
+    const double *restrict half_b = block->half_b, *restrict u_b = block->u_b;
+    double *restrict tile = block->tile, *restrict column_sum = block->column_sum;
+    double *restrict column_trace = block->column_trace;
+    float *restrict tile_single = block->tile_single;
+    for (int j = 0; j < mb; j++) column_sum[j] = 0.0, column_trace[j] = 0.0;
+    for (int first = 0; first < ma; first += rows_per_tile) {
+        const int rows = ma - first < rows_per_tile ? ma - first : rows_per_tile, terms = rows * mb;
+        for (int r = 0; r < rows; r++) {
+            const int i = first + r;
+            double x[N_Z];
+            const double half_a = block->half_a[i];
+            for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * ma + i];
+            if (single) {
+                float *restrict out = tile_single + (size_t)r * mb;
+SIMD_LOOP
+                for (int j = 0; j < mb; j++) {
+                    double exponent = half_a + half_b[j];
 #pragma GCC unroll 16
-            for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
-            row += expm1_branchless(exponent) * w_b[j];
+                    for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
+                    out[j] = (float)exponent;
+                }
+            } else {
+                double *restrict out = tile + (size_t)r * mb;
+SIMD_LOOP
+                for (int j = 0; j < mb; j++) {
+                    double exponent = half_a + half_b[j];
+#pragma GCC unroll 16
+                    for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
+                    out[j] = exponent;
+                }
+            }
         }
-        sum += block->weighted_a[i] * row;
+        if (single) {
+SIMD_LOOP
+            for (int k = 0; k < terms; k++) tile_single[k] = expm1_single(tile_single[k]);
+        } else {
+SIMD_LOOP
+            for (int k = 0; k < terms; k++) tile[k] = expm1_branchless(tile[k]);
+        }
+        for (int r = 0; r < rows; r++) {
+            const int i = first + r;
+            const double w_i = block->weighted_a[i];
+            const double *restrict excess = tile + (size_t)r * mb;
+            const float *restrict excess_single = tile_single + (size_t)r * mb;
+            if (own) {
+                const double q_i = block->q[i], *restrict A = block->K_inv + (size_t)i * mb;
+SIMD_LOOP
+                for (int j = 0; j < mb; j++) {
+                    const double value = single ? (double)excess_single[j] : excess[j];
+                    column_sum[j] += w_i * value;
+                    column_trace[j] += q_i * A[j] * (1.0 + value);
+                }
+            } else {
+SIMD_LOOP
+                for (int j = 0; j < mb; j++) column_sum[j] += w_i * (single ? (double)excess_single[j] : excess[j]);
+            }
+        }
     }
-    return sum;
-}
-
-/* A block of one sample with itself (a == b, same t): D is symmetric, so each pair i < j counts
- * twice and only j >= i is computed. Returns the sum as cross_block_body and sets *trace to
- * tr(A_t Q^aa) = sum_ij A_ij q_i q_j (1 + expm1(D_ij)) (eq. 4). Row i starts at the multiple of
- * 8 below i, with the columns j < i weighted zero: every row is then whole vectors of 8 (4)
- * doubles when m is a multiple of 8, where a start at i would leave up to 7 columns per row to
- * the scalar remainder loop (measured 1.6x slower). */
-static inline __attribute__((always_inline)) double own_block_body(const PairBlock *block, double *trace) {
-    const int m = block->ma;
-    const double *restrict half = block->half_b, *restrict u = block->u_b, *restrict w = block->weighted_b;
-    const double *restrict q = block->q;
     double sum = 0.0, total_trace = 0.0;
-    for (int i = 0; i < m; i++) {
-        double x[N_Z];
-        const double half_a = block->half_a[i];
-        const double *restrict A = block->K_inv + (size_t)i * m;
-        for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * m + i];
-        double row = 0.0, row_trace = 0.0;
-SIMD_SUM_ROW_AND_TRACE
-        for (int j = i & ~7; j < m; j++) {
-            double exponent = half_a + half[j];
-#pragma GCC unroll 16
-            for (int c = 0; c < N_Z; c++) exponent += x[c] * u[c * m + j];
-            const double excess = expm1_branchless(exponent);
-            const double count = j < i ? 0.0 : (j == i ? 1.0 : 2.0);
-            row += count * excess * w[j];
-            row_trace += count * A[j] * q[j] * (1.0 + excess);
-        }
-        sum += w[i] * row;
-        total_trace += q[i] * row_trace;
+    for (int j = 0; j < mb; j++) sum += column_sum[j] * block->weighted_b[j];
+    if (own) {
+        for (int j = 0; j < mb; j++) total_trace += column_trace[j] * block->q[j];
+        *trace = total_trace;
     }
-    *trace = total_trace;
     return sum;
 }
 
-/* The bodies compiled three times, for AVX-512, for AVX2 with FMA and for any x86-64, and the
- * widest the processor runs picked once at load (select_block_kernels): the FMU stays portable
- * while the loops above run 8 or 4 doubles wide where they can. */
+static inline __attribute__((always_inline)) double cross_block_body(const PairBlock *block, int single) {
+    return block_body(block, NULL, 0, single);
+}
+
+static inline __attribute__((always_inline)) double own_block_body(const PairBlock *block, double *trace, int single) {
+    return block_body(block, trace, 1, single);
+}
+
+/* The bodies compiled three times, for AVX-512, for AVX2 with FMA and for any x86-64, each in
+ * double and in single precision, and the widest the processor runs picked once at load
+ * (select_block_kernels): the FMU stays portable while the loops above run 8 or 4 doubles wide
+ * where they can. */
 typedef double (*CrossBlockKernel)(const PairBlock *);
 typedef double (*OwnBlockKernel)(const PairBlock *, double *);
-#define BLOCK_KERNELS(suffix, target)                                                                     \
-    target static double cross_block_##suffix(const PairBlock *block) { return cross_block_body(block); } \
-    target static double own_block_##suffix(const PairBlock *block, double *trace) {                      \
-        return own_block_body(block, trace);                                                              \
+typedef struct {
+    CrossBlockKernel cross;
+    OwnBlockKernel own;
+} BlockKernels;
+#define BLOCK_KERNELS(suffix, target)                                                                            \
+    target static double cross_block_##suffix(const PairBlock *block) { return cross_block_body(block, 0); }     \
+    target static double own_block_##suffix(const PairBlock *block, double *trace) {                             \
+        return own_block_body(block, trace, 0);                                                                  \
+    }                                                                                                            \
+    target static double cross_block_single_##suffix(const PairBlock *block) { return cross_block_body(block, 1); } \
+    target static double own_block_single_##suffix(const PairBlock *block, double *trace) {                      \
+        return own_block_body(block, trace, 1);                                                                  \
     }
 #if defined(__x86_64__) && defined(__GNUC__)
-BLOCK_KERNELS(avx512, __attribute__((target("avx512f,avx512dq,avx2,fma"))))
+BLOCK_KERNELS(avx512, __attribute__((target("avx512f,avx512dq,avx512vl,avx2,fma"))))
 BLOCK_KERNELS(avx2, __attribute__((target("avx2,fma"))))
 #endif
 BLOCK_KERNELS(generic, )
 
-static CrossBlockKernel cross_block = cross_block_generic;
-static OwnBlockKernel own_block = own_block_generic;
+/* [0]: double precision (exact_moments), [1]: single-precision expm1 (the fast path). */
+static BlockKernels block_kernels[2] = {{cross_block_generic, own_block_generic},
+                                        {cross_block_single_generic, own_block_single_generic}};
 
 static void select_block_kernels(void) {
 #if defined(__x86_64__) && defined(__GNUC__)
     __builtin_cpu_init();
-    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq")) {
-        cross_block = cross_block_avx512, own_block = own_block_avx512;
+    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq")
+        && __builtin_cpu_supports("avx512vl")) {
+        block_kernels[0] = (BlockKernels){cross_block_avx512, own_block_avx512};
+        block_kernels[1] = (BlockKernels){cross_block_single_avx512, own_block_single_avx512};
     } else if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
-        cross_block = cross_block_avx2, own_block = own_block_avx2;
+        block_kernels[0] = (BlockKernels){cross_block_avx2, own_block_avx2};
+        block_kernels[1] = (BlockKernels){cross_block_single_avx2, own_block_single_avx2};
     }
 #endif
 }
@@ -793,13 +884,15 @@ static int pair_covariance(Model *model, int a, int t_a, int b, int t_b, const d
     }
     PairBlock block = {(int)ma, (int)mb, model->half_a, model->half_b, model->u_M, u_b,
                        ga->weighted + (size_t)t_a * ma, gb->weighted + (size_t)t_b * mb,
-                       ga->K_inv + (size_t)t_a * ma * ma, ga->q + (size_t)t_a * ma};
+                       ga->K_inv + (size_t)t_a * ma * ma, ga->q + (size_t)t_a * ma, model->tile, model->tile_single,
+                       model->column_sum, model->column_trace};
+    const BlockKernels *kernels = &block_kernels[model->single_precision];
     if (a != b) {
-        *covariance = cross_block(&block);
+        *covariance = kernels->cross(&block);
         return 1;
     }
     double trace; /* tr(A_t Q^aa) (eq. 4) */
-    double sum = own_block(&block, &trace);
+    double sum = kernels->own(&block, &trace);
     const double *sample = ga->samples + (size_t)t_a * ga->sample_size;
     const double expected_var = ga->signal_variance[t_a] - trace;
     *covariance = sum + (expected_var > 0.0 ? expected_var : 0.0) + sample[ma + D + 1];
@@ -1024,6 +1117,7 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
     double *next = model->next_state; /* the new state, committed at the end */
     double *inputs = next + INPUT_HISTORY, *outputs = next + OUTPUT_HISTORY;
     const int free_run = values[FREE_RUN_VR] != 0.0;
+    model->single_precision = values[EXACT_MOMENTS_VR] == 0.0;
     /* Push the current sample (row 0) into both histories; free run feeds back the means. */
     for (int lag = MAX_LAG - 1; lag > 0; lag--) {
         for (int c = 0; c < N_INPUTS; c++) inputs[lag * N_INPUTS + c] = state[INPUT_HISTORY + (lag - 1) * N_INPUTS + c];
