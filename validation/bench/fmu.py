@@ -4,6 +4,7 @@ host (docs/benchmarks.md)."""
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -51,47 +52,89 @@ class {name}(Fmi2Slave):
 """
 
 
-def _time_fmu_steps(fmu_path, inputs, outputs, *, n_steps: int, step: float, repeats: int = 3,
-                    values=None, start_values: dict | None = None) -> float:
-    """Best-of-``repeats`` wall time per communication step (s) of ``setReal(inputs)``,
-    ``doStep``, ``getReal(outputs)`` in fmpy's FMU2Slave, with varying input values: ``values``
-    (shape (n_steps, len(inputs)), row ``k`` set before step ``k``), by default small sines.
-    ``start_values`` (Real name -> value) are set before initialisation in every repeat."""
+@dataclass(frozen=True)
+class SteppingTimes:
+    """Wall times of one FMU in fmpy (:func:`time_stepping`).
+
+    Attributes
+    ----------
+    load_s : float
+        Extraction, ``fmi2Instantiate`` and the first initialisation, s (what a simulator pays
+        once).
+    loop_s : tuple of float
+        Per repeat, the stepping loop: ``setReal(inputs)``, ``doStep``, ``getReal(outputs)`` for
+        every step, s.
+    n_steps : int
+    """
+
+    load_s: float
+    loop_s: tuple
+    n_steps: int
+
+    @property
+    def best_step_s(self) -> float:
+        """The fastest repeat's time per step, s."""
+        return min(self.loop_s) / self.n_steps
+
+
+def time_stepping(fmu_path, inputs, outputs, *, n_steps: int, step: float, repeats: int = 3, values=None,
+                  start_values: dict | None = None) -> SteppingTimes:
+    """Time an FMU in fmpy's FMU2Slave as a simulator runs it: loaded once (timed), then
+    ``repeats`` times reset, initialised and stepped ``n_steps`` times (each stepping loop timed),
+    with varying input values: ``values`` (shape (n_steps, len(inputs)), row ``k`` set before
+    step ``k``), by default small sines. ``start_values`` (name -> value; Booleans by their
+    variable's type) are set before every initialisation."""
     import shutil
 
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
+    begin = time.perf_counter()
     description = read_model_description(str(fmu_path))
-    refs = {v.name: v.valueReference for v in description.modelVariables}
+    variables = {v.name: v for v in description.modelVariables}
     unzipdir = extract(str(fmu_path))
     try:
         fmu = FMU2Slave(guid=description.guid, unzipDirectory=unzipdir,
                         modelIdentifier=description.coSimulation.modelIdentifier, instanceName="bench")
         fmu.instantiate()
-        in_refs, out_refs = [refs[n] for n in inputs], [refs[n] for n in outputs]
+        in_refs = [variables[n].valueReference for n in inputs]
+        out_refs = [variables[n].valueReference for n in outputs]
         if values is None:
             values = 0.01 * np.sin(np.arange(n_steps)[:, None] + np.arange(len(inputs)))
         starts = start_values or {}
-        best = np.inf
+        booleans = {n: v for n, v in starts.items() if variables[n].type == "Boolean"}
+        reals = {n: v for n, v in starts.items() if variables[n].type != "Boolean"}
+        loops, load_s = [], None
         for _ in range(repeats):
-            fmu.reset()
-            if starts:
-                fmu.setReal([refs[n] for n in starts], [float(v) for v in starts.values()])
+            if load_s is not None:
+                fmu.reset()
+            if reals:
+                fmu.setReal([variables[n].valueReference for n in reals], [float(v) for v in reals.values()])
+            if booleans:
+                fmu.setBoolean([variables[n].valueReference for n in booleans], [bool(v) for v in booleans.values()])
             fmu.setupExperiment(startTime=0.0)
             fmu.enterInitializationMode()
             fmu.exitInitializationMode()
-            begin = time.perf_counter()
+            if load_s is None:
+                load_s = time.perf_counter() - begin
+            start = time.perf_counter()
             for k in range(n_steps):  # time from the step counter, t = k h
                 fmu.setReal(in_refs, values[k].tolist())
                 fmu.doStep(currentCommunicationPoint=k * step, communicationStepSize=step)
                 fmu.getReal(out_refs)
-            best = min(best, (time.perf_counter() - begin) / n_steps)
+            loops.append(time.perf_counter() - start)
         fmu.terminate()
         fmu.freeInstance()
     finally:
         shutil.rmtree(unzipdir, ignore_errors=True)
-    return best
+    return SteppingTimes(load_s, tuple(loops), n_steps)
+
+
+def _time_fmu_steps(fmu_path, inputs, outputs, *, n_steps: int, step: float, repeats: int = 3,
+                    values=None, start_values: dict | None = None) -> float:
+    """Best-of-``repeats`` wall time per communication step (s) of :func:`time_stepping`."""
+    return time_stepping(fmu_path, inputs, outputs, n_steps=n_steps, step=step, repeats=repeats, values=values,
+                         start_values=start_values).best_step_s
 
 
 def run(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> dict:
@@ -110,7 +153,7 @@ def run(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> dict:
         ``{"steps", "gp_us_per_step", "bare_us_per_step", "gp_over_bare", "goal_ratio",
         "goal_met", "training_points", "hyperparameter_samples", "real_time_factor_at_narx_step",
         "native_us_per_step", "native_over_bare", "gp_over_native", "native", "native_goal_ratio",
-        "native_goal_us_at_500", "blimp"}``.
+        "native_goal_us_at_500", "blimp", "paper_free_run"}`` (:func:`paper_free_run_rows`).
     """
     import subprocess
     import sys
@@ -140,6 +183,8 @@ def run(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> dict:
         gp = _time_fmu_steps(gp_fmu, inputs, outputs, n_steps=n_steps, step=step)
         native = _native_rows(scratch, scratch / "gp.npz", gp, inputs, outputs, n_steps=n_steps, step=step,
                               seed=seed, progress=progress)
+        free_run = paper_free_run_rows(scratch / "bench_native_0.fmu",
+                                       recording.input("theta_1s")[::PAPER_CONFIG.decimation], step=step)
         blimp = blimp_rkgp_row(scratch, n_steps=n_steps, seed=seed)
     samples = [len(g.theta_samples_) for g in trained.model.model.gps]
     return {"steps": n_steps, "gp_us_per_step": gp * 1e6, "bare_us_per_step": bare * 1e6,
@@ -150,7 +195,8 @@ def run(*, n_steps: int = 2000, seed: int = 0, progress: bool = True) -> dict:
             "native_us_per_step": native[0]["native_us_per_step"], "native_over_bare":
                 native[0]["native_us_per_step"] / (bare * 1e6),
             "gp_over_native": gp * 1e6 / native[0]["native_us_per_step"], "native": native,
-            "native_goal_ratio": NATIVE_GOAL_RATIO, "native_goal_us_at_500": NATIVE_GOAL_US, "blimp": blimp}
+            "native_goal_ratio": NATIVE_GOAL_RATIO, "native_goal_us_at_500": NATIVE_GOAL_US, "blimp": blimp,
+            "paper_free_run": free_run}
 
 
 #: Goal of ``bench fmu`` (docs/benchmarks.md): the GP adds at most this factor to the bare FMU's step cost.
@@ -171,6 +217,98 @@ NATIVE_IDS = ("paper", "single", "n500", "sparse50")
 #: goal, :data:`validation.bench.cosim.COSIM_GOAL_REAL_TIME`): its per-step goal is the
 #: model's step over this.
 NATIVE_GOAL_REAL_TIME = 200.0
+
+
+#: FLOPs per term of a pair block of eq. 6 in narx_model.c (block_body), with N_Z uncertain
+#: regressors: the exponent (one add, N_Z multiply-adds), in double; expm1 of it, in single
+#: precision on the fast path (expm1_single: 23) or double on the exact one (expm1_branchless:
+#: 37), counting a fused multiply-add as 2; the accumulation in double (cross blocks one
+#: multiply-add, own blocks three more operations for eq. 4's trace).
+EXPM1_FLOPS = {"single": 23, "double": 37}
+ACCUMULATE_FLOPS = {"cross": 2, "own": 6}
+
+
+def free_run_flops(fmu_path) -> dict:
+    """FLOPs of one free-run step of a native rate-predictor FMU in its pair blocks (eq. 6; the
+    rest of a step, eqs. 1-2 and each block's set-up, is a few per cent of its FLOPs), read from
+    the FMU's ``model_config.h``: every distinct sample's own block (m x m terms) and every
+    distinct sample pair's cross block (m_a x m_b).
+
+    Returns
+    -------
+    dict
+        ``{"terms", "fast": {"double", "single"}, "exact": {"double", "single"}}``, FLOPs.
+    """
+    import re
+    import zipfile
+
+    with zipfile.ZipFile(fmu_path) as archive:
+        config = archive.read("sources/model_config.h").decode()
+
+    def numbers(name):
+        return [int(v) for v in re.search(rf"{name}\[\d+\] = {{([^}}]*)}}", config).group(1).split(",")]
+
+    def constant(name):
+        return int(re.search(rf"#define {name} (\d+)", config).group(1))
+
+    m, distinct = numbers("BASIS_POINTS"), numbers("DISTINCT_SAMPLES")
+    n_z = constant("N_OUTPUTS") * constant("N_OUTPUT_LAGS")
+    own = sum(t * mj * mj for t, mj in zip(distinct, m))
+    pairs = [(a, b) for a in range(len(m)) for b in range(a + 1, len(m))]
+    counts = numbers("PAIR_COUNT") if pairs else []
+    cross = sum(n * m[a] * m[b] for n, (a, b) in zip(counts, pairs))
+    exponent = (own + cross) * (1 + 2 * n_z)
+    accumulate = own * ACCUMULATE_FLOPS["own"] + cross * ACCUMULATE_FLOPS["cross"]
+    return {"terms": own + cross,
+            "fast": {"double": exponent + accumulate, "single": (own + cross) * EXPM1_FLOPS["single"]},
+            "exact": {"double": exponent + accumulate + (own + cross) * EXPM1_FLOPS["double"], "single": 0}}
+
+
+def machine_peak_flops() -> dict:
+    """The processor's peak rate of fused multiply-adds on its widest vectors, double and single
+    precision (``peak_flops.c``, compiled here with the system gcc): ``{"double", "single"}``,
+    FLOP/s, and ``"isa"``."""
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory(prefix="flightgp-peak-") as work:
+        binary = Path(work) / "peak_flops"
+        subprocess.run(["gcc", "-O2", "-std=c99", "-ffp-contract=fast", str(Path(__file__).with_name("peak_flops.c")),
+                        "-o", str(binary)], check=True, capture_output=True)
+        words = subprocess.run([str(binary)], check=True, capture_output=True, text=True).stdout.split()
+    return {"double": float(words[1]) * 1e9, "single": float(words[3]) * 1e9, "isa": words[4]}
+
+
+def paper_free_run_rows(fmu_path, theta_1s, *, step: float, runs: int = 3) -> dict:
+    """The paper model's native FMU stepping the free run along ``theta_1s`` (the NARX grid) in
+    the plain C host, on the fast path and with ``exact_moments``: ``runs`` runs each (one pass
+    over the manoeuvre after loading the FMU), with the FLOPs per step
+    (:func:`free_run_flops`) and the share of the machine's peak (:func:`machine_peak_flops`)
+    they run at: the time the step's FLOPs would take at peak over the measured time.
+
+    Returns
+    -------
+    dict
+        ``{"steps", "peak", "flops", "fast": {...}, "exact": {...}}``, each path ``{"us_per_step":
+        [runs], "median_us", "real_time_factor", "gflops", "share_of_peak"}``.
+    """
+    from validation.cosim.hosts import simulate_in_c_host
+
+    n_steps = len(theta_1s) - 1
+    flops, peak = free_run_flops(fmu_path), machine_peak_flops()
+    report = {"steps": n_steps, "flops": flops, "peak": peak}
+    for path, exact in (("fast", False), ("exact", True)):
+        times = [simulate_in_c_host(fmu_path, step_size=step, n_steps=n_steps, inputs={"theta_1s": theta_1s},
+                                    outputs=["q", "q_upper"], start_values={"free_run": True, "exact_moments": exact},
+                                    repeats=1)["us_per_step"] for _ in range(runs)]
+        median_s = float(np.median(times)) * 1e-6
+        count = flops[path]
+        at_peak_s = count["double"] / peak["double"] + count["single"] / peak["single"]
+        report[path] = {"us_per_step": times, "median_us": median_s * 1e6, "real_time_factor": step / median_s,
+                        "gflops": (count["double"] + count["single"]) / median_s * 1e-9,
+                        "share_of_peak": at_peak_s / median_s}
+    return report
 
 
 def _native_rows(scratch, paper_model, paper_gp_s: float, inputs, outputs, *, n_steps: int, step: float,
@@ -321,6 +459,22 @@ def format_table(report: dict) -> str:
            f"(blimp RKGP: 3 commands in, 12 states and 12 sds out, {blimp['steps']} steps of its training "
            "flight at 20 Hz)"] if blimp else []),
     ] if report.get("native") or blimp else []
+    free_run = report.get("paper_free_run")
+    if free_run:
+        flops, peak = free_run["flops"], free_run["peak"]
+        native += [
+            "",
+            f"Paper model's native FMU, free run along the 3-2-1-1 ({free_run['steps']} steps) in the C host, "
+            f"{len(free_run['fast']['us_per_step'])} runs; {flops['terms']} pair terms per step; "
+            f"machine peak ({peak['isa']}) {peak['double'] * 1e-9:.1f} GFLOP/s double, "
+            f"{peak['single'] * 1e-9:.1f} single",
+            f"{'path':<32} {'us/step median':>15} {'runs':>24} {'x real time':>12} {'GFLOP/s':>8} {'of peak':>8}",
+            *(f"{label:<32} {free_run[key]['median_us']:>15.0f} "
+              f"{' '.join(f'{t:.0f}' for t in free_run[key]['us_per_step']):>24} "
+              f"{free_run[key]['real_time_factor']:>12.0f} {free_run[key]['gflops']:>8.1f} "
+              f"{100 * free_run[key]['share_of_peak']:>7.0f}%"
+              for key, label in (("fast", "fast (single-precision expm1)"), ("exact", "exact_moments"))),
+        ]
     return "\n".join([
         f"Rate-predictor FMU step cost in fmpy (setReal + doStep + getReal, best of 3 x "
         f"{report['steps']} steps) vs a bare pythonfmu FMU with the same variables; "
@@ -345,8 +499,17 @@ def summary_rows(report: dict) -> list[SummaryRow]:
     for key, row in zip(NATIVE_IDS, report.get("native", [])):
         cheaper = f"{row['pythonfmu_over_native_c_host']:.1f}x cheaper than pythonfmu"
         if key == "paper":
-            rows.append(SummaryRow("fmu.paper.native.step_us", f"native FMU step in the C host, {row['model']}",
-                                   row["native_c_host_us_per_step"], "us", budget_us, at_least=False, note=cheaper))
+            free_run = report.get("paper_free_run")
+            if free_run:
+                for path, label in (("fast", ""), ("exact", ", exact_moments")):
+                    rows.append(SummaryRow(
+                        "fmu.paper.native.step_us" if path == "fast" else "fmu.paper.native.exact_step_us",
+                        f"native FMU free-run step in the C host{label}, {row['model']}",
+                        free_run[path]["median_us"], "us", budget_us, at_least=False,
+                        note=f"median of {len(free_run[path]['us_per_step'])}; "
+                             f"{100 * free_run[path]['share_of_peak']:.0f}% of the machine's peak FLOP rate"))
+            rows.append(SummaryRow("fmu.paper.native.one_step_us", f"native FMU one-step prediction in the C host, "
+                                   f"{row['model']}", row["native_c_host_us_per_step"], "us", None, note=cheaper))
             continue
         rows.append(SummaryRow(f"fmu.{key}.native.speedup", f"native vs pythonfmu FMU step, {row['model']}",
                                row["pythonfmu_over_native_c_host"], "x", report["native_goal_ratio"],

@@ -7,6 +7,8 @@ once with rounding, never accumulated.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from validation.core.errors import BadInputError
@@ -77,6 +79,29 @@ def simulate_in_libcosim(fmu_path, *, step_size: float, n_steps: int, inputs: di
     return recorded
 
 
+@functools.lru_cache(maxsize=1)
+def _c_host():
+    """The C host (``native_host.c``), compiled with the system gcc once per process into a
+    folder removed at exit. Returns its path."""
+    import atexit
+    import shutil
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from fmu_src import fmi_headers
+
+    work = Path(tempfile.mkdtemp(prefix="flightgp_c_host_bin_"))
+    atexit.register(shutil.rmtree, work, ignore_errors=True)
+    host = work / "native_host"
+    compiled = subprocess.run(["gcc", "-O2", "-std=c99", "-Wall", "-Wextra", f"-I{fmi_headers()}",
+                               str(Path(__file__).with_name("native_host.c")), "-o", str(host), "-ldl"],
+                              capture_output=True, text=True)
+    if compiled.returncode != 0:
+        raise RuntimeError(f"gcc failed to compile the C host: {compiled.stderr.strip()}")
+    return host
+
+
 def simulate_in_c_host(fmu_path, *, step_size: float, n_steps: int, inputs: dict, outputs,
                        start_values: dict | None = None, repeats: int = 1) -> dict:
     """Co-simulate one FMU in a plain C program (``validation/cosim/native_host.c``, compiled here
@@ -118,19 +143,13 @@ def simulate_in_c_host(fmu_path, *, step_size: float, n_steps: int, inputs: dict
 
     from fmpy import extract, read_model_description
 
-    from fmu_src import fmi_headers
 
     description = read_model_description(str(fmu_path))
     variables = {v.name: v for v in description.modelVariables}
     identifier = description.coSimulation.modelIdentifier
     with tempfile.TemporaryDirectory(prefix="flightgp_c_host_") as work:
         work = Path(work)
-        host = work / "native_host"
-        compiled = subprocess.run(["gcc", "-O2", "-std=c99", "-Wall", "-Wextra", f"-I{fmi_headers()}",
-                                   str(Path(__file__).with_name("native_host.c")), "-o", str(host), "-ldl"],
-                                  capture_output=True, text=True)
-        if compiled.returncode != 0:
-            raise RuntimeError(f"gcc failed to compile the C host: {compiled.stderr.strip()}")
+        host = _c_host()
         unzipdir = Path(extract(str(fmu_path), unzipdir=str(work / "fmu")))
         starts = {n: v for n, v in (start_values or {}).items() if variables[n].type != "Boolean"}
         booleans = {n: v for n, v in (start_values or {}).items() if variables[n].type == "Boolean"}
