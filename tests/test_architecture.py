@@ -39,6 +39,7 @@ LAYERS = (
     ("validation.cosim",),
     ("validation.diagnose",),
     ("validation.reproduce",),
+    ("validation.campaign",),
     ("validation.bench",),
     ("validation.cli",),
 )

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from validation.bench import cosim, diagnose, fmu, gp, narx
+from validation.bench import campaign, cosim, diagnose, fmu, gp, narx
 from validation.bench.rows import SummaryRow
 
 
@@ -43,6 +43,7 @@ BENCHMARKS = {
     "fmu": Benchmark(fmu.run, fmu.format_table, {"fmu_steps": "n_steps"}, fmu.summary_rows),
     "cosim": Benchmark(cosim.run, cosim.format_table, {}, cosim.summary_rows),
     "diagnose": Benchmark(diagnose.run, diagnose.format_table, {}, diagnose.summary_rows),
+    "campaign": Benchmark(campaign.run, campaign.format_table, {}, campaign.summary_rows),
 }
 
 

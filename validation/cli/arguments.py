@@ -124,3 +124,18 @@ def _amplitude(args: argparse.Namespace) -> float:
 def _unit_phrase(name: str) -> str:
     unit = column_unit(name)
     return "normalised command (-1..1)" if unit == "1" else f"quantity in {unit}"
+
+
+def add_cluster_arguments(parser, *, workers_flag: str = "--workers",
+                          without: str = "a local cluster started and stopped by this command") -> None:
+    """``--scheduler`` and, exclusive with it, the local cluster's size (``workers_flag``) of the
+    commands that run on Dask (``campaign``, ``diagnose-bench``; docs/campaigns.md), parsed into
+    ``scheduler`` and ``cluster_workers``; ``without`` says what the command does without
+    ``--scheduler``. The command checks that ``cluster_workers`` is at least 1."""
+    cluster = parser.add_mutually_exclusive_group()
+    cluster.add_argument("--scheduler", metavar="ADDRESS",
+                         help="run on an existing Dask cluster: its scheduler's address (tcp://host:8786) or "
+                              f"scheduler file (default: {without})")
+    cluster.add_argument(workers_flag, dest="cluster_workers", type=int, metavar="N",
+                         help="worker processes of a local Dask cluster started and stopped by this command, "
+                              "one thread each (default: the cores available)")

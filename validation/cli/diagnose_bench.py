@@ -1,11 +1,13 @@
-"""``flightgp diagnose-bench [--cases NAME...] [--reference NAME] [--through REFERENCE] [--seed N...] [--out DIR]``: the
-concealed-effect benchmark of ``flightgp diagnose`` (:mod:`validation.diagnose.bench`)."""
+"""``flightgp diagnose-bench [--cases NAME...] [--reference NAME] [--through REFERENCE] [--seed N...] [--out DIR]
+[--scheduler ADDRESS | --cluster-workers N]``: the concealed-effect benchmark of ``flightgp diagnose``
+(:mod:`validation.diagnose.bench`), in this process or, with a Dask option, as a campaign
+(docs/campaigns.md, "`diagnose-bench` on Dask")."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from validation.cli.arguments import seed
+from validation.cli.arguments import add_cluster_arguments, seed
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder, json_text, write_files_atomically
 from validation.core.progress import progress_bar
@@ -19,7 +21,9 @@ def register(subparsers) -> None:
                     "list), with sensor noise; diagnose each and print a scorecard: effect named, "
                     "true value inside the interval, held-out RMSE cut of the affected output, false "
                     "findings, seconds per case (with several --seed values, also the rates over "
-                    "seeds). Writes DIR/scorecard.json and DIR/scorecard.txt.")
+                    "seeds). Writes DIR/scorecard.json and DIR/scorecard.txt. With --scheduler or "
+                    "--cluster-workers, the cases and seeds run side by side on Dask as a campaign in "
+                    "DIR/campaign/ (resumed when run again; docs/campaigns.md).")
     parser.add_argument("--cases", nargs="+", metavar="NAME",
                         help="run only these cases (default: all; --list shows them)")
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
@@ -41,6 +45,8 @@ def register(subparsers) -> None:
     parser.add_argument("--out", type=Path, default=Path("build/diagnose-bench"), metavar="DIR",
                         help="where scorecard.json and scorecard.txt go (default build/diagnose-bench)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_cluster_arguments(parser, workers_flag="--cluster-workers",
+                          without="the cases run one after the other in this process, unless --cluster-workers")
     parser.set_defaults(func=run)
 
 
@@ -72,9 +78,17 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None:
         options["duration"] = args.duration
     seeds = list(dict.fromkeys(args.seed))
-    with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases) * len(seeds),
-                      unit="case") as update:
-        reports = [run_bench(cases, reference=args.reference, seed=s, progress=update, **options) for s in seeds]
+    if args.scheduler is not None or args.cluster_workers is not None:
+        if args.cluster_workers is not None and args.cluster_workers < 1:
+            raise BadInputError(f"--cluster-workers must be at least 1, got {args.cluster_workers}")
+        if args.workers is not None:
+            raise BadInputError("--workers (replay processes) does not apply on Dask: each case runs in one "
+                                "worker process; drop it or drop --scheduler/--cluster-workers")
+        reports = _run_on_dask(args, cases, seeds)
+    else:
+        with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases) * len(seeds),
+                          unit="case") as update:
+            reports = [run_bench(cases, reference=args.reference, seed=s, progress=update, **options) for s in seeds]
     tables = [format_scorecard(report) for report in reports]
     if len(reports) == 1:
         result = reports[0]
@@ -87,3 +101,35 @@ def run(args: argparse.Namespace) -> int:
                                       args.out / "scorecard.txt": table + "\n"})
     print(f"written {', '.join(str(path) for path in written)}")
     return 0
+
+
+def _run_on_dask(args: argparse.Namespace, cases, seeds) -> list:
+    """Every case and seed as a task of a campaign in ``DIR/campaign`` (docs/campaigns.md,
+    "`diagnose-bench` on Dask"): run on the cluster, resumed when run again; returns the report
+    of each seed (:func:`validation.diagnose.bench.bench_report`)."""
+    import json
+
+    from validation.campaign import parse_spec, read_result, run_campaign, task_folder
+    from validation.diagnose.bench import DURATION, bench_report
+
+    study = {"id": "bench", "kind": "diagnose-bench", "cases": [case.name for case in cases],
+             "reference": args.reference, "seed": {"grid": seeds}}
+    if args.through is not None:
+        study["through"] = args.through
+    if args.duration is not None:
+        study["duration"] = args.duration
+    spec = parse_spec({"name": "diagnose-bench", "studies": [study]}, base_dir=Path.cwd(), source="diagnose-bench")
+    folder = args.out / "campaign"
+    run_campaign(spec, folder, scheduler=args.scheduler, workers=args.cluster_workers,
+                 progress=not args.no_progress)
+    rows = {}
+    for task in spec.tasks:
+        result = read_result(folder, task.as_dict())
+        if result.status != "done":
+            raise RuntimeError(f"case {task.settings['case']} with seed {task.seed} failed: {result.message} "
+                               f"(see {task_folder(folder, task.id) / 'result.json'})")
+        score = json.loads((task_folder(folder, task.id) / "score.json").read_text(encoding="utf-8"))
+        rows[task.settings["case"], task.seed] = score
+    duration = DURATION if args.duration is None else args.duration
+    return [bench_report([rows[case.name, s] for case in cases], reference=args.reference, through=args.through,
+                         seed=s, duration=duration) for s in seeds]

@@ -17,6 +17,7 @@ from gp_model import ModelFileError
 from validation.cli import (
     bench,
     build_fmu,
+    campaign,
     cosim,
     demo,
     diagnose,
@@ -32,7 +33,7 @@ from validation.core.errors import BadInputError
 
 #: The command modules, in the order ``--help`` lists their commands.
 COMMAND_MODULES = (demo, record, inspect, train, predict, reproduce, cosim, bench, build_fmu, diagnose,
-                   diagnose_bench, state_space)
+                   diagnose_bench, state_space, campaign)
 
 
 def build_parser() -> argparse.ArgumentParser:

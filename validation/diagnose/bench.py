@@ -480,15 +480,15 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     return score
 
 
-def run_bench(cases, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
-              duration: float = DURATION, workers: int | None = None, progress=None) -> dict:
-    """Diagnose every case; returns the scorecard report (JSON-ready).
+def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
+             duration: float = DURATION, workers: int | None = None) -> CaseScore:
+    """Fly, diagnose and score one case.
 
     Parameters
     ----------
-    cases : sequence of ConcealedCase
+    case : ConcealedCase
     reference : str
-        The reference the cases are flown on: ``bo105-<V>kt``, ``blimp`` or an FMU file.
+        The reference the case is flown on: ``bo105-<V>kt``, ``blimp`` or an FMU file.
     through : str, optional
         Diagnose through this reference instead (an FMU or a state-space JSON of the same
         vehicle, named like ``reference``'s variables); the truth is the case as it names it
@@ -499,29 +499,47 @@ def run_bench(cases, *, reference: str = "bo105-80kt", through: str | None = Non
         Length of each recording, s.
     workers : int, optional
         Replay processes of an FMU reference (:func:`validation.diagnose.diagnose`).
-    progress : callable, optional
-        Called as ``progress(1, case=name)`` after each case.
     """
-    sample_time = effect_model(reference, purpose="diagnose-bench").sample_time
-    diagnosing = through or reference
-    model = effect_model(diagnosing, purpose="diagnose-bench") if through else None
+    recordings = case_recordings(case, reference=reference, seed=seed, duration=duration)
+    truth = diagnosed_truth(case, effect_model(through, purpose="diagnose-bench")) if through else case
+    start = clock.perf_counter()
+    diagnosis = diagnose([recordings.fit], reference=through or reference, holdout=[recordings.holdout], seed=seed,
+                         workers=workers).as_dict()
+    seconds = clock.perf_counter() - start
+    return score_case(truth, diagnosis, truth_states=recordings.truth_states, holdout=recordings.holdout,
+                      reference=reference, seconds=seconds)
+
+
+def bench_report(rows, *, reference: str, through: str | None, seed: int, duration: float) -> dict:
+    """The scorecard report (JSON-ready) of one seed's scored cases.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        ``CaseScore.as_dict()`` of each case, in the suite's order.
+    reference, through, seed, duration
+        As :func:`run_case` ran them.
+    """
+    rows = list(rows)
+    return {"reference": reference, "through": through, "seed": seed, "duration_s": duration,
+            "sample_time_s": effect_model(reference, purpose="diagnose-bench").sample_time,
+            "required_cut": REQUIRED_CUT, "cases": rows,
+            "passed": sum(row["passed"] for row in rows), "total": len(rows),
+            "max_seconds": max((row["seconds"] for row in rows), default=0.0)}
+
+
+def run_bench(cases, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
+              duration: float = DURATION, workers: int | None = None, progress=None) -> dict:
+    """:func:`run_case` of every case, one after the other; returns the scorecard report
+    (:func:`bench_report`). ``progress``, optional, is called as ``progress(1, case=name)`` after
+    each case; the other parameters are :func:`run_case`'s."""
     rows = []
     for case in cases:
-        recordings = case_recordings(case, reference=reference, seed=seed, duration=duration)
-        truth = diagnosed_truth(case, model) if model is not None else case
-        start = clock.perf_counter()
-        diagnosis = diagnose([recordings.fit], reference=diagnosing, holdout=[recordings.holdout], seed=seed,
-                             workers=workers).as_dict()
-        seconds = clock.perf_counter() - start
-        rows.append(score_case(truth, diagnosis, truth_states=recordings.truth_states, holdout=recordings.holdout,
-                               reference=reference, seconds=seconds))
+        rows.append(run_case(case, reference=reference, through=through, seed=seed, duration=duration,
+                             workers=workers).as_dict())
         if progress:
             progress(1, case=case.name)
-    return {"reference": reference, "through": through, "seed": seed, "duration_s": duration,
-            "sample_time_s": sample_time,
-            "required_cut": REQUIRED_CUT, "cases": [row.as_dict() for row in rows],
-            "passed": sum(row.passed for row in rows), "total": len(rows),
-            "max_seconds": max((row.seconds for row in rows), default=0.0)}
+    return bench_report(rows, reference=reference, through=through, seed=seed, duration=duration)
 
 
 def format_scorecard(report: dict) -> str:

@@ -116,6 +116,8 @@ class FMUReference:
     workers : int, optional
         Processes that run the replays of :meth:`replay_many` side by side, each with its own
         instance (default: :func:`available_cores`; 1: all in this process).
+    instance_name : str
+        The FMU instance's name (``fmi2Instantiate``'s); give each instance in one process its own.
 
     Attributes
     ----------
@@ -141,8 +143,9 @@ class FMUReference:
         from a kept replay's saved state (:meth:`replay`).
     """
 
-    def __init__(self, path, *, workers: int | None = None):
+    def __init__(self, path, *, workers: int | None = None, instance_name: str = "flightgp_diagnose"):
         self.path = Path(path)
+        self._instance_name = instance_name
         description = _read_description(self.path)
         self._description = description
         self.name = str(path)
@@ -191,7 +194,7 @@ class FMUReference:
                 self._instance.freeInstance()
         self._instance = FMU2Slave(guid=self._description.guid, unzipDirectory=self._unzipdir,
                                    modelIdentifier=self._description.coSimulation.modelIdentifier,
-                                   instanceName="flightgp_diagnose")
+                                   instanceName=self._instance_name)
         self._instance.instantiate()
         return self._instance
 
