@@ -257,6 +257,26 @@ def flightgp_version() -> str:
         return "unknown (not installed as a package)"
 
 
+def map_on_dask(function, items, *, scheduler: str | None = None, workers: int | None = None,
+                label: str = "tasks", progress: bool = True) -> list:
+    """``function(item)`` for every item on a Dask cluster (:func:`dask_client`: a local one of
+    ``workers`` processes, or the existing one at ``scheduler``), with a progress bar; the
+    results in the items' order. What a command whose runs are independent uses to spread them
+    (``flightgp reproduce blimp --seeds ... --cluster-workers N``); a run that raises raises here,
+    as it would have in this process. ``function`` and the results travel between processes by
+    Dask's serialisation (in memory; nothing is written)."""
+    from distributed import as_completed
+
+    items = list(items)
+    with dask_client(scheduler=scheduler, workers=workers) as client:
+        futures = client.map(function, items, pure=False)
+        with progress_bar(label, enabled=progress, total=len(items), unit="run") as update:
+            for _ in as_completed(futures):
+                if update:
+                    update(1)
+        return client.gather(futures)
+
+
 def _run_pending(client, pending, bundles: dict, out_dir: Path, stored: dict, *, retries: int, progress: bool,
                  execute) -> list:
     """Submit ``pending``, store each result as it finishes; returns the interrupted tasks

@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import functools
 from pathlib import Path
 
-from validation.cli.arguments import seed
+from validation.cli.arguments import add_cluster_arguments, seed
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder
 
@@ -54,6 +55,8 @@ def register(subparsers) -> None:
                         help="random seed (default 0); for blimp, a campaign of this one seed")
     parser.add_argument("--seeds", type=seed_list, default=None, metavar="S,S,...",
                         help="blimp: the campaign's seeds (default 0,1,2,3,4; about 6 minutes a seed)")
+    add_cluster_arguments(parser, workers_flag="--cluster-workers",
+                          without="the seeds one after the other in this process; blimp only")
     parser.add_argument("--quick", action="store_true",
                         help="blimp: the short setup of every table (about a minute a seed; for checks)")
     parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (default 1000)")
@@ -68,6 +71,9 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
+    if args.paper != "blimp" and (args.scheduler is not None or args.cluster_workers is not None):
+        raise BadInputError("--scheduler and --cluster-workers apply to reproduce blimp only (its seeds run "
+                            "side by side)")
     if args.paper in ("rgblimp", "rgblimp-settings", "rgblimp-diagnose"):
         return _run_rgblimp(args)
     if args.data is not None or args.configurations is not None:
@@ -79,7 +85,16 @@ def run(args: argparse.Namespace) -> int:
         if args.seed is not None and args.seeds is not None:
             raise BadInputError("give --seed or --seeds, not both")
         seeds = (args.seed,) if args.seed is not None else args.seeds or DEFAULT_SEEDS
-        print(format_results(reproduce_blimp(args.out, seeds=seeds, quick=args.quick)))
+        if args.scheduler is None and args.cluster_workers is None:
+            results = reproduce_blimp(args.out, seeds=seeds, quick=args.quick)
+        else:
+            from validation.campaign.runner import map_on_dask
+
+            if args.cluster_workers is not None and args.cluster_workers < 1:
+                raise BadInputError(f"--cluster-workers must be at least 1, got {args.cluster_workers}")
+            results = reproduce_blimp(args.out, seeds=seeds, quick=args.quick, map_seeds=functools.partial(
+                map_on_dask, scheduler=args.scheduler, workers=args.cluster_workers, label="blimp seeds"))
+        print(format_results(results))
         print(f"written {args.out}/report.md, results.json and figures")
         return 0
     if args.paper == "blimp-settings":

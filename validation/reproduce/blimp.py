@@ -9,6 +9,7 @@ report.
 """
 from __future__ import annotations
 
+import functools
 import time as clock
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,7 +57,8 @@ def run_seed(seed: int, *, quick: bool = False, progress: bool = False) -> SeedR
     return SeedRun(seed, fitted, first, second, second_paths, third, third_paths)
 
 
-def reproduce_blimp(out_dir, *, seeds=DEFAULT_SEEDS, progress: bool = True, quick: bool = False) -> dict:
+def reproduce_blimp(out_dir, *, seeds=DEFAULT_SEEDS, progress: bool = True, quick: bool = False,
+                    map_seeds=None) -> dict:
     """Run Tables I, II and III for each seed; write ``results.json``, ``report.md``, the figures,
     and the first seed's RKGP model file ``blimp_rkgp.npz`` and its FMU to ``out_dir``.
 
@@ -73,6 +75,11 @@ def reproduce_blimp(out_dir, *, seeds=DEFAULT_SEEDS, progress: bool = True, quic
     quick : bool
         The ``QUICK_SETUP`` of each table (shorter flights, 20 start states, 20 samples, a short
         policy search; for tests) instead of the ``DEFAULT_SETUP``.
+    map_seeds : callable, optional
+        ``map_seeds(run, seeds) -> list`` of ``run(seed)`` in seed order, where the seeds run
+        elsewhere (``flightgp reproduce blimp --cluster-workers N`` maps them over a Dask
+        cluster: docs/campaigns.md); by default one after the other here. Each seed's numbers
+        depend on its seed alone, so where it runs changes nothing.
 
     Returns
     -------
@@ -84,12 +91,15 @@ def reproduce_blimp(out_dir, *, seeds=DEFAULT_SEEDS, progress: bool = True, quic
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be distinct and at least one, got {seeds}")
     started = clock.perf_counter()
-    runs = []
-    with progress_bar("blimp campaign", enabled=progress, total=len(seeds), unit="seed") as update:
-        for seed in seeds:
-            runs.append(run_seed(seed, quick=quick, progress=progress))
-            if update:
-                update(1)
+    if map_seeds is not None:
+        runs = list(map_seeds(functools.partial(run_seed, quick=quick), seeds))
+    else:
+        runs = []
+        with progress_bar("blimp campaign", enabled=progress, total=len(seeds), unit="seed") as update:
+            for seed in seeds:
+                runs.append(run_seed(seed, quick=quick, progress=progress))
+                if update:
+                    update(1)
     results = blimp_report.assemble_results(runs, quick=quick)
     results["fmu"] = _save_rkgp_model(out_dir, runs[0].fitted)
     figures = {"table1.png": blimp_report.table1_figure(results),

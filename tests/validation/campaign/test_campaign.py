@@ -239,6 +239,23 @@ def test_the_cluster_options_are_checked_before_anything_runs(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_independent_runs_map_over_the_cluster_in_order_and_a_runs_error_is_raised(cluster, tmp_path, capsys):
+    """What `flightgp reproduce blimp --seeds ... --cluster-workers N` spreads its seeds with
+    (map_on_dask): results in the items' order whichever worker finishes first, and a run that
+    raises raises its own error, as in this process. The option is refused where it does not
+    apply, before anything runs."""
+    import math
+
+    from validation.campaign.runner import map_on_dask
+
+    assert map_on_dask(math.factorial, [5, 3, 0, 4, 6], scheduler=cluster, progress=False) == [120, 6, 1, 24, 720]
+    with pytest.raises(ValueError, match="math domain error"):
+        map_on_dask(math.sqrt, [4.0, -1.0], scheduler=cluster, progress=False)
+    assert main(["reproduce", "bo105", "--out", str(tmp_path / "out"), "--cluster-workers", "2"]) == 2
+    assert "apply to reproduce blimp only" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_the_example_specs_expand_as_documented():
     montecarlo = read_spec(ROOT / "examples" / "campaigns" / "bo105_montecarlo.json")
     assert len(montecarlo.tasks) == 200 and montecarlo.files["reference:bo105-80kt"].reference == "bo105-80kt"
