@@ -200,6 +200,11 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         name = finding["output"]
         text = (f"The {column_phrase(name)} sensor reads {_number(abs(value))} {unit} "
                 f"{interval} {'high' if value > 0 else 'low'}: a sensor bias on {name}.")
+    elif kind == "nonlinear_damping":
+        term = finding["term"]
+        text = (f"The {reference.term_description(term)}: {term} = {_number(value)} {unit} {interval}, a term "
+                "the linear model does not have. The damping grows with the rate's size, so the large "
+                "excursions are damped more than any linear derivative can damp them.")
     else:
         term, model_value = finding["term"], finding["model_value"]
         description = reference.term_description(term)

@@ -18,7 +18,15 @@ How each effect enters ``x_dot = A x + B u``:
   ``Gamma_b = int_0^{(1-f)h} e^{As} ds b_j`` and ``Gamma_a = e^{A(1-f)h} int_0^{fh} e^{As} ds b_j``
   (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
   The result is exact and continuous in ``tau``, which a fit needs;
-- ``sensor_bias`` adds a constant to a recorded output.
+- ``sensor_bias`` adds a constant to a recorded output;
+- ``nonlinear_damping`` ``<row>_<s>|<s>|`` adds ``c s |s|`` to the derivative of the row's
+  state, ``s`` that state itself (``M_q|q|``: a pitch moment per unit inertia quadratic in the
+  pitch rate, as blade stall or a fuselage's cross-flow drag make it; Padfield, *Helicopter
+  Flight Dynamics*, 2nd ed., 2007, ch. 4 on where the linear derivatives stop holding). The term
+  enters through the same exact discretisation as an input, held over each sample interval at
+  its mean of the interval's two ends (Heun's predictor-corrector: ``x[k+1] = Phi x[k] +
+  Gamma u[k] + Gamma_c c (s[k]|s[k]| + s'|s'|) / 2`` with ``s'`` the end predicted with the
+  start's term), so the replay runs step by step; its error is second order in the step.
 
 Replays are one exact discretisation each (milliseconds), so they are not batched, and they
 need evenly sampled recordings (one step).
@@ -81,7 +89,9 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
         The states as recorded, in ``reference.state_names`` order.
     """
     time, inputs, step = check_history(time, inputs, reference.input_names)
-    derivatives = {e["term"]: e["value"] for e in effects if "term" in e}
+    derivatives = {e["term"]: e["value"] for e in effects
+                   if e["effect"] in ("control_derivative", "stability_derivative")}
+    damping = [(e["term"], e["value"]) for e in effects if e["effect"] == "nonlinear_damping" and e["value"] != 0]
     model = reference.with_derivatives(derivatives) if derivatives else reference
     A, B = model.A, model.B
     n_states, n_inputs = B.shape
@@ -112,12 +122,62 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
             if fraction > 1e-12 else np.zeros(size)
         forcing += np.outer(_delayed(held[:, column], whole), gamma_late)
         forcing += np.outer(_delayed(held[:, column], whole + 1), gamma_early)
-    states = propagate(Phi, forcing, np.zeros(size))[:, :n_states]
+    if damping:
+        states = _propagate_with_damping(reference, damping, F, step, Phi, forcing)[:, :n_states]
+    else:
+        states = propagate(Phi, forcing, np.zeros(size))[:, :n_states]
     for effect in effects:
         if effect["effect"] == "sensor_bias":
             states[:, reference.state_names.index(effect["output"])] += effect["value"]
     return states
 
+
+
+def nonlinear_damping_term(letter: str, state: str) -> str:
+    """The name of the nonlinear damping term of derivative row ``letter`` in ``state``:
+    ``"M_q|q|"``."""
+    return f"{letter}_{state}|{state}|"
+
+
+def _damping_rows(reference: LinearReference, term: str) -> tuple[int, int]:
+    """``(row, source)``: the state whose derivative a nonlinear damping term enters and the
+    state it is quadratic in."""
+    letter, _, rest = term.partition("_")
+    state = rest.split("|")[0]
+    return reference.state_names.index(reference.row_letters[letter]), reference.state_names.index(state)
+
+
+def _propagate_with_damping(reference: LinearReference, damping, F, step: float, Phi, forcing) -> np.ndarray:
+    """``x[k+1] = Phi x[k] + forcing[k] + sum_i Gamma_i c_i m_i[k]`` from trim, shape (n, size),
+    ``m_i[k]`` the mean of ``s_i |s_i|`` at the interval's start and its predicted end (module
+    docstring): ``Gamma_i`` the exact zero-order-hold response of the augmented system ``F`` to a
+    unit rate on term i's row."""
+    rows = [_damping_rows(reference, term) for term, _ in damping]
+    unit = np.zeros((len(F), len(rows)))
+    for i, (row, _) in enumerate(rows):
+        unit[row, i] = 1.0
+    Gamma_c = zero_order_hold(F, unit, step)[1] * np.array([value for _, value in damping])
+    sources = [source for _, source in rows]
+    states = np.zeros((len(forcing) + 1, len(F)))
+    if len(rows) == 1:  # the usual case, in Python floats where numpy's per-call cost would dominate
+        source, gamma = sources[0], Gamma_c[:, 0]
+        gamma_source = float(gamma[source])
+        for k in range(len(forcing)):
+            linear = Phi @ states[k] + forcing[k]
+            s = float(states[k, source])
+            start = s * abs(s)
+            predicted = float(linear[source]) + gamma_source * start  # Heun: the term's mean over the interval
+            states[k + 1] = linear + gamma * (0.5 * (start + predicted * abs(predicted)))
+        return states
+    x = states[0]
+    for k in range(len(forcing)):
+        linear = Phi @ x + forcing[k]
+        s = x[sources]
+        start = s * np.abs(s)
+        predicted = (linear + Gamma_c @ start)[sources]  # Heun: the term's mean over the interval
+        x = linear + Gamma_c @ (0.5 * (start + predicted * np.abs(predicted)))
+        states[k + 1] = x
+    return states
 
 
 class LinearEffects:
@@ -140,7 +200,8 @@ class LinearEffects:
     """
 
     family = "state-space"
-    kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias")
+    kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
+             "nonlinear_damping")
     batches_simulations = False
     absolute_inputs = False
     needs_even_sampling = True
@@ -155,16 +216,22 @@ class LinearEffects:
         self.residual_gp_states = reference.state_names
         letters = reference.row_letters
         self.terms = {"control_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.input_names),
-                      "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names)}
+                      "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names),
+                      "nonlinear_damping": tuple(nonlinear_damping_term(a, s) for a, s in letters.items())}
         self.sensor_noise_sd = dict.fromkeys(reference.state_names, 0.0)
 
     def model_value(self, term: str) -> float:
-        return self.reference.derivative(term)
+        """A derivative's value; 0 for a nonlinear damping term (the model is linear)."""
+        return 0.0 if term.endswith("|") else self.reference.derivative(term)
 
     def term_unit(self, term: str) -> str:
-        """(row rate)/(column unit), ``1/s`` when they cancel (``M_q``): ``(rad/s^2)/(rad)``."""
+        """(row rate)/(column unit), ``1/s`` when they cancel (``M_q``): ``(rad/s^2)/(rad)``; a
+        nonlinear damping term per squared state unit: ``(rad/s^2)/(rad/s)^2`` for ``M_q|q|``."""
         letter, _, column = term.partition("_")
         units = self.reference.units
+        if term.endswith("|"):
+            row_unit, state_unit = units[self.reference.row_letters[letter]], units[column.split("|")[0]]
+            return f"({_ACCELERATION_UNITS.get(row_unit, row_unit + '/s')})/({state_unit})^2"
         row_unit, column_unit_ = units[self.reference.row_letters[letter]], units[column]
         if row_unit == column_unit_:
             return "1/s"
@@ -176,6 +243,10 @@ class LinearEffects:
         if term in DERIVATIVE_NAMES:
             return DERIVATIVE_NAMES[term]
         letter, _, column = term.partition("_")
+        if term.endswith("|") and letter in _ROW_WORDS:
+            state = column.split("|")[0]
+            return (f"{_ROW_WORDS[letter]} proportional to {state}|{state}| (damping that grows with "
+                    f"{column_phrase(state)})")
         if letter in _ROW_WORDS and column in self.state_names + self.input_names:
             return f"{_ROW_WORDS[letter]} due to {column_phrase(column)}"
         return term
@@ -187,7 +258,8 @@ class LinearEffects:
     def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
         """Every control derivative of an excited input and every stability derivative (each
         derivative row x every state, off-axis couplings included), unbounded; screening step 5 % of the value, at
-        least 1 % of the row's largest entry (so that zero entries move too) and 1e-6."""
+        least 1 % of the row's largest entry (so that zero entries move too) and 1e-6. Then each
+        row's nonlinear damping term (``M_q|q|``), null 0, unbounded."""
         hypotheses = []
         A, B = self.reference.A, self.reference.B
         for letter, row_state in self.reference.row_letters.items():
@@ -202,6 +274,11 @@ class LinearEffects:
                     step = 0.05 * max(abs(value), 0.01 * typical, 1e-6)
                     hypotheses.append(Hypothesis(kind, f"{letter}_{column_name}", float(value),
                                                  -math.inf, math.inf, step))
+            # c s|s| beside the linear damping A_rr s: a step of |A_rr| 1/(state unit) moves the
+            # row's rate by |A_rr| s^2, 5 % of the linear term where |s| = 0.05 (a rate of 3 deg/s).
+            damping = abs(A[row, row])
+            hypotheses.append(Hypothesis("nonlinear_damping", nonlinear_damping_term(letter, row_state), 0.0,
+                                         -math.inf, math.inf, max(damping, 1e-3)))
         return hypotheses
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
