@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 import time as clock
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
@@ -76,7 +76,7 @@ class ConcealedCase:
     ----------
     name : str
         Short identifier, e.g. ``"delay-theta_1s-60ms"``.
-    kind : {"single", "pair", "none", "outside"}
+    kind : {"single", "pair", "none", "outside", "ambiguous"}
     effects : tuple of dict
         The named effects applied (the truth), in the shape of diagnosis findings; empty for
         ``none`` and ``outside``.
@@ -89,6 +89,9 @@ class ConcealedCase:
         than the one diagnose replays it with).
     description : str
         One line for the scorecard.
+    fit_variant : int
+        The identification manoeuvre's variant the diagnosed recording flies (0; the Bo105's 2
+        flies the longitudinal-cyclic 3-2-1-1 at two amplitudes). The held-out one flies 1.
     """
 
     name: str
@@ -96,6 +99,7 @@ class ConcealedCase:
     effects: tuple = ()
     outside: tuple | None = None
     description: str = ""
+    fit_variant: int = 0
 
 
 def _single_case(effect: dict, name: str, description: str) -> ConcealedCase:
@@ -209,8 +213,14 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                         "value": reference.model_value("M_q") * 0.7}),
                       description="80 ms lag on theta_1c and M_q -30 %"),
         ConcealedCase("none", "none", description="the reference itself, with sensor noise"),
-        ConcealedCase("outside-dead-band", "outside", outside=("dead_band", "theta_1s", math.radians(0.3)),
-                      description="+/-0.3 deg dead band on longitudinal cyclic (not a named effect)"),
+        # A dead band of 30 % of the 1 deg steps: on one amplitude it is exactly a lower control
+        # derivative (the honest answer says so); flown at 1 and 2 deg it must be named.
+        ConcealedCase("dead-band-theta_1s-one-amplitude", "ambiguous",
+                      ({"effect": "dead_band", "input": "theta_1s", "value": math.radians(0.3)},),
+                      description="+/-0.3 deg dead band on longitudinal cyclic, 1 deg steps only"),
+        ConcealedCase("dead-band-theta_1s-two-amplitudes", "single",
+                      ({"effect": "dead_band", "input": "theta_1s", "value": math.radians(0.3)},),
+                      description="+/-0.3 deg dead band on longitudinal cyclic, 1 and 2 deg steps", fit_variant=2),
         # Flown by RK4 of x_dot = A x + B u + e_q c q|q| (outside), not by the replay diagnose
         # fits with: the named effect must be found in a flight its own discretisation did not make.
         ConcealedCase("quadratic-damping-M_q|q|", "single",
@@ -259,16 +269,16 @@ def diagnosed_truth(case: ConcealedCase, model: EffectModel) -> ConcealedCase:
             effect = {"effect": "fmu_parameter", "term": effect["term"], "value": effect["value"]}
         elif kind not in model.kinds or effect[TARGET_KEYS[kind]] not in _targets(model, kind):
             if case.outside is not None:  # flown apart from the effects: outside this model's list
-                return ConcealedCase(case.name, "outside", (), case.outside,
-                                     f"{case.description} (not a named effect of {model.name})")
+                return replace(case, kind="outside", effects=(),
+                               description=f"{case.description} (not a named effect of {model.name})")
             raise BadInputError(f"case {case.name}: {model.name} cannot name {kind} "
                                 f"{effect[TARGET_KEYS[kind]]}")
         effects.append(effect)
     if case.outside and case.outside[0] == "dead_band" and "dead_band" in model.kinds:
         effect = {"effect": "dead_band", "input": case.outside[1], "value": case.outside[2]}
-        return ConcealedCase(case.name, "single", (effect,), description=case.description.replace(
-            " (not a named effect)", ""))
-    return ConcealedCase(case.name, case.kind, tuple(effects), case.outside, case.description)
+        return replace(case, kind="single", effects=(effect,), outside=None,
+                       description=case.description.replace(" (not a named effect)", ""))
+    return replace(case, effects=tuple(effects))
 
 
 def _targets(model: EffectModel, kind: str) -> tuple:
@@ -320,7 +330,7 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
     reference = effect_model(reference, purpose="diagnose-bench")
     vehicle = EffectVehicle(reference, case.effects, noise_sd=reference.sensor_noise_sd)
     recordings = []
-    for variant in (0, 1):
+    for variant in (case.fit_variant, 1):
         time, inputs = reference.identification_manoeuvre(duration=duration, sample_time=reference.sample_time,
                                                           variant=variant)
         if case.outside is None:
@@ -387,6 +397,12 @@ def _quadratic_pitch_damping_states(reference: str, coefficient: float, time, in
     return states
 
 
+#: Confidence above which a finding counts as certain: a false finding above it fails an
+#: ``ambiguous`` case (the data cannot tell the truth from its alternative, so neither may be
+#: stated as near-certain).
+AMBIGUOUS_CONFIDENCE = 0.9
+
+
 @dataclass
 class CaseScore:
     """The scorecard row of one case (module docstring)."""
@@ -402,6 +418,8 @@ class CaseScore:
     false_findings: list = field(default_factory=list)
     says_unexplained: bool = False
     seconds: float = 0.0
+    certain_false: list = field(default_factory=list)
+    offered: set = field(default_factory=set)
 
     @property
     def cut(self) -> float | None:
@@ -416,6 +434,8 @@ class CaseScore:
             return not self.found
         if kind == "outside":
             return self.says_unexplained
+        if kind == "ambiguous":  # the truth named or offered as an alternative, nothing false certain
+            return not self.certain_false and self.offered == {_target(e) for e in self.case.effects}
         return (self.named and self.in_interval and not self.false_findings
                 and self.cut is not None and self.cut >= REQUIRED_CUT)
 
@@ -427,6 +447,7 @@ class CaseScore:
                 "rmse_corrected": self.rmse_corrected, "rmse_corrected_gp": self.rmse_corrected_gp,
                 "cut": self.cut, "false_findings": self.false_findings,
                 "says_unexplained": self.says_unexplained, "seconds": self.seconds,
+                "certain_false": self.certain_false, "offered": sorted(" ".join(key) for key in self.offered),
                 "passed": self.passed}
 
 
@@ -467,7 +488,11 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
             matched[key] = finding
         else:
             score.false_findings.append(f"{key[0]} {key[1]}")
-    if case.kind != "outside":
+            if finding.get("confidence", 1.0) > AMBIGUOUS_CONFIDENCE:
+                score.certain_false.append(f"{key[0]} {key[1]}")
+        offered = [_target(alternative) for alternative in finding.get("alternatives") or []]
+        score.offered.update(key for key in [_target(finding)] + offered if key in truth)
+    if case.kind not in ("outside", "ambiguous"):
         # An unexplained residual next to the true effects is a false finding too.
         score.false_findings += [f"unexplained {f['output']}" for f in findings if f["effect"] == "unexplained"]
     if truth:

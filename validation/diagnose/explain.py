@@ -64,6 +64,8 @@ _TIMING_STEP = 0.01
 #: Screening step of a dead band, a fraction of the input's largest excursion from its start in
 #: the fitted data: small enough that one Gauss-Newton step stays near linear.
 _DEAD_BAND_STEP = 0.05
+#: Screening step of an input gain: 5 %, as an FMU parameter's.
+_GAIN_STEP = 0.05
 
 
 @dataclass
@@ -216,7 +218,8 @@ def _describe_rejected(rejected: dict | None) -> dict | None:
 def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd,
                    excursions=None) -> list[Hypothesis]:
     """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``), a lag (up to
-    ``MAX_LAG``) and a dead band (up to the input's largest excursion) on each excited input, the
+    ``MAX_LAG``), a dead band (up to the input's largest excursion) and a gain (null 1, at least
+    0, screened at :data:`_GAIN_STEP`) on each excited input, the
     reference's term hypotheses, a bias on each measured output (each kind where the reference
     takes it, :attr:`EffectModel.kinds`).
 
@@ -232,6 +235,7 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
             excursion = (excursions or {}).get(name, 0.0)
             if excursion > 0:
                 hypotheses.append(Hypothesis("dead_band", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
+            hypotheses.append(Hypothesis("input_gain", name, 1.0, 0.0, math.inf, _GAIN_STEP))
     hypotheses += reference.term_hypotheses(excited_inputs)
     for name in output_names:
         hypotheses.append(Hypothesis("sensor_bias", name, 0.0, -math.inf, math.inf, float(noise_sd[name])))

@@ -219,7 +219,28 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         target = alternative[TARGET_KEYS[alternative["effect"]]]
         text += (f" Next best: {alternative['effect'].replace('_', ' ')} on {target} "
                  f"({_number(alternative['value'])}), which the data disfavour {alternative['evidence_ratio']:.3g}:1.")
+        text += _amplitude_advice(finding, alternative)
     return text + _improvement(finding, fit) + _replication_words(finding)
+
+
+#: Evidence ratio below which a dead band and a gain on the same input are stated as
+#: indistinguishable (Jeffreys' "barely worth mentioning", 10^(1/2); Kass & Raftery, JASA 1995).
+INDISTINGUISHABLE = 10 ** 0.5
+
+
+def _amplitude_advice(finding: dict, alternative: dict) -> str:
+    """What the data cannot tell apart and the manoeuvre that would: a dead band and a gain on
+    the same input whose evidence ratio is under :data:`INDISTINGUISHABLE` (on an input that
+    moves between trim and one amplitude, a dead band of ``w`` on steps of ``A`` is a gain of
+    ``1 - w/A``); empty otherwise."""
+    kinds = {finding["effect"], alternative["effect"]}
+    if kinds != {"dead_band", "input_gain"} or finding.get("input") != alternative.get("input") \
+            or not alternative["evidence_ratio"] < INDISTINGUISHABLE:
+        return ""
+    name = finding["input"]
+    return (f" These data cannot tell a dead band on {name} from a lower gain: the input moves between trim and "
+            f"one amplitude only, where a dead band of w on steps of A is a gain of 1 - w/A. Repeat the manoeuvre "
+            f"on {name} at twice the amplitude to tell them apart (a dead band costs the larger steps less).")
 
 
 def _replication_words(finding: dict) -> str:

@@ -33,7 +33,10 @@ def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = 0.0
         s; manoeuvres that do not fit in ``duration`` are cut off.
     variant : int
         0: 1 deg, 0.4/0.3 s steps (for fitting); 1: 1.5 deg, 0.3/0.5 s steps, signs reversed,
-        pedal before lateral cyclic (a different manoeuvre, for held-out data).
+        pedal before lateral cyclic (a different manoeuvre, for held-out data); 2: variant 0 with
+        the longitudinal-cyclic 3-2-1-1 flown again at twice the amplitude from 16.5 s, so that
+        an amplitude-dependent response (a dead band) is told from a linear one (a lower control
+        derivative), which one amplitude cannot.
 
     Returns
     -------
@@ -45,8 +48,10 @@ def identification_manoeuvre(*, duration: float = 20.0, sample_time: float = 0.0
     inputs = np.zeros((len(time), len(INPUT_NAMES)))
     degree = math.radians(1.0)
     column = {name: INPUT_NAMES.index(name) for name in INPUT_NAMES}
-    if variant == 0:
+    if variant in (0, 2):
         inputs[:, column["theta_1s"]] = three_two_one_one(time, amplitude=degree, step_time=0.4, start=1.0)
+        if variant == 2:
+            inputs[:, column["theta_1s"]] += three_two_one_one(time, amplitude=2 * degree, step_time=0.4, start=16.5)
         inputs[:, column["theta_1c"]] = three_two_one_one(time, amplitude=degree, step_time=0.3, start=6.0)
         inputs[:, column["theta_0T"]] = doublet(time, amplitude=degree, step_time=0.5, start=10.0)
         inputs[:, column["theta_0"]] = doublet(time, amplitude=degree, step_time=0.5, start=14.0)

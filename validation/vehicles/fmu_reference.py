@@ -412,10 +412,10 @@ class FMUEffects:
         return None
 
     def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
-        """A gain on each excited input and a scale on each output (null 1, positive, step 5 %),
-        and every parameter (step 5 % of its value, 1e-3 where it is zero)."""
-        hypotheses = [Hypothesis("input_gain", name, 1.0, 0.0, math.inf, 0.05) for name in excited_inputs]
-        hypotheses += [Hypothesis("output_scale", name, 1.0, 0.0, math.inf, 0.05) for name in self.state_names]
+        """A scale on each output (null 1, positive, step 5 %) and every parameter (step 5 % of
+        its value, 1e-3 where it is zero); the gain on each excited input is diagnose's
+        (:func:`validation.diagnose.explain.hypotheses_for`)."""
+        hypotheses = [Hypothesis("output_scale", name, 1.0, 0.0, math.inf, 0.05) for name in self.state_names]
         hypotheses += [Hypothesis("fmu_parameter", name, value, -math.inf, math.inf, max(0.05 * abs(value), 1e-3))
                        for name, (value, _, _) in self.reference.parameters.items()]
         return hypotheses

@@ -19,6 +19,12 @@ How each effect enters ``x_dot = A x + B u``:
   (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
   The result is exact and continuous in ``tau``, which a fit needs;
 - ``sensor_bias`` adds a constant to a recorded output;
+- ``dead_band`` on input ``j``: the input passes through a dead band (free play) of the given
+  half-width about trim (:func:`validation.vehicles.effects.dead_band_inputs`) before it acts;
+  ``input_gain``: the input acts ``gain`` times as strongly (a gearing or control-effectiveness
+  error: every control derivative of the input scaled at once). On a manoeuvre that moves an
+  input between trim and one amplitude only, the two are the same effect (a dead band of
+  half-width ``w`` on steps of ``A`` is a gain of ``1 - w/A``); two amplitudes tell them apart;
 - ``nonlinear_damping`` ``<row>_<s>|<s>|`` adds ``c s |s|`` to the derivative of the row's
   state, ``s`` that state itself (``M_q|q|``: a pitch moment per unit inertia quadratic in the
   pitch rate, as blade stall or a fuselage's cross-flow drag make it; Padfield, *Helicopter
@@ -40,7 +46,13 @@ import numpy as np
 from validation.core.manoeuvres import three_two_one_one, time_grid
 from validation.core.recordings import column_phrase
 from validation.core.sampling import check_history
-from validation.vehicles.effects import Hypothesis, check_trim_start, simulate_each_recording, starts_at_trim
+from validation.vehicles.effects import (
+    Hypothesis,
+    check_trim_start,
+    dead_band_inputs,
+    simulate_each_recording,
+    starts_at_trim,
+)
 from validation.vehicles.linear_discretisation import zero_order_hold
 from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME, LinearReference, propagate
 
@@ -111,6 +123,16 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
         G[extra, column] = 1.0 / time_constant
     Phi, Gamma = zero_order_hold(F, G, step)
     held = inputs[:-1]
+    bands = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
+             if e["effect"] == "dead_band" and e["value"] > 0]
+    gains = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
+             if e["effect"] == "input_gain" and e["value"] != 1.0]
+    if bands or gains:  # dead bands about trim (0): the inputs are perturbations from it
+        held = held.copy()
+        for column, half_width in bands:
+            held[:, column] = dead_band_inputs(held[:, column], half_width)
+        for column, gain in gains:
+            held[:, column] *= gain
     undelayed = [column for column in range(n_inputs) if column not in delays]
     forcing = held[:, undelayed] @ Gamma[:, undelayed].T
     for column, delay in delays.items():
@@ -201,7 +223,7 @@ class LinearEffects:
 
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-             "nonlinear_damping")
+             "nonlinear_damping", "dead_band", "input_gain")
     batches_simulations = False
     absolute_inputs = False
     needs_even_sampling = True
@@ -258,7 +280,7 @@ class LinearEffects:
     def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
         """Every control derivative of an excited input and every stability derivative (each
         derivative row x every state, off-axis couplings included), unbounded; screening step 5 % of the value, at
-        least 1 % of the row's largest entry (so that zero entries move too) and 1e-6. Then each
+        least 1 % of the row's largest entry (so that zero entries move too) and 1e-6; each
         row's nonlinear damping term (``M_q|q|``), null 0, unbounded."""
         hypotheses = []
         A, B = self.reference.A, self.reference.B

@@ -32,8 +32,8 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
     cases = concealed_cases(reference="bo105-80kt")
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-                     "nonlinear_damping"}
-    assert {case.kind for case in cases} == {"single", "pair", "none", "outside"}
+                     "nonlinear_damping", "dead_band"}
+    assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous"}
     assert len({case.name for case in cases}) == len(cases)
     for case in cases:
         for effect in case.effects:
@@ -44,6 +44,8 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                 assert value >= 0.05
             elif kind == "sensor_bias":
                 assert abs(value) >= 3 * SENSOR_NOISE_STD[effect["output"]] - 1e-15
+            elif kind == "dead_band":  # 10-30 % of the manoeuvre's 1 deg steps
+                assert math.radians(0.1) <= value <= math.radians(0.3) + 1e-15
             elif kind == "nonlinear_damping":  # the peak pitch rate of the manoeuvre changes by >= 20 %
                 time, inputs = identification_manoeuvre(duration=20.0, sample_time=0.01)
                 q = STATE_NAMES.index("q")
@@ -87,8 +89,10 @@ def test_outside_effects_change_the_flight_and_the_quadratic_integrator_is_accur
     damped = _quadratic_pitch_damping_states("bo105-80kt", -40.0, time, inputs)
     q = STATE_NAMES.index("q")
     assert np.abs(damped[:, q]).max() < 0.9 * np.abs(reference[:, q]).max()
-    for case in concealed_cases():
-        if case.kind == "outside":
+    flown_apart = [case for case in concealed_cases() if case.outside is not None]
+    assert flown_apart  # the quadratic damping, flown by RK4
+    for case in flown_apart:
+        if case.outside is not None:
             recordings = case_recordings(case)
             replay = Bo105Reference(80).simulate_states(recordings.holdout.time, recordings.holdout.inputs)
             assert np.abs(recordings.truth_states - replay)[:, q].max() > 10 * SENSOR_NOISE_STD["q"], case.name
@@ -112,6 +116,64 @@ def test_the_nonlinear_damping_replay_follows_rk4_of_the_continuous_model():
     assert "M_q|q|" in model.terms["nonlinear_damping"] and model.model_value("M_q|q|") == 0.0
     assert model.term_unit("M_q|q|") == "(rad/s^2)/(rad/s)^2"
     assert model.term_description("M_q|q|").startswith("pitch moment proportional to q|q|")
+
+
+def test_a_dead_band_is_a_gain_on_one_amplitude_and_not_on_two():
+    """bo105-80kt takes dead bands and input gains. On the identification manoeuvre (theta_1s
+    between trim and 1 deg only) a dead band of w is a gain of 1 - w/A, to rounding; on variant 2
+    (the same 3-2-1-1 again at 2 deg) it is not: the data can then tell them apart."""
+    from validation.vehicles.effect_vehicle import effect_model
+
+    model = effect_model("bo105-80kt", purpose="test")
+    assert {"dead_band", "input_gain"} <= set(model.kinds)
+    width, amplitude = math.radians(0.3), math.radians(1.0)
+    band = {"effect": "dead_band", "input": "theta_1s", "value": width}
+    gain = {"effect": "input_gain", "input": "theta_1s", "value": 1 - width / amplitude}
+    one = model.simulate_many([[band], [gain], []], *identification_manoeuvre(duration=20.0, sample_time=0.01))
+    scale = np.abs(one[2]).max(axis=0)
+    assert np.all(np.abs(one[0] - one[1]).max(axis=0) <= 1e-12 * scale)
+    assert np.abs(one[0] - one[2]).max() > 100 * np.abs(one[0] - one[1]).max()  # the dead band acts
+    two = model.simulate_many([[band], [gain]], *identification_manoeuvre(duration=20.0, sample_time=0.01,
+                                                                            variant=2))
+    q = STATE_NAMES.index("q")
+    assert np.abs(two[0] - two[1])[:, q].max() > 5 * SENSOR_NOISE_STD["q"]
+
+
+def test_an_ambiguous_case_passes_when_the_truth_is_offered_and_nothing_false_is_certain(delay_case):
+    """A dead band flown on one amplitude: naming it, or naming the gain it cannot be told from
+    with the dead band as the alternative and a confidence of at most 0.9, passes; the gain stated
+    with confidence 0.95, or without the dead band offered, fails."""
+    _, holdout, truth = delay_case
+    case = ConcealedCase("a", "ambiguous", ({"effect": "dead_band", "input": "theta_1s", "value": 0.005},))
+    band = {"effect": "dead_band", "input": "theta_1s", "value": 0.005, "interval": [0.004, 0.006],
+            "confidence": 0.5, "alternatives": [{"effect": "input_gain", "input": "theta_1s", "value": 0.7,
+                                                 "evidence_ratio": 1.0}]}
+    gain = {"effect": "input_gain", "input": "theta_1s", "value": 0.7, "interval": [0.69, 0.71], "confidence": 0.5,
+            "alternatives": [{"effect": "dead_band", "input": "theta_1s", "value": 0.005, "evidence_ratio": 1.0}]}
+
+    def passes(findings):
+        return score_case(case, _diagnosis(findings), truth_states=truth, holdout=holdout, reference="bo105-80kt",
+                          seconds=0.0).passed
+
+    assert passes([band]) and passes([gain])
+    assert not passes([{**gain, "confidence": 0.95}])
+    assert not passes([{**gain, "alternatives": []}])
+
+
+def test_the_statement_says_what_one_amplitude_cannot_tell_and_what_would():
+    from validation.diagnose.report import statement
+    from validation.vehicles.effect_vehicle import effect_model
+
+    reference = effect_model("bo105-80kt", purpose="test")
+    finding = {"effect": "dead_band", "input": "theta_1s", "value": 0.0052, "interval": [0.0051, 0.0053],
+               "unit": "rad", "confidence": 0.5,
+               "alternatives": [{"effect": "input_gain", "input": "theta_1s", "value": 0.7, "evidence_ratio": 1.0}]}
+    fit = {"rmse_reference": {}}
+    text = statement(finding, fit, reference)
+    assert "cannot tell a dead band on theta_1s from a lower gain" in text
+    assert "at twice the amplitude" in text
+    far = {**finding, "alternatives": [{**finding["alternatives"][0], "evidence_ratio": 50.0}]}
+    assert "cannot tell" not in statement(far, fit, reference)
 
 
 def _diagnosis(findings, rmse=(0.02, 0.004, 0.004)):
@@ -263,8 +325,8 @@ def bo105_fmu(tmp_path_factory):
 
 
 def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, tmp_path):
-    """Through the Bo105 reference FMU a derivative is the FMU parameter of the same name and the
-    dead band outside bo105-80kt's list is a named dead band; through a state-space JSON of the
+    """Through the Bo105 reference FMU a derivative is the FMU parameter of the same name and a
+    dead band stays a dead band; through a state-space JSON of the
     same model every case is unchanged; an effect the diagnosing reference cannot name is an
     outside case where the case is flown apart from its effects, else a BadInputError."""
     from validation.core.errors import BadInputError
@@ -276,9 +338,8 @@ def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, 
     pair = diagnosed_truth(cases["pair-lag+M_q"], through_fmu)
     assert pair.kind == "pair" and [e["effect"] for e in pair.effects] == ["input_lag", "fmu_parameter"]
     assert pair.effects[1]["term"] == "M_q" and pair.effects[1]["value"] == cases["pair-lag+M_q"].effects[1]["value"]
-    dead_band = diagnosed_truth(cases["outside-dead-band"], through_fmu)
-    assert dead_band.kind == "single" and dead_band.effects == (
-        {"effect": "dead_band", "input": "theta_1s", "value": math.radians(0.3)},)
+    dead_band = diagnosed_truth(cases["dead-band-theta_1s-one-amplitude"], through_fmu)
+    assert dead_band == cases["dead-band-theta_1s-one-amplitude"]  # the FMU takes dead bands too
     # The quadratic damping is a named effect of bo105-80kt but not of the FMU; it is flown by
     # RK4 apart from its effects, so through the FMU it is an outside case.
     damping = diagnosed_truth(cases["quadratic-damping-M_q|q|"], through_fmu)

@@ -196,23 +196,22 @@ def test_an_effect_that_does_not_carry_over_to_the_held_out_flight_is_flagged():
 
 
 @pytest.mark.slow
-def test_a_dead_band_the_named_effects_only_mimic_is_unexplained_on_held_out_data():
-    """A +/-0.3 deg dead band on longitudinal cyclic is not a named effect. On the diagnosed
-    manoeuvre control-derivative changes fit it to the noise; the held-out manoeuvre (other
-    amplitudes) shows they only mimic it, so diagnose says `unexplained` there."""
+def test_a_dead_band_flown_at_one_amplitude_is_not_stated_with_certainty_and_the_remedy_is_said():
+    """A +/-0.3 deg dead band on longitudinal cyclic, flown with the manoeuvre's 1 deg steps only:
+    there it is exactly a gain of 0.7 on the input. diagnose names one of the two with the other
+    as the alternative at even odds (confidence at most 0.9, measured 0.5) and says which
+    manoeuvre tells them apart."""
     from validation.diagnose.bench import case_recordings, concealed_cases
 
-    case = next(c for c in concealed_cases() if c.name == "outside-dead-band")
+    case = next(c for c in concealed_cases() if c.name == "dead-band-theta_1s-one-amplitude")
     recordings = case_recordings(case, seed=0)
     result = diagnose([recordings.fit], reference="bo105-80kt", holdout=[recordings.holdout]).as_dict()
-    held_out = {f["output"]: f for f in result["findings"]
-                if f["effect"] == "unexplained" and f["data"] == "holdout"}
-    assert "theta" in held_out
-    theta = held_out["theta"]
-    # Measured (seed 0): fitted to 1.08x the noise, held out 5.3x.
-    assert theta["fit_noise_ratio"] < 1.2 < theta["noise_ratio"]
-    assert theta["value"] == result["fit"]["rmse_corrected"]["theta"]
-    assert "held-out pitch angle" in theta["statement"] and "unexplained" in theta["statement"]
+    first = result["findings"][0]
+    pair = {"dead_band", "input_gain"}
+    assert first["effect"] in pair and first["input"] == "theta_1s" and first["confidence"] <= 0.9
+    alternative = first["alternatives"][0]
+    assert {first["effect"], alternative["effect"]} == pair and alternative["input"] == "theta_1s"
+    assert "at twice the amplitude" in first["statement"]
 
 
 def test_noise_excess_needs_both_the_chi_squared_test_and_the_ratio():
