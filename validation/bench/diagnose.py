@@ -41,8 +41,13 @@ def run(*, seed: int = 0, cases=None, fmu_cases=FMU_CASES, progress: bool = True
     from validation.diagnose.bench import DURATION, concealed_cases, run_bench
     from validation.vehicles.fmu_reference import available_cores
 
-    cases = [case for case in concealed_cases() if cases is None or case.name in cases]
-    through_fmu = [case for case in concealed_cases() if case.name in fmu_cases]
+    suite = concealed_cases()
+    unknown = sorted(set(cases or ()).union(fmu_cases) - {case.name for case in suite})
+    if unknown:
+        raise ValueError(f"bench diagnose: no case {', '.join(unknown)} in the Bo105 suite "
+                         f"({', '.join(case.name for case in suite)})")
+    cases = [case for case in suite if cases is None or case.name in cases]
+    through_fmu = [case for case in suite if case.name in fmu_cases]
     with progress_bar("bench diagnose", enabled=progress, total=len(cases) + len(through_fmu),
                       unit="case") as update:
         report = run_bench(cases, seed=seed, duration=DURATION, progress=update)

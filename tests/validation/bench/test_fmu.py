@@ -7,7 +7,10 @@ import pytest
 from validation.bench import fmu
 
 
-def test_times_the_gp_fmu_against_a_bare_one_and_the_native_fmus():
+def test_times_the_gp_fmu_against_a_bare_one_and_the_native_fmus(monkeypatch):
+    # Of the other native models only the single-sample one (the 500-point ones train and build
+    # two FMUs each for rows whose arithmetic the single one's already checks).
+    monkeypatch.setattr(fmu, "NATIVE_MODELS", fmu.NATIVE_MODELS[:1])
     report = fmu.run(n_steps=50, progress=False)
     assert report["steps"] == 50 and report["training_points"] == 32  # the paper's model
     assert 0 < report["bare_us_per_step"] < report["gp_us_per_step"]
@@ -20,12 +23,10 @@ def test_times_the_gp_fmu_against_a_bare_one_and_the_native_fmus():
     assert "bare us/step" in fmu.format_table(report)
     # Headline rows: the pythonfmu FMU against the bare one, the paper's native FMU free run
     # (fast and exact, against 200x real time) and one step, each other native rate predictor
-    # (the 500-point ones also in us), the blimp.
+    # run (here the single-sample one), the blimp.
     rows = {row.id: row for row in fmu.summary_rows(report)}
     assert list(rows) == ["fmu.pythonfmu.gp_over_bare", "fmu.paper.native.step_us", "fmu.paper.native.exact_step_us",
-                          "fmu.paper.native.one_step_us", "fmu.single.native.speedup", "fmu.n500.native.speedup",
-                          "fmu.n500.native.step_us", "fmu.sparse50.native.speedup", "fmu.sparse50.native.step_us",
-                          "fmu.blimp_rkgp.native.speedup"]
+                          "fmu.paper.native.one_step_us", "fmu.single.native.speedup", "fmu.blimp_rkgp.native.speedup"]
     free_run = report["paper_free_run"]
     for key, path in (("fmu.paper.native.step_us", "fast"), ("fmu.paper.native.exact_step_us", "exact")):
         paper = rows[key]
