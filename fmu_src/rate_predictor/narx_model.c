@@ -656,6 +656,16 @@ typedef struct {
     double *column_sum, *column_trace; /* scratch (mb,) */
 } PairBlock;
 
+/* D_ij = half_a_i + half_b_j + (M_ab u_ai) . u_bj (eq. 6), x = M_ab u_ai. */
+static inline __attribute__((always_inline)) double pair_exponent(double half_a, const double x[N_Z],
+                                                                  const double *restrict half_b,
+                                                                  const double *restrict u_b, int mb, int j) {
+    double exponent = half_a + half_b[j];
+#pragma GCC unroll 16
+    for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
+    return exponent;
+}
+
 /* The block's sums in passes over tiles of whole rows, each pass a loop gcc vectorises without
  * reordering a sum (so without SIMD reductions): the exponents D_ij = half_a_i + half_b_j +
  * (M_ab u_ai) . u_bj (eq. 6), then expm1 over the tile as one flat array (single: of the
@@ -683,21 +693,11 @@ static inline __attribute__((always_inline)) double block_body(const PairBlock *
             if (single) {
                 float *restrict out = tile_single + (size_t)r * mb;
 SIMD_LOOP
-                for (int j = 0; j < mb; j++) {
-                    double exponent = half_a + half_b[j];
-#pragma GCC unroll 16
-                    for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
-                    out[j] = (float)exponent;
-                }
+                for (int j = 0; j < mb; j++) out[j] = (float)pair_exponent(half_a, x, half_b, u_b, mb, j);
             } else {
                 double *restrict out = tile + (size_t)r * mb;
 SIMD_LOOP
-                for (int j = 0; j < mb; j++) {
-                    double exponent = half_a + half_b[j];
-#pragma GCC unroll 16
-                    for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
-                    out[j] = exponent;
-                }
+                for (int j = 0; j < mb; j++) out[j] = pair_exponent(half_a, x, half_b, u_b, mb, j);
             }
         }
         if (single) {
