@@ -221,6 +221,10 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
         ConcealedCase("dead-band-theta_1s-two-amplitudes", "single",
                       ({"effect": "dead_band", "input": "theta_1s", "value": math.radians(0.3)},),
                       description="+/-0.3 deg dead band on longitudinal cyclic, 1 and 2 deg steps", fit_variant=2),
+        # A limit at 70 % of the larger steps: it bites the 2 deg steps only.
+        ConcealedCase("saturation-theta_1s-1.4deg", "single",
+                      ({"effect": "saturation", "input": "theta_1s", "value": math.radians(1.4)},),
+                      description="longitudinal cyclic limited at +/-1.4 deg, 1 and 2 deg steps", fit_variant=2),
         # Flown by RK4 of x_dot = A x + B u + e_q c q|q| (outside), not by the replay diagnose
         # fits with: the named effect must be found in a flight its own discretisation did not make.
         ConcealedCase("quadratic-damping-M_q|q|", "single",

@@ -218,8 +218,9 @@ def _describe_rejected(rejected: dict | None) -> dict | None:
 def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd,
                    excursions=None) -> list[Hypothesis]:
     """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``), a lag (up to
-    ``MAX_LAG``), a dead band (up to the input's largest excursion) and a gain (null 1, at least
-    0, screened at :data:`_GAIN_STEP`) on each excited input, the
+    ``MAX_LAG``), a dead band (up to the input's largest excursion), a gain (null 1, at least
+    0, screened at :data:`_GAIN_STEP`) and a saturation (null: the largest excursion, where it
+    does nothing; screened inward) on each excited input, the
     reference's term hypotheses, a bias on each measured output (each kind where the reference
     takes it, :attr:`EffectModel.kinds`).
 
@@ -236,6 +237,9 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
             if excursion > 0:
                 hypotheses.append(Hypothesis("dead_band", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
             hypotheses.append(Hypothesis("input_gain", name, 1.0, 0.0, math.inf, _GAIN_STEP))
+            if excursion > 0:  # no effect at the largest excursion: screened inward from it
+                hypotheses.append(Hypothesis("saturation", name, excursion, 0.0, excursion,
+                                             -_DEAD_BAND_STEP * excursion))
     hypotheses += reference.term_hypotheses(excited_inputs)
     for name in output_names:
         hypotheses.append(Hypothesis("sensor_bias", name, 0.0, -math.inf, math.inf, float(noise_sd[name])))
@@ -325,6 +329,8 @@ def _screen(data: FitData, reference: EffectModel, model: FittedModel, candidate
         gg = float(g @ g)
         delta = float(g @ r0) / gg if gg > 0 else 0.0
         if h.lower == h.null and delta < 0:  # one-sided (delays, lags): no gain below zero
+            delta = 0.0
+        if h.upper == h.null and delta > 0:  # one-sided (a limit at the largest excursion)
             delta = 0.0
         scores.append((gg * delta**2, h.null + delta))
         if progress:

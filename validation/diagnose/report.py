@@ -190,6 +190,9 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         text = (f"The {_input_words(finding['input'])} moves nothing within {_number(value)} {unit} {interval} "
                 "of where it started, and beyond that arrives short by as much: a dead band (free play) on "
                 f"{finding['input']}.")
+    elif kind == "saturation":
+        text = (f"The {_input_words(finding['input'])} stops at {_number(value)} {unit} {interval} from trim: a "
+                f"position limit (saturation) on {finding['input']}.")
     elif kind == "input_gain":
         text = (f"The {_input_words(finding['input'])} acts {_number(value)} times as strongly as the model "
                 f"has it {interval}: a control-effectiveness (gain) error.")
@@ -224,23 +227,30 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
 
 
 #: Evidence ratio below which a dead band and a gain on the same input are stated as
-#: indistinguishable (Jeffreys' "barely worth mentioning", 10^(1/2); Kass & Raftery, JASA 1995).
+#: indistinguishable (Jeffreys' "barely worth mentioning", 10^(1/2); Kass & Raftery, JASA 1995);
+#: the same for a saturation.
 INDISTINGUISHABLE = 10 ** 0.5
 
 
 def _amplitude_advice(finding: dict, alternative: dict) -> str:
-    """What the data cannot tell apart and the manoeuvre that would: a dead band and a gain on
-    the same input whose evidence ratio is under :data:`INDISTINGUISHABLE` (on an input that
-    moves between trim and one amplitude, a dead band of ``w`` on steps of ``A`` is a gain of
-    ``1 - w/A``); empty otherwise."""
-    kinds = {finding["effect"], alternative["effect"]}
-    if kinds != {"dead_band", "input_gain"} or finding.get("input") != alternative.get("input") \
-            or not alternative["evidence_ratio"] < INDISTINGUISHABLE:
+    """What the data cannot tell apart and the manoeuvre that would: two of a dead band, a gain
+    and a saturation on the same input whose evidence ratio is under :data:`INDISTINGUISHABLE`
+    (on an input that moves between trim and one amplitude, a dead band of ``w`` on steps of
+    ``A`` is a gain of ``1 - w/A`` and a limit ``L`` one of ``L/A``); empty otherwise."""
+    kinds = [finding["effect"], alternative["effect"]]
+    same_input = finding.get("input") == alternative.get("input")
+    if not (set(kinds) <= set(_AMPLITUDE_WORDS) and kinds[0] != kinds[1] and same_input
+            and alternative["evidence_ratio"] < INDISTINGUISHABLE):
         return ""
     name = finding["input"]
-    return (f" These data cannot tell a dead band on {name} from a lower gain: the input moves between trim and "
-            f"one amplitude only, where a dead band of w on steps of A is a gain of 1 - w/A. Repeat the manoeuvre "
-            f"on {name} at twice the amplitude to tell them apart (a dead band costs the larger steps less).")
+    return (f" These data cannot tell {_AMPLITUDE_WORDS[kinds[0]]} on {name} from {_AMPLITUDE_WORDS[kinds[1]]}: "
+            "the input moves between trim and one amplitude only, where a dead band of w on steps of A is a gain "
+            f"of 1 - w/A and a limit L a gain of L/A. Repeat the manoeuvre on {name} at twice the amplitude to "
+            "tell them apart (a dead band costs the larger steps less, a limit more, a gain the same).")
+
+
+#: The input effects that one amplitude cannot tell apart, in the words of :func:`_amplitude_advice`.
+_AMPLITUDE_WORDS = {"dead_band": "a dead band", "input_gain": "a lower gain", "saturation": "a saturation"}
 
 
 def _replication_words(finding: dict) -> str:

@@ -43,7 +43,8 @@ TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative"
                "stability_derivative": "term", "sensor_bias": "output", "quadratic_drag": "term",
                "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
                "added_mass": "term", "steady_wind": "term", "input_gain": "input", "output_scale": "output",
-               "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term"}
+               "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term",
+               "saturation": "input"}
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.
@@ -68,7 +69,8 @@ class Hypothesis:
         Bounds of the value (``-inf``/``inf`` for none).
     step : float
         Finite-difference step of the screening, in the value's unit: large enough to move the
-        outputs well above rounding, small enough for the response to stay linear.
+        outputs well above rounding, small enough for the response to stay linear; negative
+        where the null is the upper bound (a limit that does nothing at the largest excursion).
     """
 
     effect: str
@@ -343,7 +345,7 @@ def check_trim_start(start, name: str) -> None:
 
 def effect_unit(effect: dict, reference: EffectModel) -> str:
     """Unit of ``effect["value"]`` on ``reference``: s for delays and lags, 1 for a gain or a
-    scale, the input's unit for a dead band, the output's unit for a bias, the reference's unit
+    scale, the input's unit for a dead band or a saturation, the output's unit for a bias, the reference's unit
     of a term. A signal's unit is the reference's own (an FMU's declared units, its optional
     ``signal_units`` mapping) or else flightgp's (:func:`validation.core.recordings.column_unit`)."""
     kind = effect["effect"]
@@ -351,7 +353,7 @@ def effect_unit(effect: dict, reference: EffectModel) -> str:
         return "s"
     if kind in ("input_gain", "output_scale"):
         return "1"
-    if kind in ("dead_band", "sensor_bias"):
+    if kind in ("dead_band", "saturation", "sensor_bias"):
         name = effect[TARGET_KEYS[kind]]
         return getattr(reference, "signal_units", {}).get(name) or column_unit(name)
     return reference.term_unit(effect["term"])
@@ -391,6 +393,8 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
             raise BadInputError(f"{where} ({kind} on {target}): {value} s is outside 0 .. {limit} s")
         if kind == "dead_band" and value < 0:
             raise BadInputError(f"{where} ({kind} on {target}): a half-width cannot be negative, got {value}")
+        if kind == "saturation" and value < 0:
+            raise BadInputError(f"{where} ({kind} on {target}): a limit cannot be negative, got {value}")
         problem = reference.term_value_problem(target, value) if key == "term" else None
         if problem:
             raise BadInputError(f"{where} ({kind} on {target}): {problem}")

@@ -22,9 +22,11 @@ How each effect enters ``x_dot = A x + B u``:
 - ``dead_band`` on input ``j``: the input passes through a dead band (free play) of the given
   half-width about trim (:func:`validation.vehicles.effects.dead_band_inputs`) before it acts;
   ``input_gain``: the input acts ``gain`` times as strongly (a gearing or control-effectiveness
-  error: every control derivative of the input scaled at once). On a manoeuvre that moves an
-  input between trim and one amplitude only, the two are the same effect (a dead band of
-  half-width ``w`` on steps of ``A`` is a gain of ``1 - w/A``); two amplitudes tell them apart;
+  error: every control derivative of the input scaled at once); ``saturation``: the input's
+  deflection from trim is clipped at +/- the limit (a position limit). On a manoeuvre that moves an
+  input between trim and one amplitude only, the three are the same effect (a dead band of
+  half-width ``w`` on steps of ``A`` is a gain of ``1 - w/A``, a limit ``L`` a gain of ``L/A``);
+  two amplitudes tell them apart;
 - ``nonlinear_damping`` ``<row>_<s>|<s>|`` adds ``c s |s|`` to the derivative of the row's
   state, ``s`` that state itself (``M_q|q|``: a pitch moment per unit inertia quadratic in the
   pitch rate, as blade stall or a fuselage's cross-flow drag make it; Padfield, *Helicopter
@@ -127,12 +129,15 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
              if e["effect"] == "dead_band" and e["value"] > 0]
     gains = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
              if e["effect"] == "input_gain" and e["value"] != 1.0]
-    if bands or gains:  # dead bands about trim (0): the inputs are perturbations from it
+    limits = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "saturation"]
+    if bands or gains or limits:  # dead bands and limits about trim (0): the inputs are perturbations from it
         held = held.copy()
         for column, half_width in bands:
             held[:, column] = dead_band_inputs(held[:, column], half_width)
         for column, gain in gains:
             held[:, column] *= gain
+        for column, limit in limits:
+            np.clip(held[:, column], -limit, limit, out=held[:, column])
     undelayed = [column for column in range(n_inputs) if column not in delays]
     forcing = held[:, undelayed] @ Gamma[:, undelayed].T
     for column, delay in delays.items():
@@ -223,7 +228,7 @@ class LinearEffects:
 
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-             "nonlinear_damping", "dead_band", "input_gain")
+             "nonlinear_damping", "dead_band", "input_gain", "saturation")
     batches_simulations = False
     absolute_inputs = False
     needs_even_sampling = True

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from validation.cli import main
+from validation.core.errors import BadInputError
 from validation.diagnose import diagnose
 from validation.diagnose.bench import (
     REQUIRED_CUT,
@@ -32,7 +33,7 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
     cases = concealed_cases(reference="bo105-80kt")
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-                     "nonlinear_damping", "dead_band"}
+                     "nonlinear_damping", "dead_band", "saturation"}
     assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous"}
     assert len({case.name for case in cases}) == len(cases)
     for case in cases:
@@ -46,6 +47,8 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                 assert abs(value) >= 3 * SENSOR_NOISE_STD[effect["output"]] - 1e-15
             elif kind == "dead_band":  # 10-30 % of the manoeuvre's 1 deg steps
                 assert math.radians(0.1) <= value <= math.radians(0.3) + 1e-15
+            elif kind == "saturation":  # 60-80 % of the larger (2 deg) steps of variant 2
+                assert case.fit_variant == 2 and math.radians(1.2) <= value <= math.radians(1.6)
             elif kind == "nonlinear_damping":  # the peak pitch rate of the manoeuvre changes by >= 20 %
                 time, inputs = identification_manoeuvre(duration=20.0, sample_time=0.01)
                 q = STATE_NAMES.index("q")
@@ -119,24 +122,33 @@ def test_the_nonlinear_damping_replay_follows_rk4_of_the_continuous_model():
 
 
 def test_a_dead_band_is_a_gain_on_one_amplitude_and_not_on_two():
-    """bo105-80kt takes dead bands and input gains. On the identification manoeuvre (theta_1s
-    between trim and 1 deg only) a dead band of w is a gain of 1 - w/A, to rounding; on variant 2
-    (the same 3-2-1-1 again at 2 deg) it is not: the data can then tell them apart."""
+    """bo105-80kt takes dead bands, input gains and saturations. On the identification manoeuvre
+    (theta_1s between trim and 1 deg only) a dead band of w is a gain of 1 - w/A and a limit L a
+    gain of L/A, to rounding; on variant 2 (the same 3-2-1-1 again at 2 deg) they differ: the data
+    can then tell them apart."""
     from validation.vehicles.effect_vehicle import effect_model
 
     model = effect_model("bo105-80kt", purpose="test")
-    assert {"dead_band", "input_gain"} <= set(model.kinds)
+    assert {"dead_band", "input_gain", "saturation"} <= set(model.kinds)
     width, amplitude = math.radians(0.3), math.radians(1.0)
     band = {"effect": "dead_band", "input": "theta_1s", "value": width}
     gain = {"effect": "input_gain", "input": "theta_1s", "value": 1 - width / amplitude}
-    one = model.simulate_many([[band], [gain], []], *identification_manoeuvre(duration=20.0, sample_time=0.01))
-    scale = np.abs(one[2]).max(axis=0)
+    limit = {"effect": "saturation", "input": "theta_1s", "value": amplitude - width}  # also a gain of 0.7
+    one = model.simulate_many([[band], [gain], [limit], []],
+                              *identification_manoeuvre(duration=20.0, sample_time=0.01))
+    scale = np.abs(one[3]).max(axis=0)
     assert np.all(np.abs(one[0] - one[1]).max(axis=0) <= 1e-12 * scale)
-    assert np.abs(one[0] - one[2]).max() > 100 * np.abs(one[0] - one[1]).max()  # the dead band acts
-    two = model.simulate_many([[band], [gain]], *identification_manoeuvre(duration=20.0, sample_time=0.01,
-                                                                            variant=2))
+    assert np.all(np.abs(one[2] - one[1]).max(axis=0) <= 1e-12 * scale)
+    assert np.abs(one[0] - one[3]).max() > 100 * np.abs(one[0] - one[1]).max()  # the dead band acts
+    two = model.simulate_many([[band], [gain], [limit]], *identification_manoeuvre(duration=20.0, sample_time=0.01,
+                                                                                     variant=2))
     q = STATE_NAMES.index("q")
     assert np.abs(two[0] - two[1])[:, q].max() > 5 * SENSOR_NOISE_STD["q"]
+    assert np.abs(two[2] - two[1])[:, q].max() > 5 * SENSOR_NOISE_STD["q"]
+    from validation.vehicles.effects import check_effects
+
+    with pytest.raises(BadInputError, match="a limit cannot be negative"):
+        check_effects([{**limit, "value": -0.01}], model)
 
 
 def test_an_ambiguous_case_passes_when_the_truth_is_offered_and_nothing_false_is_certain(delay_case):
@@ -174,6 +186,9 @@ def test_the_statement_says_what_one_amplitude_cannot_tell_and_what_would():
     assert "at twice the amplitude" in text
     far = {**finding, "alternatives": [{**finding["alternatives"][0], "evidence_ratio": 50.0}]}
     assert "cannot tell" not in statement(far, fit, reference)
+    limit = {**finding, "effect": "saturation", "value": 0.0122}
+    assert "cannot tell a saturation on theta_1s from a lower gain" in statement(limit, fit, reference)
+    assert "stops at 0.0122 rad" in statement(limit, fit, reference)
 
 
 def _diagnosis(findings, rmse=(0.02, 0.004, 0.004)):
