@@ -11,7 +11,8 @@ parameters ``<output>_start`` for it. :class:`FMUEffects` is its
 - on an input: ``time_delay`` and ``input_lag`` (the interval means of
   :func:`~validation.vehicles.effects.delayed_interval_means` and
   :func:`~validation.vehicles.effects.lagged_interval_means`, as for the blimp), ``input_gain``
-  (the FMU sees ``gain * u``: control effectiveness);
+  (the FMU sees ``gain * u``: control effectiveness), ``dead_band`` and ``saturation`` (a dead
+  band or a limit about the input's first value);
 - on an output: ``sensor_bias`` (``+ b``) and ``output_scale`` (``* s``; the scale first);
 - ``fmu_parameter``: any Real parameter the FMU exposes (``causality="parameter"``, not a
   ``<output>_start``), set before initialisation; named by the FMU's own name and described by
@@ -369,7 +370,8 @@ class FMUEffects:
     """
 
     family = "fmu"
-    kinds = ("time_delay", "input_lag", "dead_band", "input_gain", "sensor_bias", "output_scale", "fmu_parameter")
+    kinds = ("time_delay", "input_lag", "dead_band", "saturation", "input_gain", "sensor_bias", "output_scale",
+             "fmu_parameter")
     batches_simulations = True  # a batch's replays run side by side on the reference's workers
     absolute_inputs = False
     needs_even_sampling = True
@@ -487,7 +489,7 @@ class FMUEffects:
         return corrected
 
     def _effective_inputs(self, effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """The inputs the FMU sees: through a dead band about the recording's first value, then
+        """The inputs the FMU sees: through a dead band and a limit about the recording's first value, then
         delayed and lagged as changes from that value (interval means, so row k is the mean over
         interval k; the last row repeats; before the recording, the input held its first value),
         then scaled (``gain * u``)."""
@@ -498,6 +500,9 @@ class FMUEffects:
             if effect["effect"] == "dead_band" and effect["value"] > 0:
                 j = self.input_names.index(effect["input"])
                 held[:, j] = dead_band_inputs(held[:, j], effect["value"], centre=first[j])
+            if effect["effect"] == "saturation":
+                j = self.input_names.index(effect["input"])
+                held[:, j] = np.clip(held[:, j], first[j] - effect["value"], first[j] + effect["value"])
         moved = held.copy()
         for effect in effects:
             if effect["effect"] == "time_delay" and effect["value"] > 0:

@@ -353,6 +353,9 @@ def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, 
     pair = diagnosed_truth(cases["pair-lag+M_q"], through_fmu)
     assert pair.kind == "pair" and [e["effect"] for e in pair.effects] == ["input_lag", "fmu_parameter"]
     assert pair.effects[1]["term"] == "M_q" and pair.effects[1]["value"] == cases["pair-lag+M_q"].effects[1]["value"]
+    # Every case of the suite has a truth through the FMU (the saturation too: the FMU takes it).
+    assert all(diagnosed_truth(case, through_fmu).name == name for name, case in cases.items())
+    assert diagnosed_truth(cases["saturation-theta_1s-1.4deg"], through_fmu) == cases["saturation-theta_1s-1.4deg"]
     dead_band = diagnosed_truth(cases["dead-band-theta_1s-one-amplitude"], through_fmu)
     assert dead_band == cases["dead-band-theta_1s-one-amplitude"]  # the FMU takes dead bands too
     # The quadratic damping is a named effect of bo105-80kt but not of the FMU; it is flown by
