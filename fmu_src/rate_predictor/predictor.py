@@ -111,14 +111,32 @@ def _read_output(arrays: dict, prefix: str, n_regressors: int) -> dict:
     return a
 
 
+def _distinct_samples(part: dict) -> tuple[dict, np.ndarray]:
+    """One output's arrays at its distinct hyperparameter samples only (annealing repeats
+    samples), in order of first occurrence, and how often each occurs (T,)."""
+    n = len(part["weights"])
+    rows = np.column_stack([part["weights"], part["variance_factor"].reshape(n, -1), part["kernel_weights"],
+                            part["log_signal_variance"], part["noise_variance"]])
+    _, first, counts = np.unique(rows, axis=0, return_index=True, return_counts=True)
+    order = np.argsort(first)
+    keep = first[order]
+    per_sample = ("weights", "variance_factor", "kernel_weights", "log_signal_variance", "noise_variance")
+    return {**part, **{name: part[name][keep] for name in per_sample}}, counts[order].astype(float)
+
+
 class _Block:
     """Outputs whose GPs share basis points and input scaling (every output of an exact
-    GP-NARX): all their hyperparameter samples are evaluated in one batch, R rows in all."""
+    GP-NARX): all their distinct hyperparameter samples are evaluated in one batch, R rows in
+    all, each counted as often as its output's mixture holds it."""
 
     def __init__(self, parts: list) -> None:
         first = parts[0]
         self.basis = first["basis"]
         self.input_mean, self.input_scale = first["input_mean"], first["input_scale"]
+        self.counts = np.array([len(p["weights"]) for p in parts], dtype=float)  # samples per output
+        distinct = [_distinct_samples(p) for p in parts]
+        parts = [p for p, _ in distinct]
+        self.multiplicity = np.concatenate([m for _, m in distinct])  # (R,)
         stack = lambda name: np.ascontiguousarray(np.concatenate([p[name] for p in parts]))  # noqa: E731
         self.weights = stack("weights")  # (R, m)
         self.variance_factor = stack("variance_factor")  # (R, m, m)
@@ -126,9 +144,8 @@ class _Block:
         self.log_signal_variance = stack("log_signal_variance")  # (R,)
         self.signal_variance = np.exp(self.log_signal_variance)
         self.noise_variance = stack("noise_variance")
-        counts = np.array([len(p["weights"]) for p in parts])
-        self.starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
-        self.counts = counts.astype(float)
+        rows = np.array([len(p["weights"]) for p in parts])
+        self.starts = np.concatenate(([0], np.cumsum(rows)[:-1]))
         self.output_mean = np.array([float(p["output_mean"]) for p in parts])
         self.output_scale = np.array([float(p["output_scale"]) for p in parts])
         freeze(vars(self).values())
@@ -143,8 +160,8 @@ class _Block:
         latent = np.maximum(self.signal_variance - np.einsum("rm,rm->r", v, v), 0.0)
         variances = latent + self.noise_variance
         # Mixture per output, as GaussianProcess.predict: E_s[mu_s], E_s[var_s + mu_s^2] - mean^2.
-        mean = np.add.reduceat(means, self.starts) / self.counts
-        second = np.add.reduceat(variances + means**2, self.starts) / self.counts
+        mean = np.add.reduceat(self.multiplicity * means, self.starts) / self.counts
+        second = np.add.reduceat(self.multiplicity * (variances + means**2), self.starts) / self.counts
         spread = np.maximum(second - mean**2, 0.0)
         return mean * self.output_scale + self.output_mean, spread * self.output_scale**2
 
