@@ -194,7 +194,7 @@ class MomentMatcher:
     def distinct_samples(self) -> list:
         """Per GP: ``(rows, index)``, the rows (shape (T,)) of its distinct samples among the S,
         in order of first occurrence, and which of them each joint sample is (shape (S,))."""
-        return [(rows, index) for rows, index in zip(self._rows, self._index)]
+        return list(zip(self._rows, self._index))
 
     def __call__(self, mean, cov, *, include_noise: bool = True):
         """Exact mean and covariance of the m GP predictions at ``x ~ N(mean, cov)``.

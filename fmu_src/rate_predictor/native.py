@@ -87,14 +87,18 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     slave_class = type(identifier, (RatePredictor,), {
         "description": parts.description + "; native C (no Python at run time)", "VARIABLES": variables,
         "STEP_SIZE": parts.step})
+    data = _narx_data(parts.arrays, predictor)
+    n_doubles = (len(data) - len(_DATA_MAGIC) - 8) // 8  # after the magic and the count
     return package_native_fmu(
         parts.target, slave_class=slave_class, model_source=MODEL_SOURCE,
-        config=lambda guid: _narx_config(guid, identifier, variables, predictor, parts.arrays),
-        data=_narx_data(parts.arrays, predictor), extra_flags=MODEL_FLAGS)
+        config=lambda guid: _narx_config(guid, identifier, variables, predictor, parts.arrays, n_doubles),
+        data=data, extra_flags=MODEL_FLAGS)
 
 
-def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredictor, arrays: dict) -> str:
-    """``model_config.h``: identity, variable table and NARX structure of one FMU."""
+def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredictor, arrays: dict,
+                 n_doubles: int) -> str:
+    """``model_config.h``: identity, variable table and NARX structure of one FMU whose
+    ``model.bin`` holds ``n_doubles`` doubles."""
     reference = {v.name: vr for vr, v in enumerate(variables)}
     outputs = predictor.output_names
     parts = [_part(arrays, j) for j in range(len(outputs))]
@@ -129,7 +133,7 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredicto
         *envelope_lines("REGRESSOR_NAMES", predictor.envelope), "",
         f"/* GP arrays in resources/{DATA_FILE} (layout: narx_model.c) */",
         f"#define DATA_FILE {c_string(DATA_FILE)}",
-        f"#define DATA_DOUBLES {_data_doubles(arrays, predictor)}",
+        f"#define DATA_DOUBLES {n_doubles}",
         c_array("int", "BASIS_POINTS", [len(p["basis"]) for p in parts]).rstrip(),
         "/* Hyperparameter mixture: joint samples, distinct samples per output, distinct sample",
         "   pairs per output pair (0, 1), (0, 2), ..., (1, 2), ... */",
@@ -152,20 +156,6 @@ def _mixture_layout(predictor: NarxPredictor) -> tuple[list, list, list]:
     distinct = predictor.matcher.distinct_samples()
     pairs = list(predictor.matcher.sample_pairs().values())
     return [rows for rows, _ in distinct], [index for _, index in distinct], pairs
-
-
-def _part_size(part: dict, n_distinct: int) -> int:
-    (m, d) = part["basis"].shape
-    factor = m * (m + 1) // 2 if lower_triangular(part["variance_factor"]) else m * m
-    return 2 * d + 2 + m * d + n_distinct * (m + d + 2 + factor)
-
-
-def _data_doubles(arrays: dict, predictor: NarxPredictor) -> int:
-    """The number of doubles in ``model.bin`` (:func:`_narx_data`)."""
-    rows, index, pairs = _mixture_layout(predictor)
-    parts = [_part(arrays, j) for j in range(len(rows))]
-    return (sum(_part_size(p, len(r)) for p, r in zip(parts, rows)) + len(index[0]) * len(index)
-            + sum(3 * len(counts) for _, _, counts in pairs))
 
 
 def _narx_data(arrays: dict, predictor: NarxPredictor) -> bytes:

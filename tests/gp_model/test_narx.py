@@ -246,7 +246,7 @@ def test_monte_carlo_result_does_not_depend_on_the_thread_split(ml_model):
     # to ~1e-11 on outputs of ~0.1 (measured).
     np.testing.assert_allclose(runs[0], runs[1], rtol=0, atol=1e-10)
     np.testing.assert_allclose(runs[0], runs[2], rtol=0, atol=1e-10)
-    assert not np.array_equal(runs[0][:, 1:], runs[0][:1, 1:])  # the runs differ: draws were used
+    assert np.ptp(runs[0][:, -1], axis=0).min() > 0  # the runs spread by the last step: draws were used
 
 
 def test_an_error_in_one_thread_stops_the_monte_carlo_run(ml_model):

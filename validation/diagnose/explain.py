@@ -233,11 +233,10 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
         if name in excited_inputs:
             hypotheses.append(Hypothesis("time_delay", name, 0.0, 0.0, MAX_DELAY, _TIMING_STEP))
             hypotheses.append(Hypothesis("input_lag", name, 0.0, 0.0, MAX_LAG, _TIMING_STEP))
-            excursion = (excursions or {}).get(name, 0.0)
-            if excursion > 0:
-                hypotheses.append(Hypothesis("dead_band", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
             hypotheses.append(Hypothesis("input_gain", name, 1.0, 0.0, math.inf, _GAIN_STEP))
-            if excursion > 0:  # no effect at the largest excursion: screened inward from it
+            excursion = (excursions or {}).get(name, 0.0)
+            if excursion > 0:  # a dead band grows from 0; a limit does nothing at the excursion: screened inward
+                hypotheses.append(Hypothesis("dead_band", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
                 hypotheses.append(Hypothesis("saturation", name, excursion, 0.0, excursion,
                                              -_DEAD_BAND_STEP * excursion))
     hypotheses += reference.term_hypotheses(excited_inputs)
