@@ -30,6 +30,13 @@ from scipy.optimize import least_squares
 from validation.vehicles.effects import EffectModel, Hypothesis
 
 _Z95 = stats.norm.isf(0.025)
+#: Family-wise false-alarm probability of each step's test over all hypotheses tested.
+FAMILY_ALPHA = 0.01
+#: An accepted effect must remove at least this fraction of the unexplained residual energy.
+MIN_EXCESS_FRACTION = 0.05
+#: Competitors listed with a finding: at most this many, with evidence ratio below the limit.
+MAX_ALTERNATIVES = 3
+MAX_EVIDENCE_RATIO = 1e6
 #: Largest weighted residual (noise standard deviations) a diverging trial model is given.
 _DIVERGED = 1e6
 #: Batched Levenberg-Marquardt: most iterations, relative RSS change that counts as converged,
@@ -140,10 +147,13 @@ class FittedModel:
         return [h.as_effect(v) for h, v in zip(self.hypotheses, self.values)]
 
     def interval(self, index: int) -> tuple[float, float]:
-        """95 % Wald interval of parameter ``index``, clipped to its bounds."""
+        """95 % Wald interval of effect ``index``'s value: of its search parameter, clipped to
+        the bounds, then mapped to the value (the ends swapped where the parameter is the
+        value's reciprocal, :attr:`~validation.vehicles.effects.Hypothesis.reciprocal`)."""
         h, value = self.hypotheses[index], self.values[index]
         half = _Z95 * math.sqrt(max(self.covariance[index, index], 0.0))
-        return max(value - half, h.lower), min(value + half, h.upper)
+        ends = sorted((h.effect_value(max(value - half, h.lower)), h.effect_value(min(value + half, h.upper))))
+        return ends[0], ends[1]
 
 
 def null_model(data: FitData, reference: EffectModel) -> FittedModel:
@@ -256,3 +266,42 @@ def _fit_batched(data: FitData, reference: EffectModel, problems: list) -> list[
             state.update(residuals[first], residuals[first + 1:first + 1 + len(steps)], steps)
     return [FittedModel(state.hypotheses, state.x, state.rss, _covariance(state.jacobian, state.rss))
             for state in states]
+
+
+def weigh_step(data: FitData, model: FittedModel, fits: list[FittedModel], *, n_tested: int):
+    """One step of a stepwise search: the best of ``fits`` (each ``model`` plus one hypothesis)
+    and whether it is accepted. Accepted when its likelihood ratio against ``model`` passes a
+    Bonferroni-corrected chi-squared test at :data:`FAMILY_ALPHA` over the ``n_tested``
+    hypotheses and removes at least :data:`MIN_EXCESS_FRACTION` of the residual energy noise
+    does not explain (``RSS - N``); its confidence is its Akaike weight among ``fits`` and
+    ``model`` (Burnham & Anderson, *Model Selection and Multimodel Inference*, 2nd ed., 2002,
+    sec. 2.9), its alternatives the competitors within :data:`MAX_EVIDENCE_RATIO`.
+
+    Returns
+    -------
+    best : FittedModel
+    step : dict or None
+        ``key``, ``lr``, ``p_value``, ``confidence``, ``alternatives`` (dicts with ``effect``,
+        target, ``value``, ``evidence_ratio``); None when not accepted.
+    rejected : dict or None
+        When not accepted: ``key``, ``value``, ``lr``, ``threshold``.
+    """
+    best = min(fits, key=lambda fitted: fitted.rss)
+    lr = model.rss - best.rss
+    threshold = max(stats.chi2.isf(FAMILY_ALPHA / n_tested, 1), MIN_EXCESS_FRACTION * (model.rss - data.n_residuals))
+    new = best.hypotheses[-1]
+    if lr <= threshold:
+        return best, None, {"key": new.key, "value": new.effect_value(best.values[-1]), "lr": float(lr),
+                            "threshold": float(threshold)}
+    aic = np.array([model.rss] + [fitted.rss + 2 for fitted in fits])  # AIC = RSS + 2 p, up to a constant
+    weights = np.exp(-(aic - aic.min()) / 2)
+    weights /= weights.sum()
+    ranked = sorted(zip(fits, weights[1:]), key=lambda pair: pair[0].rss)
+    alternatives = []
+    for fitted, _ in ranked[1:]:
+        ratio = math.exp(min((fitted.rss - best.rss) / 2, 700.0))  # exp(700) is near the float limit
+        if ratio < MAX_EVIDENCE_RATIO and len(alternatives) < MAX_ALTERNATIVES:
+            alternatives.append({**fitted.hypotheses[-1].as_effect(fitted.values[-1]), "evidence_ratio": ratio})
+    step = {"key": new.key, "lr": float(lr), "p_value": float(stats.chi2.sf(lr, 1)),
+            "confidence": float(ranked[0][1]), "alternatives": alternatives}
+    return best, step, None

@@ -44,7 +44,7 @@ TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative"
                "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
                "added_mass": "term", "steady_wind": "term", "input_gain": "input", "output_scale": "output",
                "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term",
-               "saturation": "input"}
+               "saturation": "input", "rate_limit": "input", "search_term": "term"}
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.
@@ -71,6 +71,11 @@ class Hypothesis:
         Finite-difference step of the screening, in the value's unit: large enough to move the
         outputs well above rounding, small enough for the response to stay linear; negative
         where the null is the upper bound (a limit that does nothing at the largest excursion).
+    reciprocal : bool
+        Whether the search's parameter is the reciprocal of the effect's value (``null``,
+        ``lower``, ``upper`` and ``step`` then in the reciprocal's unit): a rate limit is
+        searched as the time a unit of input takes to ramp, s per input unit, which is nearly
+        linear in its effect and whose null (almost 0) is a limit that never bites.
     """
 
     effect: str
@@ -79,10 +84,16 @@ class Hypothesis:
     lower: float
     upper: float
     step: float
+    reciprocal: bool = False
 
-    def as_effect(self, value: float) -> dict:
-        """The effect dict with value ``value``."""
-        return {"effect": self.effect, TARGET_KEYS[self.effect]: self.target, "value": float(value)}
+    def effect_value(self, parameter: float) -> float:
+        """The effect's value at search parameter ``parameter`` (its reciprocal where
+        :attr:`reciprocal`)."""
+        return 1.0 / float(parameter) if self.reciprocal else float(parameter)
+
+    def as_effect(self, parameter: float) -> dict:
+        """The effect dict at search parameter ``parameter`` (:meth:`effect_value`)."""
+        return {"effect": self.effect, TARGET_KEYS[self.effect]: self.target, "value": self.effect_value(parameter)}
 
     @property
     def key(self) -> tuple[str, str]:
@@ -336,6 +347,50 @@ def dead_band_inputs(signal_: np.ndarray, half_width: float, *, centre: float = 
     return centre + np.sign(deviation) * np.maximum(np.abs(deviation) - half_width, 0.0)
 
 
+def rate_limited_interval_means(held: np.ndarray, rate: float, steps: np.ndarray, *,
+                                centre: float = 0.0) -> np.ndarray:
+    """Interval means of an actuator that follows a zero-order-held command no faster than
+    ``rate``: over each interval it ramps at ``rate`` towards the command and stops there (the
+    rate-limit nonlinearity of an actuator, Slotine and Li, *Applied Nonlinear Control*, 1991,
+    sec. 5.2; continuous in time, so a step of ``d`` ramps over ``|d| / rate`` s whatever the
+    sampling). Starting at ``centre`` (trim, or the command held before the recording), with
+    ``d`` the distance to the command at an interval's start and ``tau = |d| / rate``: the mean
+    is ``u - d tau / (2 h)`` when the ramp ends within the interval (``tau <= h``), else
+    ``y + sign(d) rate h / 2``; the input's integral over each interval is exact.
+
+    Parameters
+    ----------
+    held : ndarray, shape (m,)
+        The command held over each interval, the input's unit.
+    rate : float
+        > 0, the input's unit per s (``inf``: no limit).
+    steps : ndarray, shape (m,)
+        Interval lengths ``h``, s.
+    centre : float
+        Where the actuator stands before the first interval.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        The actuator's mean over each interval.
+    """
+    if not math.isfinite(rate):
+        return held.copy()
+    means = np.empty(len(held))
+    position = float(centre)
+    for k, (command, step) in enumerate(zip(held.tolist(), steps.tolist())):  # Python floats: a sequential recursion
+        distance = command - position
+        reach = rate * step
+        if abs(distance) <= reach:
+            means[k] = command - distance * abs(distance) / (2.0 * reach)
+            position = command
+        else:
+            sign = 1.0 if distance > 0 else -1.0
+            means[k] = position + sign * 0.5 * reach
+            position += sign * reach
+    return means
+
+
 def check_trim_start(start, name: str) -> None:
     """BadInputError unless ``start`` is None: the ``name`` reference replays from its own start."""
     if start is not None:
@@ -345,17 +400,19 @@ def check_trim_start(start, name: str) -> None:
 
 def effect_unit(effect: dict, reference: EffectModel) -> str:
     """Unit of ``effect["value"]`` on ``reference``: s for delays and lags, 1 for a gain or a
-    scale, the input's unit for a dead band or a saturation, the output's unit for a bias, the reference's unit
-    of a term. A signal's unit is the reference's own (an FMU's declared units, its optional
-    ``signal_units`` mapping) or else flightgp's (:func:`validation.core.recordings.column_unit`)."""
+    scale, the input's unit for a dead band or a saturation (per s for a rate limit), the
+    output's unit for a bias, the reference's unit of a term. A signal's unit is the
+    reference's own (an FMU's declared units, its optional ``signal_units`` mapping) or else
+    flightgp's (:func:`validation.core.recordings.column_unit`)."""
     kind = effect["effect"]
     if kind in ("time_delay", "input_lag"):
         return "s"
     if kind in ("input_gain", "output_scale"):
         return "1"
-    if kind in ("dead_band", "saturation", "sensor_bias"):
+    if kind in ("dead_band", "saturation", "sensor_bias", "rate_limit"):
         name = effect[TARGET_KEYS[kind]]
-        return getattr(reference, "signal_units", {}).get(name) or column_unit(name)
+        unit = getattr(reference, "signal_units", {}).get(name) or column_unit(name)
+        return f"{unit}/s" if kind == "rate_limit" else unit
     return reference.term_unit(effect["term"])
 
 
@@ -386,7 +443,8 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
         if key == "term":
             allowed = reference.terms[kind]
         if target not in allowed:
-            raise BadInputError(f"{where} ({kind}): {key} {target!r} is not one of {', '.join(allowed)}")
+            listed = ", ".join(allowed) if len(allowed) <= 20 else f"{', '.join(allowed[:8])}, ... ({len(allowed)})"
+            raise BadInputError(f"{where} ({kind}): {key} {target!r} is not one of {listed}")
         value = _finite_value(effect, f"{where} ({kind} on {target})")
         limit = {"time_delay": MAX_DELAY, "input_lag": MAX_LAG}.get(kind)
         if limit is not None and not 0.0 <= value <= limit:
@@ -395,6 +453,8 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
             raise BadInputError(f"{where} ({kind} on {target}): a half-width cannot be negative, got {value}")
         if kind == "saturation" and value < 0:
             raise BadInputError(f"{where} ({kind} on {target}): a limit cannot be negative, got {value}")
+        if kind == "rate_limit" and value <= 0:
+            raise BadInputError(f"{where} ({kind} on {target}): the largest rate must be positive, got {value}")
         problem = reference.term_value_problem(target, value) if key == "term" else None
         if problem:
             raise BadInputError(f"{where} ({kind} on {target}): {problem}")

@@ -12,7 +12,8 @@ parameters ``<output>_start`` for it. :class:`FMUEffects` is its
   :func:`~validation.vehicles.effects.delayed_interval_means` and
   :func:`~validation.vehicles.effects.lagged_interval_means`, as for the blimp), ``input_gain``
   (the FMU sees ``gain * u``: control effectiveness), ``dead_band`` and ``saturation`` (a dead
-  band or a limit about the input's first value);
+  band or a limit about the input's first value) and ``rate_limit`` (an actuator ramping no faster
+  than the limit, :func:`~validation.vehicles.effects.rate_limited_interval_means`);
 - on an output: ``sensor_bias`` (``+ b``) and ``output_scale`` (``* s``; the scale first);
 - ``fmu_parameter``: any Real parameter the FMU exposes (``causality="parameter"``, not a
   ``<output>_start``), set before initialisation; named by the FMU's own name and described by
@@ -47,6 +48,7 @@ from validation.vehicles.effects import (
     dead_band_inputs,
     delayed_interval_means,
     lagged_interval_means,
+    rate_limited_interval_means,
     simulate_each_recording,
 )
 from validation.vehicles.linear_effects import sequential_three_two_one_one
@@ -370,8 +372,8 @@ class FMUEffects:
     """
 
     family = "fmu"
-    kinds = ("time_delay", "input_lag", "dead_band", "saturation", "input_gain", "sensor_bias", "output_scale",
-             "fmu_parameter")
+    kinds = ("time_delay", "input_lag", "dead_band", "saturation", "rate_limit", "input_gain", "sensor_bias",
+             "output_scale", "fmu_parameter")
     batches_simulations = True  # a batch's replays run side by side on the reference's workers
     absolute_inputs = False
     needs_even_sampling = True
@@ -489,10 +491,10 @@ class FMUEffects:
         return corrected
 
     def _effective_inputs(self, effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """The inputs the FMU sees: through a dead band and a limit about the recording's first value, then
-        delayed and lagged as changes from that value (interval means, so row k is the mean over
-        interval k; the last row repeats; before the recording, the input held its first value),
-        then scaled (``gain * u``)."""
+        """The inputs the FMU sees: through a dead band and a limit about the recording's first
+        value and a rate limit from it, then delayed and lagged as changes from that value
+        (interval means, so row k is the mean over interval k; the last row repeats; before the
+        recording, the input held its first value), then scaled (``gain * u``)."""
         first = inputs[0].copy()
         held = inputs.copy()
         steps = np.diff(time)
@@ -503,6 +505,10 @@ class FMUEffects:
             if effect["effect"] == "saturation":
                 j = self.input_names.index(effect["input"])
                 held[:, j] = np.clip(held[:, j], first[j] - effect["value"], first[j] + effect["value"])
+        for effect in effects:
+            if effect["effect"] == "rate_limit":
+                j = self.input_names.index(effect["input"])
+                held[:-1, j] = rate_limited_interval_means(held[:-1, j], effect["value"], steps, centre=first[j])
         moved = held.copy()
         for effect in effects:
             if effect["effect"] == "time_delay" and effect["value"] > 0:

@@ -26,7 +26,11 @@ How each effect enters ``x_dot = A x + B u``:
   deflection from trim is clipped at +/- the limit (a position limit). On a manoeuvre that moves an
   input between trim and one amplitude only, the three are the same effect (a dead band of
   half-width ``w`` on steps of ``A`` is a gain of ``1 - w/A``, a limit ``L`` a gain of ``L/A``);
-  two amplitudes tell them apart;
+  two amplitudes tell them apart; ``rate_limit``: the input's actuator ramps towards the command
+  no faster than the limit (:func:`validation.vehicles.effects.rate_limited_interval_means`),
+  held over each interval at its mean, so the input's integral is exact and the state error is
+  second order in the step. A rate limit costs a step of ``d`` a ramp of ``d / rate``: on the
+  3-2-1-1's steps of one and two amplitudes it is neither a delay nor a lag;
 - ``nonlinear_damping`` ``<row>_<s>|<s>|`` adds ``c s |s|`` to the derivative of the row's
   state, ``s`` that state itself (``M_q|q|``: a pitch moment per unit inertia quadratic in the
   pitch rate, as blade stall or a fuselage's cross-flow drag make it; Padfield, *Helicopter
@@ -52,10 +56,12 @@ from validation.vehicles.effects import (
     Hypothesis,
     check_trim_start,
     dead_band_inputs,
+    rate_limited_interval_means,
     simulate_each_recording,
     starts_at_trim,
 )
 from validation.vehicles.linear_discretisation import zero_order_hold
+from validation.vehicles.polynomial_terms import library, parse_term, propagate_with_terms, term_name
 from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME, LinearReference, propagate
 
 _ACCELERATION_UNITS = {"m/s": "m/s^2", "rad/s": "rad/s^2"}
@@ -105,7 +111,8 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
     time, inputs, step = check_history(time, inputs, reference.input_names)
     derivatives = {e["term"]: e["value"] for e in effects
                    if e["effect"] in ("control_derivative", "stability_derivative")}
-    damping = [(e["term"], e["value"]) for e in effects if e["effect"] == "nonlinear_damping" and e["value"] != 0]
+    polynomial = [(e["term"], e["value"]) for e in effects
+                  if e["effect"] in ("nonlinear_damping", "search_term") and e["value"] != 0]
     model = reference.with_derivatives(derivatives) if derivatives else reference
     A, B = model.A, model.B
     n_states, n_inputs = B.shape
@@ -130,7 +137,8 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
     gains = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
              if e["effect"] == "input_gain" and e["value"] != 1.0]
     limits = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "saturation"]
-    if bands or gains or limits:  # dead bands and limits about trim (0): the inputs are perturbations from it
+    rates = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "rate_limit"]
+    if bands or gains or limits or rates:  # about trim (0): the inputs are perturbations from it
         held = held.copy()
         for column, half_width in bands:
             held[:, column] = dead_band_inputs(held[:, column], half_width)
@@ -138,6 +146,8 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
             held[:, column] *= gain
         for column, limit in limits:
             np.clip(held[:, column], -limit, limit, out=held[:, column])
+        for column, rate in rates:
+            held[:, column] = rate_limited_interval_means(held[:, column], rate, np.full(len(held), step))
     undelayed = [column for column in range(n_inputs) if column not in delays]
     forcing = held[:, undelayed] @ Gamma[:, undelayed].T
     for column, delay in delays.items():
@@ -149,8 +159,13 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
             if fraction > 1e-12 else np.zeros(size)
         forcing += np.outer(_delayed(held[:, column], whole), gamma_late)
         forcing += np.outer(_delayed(held[:, column], whole + 1), gamma_early)
-    if damping:
-        states = _propagate_with_damping(reference, damping, F, step, Phi, forcing)[:, :n_states]
+    if polynomial:
+        signal_names = reference.state_names + reference.input_names
+        terms = [parse_term(term, reference.row_letters, signal_names) for term, _ in polynomial]
+        rows = [reference.state_names.index(reference.row_letters[term.letter]) for term in terms]
+        states = propagate_with_terms(terms, [value for _, value in polynomial], rows, F=F, step=step, Phi=Phi,
+                                      forcing=forcing, held=held, n_states=n_states,
+                                      signal_names=signal_names)[:, :n_states]
     else:
         states = propagate(Phi, forcing, np.zeros(size))[:, :n_states]
     for effect in effects:
@@ -158,53 +173,6 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
             states[:, reference.state_names.index(effect["output"])] += effect["value"]
     return states
 
-
-
-def nonlinear_damping_term(letter: str, state: str) -> str:
-    """The name of the nonlinear damping term of derivative row ``letter`` in ``state``:
-    ``"M_q|q|"``."""
-    return f"{letter}_{state}|{state}|"
-
-
-def _damping_rows(reference: LinearReference, term: str) -> tuple[int, int]:
-    """``(row, source)``: the state whose derivative a nonlinear damping term enters and the
-    state it is quadratic in."""
-    letter, _, rest = term.partition("_")
-    state = rest.split("|")[0]
-    return reference.state_names.index(reference.row_letters[letter]), reference.state_names.index(state)
-
-
-def _propagate_with_damping(reference: LinearReference, damping, F, step: float, Phi, forcing) -> np.ndarray:
-    """``x[k+1] = Phi x[k] + forcing[k] + sum_i Gamma_i c_i m_i[k]`` from trim, shape (n, size),
-    ``m_i[k]`` the mean of ``s_i |s_i|`` at the interval's start and its predicted end (module
-    docstring): ``Gamma_i`` the exact zero-order-hold response of the augmented system ``F`` to a
-    unit rate on term i's row."""
-    rows = [_damping_rows(reference, term) for term, _ in damping]
-    unit = np.zeros((len(F), len(rows)))
-    for i, (row, _) in enumerate(rows):
-        unit[row, i] = 1.0
-    Gamma_c = zero_order_hold(F, unit, step)[1] * np.array([value for _, value in damping])
-    sources = [source for _, source in rows]
-    states = np.zeros((len(forcing) + 1, len(F)))
-    if len(rows) == 1:  # the usual case, in Python floats where numpy's per-call cost would dominate
-        source, gamma = sources[0], Gamma_c[:, 0]
-        gamma_source = float(gamma[source])
-        for k in range(len(forcing)):
-            linear = Phi @ states[k] + forcing[k]
-            s = float(states[k, source])
-            start = s * abs(s)
-            predicted = float(linear[source]) + gamma_source * start  # Heun: the term's mean over the interval
-            states[k + 1] = linear + gamma * (0.5 * (start + predicted * abs(predicted)))
-        return states
-    x = states[0]
-    for k in range(len(forcing)):
-        linear = Phi @ x + forcing[k]
-        s = x[sources]
-        start = s * np.abs(s)
-        predicted = (linear + Gamma_c @ start)[sources]  # Heun: the term's mean over the interval
-        x = linear + Gamma_c @ (0.5 * (start + predicted * np.abs(predicted)))
-        states[k + 1] = x
-    return states
 
 
 class LinearEffects:
@@ -228,7 +196,7 @@ class LinearEffects:
 
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-             "nonlinear_damping", "dead_band", "input_gain", "saturation")
+             "nonlinear_damping", "dead_band", "input_gain", "saturation", "rate_limit", "search_term")
     batches_simulations = False
     absolute_inputs = False
     needs_even_sampling = True
@@ -244,36 +212,56 @@ class LinearEffects:
         letters = reference.row_letters
         self.terms = {"control_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.input_names),
                       "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names),
-                      "nonlinear_damping": tuple(nonlinear_damping_term(a, s) for a, s in letters.items())}
+                      "nonlinear_damping": tuple(term_name(a, "signed_square", s) for a, s in letters.items()),
+                      "search_term": tuple(library(letters, reference.state_names + reference.input_names))}
         self.sensor_noise_sd = dict.fromkeys(reference.state_names, 0.0)
 
+    def _polynomial(self, term: str):
+        """The parsed polynomial term (:mod:`validation.vehicles.polynomial_terms`), or None for
+        a derivative."""
+        return parse_term(term, self.reference.row_letters, self.state_names + self.input_names)
+
     def model_value(self, term: str) -> float:
-        """A derivative's value; 0 for a nonlinear damping term (the model is linear)."""
-        return 0.0 if term.endswith("|") else self.reference.derivative(term)
+        """A derivative's value; 0 for a polynomial term (the model is linear)."""
+        return 0.0 if self._polynomial(term) else self.reference.derivative(term)
 
     def term_unit(self, term: str) -> str:
         """(row rate)/(column unit), ``1/s`` when they cancel (``M_q``): ``(rad/s^2)/(rad)``; a
-        nonlinear damping term per squared state unit: ``(rad/s^2)/(rad/s)^2`` for ``M_q|q|``."""
+        polynomial term per unit of its factor: ``(rad/s^2)/(rad/s)^2`` for ``M_q|q|``,
+        ``(rad/s^2)/(m/s)^3`` for ``M_w^3``, ``(rad/s^2)/(rad/s m/s)`` for ``M_q*w``."""
         letter, _, column = term.partition("_")
         units = self.reference.units
-        if term.endswith("|"):
-            row_unit, state_unit = units[self.reference.row_letters[letter]], units[column.split("|")[0]]
-            return f"({_ACCELERATION_UNITS.get(row_unit, row_unit + '/s')})/({state_unit})^2"
-        row_unit, column_unit_ = units[self.reference.row_letters[letter]], units[column]
+        row_unit = units[self.reference.row_letters[letter]]
+        rate = _ACCELERATION_UNITS.get(row_unit, row_unit + "/s")
+        polynomial = self._polynomial(term)
+        if polynomial:
+            first = units[polynomial.signals[0]]
+            factor = {"signed_square": f"({first})^2", "cube": f"({first})^3"}.get(
+                polynomial.kind, f"({first} {units[polynomial.signals[-1]]})")
+            return f"({rate})/{factor}"
+        column_unit_ = units[column]
         if row_unit == column_unit_:
             return "1/s"
-        return f"({_ACCELERATION_UNITS.get(row_unit, row_unit + '/s')})/({column_unit_})"
+        return f"({rate})/({column_unit_})"
 
     def term_description(self, term: str) -> str:
         """The derivative's common name (:data:`DERIVATIVE_NAMES`), else ``"<row force or moment>
-        due to <column>"`` (``"side force due to longitudinal cyclic pitch"``), else ``term``."""
+        due to <column>"`` (``"side force due to longitudinal cyclic pitch"``); a polynomial term
+        as ``"<row force or moment> proportional to <factor>"``, with what it means where the
+        factor is the row's own state (damping that grows with it) or another state's signed
+        square or cube (a restoring term that is not linear); else ``term``."""
         if term in DERIVATIVE_NAMES:
             return DERIVATIVE_NAMES[term]
         letter, _, column = term.partition("_")
-        if term.endswith("|") and letter in _ROW_WORDS:
-            state = column.split("|")[0]
-            return (f"{_ROW_WORDS[letter]} proportional to {state}|{state}| (damping that grows with "
-                    f"{column_phrase(state)})")
+        polynomial = self._polynomial(term)
+        if polynomial and letter in _ROW_WORDS:
+            signal = polynomial.signals[0]
+            meaning = ""
+            if polynomial.kind != "product" and signal == self.reference.row_letters[letter]:
+                meaning = f" (damping that grows with {column_phrase(signal)})"
+            elif polynomial.kind != "product" and signal in self.state_names:
+                meaning = f" (a {column_phrase(signal)} stiffness that is not linear)"
+            return f"{_ROW_WORDS[letter]} proportional to {polynomial.factor}{meaning}"
         if letter in _ROW_WORDS and column in self.state_names + self.input_names:
             return f"{_ROW_WORDS[letter]} due to {column_phrase(column)}"
         return term
@@ -304,7 +292,7 @@ class LinearEffects:
             # c s|s| beside the linear damping A_rr s: a step of |A_rr| 1/(state unit) moves the
             # row's rate by |A_rr| s^2, 5 % of the linear term where |s| = 0.05 (a rate of 3 deg/s).
             damping = abs(A[row, row])
-            hypotheses.append(Hypothesis("nonlinear_damping", nonlinear_damping_term(letter, row_state), 0.0,
+            hypotheses.append(Hypothesis("nonlinear_damping", term_name(letter, "signed_square", row_state), 0.0,
                                          -math.inf, math.inf, max(damping, 1e-3)))
         return hypotheses
 

@@ -182,3 +182,65 @@ def test_effect_models_are_found_by_registry_name():
     assert effect_model("bo105-140kt", purpose="test").name == "bo105-140kt"
     with pytest.raises(BadInputError, match="no Bo105 model at 85 kt"):
         effect_model("bo105-85kt", purpose="test")
+
+
+def test_rate_limited_means_are_the_exact_means_of_a_continuous_ramp():
+    """The interval means against a ramp integrated at 1000 points per interval: a step of 1 unit
+    at rate 4 ramps over 0.25 s (2.5 intervals of 0.1 s), then a reversal of 2 units over 0.5 s;
+    a rate so large that no ramp lasts a microsecond changes nothing beyond 1e-5 of a step."""
+    from validation.vehicles.effects import rate_limited_interval_means
+
+    held = np.array([0.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0, -1.0, -1.0, 0.0])
+    steps = np.full(len(held), 0.1)
+    rate = 4.0
+    fine = np.empty(len(held))
+    position = 0.0
+    for k, command in enumerate(held):  # the actuator at 1000 sub-steps per interval
+        dt = steps[k] / 1000
+        values = []
+        for _ in range(1000):
+            start = position
+            position += np.clip(command - position, -rate * dt, rate * dt)
+            values.append(0.5 * (start + position))
+        fine[k] = np.mean(values)
+    got = rate_limited_interval_means(held, rate, steps)
+    np.testing.assert_allclose(got, fine, atol=1e-9)
+    assert got[1] == pytest.approx(0.2) and got[3] == pytest.approx(1.0 - 0.2 * 0.05 / (2 * 0.1))  # 0.2 left, 50 ms
+    fast = rate_limited_interval_means(held, 2.0 / 1e-6, steps)
+    np.testing.assert_allclose(fast, held, atol=1e-5)
+    np.testing.assert_array_equal(rate_limited_interval_means(held, np.inf, steps), held)
+
+
+def test_a_rate_limit_ramps_the_steps_of_every_linear_reference_and_is_refused_when_not_positive(manoeuvre):
+    """On the Bo105 a rate limit is the reference flown with the rate-limited interval means
+    (built independently here), and it is no delay: its ramp is twice as long on the 2 deg
+    reversals of the 3-2-1-1 as on the 1 deg steps."""
+    from validation.vehicles.effects import rate_limited_interval_means
+
+    time, inputs = manoeuvre
+    rate = np.radians(10.0)
+    got = _states([{"effect": "rate_limit", "input": "theta_1s", "value": rate}], time, inputs)
+    flown = inputs.copy()
+    flown[:-1, 1] = rate_limited_interval_means(inputs[:-1, 1], rate, np.diff(time))
+    np.testing.assert_allclose(got, Bo105Reference(80).simulate_states(time, flown), atol=1e-12)
+    ramping = np.abs(flown[:-1, 1] - inputs[:-1, 1]) > 1e-12
+    runs = np.split(np.flatnonzero(ramping), np.flatnonzero(np.diff(np.flatnonzero(ramping)) > 1) + 1)
+    lengths = sorted({len(run) for run in runs})
+    assert lengths[0] >= 9 and lengths[-1] >= 2 * lengths[0] - 1, lengths  # 0.1 s and 0.2 s ramps
+    for bad in (0.0, -1.0):
+        with pytest.raises(BadInputError, match="largest rate must be positive"):
+            check_effects([{"effect": "rate_limit", "input": "theta_1s", "value": bad}],
+                          Bo105Effects(Bo105Reference(80)))
+
+
+def test_a_reciprocal_hypothesis_reports_the_rate_and_its_interval_in_order():
+    """A rate limit is searched as the ramp time per unit (s/rad): the effect and both ends of
+    its interval are reciprocals, the ends in increasing order."""
+    from validation.diagnose.fitting import FittedModel
+    from validation.vehicles.effects import Hypothesis
+
+    h = Hypothesis("rate_limit", "theta_1s", 1e-4, 1e-4, 100.0, 0.5, reciprocal=True)
+    assert h.as_effect(0.25) == {"effect": "rate_limit", "input": "theta_1s", "value": 4.0}
+    fitted = FittedModel([h], np.array([0.25]), 1.0, np.array([[(0.05 / 1.959963984540054) ** 2]]))
+    low, high = fitted.interval(0)
+    assert low == pytest.approx(1 / 0.3) and high == pytest.approx(1 / 0.2)
