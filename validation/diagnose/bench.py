@@ -6,13 +6,17 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
 
 - **single** named effects on several channels and at several magnitudes, all at or above
   realistic sizes (delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %, biases >= 3x the
-  sensor noise);
-- **pair**: two named effects at once;
+  sensor noise; dead bands, limits and rate limits that bite on the manoeuvre's steps). A
+  quadratic pitch damping ``M_q|q|`` is a named effect (``nonlinear_damping``) and a cubic
+  weathercock stiffness ``N_v^3`` a term the residual search must find (``search_term``), both
+  flown by RK4 of the continuous model rather than by the replay diagnose fits with;
+- **pair**: two named effects at once (one of them nonlinear in one pair);
 - **none**: the reference itself (any finding is a false finding);
-- **outside**: physics outside the named list (an input dead band), where the honest answer is
-  ``unexplained`` and the residual GP should recover part of the mismatch. A quadratic pitch
-  damping ``M_q|q| q|q|`` is a named effect (``nonlinear_damping``), flown by RK4 of the
-  continuous model rather than by the replay diagnose fits with.
+- **ambiguous**: a dead band flown at one amplitude, which no data of that manoeuvre can tell
+  from a gain or a limit: named or offered as the alternative, nothing false above
+  :data:`AMBIGUOUS_CONFIDENCE`;
+- **outside** (the blimp's; the FMU suites' where an effect cannot be named there): physics
+  outside the named list, where the honest answer is ``unexplained``.
 
 Recordings (both :data:`DURATION` s from trim at the reference's
 :attr:`~validation.vehicles.effects.EffectModel.sample_time`, every state measured with its
@@ -53,11 +57,10 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.diagnose.pipeline import diagnose
-from validation.vehicles import get_vehicle
 from validation.vehicles.blimp_equations import rk4
-from validation.vehicles.bo105 import STATE_NAMES
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.effects import TARGET_KEYS, EffectModel, dead_band_inputs
+from validation.vehicles.polynomial_terms import factor_values, parse_term
 
 #: Held-out RMSE cut of the affected output that a named effect must achieve: the corrected model
 #: must remove most of the error the effect causes (docs/diagnose.md, "The concealed-effect
@@ -84,7 +87,8 @@ class ConcealedCase:
         How the recordings are flown when not by the reference with ``effects``: a physics change
         outside the named list, ``(map, input, parameter)`` with a map of :data:`COMMAND_MAPS`
         (e.g. ``("dead_band", "theta_1s", half_width_rad)``), or
-        ``("quadratic_pitch_damping", coefficient)`` (RK4 of the continuous model; with a
+        ``("polynomial_term", term, coefficient)`` (RK4 of the continuous model with a polynomial
+        term, :mod:`validation.vehicles.polynomial_terms`; with a
         ``nonlinear_damping`` effect as the truth, the named effect flown by an integrator other
         than the one diagnose replays it with).
     description : str
@@ -225,12 +229,28 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
         ConcealedCase("saturation-theta_1s-1.4deg", "single",
                       ({"effect": "saturation", "input": "theta_1s", "value": math.radians(1.4)},),
                       description="longitudinal cyclic limited at +/-1.4 deg, 1 and 2 deg steps", fit_variant=2),
+        # A lateral-cyclic actuator slewing at 10 deg/s: the 1 deg steps ramp over 0.1 s, the
+        # 2 deg reversals over 0.2 s; alone, and a 15 deg/s limit beside a linear error.
+        ConcealedCase("rate-limit-theta_1c-10deg/s", "single",
+                      ({"effect": "rate_limit", "input": "theta_1c", "value": math.radians(10.0)},),
+                      description="lateral cyclic rate limited at 10 deg/s"),
+        ConcealedCase("pair-rate-limit+M_q", "pair",
+                      ({"effect": "rate_limit", "input": "theta_1s", "value": math.radians(15.0)},
+                       {"effect": "stability_derivative", "term": "M_q", "value": reference.model_value("M_q") * 0.7}),
+                      description="longitudinal cyclic rate limited at 15 deg/s and M_q -30 %"),
         # Flown by RK4 of x_dot = A x + B u + e_q c q|q| (outside), not by the replay diagnose
         # fits with: the named effect must be found in a flight its own discretisation did not make.
         ConcealedCase("quadratic-damping-M_q|q|", "single",
                       ({"effect": "nonlinear_damping", "term": "M_q|q|", "value": -40.0},),
-                      outside=("quadratic_pitch_damping", -40.0),
+                      outside=("polynomial_term", "M_q|q|", -40.0),
                       description="quadratic pitch damping M_q|q| = -40 (rad/s^2)/(rad/s)^2, flown by RK4"),
+        # Not a named effect: weathercock stiffness cubic in the sideslip velocity (at the 2.5 m/s
+        # the manoeuvre reaches, c v^3 is 0.094 rad/s^2 against N_v v = 0.32), flown by RK4. The
+        # residual search must find it; a linear N_v must not be taken for it.
+        ConcealedCase("cubic-stiffness-N_v^3", "single",
+                      ({"effect": "search_term", "term": "N_v^3", "value": 0.006},),
+                      outside=("polynomial_term", "N_v^3", 0.006),
+                      description="yaw moment cubic in lateral velocity N_v^3 = 0.006 (rad/s^2)/(m/s)^3, flown by RK4"),
     ]
     return cases
 
@@ -376,26 +396,31 @@ def _outside_states(outside: tuple, vehicle: EffectVehicle, time, inputs) -> np.
         column = vehicle.input_names.index(name)
         flown[:, column] = COMMAND_MAPS[kind](flown[:, column], parameter)
         return vehicle.simulate_states(time, flown)
-    if kind == "quadratic_pitch_damping":
-        return _quadratic_pitch_damping_states(vehicle.reference_name, outside[1], time, inputs)
+    if kind == "polynomial_term":
+        return _polynomial_term_states(vehicle.reference_name, outside[1], outside[2], time, inputs)
     raise ValueError(f"unknown outside effect {kind!r}")
 
 
-def _quadratic_pitch_damping_states(reference: str, coefficient: float, time, inputs) -> np.ndarray:
-    """``x_dot = A x + B u + e_q c q|q|`` (a pitch moment per unit pitch inertia quadratic in q),
-    integrated by classical RK4 at the recording interval with the inputs held over each
-    interval; ``c`` in 1/rad. ``reference`` names a Bo105 (``bo105-<V>kt``)."""
-    model = get_vehicle(reference)
-    A, B = model.A, model.B
-    q = STATE_NAMES.index("q")
+def _polynomial_term_states(reference: str, term: str, coefficient: float, time, inputs) -> np.ndarray:
+    """``x_dot = A x + B u + e_row c f(x, u)`` with ``f`` the factor of polynomial ``term``
+    (:mod:`validation.vehicles.polynomial_terms`: ``M_q|q|`` adds ``c q|q|`` to the pitch
+    acceleration), integrated by classical RK4 at the recording interval with the inputs held
+    over each interval. ``reference`` names a linear reference (``bo105-<V>kt``)."""
+    linear = effect_model(reference, purpose="diagnose-bench").reference
+    names = linear.state_names + linear.input_names
+    parsed = parse_term(term, linear.row_letters, names)
+    if parsed is None:
+        raise ValueError(f"{term!r} is not a polynomial term of {reference}")
+    row = linear.state_names.index(linear.row_letters[parsed.letter])
+    A, B = linear.A, linear.B
 
     def derivative(x, u):
         dx = A @ x + B @ u
-        dx[q] += coefficient * x[q] * abs(x[q])
+        dx[row] += coefficient * factor_values([parsed], names, np.concatenate((x, u)))[0]
         return dx
 
     step = float(time[1] - time[0])
-    states = np.zeros((len(time), len(STATE_NAMES)))
+    states = np.zeros((len(time), len(linear.state_names)))
     for k in range(len(time) - 1):
         states[k + 1] = rk4(partial(derivative, u=inputs[k]), states[k], step)
     return states

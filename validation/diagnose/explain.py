@@ -21,8 +21,9 @@ Statistical Learning*, 2nd ed., 2009, sec. 3.3.2):
 2. *Fit* the most promising (the :data:`N_FULL_FITS` best scores, plus the best of every kind,
    so that a delay is always compared with a lag) jointly with the effects already found.
 3. *Accept* the best fit if its LR passes a Bonferroni-corrected chi-squared test at family-wise
-   level :data:`FAMILY_ALPHA` over the hypotheses screened, and removes at least
-   :data:`MIN_EXCESS_FRACTION` of the residual energy noise does not explain (``RSS - N``);
+   level :data:`~validation.diagnose.fitting.FAMILY_ALPHA` over the hypotheses screened, and
+   removes at least :data:`~validation.diagnose.fitting.MIN_EXCESS_FRACTION` of the residual
+   energy noise does not explain (``RSS - N``; :func:`~validation.diagnose.fitting.weigh_step`);
    the second rule stops the search from naming ever smaller pieces of a misfit that no named
    effect captures (that is left to the ``unexplained`` finding and the residual GP). At most
    :data:`MAX_EFFECTS` effects.
@@ -36,27 +37,25 @@ likelihood ratio (against the final model refitted without it).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
 
 from validation.diagnose.data import PreparedData
-from validation.diagnose.fitting import FitData, FittedModel, fit_many, null_model
+from validation.diagnose.fitting import FitData, FittedModel, fit_many, null_model, weigh_step
 from validation.diagnose.locate import Location
+from validation.diagnose.search import search_candidates
 from validation.vehicles.effects import MAX_DELAY, MAX_LAG, TARGET_KEYS, EffectModel, Hypothesis, effect_unit
 
-#: Family-wise false-alarm probability of each step's test over all hypotheses screened.
-FAMILY_ALPHA = 0.01
-#: An accepted effect must remove at least this fraction of the unexplained residual energy.
-MIN_EXCESS_FRACTION = 0.05
 #: Most named effects in one diagnosis (pairs must be found; three leaves room for one more).
 MAX_EFFECTS = 3
+#: Effects that claim a linear change, checked for amplitude dependence (:func:`amplitude_check`).
+LINEAR_KINDS = ("control_derivative", "stability_derivative", "input_gain")
+#: Level of the amplitude test of each linear finding.
+AMPLITUDE_ALPHA = 0.01
 #: Hypotheses fitted in full per step, besides the best of each kind.
 N_FULL_FITS = 6
-#: Competitors listed with a finding: at most this many, with evidence ratio below the limit.
-MAX_ALTERNATIVES = 3
-MAX_EVIDENCE_RATIO = 1e6
 #: Screening step of delays and lags, s: a fraction of the shortest actuator and rotor time
 #: constants (the Bo105's flap, 0.07 s, Padfield 2007, ch. 3), so that one Gauss-Newton step
 #: stays in the range where the response is nearly linear in the value.
@@ -66,6 +65,9 @@ _TIMING_STEP = 0.01
 _DEAD_BAND_STEP = 0.05
 #: Screening step of an input gain: 5 %, as an FMU parameter's.
 _GAIN_STEP = 0.05
+#: The time, s, the largest excursion takes to ramp through a rate limit at its null: a
+#: microsecond, four orders below any sample interval, so the null limit never bites.
+_NO_RAMP = 1e-6
 
 
 @dataclass
@@ -88,6 +90,9 @@ class Selection:
         The best hypothesis that failed the test at the last step (``key``, ``value``, ``lr``,
         ``threshold``), for the report.
     n_screened : int
+        Named hypotheses (the residual search's terms come on top, ``residual_search``).
+    residual_search : dict or None
+        What the residual search offered (:func:`_search_summary`).
     """
 
     model: FittedModel
@@ -96,6 +101,7 @@ class Selection:
     drop_lr: dict
     rejected: dict | None
     n_screened: int
+    residual_search: dict | None = None
 
 
 @dataclass
@@ -125,6 +131,11 @@ class NamedEffect:
         the fitted samples.
     alone : list of ndarray, shape (n_r, n_out)
         Per recording: the reference's replay with this effect alone.
+    found_by : {"named hypothesis", "search"}
+        Whether it is one of the named hypotheses or a term the residual search found
+        (:mod:`validation.diagnose.search`).
+    amplitude_check : dict or None
+        For a linear change (:data:`LINEAR_KINDS`), :func:`amplitude_check`'s result.
     """
 
     effect: dict
@@ -137,6 +148,8 @@ class NamedEffect:
     alternatives: list
     main_output: int
     alone: list
+    found_by: str = "named hypothesis"
+    amplitude_check: dict | None = None
 
     @property
     def target(self) -> str:
@@ -172,22 +185,70 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
     """
     hypotheses = hypotheses_for(reference, excited_inputs=data.excited, output_names=data.output_names,
                                 noise_sd=data.typical_noise_sd, excursions=_excursions(data))
-    selection = select_effects(data, reference, hypotheses, progress=progress)
+    selection = select_effects(data, reference, hypotheses, progress=progress, excited=data.excited)
     fitted, steps = selection.model, {step["key"]: step for step in selection.steps}
-    named = []
+    named, split_fits = [], {}
     for index, (h, effect) in enumerate(zip(fitted.hypotheses, fitted.effects())):
         lr, step = selection.drop_lr[h.key], steps[h.key]
         alone = data.simulate(reference, [effect])
+        main_output = _main_output(data, alone, location.reference_replay)
+        check = (amplitude_check(data, reference, fitted, index, main_output=main_output,
+                                 reference_replay=location.reference_replay, fits=split_fits)
+                 if h.effect in LINEAR_KINDS else None)
         named.append(NamedEffect(
             effect=effect, unit=effect_unit(effect, reference), interval=[float(v) for v in fitted.interval(index)],
             model_value=reference.model_value(h.target) if "term" in effect else None,
-            confidence=step["confidence"], likelihood_ratio=lr, p_value=float(stats.chi2.sf(lr, 1)),
-            alternatives=step["alternatives"], main_output=_main_output(data, alone, location.reference_replay),
-            alone=alone))
+            confidence=(min(step["confidence"], check["weight_linear"]) if check and check["amplitude_dependent"]
+                        else step["confidence"]),
+            likelihood_ratio=lr, p_value=float(stats.chi2.sf(lr, 1)),
+            alternatives=step["alternatives"], main_output=main_output,
+            alone=alone, found_by="search" if h.effect == "search_term" else "named hypothesis",
+            amplitude_check=check))
     search = {"hypotheses_tested": selection.n_screened, "null_rss": selection.null_rss,
               "final_rss": fitted.rss, "n_residuals": data.n_residuals,
-              "rejected": _describe_rejected(selection.rejected)}
+              "rejected": _describe_rejected(selection.rejected), "residual_search": selection.residual_search}
     return Explanation(fitted.effects(), sorted(named, key=lambda n: -n.likelihood_ratio), search)
+
+
+def amplitude_check(data: FitData, reference: EffectModel, model: FittedModel, index: int, *, main_output: int,
+                    reference_replay: list, fits: dict | None = None) -> dict:
+    """Whether linear change ``index`` of ``model`` holds at every amplitude: ``model`` refitted
+    on the samples where the reference's replay of its main output is beyond its median size
+    (the larger excursions) and on the rest (the smaller), every value free. With a linear
+    vehicle both fits estimate the same values, and ``LR = RSS - (RSS_small + RSS_large)`` is
+    chi-squared with ``p`` degrees of freedom (``p`` values; Chow's test, Econometrica 28(3),
+    1960); an amplitude-dependent response, such as a damping that grows with the rate or a
+    stiffness that hardens, prefers different values. ``fits``, optional: a dict that keeps the
+    two refits per main output, for the other findings of the same model.
+
+    Returns
+    -------
+    dict
+        ``value_small``, ``value_large`` (the change's value on each part),
+        ``likelihood_ratio``, ``amplitude_dependent`` (LR above the chi-squared quantile at
+        :data:`AMPLITUDE_ALPHA`) and ``weight_linear``: the Akaike weight of one value for all
+        amplitudes against two, which caps the confidence of an amplitude-dependent finding
+        (at most e/(1+e) = 0.73 even at LR = 0, so it caps no other).
+    """
+    fits = {} if fits is None else fits
+    if main_output not in fits:
+        sizes = [np.abs(replay[mask, main_output]) for replay, mask in zip(reference_replay, data.fit_mask)]
+        median = float(np.median(np.concatenate(sizes)))
+        large = [mask & (np.abs(replay[:, main_output]) > median)
+                 for replay, mask in zip(reference_replay, data.fit_mask)]
+        small = [mask & ~part for mask, part in zip(data.fit_mask, large)]
+        fits[main_output] = fit_many(replace(data, fit_mask=small), reference, [(model.hypotheses, model.values)]) + \
+            fit_many(replace(data, fit_mask=large), reference, [(model.hypotheses, model.values)])
+    parts = fits[main_output]
+    n_values = len(model.hypotheses)
+    lr = max(model.rss - parts[0].rss - parts[1].rss, 0.0)
+    h = model.hypotheses[index]
+    # AIC = RSS + 2 k: one set of values (k = p) against one per part (k = 2 p).
+    weight = 1.0 / (1.0 + math.exp(min((-lr + 2 * n_values) / -2.0, 700.0)))
+    return {"value_small": h.effect_value(parts[0].values[index]),
+            "value_large": h.effect_value(parts[1].values[index]), "likelihood_ratio": float(lr),
+            "amplitude_dependent": bool(lr > stats.chi2.isf(AMPLITUDE_ALPHA, n_values)),
+            "weight_linear": float(weight)}
 
 
 def _excursions(data: PreparedData) -> dict:
@@ -219,8 +280,10 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
                    excursions=None) -> list[Hypothesis]:
     """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``), a lag (up to
     ``MAX_LAG``), a dead band (up to the input's largest excursion), a gain (null 1, at least
-    0, screened at :data:`_GAIN_STEP`) and a saturation (null: the largest excursion, where it
-    does nothing; screened inward) on each excited input, the
+    0, screened at :data:`_GAIN_STEP`), a saturation (null: the largest excursion, where it
+    does nothing; screened inward) and a rate limit (searched as its reciprocal, the ramp time
+    per unit of input, null :data:`_NO_RAMP` per excursion, screened at :data:`_TIMING_STEP`
+    per excursion, at most ``MAX_LAG`` per excursion) on each excited input, the
     reference's term hypotheses, a bias on each measured output (each kind where the reference
     takes it, :attr:`EffectModel.kinds`).
 
@@ -239,6 +302,10 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
                 hypotheses.append(Hypothesis("dead_band", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
                 hypotheses.append(Hypothesis("saturation", name, excursion, 0.0, excursion,
                                              -_DEAD_BAND_STEP * excursion))
+                # searched as the ramp time per unit of input: null, a largest excursion ramping
+                # in a microsecond; screened at one ramping in _TIMING_STEP; at most MAX_LAG.
+                hypotheses.append(Hypothesis("rate_limit", name, _NO_RAMP / excursion, _NO_RAMP / excursion,
+                                             MAX_LAG / excursion, _TIMING_STEP / excursion, reciprocal=True))
     hypotheses += reference.term_hypotheses(excited_inputs)
     for name in output_names:
         hypotheses.append(Hypothesis("sensor_bias", name, 0.0, -math.inf, math.inf, float(noise_sd[name])))
@@ -246,34 +313,42 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
 
 
 def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], *,
-                   progress=None) -> Selection:
-    """Forward stepwise search for the effects the data support (module docstring)."""
+                   progress=None, excited=None) -> Selection:
+    """Forward stepwise search for the effects the data support (module docstring), each step
+    offered the terms the residual search finds on the model so far
+    (:func:`validation.diagnose.search.search_candidates`; ``excited``: the inputs that move,
+    None for no residual search)."""
     model = null_model(data, reference)
     null_rss = model.rss
-    steps, rejected = [], None
+    steps, rejected, searches = [], None, []
     for _ in range(MAX_EFFECTS):
         taken = {h.key for h in model.hypotheses}
         candidates = [h for h in hypotheses if h.key not in taken]
+        n_tested = len(candidates)
+        if excited is not None:
+            found = search_candidates(data, reference, model, excited=excited)
+            searches.append(found)
+            candidates, n_tested = candidates + found.hypotheses, n_tested + found.library_terms
         if not candidates:
             break
         fits = _fit_promising(data, reference, model, candidates, progress)
-        best = min(fits, key=lambda fitted: fitted.rss)
-        lr = model.rss - best.rss
-        threshold = max(stats.chi2.isf(FAMILY_ALPHA / len(candidates), 1),
-                        MIN_EXCESS_FRACTION * (model.rss - data.n_residuals))
-        new = best.hypotheses[-1]
-        if lr <= threshold:
-            rejected = {"key": new.key, "value": float(best.values[-1]), "lr": float(lr),
-                        "threshold": float(threshold)}
+        best, step, rejected = weigh_step(data, model, fits, n_tested=n_tested)
+        if step is None:
             break
-        weights = _akaike_weights([model.rss] + [fitted.rss for fitted in fits], [0] + [1] * len(fits))
-        ranked = sorted(zip(fits, weights[1:]), key=lambda pair: pair[0].rss)
-        steps.append({"key": new.key, "lr": float(lr), "p_value": float(stats.chi2.sf(lr, 1)),
-                      "confidence": float(ranked[0][1]),
-                      "alternatives": _alternatives([fitted for fitted, _ in ranked[1:]], best)})
+        steps.append(step)
         model = best
     return Selection(model, null_rss, steps, _drop_one_lr(data, reference, model, null_rss), rejected,
-                     len(hypotheses))
+                     len(hypotheses), _search_summary(searches))
+
+
+def _search_summary(searches: list) -> dict | None:
+    """diagnosis.json's ``search.residual_search``: ``ran``, ``reason`` (why not),
+    ``library_terms`` (at the first step) and per step the regression's nonlinear survivors
+    (``term``, ``coefficient``, ``t``); None without a residual search."""
+    if not searches:
+        return None
+    return {"ran": searches[0].reason is None, "reason": searches[0].reason,
+            "library_terms": searches[0].library_terms, "survivors_per_step": [s.survivors for s in searches]}
 
 
 def _fit_promising(data: FitData, reference: EffectModel, model: FittedModel, candidates: list,
@@ -293,17 +368,6 @@ def _fit_promising(data: FitData, reference: EffectModel, model: FittedModel, ca
         for i in chosen:
             progress(1, fitted=f"{candidates[i].effect}:{candidates[i].target}")
     return fits
-
-
-def _alternatives(competitors: list[FittedModel], best: FittedModel) -> list[dict]:
-    """The competitors of ``best`` (ranked by RSS) that the data disfavour by less than
-    :data:`MAX_EVIDENCE_RATIO`, at most :data:`MAX_ALTERNATIVES`."""
-    alternatives = []
-    for fitted in competitors:
-        ratio = math.exp(min((fitted.rss - best.rss) / 2, 700.0))  # exp(700) is near the float limit
-        if ratio < MAX_EVIDENCE_RATIO and len(alternatives) < MAX_ALTERNATIVES:
-            alternatives.append({**fitted.hypotheses[-1].as_effect(fitted.values[-1]), "evidence_ratio": ratio})
-    return alternatives
 
 
 def _drop_one_lr(data: FitData, reference: EffectModel, model: FittedModel, null_rss: float) -> dict:
@@ -335,10 +399,3 @@ def _screen(data: FitData, reference: EffectModel, model: FittedModel, candidate
         if progress:
             progress(1)
     return scores
-
-
-def _akaike_weights(rss_values, n_parameters) -> np.ndarray:
-    """Akaike weights ``exp(-AIC_i/2) / sum`` with ``AIC = RSS + 2 p`` (Burnham & Anderson 2002)."""
-    aic = np.asarray(rss_values) + 2 * np.asarray(n_parameters)
-    weights = np.exp(-(aic - aic.min()) / 2)
-    return weights / weights.sum()

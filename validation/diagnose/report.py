@@ -111,7 +111,10 @@ def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect
     finding.update({"confidence": named.confidence, "likelihood_ratio": named.likelihood_ratio,
                     "p_value": named.p_value, "alternatives": named.alternatives, "main_output": main_output,
                     "rmse_effect_alone": held_out.rmse_effect_alone, "carries_over": held_out.carries_over,
-                    "rmse_reference_gp": held_out.rmse_reference_gp, "gp_absorbs": gp_absorbs})
+                    "rmse_reference_gp": held_out.rmse_reference_gp, "gp_absorbs": gp_absorbs,
+                    "found_by": named.found_by})
+    if named.amplitude_check is not None:
+        finding["amplitude_check"] = named.amplitude_check
     return finding
 
 
@@ -128,6 +131,12 @@ def _input_words(name: str) -> str:
     ``name`` alone for a column without a phrase."""
     phrase = column_phrase(name)
     return name if phrase == name else f"{name}, the {phrase}"
+
+
+def _named_input(name: str) -> str:
+    """``"lateral cyclic pitch (theta_1c)"``: an input in words with its name, or the name alone."""
+    words = column_phrase(name)
+    return f"{words} ({name})" if words != name else name
 
 
 def _improvement(finding: dict, fit: dict) -> str:
@@ -187,14 +196,18 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
             text = (f"The {words} response is smoothed by a first-order lag of {_number(value)} s "
                     f"{interval} on {control}: unmodelled actuator or rotor dynamics.")
     elif kind == "dead_band":
-        text = (f"The {_input_words(finding['input'])} moves nothing within {_number(value)} {unit} {interval} "
+        text = (f"The {_named_input(finding['input'])} moves nothing within {_number(value)} {unit} {interval} "
                 "of where it started, and beyond that arrives short by as much: a dead band (free play) on "
                 f"{finding['input']}.")
     elif kind == "saturation":
-        text = (f"The {_input_words(finding['input'])} stops at {_number(value)} {unit} {interval} from trim: a "
+        text = (f"The {_named_input(finding['input'])} stops at {_number(value)} {unit} {interval} from trim: a "
                 f"position limit (saturation) on {finding['input']}.")
+    elif kind == "rate_limit":
+        text = (f"The {_named_input(finding['input'])} moves no faster than {_number(value)} {unit} {interval}: "
+                f"a rate limit on {finding['input']} (its actuator ramps where the command steps, longer on "
+                "larger steps).")
     elif kind == "input_gain":
-        text = (f"The {_input_words(finding['input'])} acts {_number(value)} times as strongly as the model "
+        text = (f"The {_named_input(finding['input'])} acts {_number(value)} times as strongly as the model "
                 f"has it {interval}: a control-effectiveness (gain) error.")
     elif kind == "output_scale":
         text = (f"The {column_phrase(finding['output'])} reads {_number(value)} times the model's {interval}: "
@@ -203,6 +216,10 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         name = finding["output"]
         text = (f"The {column_phrase(name)} sensor reads {_number(abs(value))} {unit} "
                 f"{interval} {'high' if value > 0 else 'low'}: a sensor bias on {name}.")
+    elif kind == "search_term":
+        term = finding["term"]
+        text = (f"Found by search of the residual, not a named effect: the {reference.term_description(term)}, "
+                f"{term} = {_number(value)} {unit} {interval}, a term the model does not have.")
     elif kind == "nonlinear_damping":
         term = finding["term"]
         text = (f"The {reference.term_description(term)}: {term} = {_number(value)} {unit} {interval}, a term "
@@ -216,6 +233,13 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         kind_words = _KIND_WORDS.get(kind, kind.replace("_", " "))
         text = (f"The {kind_words} {named} is {_number(value)} {unit} {interval}, not the "
                 f"model's {_number(model_value)} ({change}).")
+    check = finding.get("amplitude_check")
+    if check and check["amplitude_dependent"]:
+        words = column_phrase(finding.get("main_output", ""))
+        text += (f" But the data want {_number(check['value_large'])} on the larger {words} excursions and "
+                 f"{_number(check['value_small'])} on the smaller (likelihood ratio {check['likelihood_ratio']:.3g}): "
+                 "the response depends on amplitude, so this is not a linear error for certain; a nonlinearity "
+                 "(a damping or stiffness that grows with size, a dead band, a limit) may be behind it.")
     alternatives = finding.get("alternatives") or []
     if alternatives:
         alternative = alternatives[0]

@@ -1,0 +1,263 @@
+"""Search: what the effects found so far leave unexplained, regressed on a library of candidate
+terms (sparse identification in the manner of SINDy); the survivors compete in the stepwise
+search of :mod:`validation.diagnose.explain`, where output error refines them.
+
+At each step of the stepwise search, a linear reference with the effects found so far is
+replayed (``x_c``), and each library term ``theta_j(x, u)``, added to row ``i`` with a small
+coefficient ``c_j``, would move the recorded outputs by ``c_j s_j(t)``, where ``s_j`` is the
+response of the model's linear dynamics (``A_c``, the corrected state matrix) to the forcing
+``e_i theta_j(x_c(t), u(t))``: exact to first order in ``c_j`` (the terms enter the dynamics the
+way an input does, through the same zero-order-hold discretisation). So the noise-weighted
+output residual is regressed on the weighted sensitivities, all terms at once::
+
+    (y - x_c) / sigma  =  sum_j c_j s_j / sigma  +  noise
+
+which is output error linearised at the current model (its first Gauss-Newton step) over the
+whole library, rather than SINDy's regression of differentiated states (Brunton, Proctor &
+Kutz, PNAS 113(15), 2016): sensor noise is not differentiated, and a term is judged by what it
+does to the recorded outputs, as every named hypothesis is. The library, per derivative row:
+the linear terms of every state and excited input (so that no nonlinear term stands in for a
+linear error), and the signed squares, cubes and products of the row's *axis*
+(:mod:`validation.vehicles.polynomial_terms`): its own state and the states and inputs whose
+linear contribution to its rate is at least :data:`AXIS_FRACTION` of the largest. A term whose
+sensitivity the linear terms reproduce to :data:`COLLINEAR` of its energy is left out (these data
+cannot tell it from a derivative: an input's ``u|u|`` on steps of one amplitude). The sparse
+regression keeps every linear term and selects nonlinear ones forward, the largest |t| beside
+those already in first, while it passes a two-sided test at :data:`SCREEN_ALPHA` (orthogonal
+forward regression, the term selection of NARMAX identification: Billings, Chen & Korenberg,
+Int. J. Control 49(6), 1989). Forward rather than SINDy's backward thresholding, because the
+library's siblings (``v|v|``, ``v^3``, ``v*p``) are so alike that thresholding them together
+drops them together. That is a screen, not the decision (the residual is not white where
+physics is missing, so its t statistics are optimistic); the decision below has the
+multiplicity correction.
+
+Surviving nonlinear terms (linear survivors are derivative errors, the named hypotheses'
+business, and are not offered, nor are terms a named hypothesis already has, such as ``M_q|q|``)
+become ``search_term`` hypotheses beside the named ones, the :data:`MAX_CANDIDATES` largest |t|
+with their siblings: screened, fitted by output error and accepted by the same rule
+(:func:`validation.diagnose.fitting.weigh_step`, Bonferroni over the named hypotheses and the
+library together), so a cubic stiffness competes with the linear derivative it would otherwise be
+taken for. Accepted terms are reported as found by search, not as named effects.
+
+The terms are evaluated on the model's replayed states, so outputs need not all be measured; the
+search needs a reference that takes ``search_term`` (the linear references) and otherwise
+reports why it did not run.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from validation.diagnose.fitting import FitData, FittedModel
+from validation.vehicles.effects import EffectModel, Hypothesis
+from validation.vehicles.linear_discretisation import zero_order_hold
+from validation.vehicles.polynomial_terms import factor_values, library, parse_term, term_name
+
+#: A state or input belongs to a row's axis when its linear contribution to the row's rate (the
+#: derivative times the signal's RMS) is at least this fraction of the row's largest.
+AXIS_FRACTION = 0.1
+#: Two-sided level of each term's t test in the regression (a screen: :func:`_sparse_regression`).
+SCREEN_ALPHA = 0.01
+#: A library term whose weighted sensitivity the linear terms reproduce to this fraction of its
+#: energy is left out: these data cannot tell it from a linear derivative.
+COLLINEAR = 1e-3
+#: Survivors offered to each step of the stepwise search, the largest |t| first (each with its
+#: sibling, :func:`_sibling`).
+MAX_CANDIDATES = 4
+
+
+@dataclass
+class SearchCandidates:
+    """Outcome of :func:`search_candidates`.
+
+    Attributes
+    ----------
+    hypotheses : list of Hypothesis
+        One ``search_term`` hypothesis per nonlinear survivor, null 0, unbounded.
+    library_terms : int
+        Terms regressed on, over every row (the size of the family the survivors come from).
+    survivors : list of dict
+        ``term``, ``coefficient`` (the regression's estimate, the term's unit), ``t``.
+    reason : str or None
+        Why the search did not run (None when it ran).
+    """
+
+    hypotheses: list = field(default_factory=list)
+    library_terms: int = 0
+    survivors: list = field(default_factory=list)
+    reason: str | None = None
+
+
+def search_candidates(data: FitData, reference: EffectModel, model: FittedModel, *, excited) -> SearchCandidates:
+    """Regress the error of ``model`` (the effects found so far, fitted) on the term library
+    (module docstring) and return its nonlinear survivors as hypotheses. ``excited``: the
+    inputs that move."""
+    linear = getattr(reference, "reference", None)
+    if "search_term" not in reference.kinds or not hasattr(linear, "row_letters"):
+        return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms "
+                                       "(the linear references do)")
+    equations = _normal_equations(data, reference, linear, model.effects(), excited)
+    if equations is None:
+        return SearchCandidates(reason="no fitted samples")
+    gram, projection, energy, count, names = equations
+    survivors = _sparse_regression(gram, projection, energy, count, names)
+    taken = {h.target for h in model.hypotheses if h.effect == "search_term"}
+    taken |= {term for kind, terms in reference.terms.items() if kind != "search_term" for term in terms}
+    survivors = sorted((s for s in survivors if s[0] not in taken), key=lambda survivor: -abs(survivor[2]))
+    offered = {}
+    for term, coefficient, _ in survivors[:MAX_CANDIDATES]:
+        offered.setdefault(term, coefficient)
+        sibling = _sibling(term, linear, coefficient, gram=gram, names=names)
+        if sibling is not None and sibling[0] not in taken:
+            offered.setdefault(*sibling)
+    return SearchCandidates([_hypothesis(term, coefficient) for term, coefficient in offered.items()], len(names),
+                            [{"term": term, "coefficient": coefficient, "t": t} for term, coefficient, t in survivors])
+
+
+def _sibling(term: str, linear, coefficient: float, *, gram: np.ndarray, names: list):
+    """The other odd power of the same signal in the same row (``M_w^3`` for ``M_w|w|`` and
+    back), its coefficient matching the survivor's weighted sensitivity in least squares, or
+    None for a product or a sibling not in the library: one amplitude barely tells a signed
+    square from a cube, so output error chooses between them (and reports the other with its
+    evidence ratio)."""
+    parsed = parse_term(term, linear.row_letters, linear.state_names + linear.input_names)
+    if parsed.kind == "product":
+        return None
+    other = term_name(parsed.letter, "cube" if parsed.kind == "signed_square" else "signed_square", parsed.signals[0])
+    if other not in names:
+        return None
+    i, j = names.index(term), names.index(other)
+    return other, coefficient * float(gram[i, j]) / float(gram[j, j]) if gram[j, j] > 0 else 0.0
+
+
+def _hypothesis(term: str, coefficient: float) -> Hypothesis:
+    """A search term free from 0 (no term), unbounded, its step 5 % of the regression's value."""
+    return Hypothesis("search_term", term, 0.0, -math.inf, math.inf, max(0.05 * abs(coefficient), 1e-12))
+
+
+def _library(linear, A: np.ndarray, signal_rms: np.ndarray, excited) -> tuple[list, list, list]:
+    """The library (module docstring): names, and per term its row index (in the state vector)
+    and its factor (a signal's index for a linear term, a PolynomialTerm otherwise)."""
+    state_names, input_names = linear.state_names, linear.input_names
+    signal_names = state_names + input_names
+    moving = [name for name in input_names if name in excited]
+    names, rows, factors = [], [], []
+    B = linear.B
+    for letter, row_state in linear.row_letters.items():
+        row = state_names.index(row_state)
+        contribution = np.abs(np.concatenate((A[row], B[row]))) * signal_rms
+        axis = [name for name, size in zip(signal_names, contribution)
+                if (name == row_state or size >= AXIS_FRACTION * contribution.max())
+                and (name in state_names or name in moving)]
+        for name in list(state_names) + moving:
+            names.append(f"{letter}_{name}")
+            rows.append(row)
+            factors.append(signal_names.index(name))
+        for name in library([letter], axis):
+            names.append(name)
+            rows.append(row)
+            factors.append(parse_term(name, linear.row_letters, signal_names))
+    return names, rows, factors
+
+
+def _normal_equations(data: FitData, reference: EffectModel, linear, effects: list, excited):
+    """``(gram, projection, energy, n, names)`` of the regression of the weighted residual on the
+    weighted sensitivities (module docstring): ``G^T G`` (L, L), ``G^T r`` (L,), ``r^T r``, the
+    number of residuals and the library's names; None when nothing is fitted."""
+    derivatives = {e["term"]: e["value"] for e in effects if e["effect"] in ("control_derivative",
+                                                                              "stability_derivative")}
+    A = (linear.with_derivatives(derivatives) if derivatives else linear).A
+    state_names = linear.state_names
+    signal_names = state_names + linear.input_names
+    replays = data.simulate_states(reference, [effects], fitted_only=True)
+    parts = [(replay[0], measured, u, time, mask, sd) for replay, measured, u, time, mask, sd
+             in zip(replays, data.measured, data.inputs, data.time, data.fit_mask, data.noise_sd) if replay is not None]
+    if not parts:
+        return None
+    signals = [np.concatenate((x_c, u), axis=1) for x_c, _, u, _, _, _ in parts]
+    rms = np.sqrt(np.mean(np.concatenate([s[mask] for s, (*_, mask, _) in zip(signals, parts)]) ** 2, axis=0))
+    names, rows, factors = _library(linear, A, rms, excited)
+    outputs = [state_names.index(name) for name in data.output_names]
+    polynomial = [i for i, factor in enumerate(factors) if not isinstance(factor, int)]
+    linear_columns = [i for i, factor in enumerate(factors) if isinstance(factor, int)]
+    gram, projection, energy, count = 0.0, 0.0, 0.0, 0
+    for (x_c, measured, _, time, mask, sd), signal in zip(parts, signals):
+        step = float(time[1] - time[0])
+        unit = np.zeros((len(state_names), len(state_names)))
+        unit[rows, rows] = 1.0
+        Phi, Gamma = zero_order_hold(A, unit, step)
+        Gamma = Gamma[:, rows]  # (n_states, L): each term's row forcing
+        theta = np.empty((len(time), len(names)))
+        theta[:, linear_columns] = signal[:, [factors[i] for i in linear_columns]]
+        theta[:, polynomial] = factor_values([factors[i] for i in polynomial], signal_names, signal)
+        forcing = theta[:-1, None, :] * Gamma[None]  # (n - 1, n_states, L), held over each interval
+        response = np.zeros((len(time), len(state_names), len(names)))
+        for k in range(len(time) - 1):
+            response[k + 1] = Phi @ response[k] + forcing[k]
+        weighted = (response[mask][:, outputs, :] / sd[None, :, None]).reshape(-1, len(names))
+        residual = ((measured[mask] - x_c[mask][:, outputs]) / sd).ravel()
+        gram = gram + weighted.T @ weighted
+        projection = projection + weighted.T @ residual
+        energy += float(residual @ residual)
+        count += len(residual)
+    return gram, projection, energy, count, names
+
+
+def _sparse_regression(gram: np.ndarray, projection: np.ndarray, energy: float, count: int,
+                       names: list) -> list:
+    """Forward selection of nonlinear terms on t statistics beside every linear term (module
+    docstring), from the normal equations: the survivors as ``(term, coefficient, t)``, at most
+    :data:`MAX_CANDIDATES`, in the order selected."""
+    nonlinear = np.array([_is_nonlinear(name) for name in names])
+    usable = (np.diag(gram) > 0) & ~(nonlinear & _linear_in_these_data(gram, nonlinear))
+    base = list(np.flatnonzero(usable & ~nonlinear))
+    pool = list(np.flatnonzero(usable & nonlinear))
+    critical = stats.norm.isf(SCREEN_ALPHA / 2)
+    selected, last = [], None
+    for _ in range(MAX_CANDIDATES):
+        best = None
+        for column in pool:
+            columns = base + selected + [column]
+            fit = _least_squares(gram, projection, energy, count, columns)
+            if best is None or abs(fit[1][-1]) > abs(best[1][1][-1]):
+                best = (column, fit)
+        if best is None or abs(best[1][1][-1]) < critical:
+            break
+        selected.append(best[0])
+        pool.remove(best[0])
+        last = best[1]
+    if last is None:
+        return []
+    coefficients, t = last
+    offset = len(base)
+    return [(names[column], float(coefficients[offset + i]), float(t[offset + i])) for i, column in enumerate(selected)]
+
+
+def _least_squares(gram, projection, energy, count, columns) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients and t statistics of the regression on ``columns`` from the normal equations."""
+    inverse = np.linalg.pinv(gram[np.ix_(columns, columns)])
+    coefficients = inverse @ projection[columns]
+    variance = max(energy - float(coefficients @ projection[columns]), 1e-300) / max(count - len(columns), 1)
+    return coefficients, coefficients / np.sqrt(np.maximum(np.diag(inverse) * variance, 1e-300))
+
+
+def _is_nonlinear(name: str) -> bool:
+    """Whether library term ``name`` is a polynomial term rather than a linear one."""
+    return any(mark in name for mark in ("|", "^", "*"))
+
+
+def _linear_in_these_data(gram: np.ndarray, nonlinear: np.ndarray) -> np.ndarray:
+    """Per library column: whether the linear columns reproduce its sensitivity to
+    :data:`COLLINEAR` of its energy (from the normal equations ``gram``), so that these data
+    cannot tell the term from a linear derivative (an input's signed square or cube on a
+    manoeuvre that moves it between trim and one amplitude is exactly a multiple of the input:
+    ``u|u| = A u`` for ``u`` in ``{0, A, -A}``)."""
+    linear = np.flatnonzero(~nonlinear)
+    if not len(linear):
+        return np.zeros(len(gram), dtype=bool)
+    cross = gram[np.ix_(linear, np.arange(len(gram)))]
+    explained = np.einsum("ij,ij->j", cross, np.linalg.pinv(gram[np.ix_(linear, linear)]) @ cross)
+    return np.diag(gram) - explained <= COLLINEAR * np.maximum(np.diag(gram), 1e-300)
