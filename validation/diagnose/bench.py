@@ -32,8 +32,8 @@ The ``blimp`` suite (:func:`blimp_cases`, ``concealed_cases(reference="blimp")``
 ODE: 20 Hz (the mocap rate), all 12 states with the white noise of
 :data:`validation.vehicles.blimp_effects.SENSOR_NOISE_STD`, the manoeuvres of
 :func:`validation.vehicles.blimp_effects.identification_manoeuvre`; single effects of every kind the blimp
-takes, a pair, no effect, and two fan nonlinearities outside the named list (thrust quadratic
-in the command, thrust saturation).
+takes, a pair, no effect, and a fan nonlinearity outside the named list (thrust quadratic in
+the command).
 
 Scorecard columns, per case: every true effect named with the right effect kind and target
 (``named``); the true value inside the reported interval (``in_interval``); the held-out RMSE of
@@ -124,8 +124,8 @@ def _scaled_case(reference: EffectModel, kind: str, term: str, factor: float, *,
 def blimp_cases(*, reference: EffectModel | None = None) -> list[ConcealedCase]:
     """The blimp suite (module docstring): every effect kind the blimp takes at sizes a real
     indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
-    errors, a buoyancy imbalance of 0.3 g), a pair, no effect, and two fan nonlinearities
-    outside the named list (:data:`COMMAND_MAPS`). ``reference``: the blimp's effect model
+    errors, a buoyancy imbalance of 0.3 g, a command limit and a slew limit), a pair, no effect,
+    and a fan nonlinearity outside the named list (:data:`COMMAND_MAPS`). ``reference``: the blimp's effect model
     (default: the ``blimp`` reference's)."""
     reference = reference or effect_model("blimp", purpose="diagnose-bench")
     noise = reference.sensor_noise_sd
@@ -162,8 +162,11 @@ def blimp_cases(*, reference: EffectModel | None = None) -> list[ConcealedCase]:
         ConcealedCase("none", "none", description="the reference itself, with sensor noise"),
         ConcealedCase("outside-quadratic-thrust-u_tail", "outside", outside=("quadratic_thrust", "u_tail", None),
                       description="tail-fan thrust quadratic in its command, u|u| (not a named effect)"),
-        ConcealedCase("outside-saturation-u_gondola", "outside", outside=("saturation", "u_gondola", 0.6),
-                      description="gondola thrust saturating at 60 % command (not a named effect)"),
+        # The gondola steps of 0.8, -0.6 and 0.5: a limit at 0.6 bites the largest only.
+        single({"effect": "saturation", "input": "u_gondola", "value": 0.6}, "saturation-u_gondola-0.6",
+               "gondola thrust command limited at 60 % (the 0.8 steps clip)"),
+        single({"effect": "rate_limit", "input": "u_tail", "value": 2.0}, "rate-limit-u_tail-2/s",
+               "tail-fan command slewing at 2 /s (the 0.8 doublet ramps over 0.4 s)"),
     ]
 
 

@@ -38,7 +38,11 @@ blimp's system inertia matrix, so an extra generalised force ``tau`` adds ``M^-1
 - ``force_offset``, terms ``X_0``, ``Y_0`` (body-axis forces, N), ``N_0`` (yaw moment, N m) and
   ``Z_0`` (net downward force, weight minus buoyancy, N, along the earth vertical and acting at
   the centre of buoyancy: a buoyancy imbalance; the model's is ``-net_lift``);
-- ``sensor_bias`` on any of the 12 states: a constant added to the recorded output.
+- ``sensor_bias`` on any of the 12 states: a constant added to the recorded output;
+- ``dead_band``, ``saturation`` and ``rate_limit`` on an input, before its delay and lag: a dead
+  band of the half-width about rest (:func:`~validation.vehicles.effects.dead_band_inputs`), the
+  command clipped at +/- the limit, and a fan or servo that ramps no faster than the rate limit
+  (:func:`~validation.vehicles.effects.rate_limited_interval_means`), in command units (per s).
 
 Integration: classical RK4 with one step per recording interval, each of its own length
 ``h_k = t_{k+1} - t_k`` (motion-capture frames arrive with timing jitter, so recordings may be
@@ -71,8 +75,10 @@ from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_
 from validation.vehicles.effects import (
     Hypothesis,
     check_trim_start,
+    dead_band_inputs,
     delayed_interval_means,
     lagged_interval_means,
+    rate_limited_interval_means,
     simulate_each_recording,
     starts_at_trim,
 )
@@ -166,21 +172,42 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
 
 
 def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-    """What acts over each interval for each member: the inputs (n, 3) delayed, then lagged, by
-    the member's effects (module docstring), shape (B, n - 1, 3)."""
+    """What acts over each interval for each member: the inputs (n, 3) through the member's
+    dead bands, limits and rate limits, then delayed, then lagged (module docstring), shape
+    (B, n - 1, 3)."""
     held = np.repeat(inputs[None, :-1], len(effect_lists), axis=0)
     lags = []  # (member, input column, time constant)
     for b, effects in enumerate(effect_lists):
+        commanded = _shaped_inputs(effects, time, inputs)
+        held[b] = commanded[:-1]
         for effect in effects:  # delays first: a lag acts on the delayed input
             if effect["effect"] == "time_delay" and effect["value"] > 0:
                 j = INPUT_NAMES.index(effect["input"])
-                held[b, :, j] = delayed_interval_means(inputs[:, j], effect["value"], time)
+                held[b, :, j] = delayed_interval_means(commanded[:, j], effect["value"], time)
         lags += [(b, INPUT_NAMES.index(effect["input"]), effect["value"]) for effect in effects
                  if effect["effect"] == "input_lag" and effect["value"] > 0]
     if lags:
         members, columns, time_constants = (np.array(values) for values in zip(*lags))
         held[members, :, columns] = lagged_interval_means(held[members, :, columns], time_constants, np.diff(time))
     return held
+
+
+def _shaped_inputs(effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """The inputs (n, 3) through ``effects``' dead bands and limits about rest (0) and their
+    rate limits (interval means of the ramps, rows 0 .. n-2; the last row as recorded)."""
+    shaped = inputs
+    for effect in effects:
+        kind = effect["effect"]
+        if kind in ("dead_band", "saturation", "rate_limit"):
+            shaped = shaped.copy() if shaped is inputs else shaped
+            j = INPUT_NAMES.index(effect["input"])
+            if kind == "dead_band":
+                shaped[:, j] = dead_band_inputs(shaped[:, j], effect["value"])
+            elif kind == "saturation":
+                np.clip(shaped[:, j], -effect["value"], effect["value"], out=shaped[:, j])
+            else:
+                shaped[:-1, j] = rate_limited_interval_means(shaped[:-1, j], effect["value"], np.diff(time))
+    return shaped
 
 
 @dataclass
@@ -310,7 +337,7 @@ class BlimpEffects:
 
     family = "blimp"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias", "quadratic_drag",
-             "force_offset")
+             "force_offset", "dead_band", "saturation", "rate_limit")
     terms = TERMS
     batches_simulations = True
     absolute_inputs = False

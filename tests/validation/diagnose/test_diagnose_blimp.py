@@ -112,6 +112,26 @@ def test_no_effect_on_the_blimp_is_consistent():
         assert result["fit"]["rmse_reference"][name] < 1.2 * SENSOR_NOISE_STD[name]
 
 
+def test_command_limits_are_the_reference_flown_with_the_shaped_commands(manoeuvre):
+    """A dead band, a limit and a rate limit on a blimp input are the reference flown with the
+    command through them (built independently here; the rate limit as the exact interval means
+    of the ramps), to rounding, and each changes the flight."""
+    from validation.vehicles.effects import rate_limited_interval_means
+
+    time, inputs = manoeuvre
+    banded, limited, ramped = inputs.copy(), inputs.copy(), inputs.copy()
+    banded[:, 0] = np.sign(inputs[:, 0]) * np.maximum(np.abs(inputs[:, 0]) - 0.2, 0.0)
+    limited[:, 0] = np.clip(inputs[:, 0], -0.6, 0.6)
+    ramped[:-1, 2] = rate_limited_interval_means(inputs[:-1, 2], 2.0, np.diff(time))
+    plain = _states([], time, inputs)
+    for effect, flown in (({"effect": "dead_band", "input": "u_gondola", "value": 0.2}, banded),
+                          ({"effect": "saturation", "input": "u_gondola", "value": 0.6}, limited),
+                          ({"effect": "rate_limit", "input": "u_tail", "value": 2.0}, ramped)):
+        got = _states([effect], time, inputs)
+        np.testing.assert_allclose(got, _states([], time, flown), rtol=0, atol=1e-12)
+        assert np.abs(got - plain).max() > 1e-3, effect
+
+
 BLIMP_CASES = {
     "quadratic_drag": [{"effect": "quadratic_drag", "term": "X_UU", "value": 1.5 * -DEFAULT.quadratic_drag[0]}],
     "buoyancy": [{"effect": "force_offset", "term": "Z_0", "value": 0.003}],
@@ -167,7 +187,7 @@ def test_blimp_bench_suite_covers_every_blimp_effect_kind():
     cases = concealed_cases(reference="blimp")
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative",
-                     "quadratic_drag", "force_offset", "sensor_bias"}
+                     "quadratic_drag", "force_offset", "sensor_bias", "saturation", "rate_limit"}
     assert {case.kind for case in cases} == {"single", "pair", "none", "outside"}
     assert len({case.name for case in cases}) == len(cases)
 
