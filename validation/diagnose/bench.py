@@ -166,7 +166,7 @@ def blimp_cases(*, reference: EffectModel | None = None) -> list[ConcealedCase]:
         single({"effect": "saturation", "input": "u_gondola", "value": 0.6}, "saturation-u_gondola-0.6",
                "gondola thrust command limited at 60 % (the 0.8 steps clip)"),
         single({"effect": "rate_limit", "input": "u_tail", "value": 2.0}, "rate-limit-u_tail-2/s",
-               "tail-fan command slewing at 2 /s (the 0.8 doublet ramps over 0.4 s)"),
+               "tail-fan command slewing at 2 /s (the doublet's 0.8 steps ramp over 0.4 s, its reversal 0.8 s)"),
     ]
 
 
@@ -380,13 +380,12 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
 
 #: Static command nonlinearities outside the named list, ``(command, parameter) -> effective
 #: command``: a dead band of half-width ``w`` (the command loses ``w`` and nothing passes below
-#: it); thrust quadratic in the command, ``u |u|`` (a fixed-pitch fan's thrust goes with its
-#: speed squared when the command sets the speed; the parameter is unused); saturation at
-#: ``+/- limit``.
+#: it; outside the list of references that take no dead band); thrust quadratic in the command,
+#: ``u |u|`` (a fixed-pitch fan's thrust goes with its speed squared when the command sets the
+#: speed; the parameter is unused).
 COMMAND_MAPS = {
     "dead_band": lambda u, width: dead_band_inputs(u, width),
     "quadratic_thrust": lambda u, _: u * np.abs(u),
-    "saturation": lambda u, limit: np.clip(u, -limit, limit),
 }
 
 

@@ -28,11 +28,19 @@ Statistical Learning*, 2nd ed., 2009, sec. 3.3.2):
    effect captures (that is left to the ``unexplained`` finding and the residual GP). At most
    :data:`MAX_EFFECTS` effects.
 
+At every step the residual search (:mod:`validation.diagnose.search`) offers the terms of its
+library the current model's error holds beside the named hypotheses (``search_term``, linear
+references); they are screened, fitted and accepted alike, the Bonferroni family of a step being
+the named hypotheses and the library together.
+
 Evidence between competitors (same number of parameters) is the likelihood ratio
 ``exp((RSS_alt - RSS_best) / 2)``; ``confidence`` is the Akaike weight of the winner among the
 fitted competitors and "no further effect" (Burnham & Anderson, *Model Selection and Multimodel
 Inference*, 2nd ed., 2002, sec. 2.9). Each accepted effect is finally ranked by its drop-one
-likelihood ratio (against the final model refitted without it).
+likelihood ratio (against the final model refitted without it), and each constant change (a
+derivative, a gain, an FMU's parameter) is checked for amplitude dependence
+(:func:`amplitude_check`), which caps the confidence of one the data want different on large and
+small excursions.
 """
 from __future__ import annotations
 
@@ -50,8 +58,9 @@ from validation.vehicles.effects import MAX_DELAY, MAX_LAG, TARGET_KEYS, EffectM
 
 #: Most named effects in one diagnosis (pairs must be found; three leaves room for one more).
 MAX_EFFECTS = 3
-#: Effects that claim a linear change, checked for amplitude dependence (:func:`amplitude_check`).
-LINEAR_KINDS = ("control_derivative", "stability_derivative", "input_gain")
+#: Effects that claim a constant change (a derivative, a gain, an FMU's parameter), checked for
+#: amplitude dependence (:func:`amplitude_check`).
+LINEAR_KINDS = ("control_derivative", "stability_derivative", "input_gain", "fmu_parameter")
 #: Level of the amplitude test of each linear finding.
 AMPLITUDE_ALPHA = 0.01
 #: Hypotheses fitted in full per step, besides the best of each kind.
@@ -211,44 +220,67 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
 
 
 def amplitude_check(data: FitData, reference: EffectModel, model: FittedModel, index: int, *, main_output: int,
-                    reference_replay: list, fits: dict | None = None) -> dict:
-    """Whether linear change ``index`` of ``model`` holds at every amplitude: ``model`` refitted
-    on the samples where the reference's replay of its main output is beyond its median size
-    (the larger excursions) and on the rest (the smaller), every value free. With a linear
-    vehicle both fits estimate the same values, and ``LR = RSS - (RSS_small + RSS_large)`` is
-    chi-squared with ``p`` degrees of freedom (``p`` values; Chow's test, Econometrica 28(3),
-    1960); an amplitude-dependent response, such as a damping that grows with the rate or a
-    stiffness that hardens, prefers different values. ``fits``, optional: a dict that keeps the
-    two refits per main output, for the other findings of the same model.
+                    reference_replay: list, fits: dict | None = None) -> dict | None:
+    """Whether change ``index`` of ``model`` holds at every amplitude.
+
+    ``model`` is refitted on the samples where the reference's replay of the change's main
+    output is beyond its median size (the larger excursions) and on the rest (the smaller). With a
+    vehicle linear in that change both refits estimate the same value, so
+    ``W = (v_large - v_small)^2 / (var_large + var_small)`` (Wald's form of Chow's test for one
+    coefficient, Chow, Econometrica 28(3), 1960; the variances from each refit's Wald
+    covariance) is chi-squared with one degree of freedom; an amplitude-dependent response, such
+    as a damping that grows with the rate or a stiffness that hardens, wants different values.
+
+    Parameters
+    ----------
+    data : FitData
+    reference : EffectModel
+    model : FittedModel
+        The accepted effects, jointly fitted.
+    index : int
+        The change tested, an index into ``model.hypotheses``.
+    main_output : int
+        Index in ``data.output_names`` of the output split on (the change's main output).
+    reference_replay : list of ndarray, shape (n_r, n_out)
+        Per recording, the reference's replay without effects.
+    fits : dict, optional
+        Keeps the two refits per main output, for the other changes of the same model.
 
     Returns
     -------
-    dict
-        ``value_small``, ``value_large`` (the change's value on each part),
-        ``likelihood_ratio``, ``amplitude_dependent`` (LR above the chi-squared quantile at
+    dict or None
+        ``value_small``, ``value_large`` (the change's value on each part), ``likelihood_ratio``
+        (``W``), ``amplitude_dependent`` (``W`` above the chi-squared quantile at
         :data:`AMPLITUDE_ALPHA`) and ``weight_linear``: the Akaike weight of one value for all
-        amplitudes against two, which caps the confidence of an amplitude-dependent finding
-        (at most e/(1+e) = 0.73 even at LR = 0, so it caps no other).
+        amplitudes against two, ``1 / (1 + exp((W - 2) / 2))``, which caps the confidence of an
+        amplitude-dependent finding (at most 0.73, at W = 0, so it caps no other). None when a
+        part has fewer fitted samples than the model has values (a main output the reference
+        never moves).
     """
     fits = {} if fits is None else fits
     if main_output not in fits:
-        sizes = [np.abs(replay[mask, main_output]) for replay, mask in zip(reference_replay, data.fit_mask)]
-        median = float(np.median(np.concatenate(sizes)))
+        sizes = np.concatenate([np.abs(replay[mask, main_output])
+                                for replay, mask in zip(reference_replay, data.fit_mask)])
+        median = float(np.median(sizes)) if sizes.size else 0.0
         large = [mask & (np.abs(replay[:, main_output]) > median)
                  for replay, mask in zip(reference_replay, data.fit_mask)]
         small = [mask & ~part for mask, part in zip(data.fit_mask, large)]
-        fits[main_output] = fit_many(replace(data, fit_mask=small), reference, [(model.hypotheses, model.values)]) + \
-            fit_many(replace(data, fit_mask=large), reference, [(model.hypotheses, model.values)])
+        if min(sum(int(m.sum()) for m in part) for part in (small, large)) <= len(model.hypotheses):
+            fits[main_output] = None
+        else:
+            fits[main_output] = [fit_many(replace(data, fit_mask=part), reference,
+                                          [(model.hypotheses, model.values)])[0] for part in (small, large)]
     parts = fits[main_output]
-    n_values = len(model.hypotheses)
-    lr = max(model.rss - parts[0].rss - parts[1].rss, 0.0)
+    if parts is None:
+        return None
     h = model.hypotheses[index]
-    # AIC = RSS + 2 k: one set of values (k = p) against one per part (k = 2 p).
-    weight = 1.0 / (1.0 + math.exp(min((-lr + 2 * n_values) / -2.0, 700.0)))
+    difference = parts[1].values[index] - parts[0].values[index]
+    variance = parts[0].covariance[index, index] + parts[1].covariance[index, index]
+    wald = float(difference ** 2 / variance) if variance > 0 else 0.0
     return {"value_small": h.effect_value(parts[0].values[index]),
-            "value_large": h.effect_value(parts[1].values[index]), "likelihood_ratio": float(lr),
-            "amplitude_dependent": bool(lr > stats.chi2.isf(AMPLITUDE_ALPHA, n_values)),
-            "weight_linear": float(weight)}
+            "value_large": h.effect_value(parts[1].values[index]), "likelihood_ratio": wald,
+            "amplitude_dependent": bool(wald > stats.chi2.isf(AMPLITUDE_ALPHA, 1)),
+            "weight_linear": float(1.0 / (1.0 + math.exp(min((wald - 2.0) / 2.0, 700.0))))}
 
 
 def _excursions(data: PreparedData) -> dict:

@@ -268,7 +268,8 @@ def _fit_batched(data: FitData, reference: EffectModel, problems: list) -> list[
             for state in states]
 
 
-def weigh_step(data: FitData, model: FittedModel, fits: list[FittedModel], *, n_tested: int):
+def weigh_step(data: FitData, model: FittedModel, fits: list[FittedModel], *,
+               n_tested: int) -> tuple[FittedModel, dict | None, dict | None]:
     """One step of a stepwise search: the best of ``fits`` (each ``model`` plus one hypothesis)
     and whether it is accepted. Accepted when its likelihood ratio against ``model`` passes a
     Bonferroni-corrected chi-squared test at :data:`FAMILY_ALPHA` over the ``n_tested``
@@ -276,6 +277,17 @@ def weigh_step(data: FitData, model: FittedModel, fits: list[FittedModel], *, n_
     does not explain (``RSS - N``); its confidence is its Akaike weight among ``fits`` and
     ``model`` (Burnham & Anderson, *Model Selection and Multimodel Inference*, 2nd ed., 2002,
     sec. 2.9), its alternatives the competitors within :data:`MAX_EVIDENCE_RATIO`.
+
+    Parameters
+    ----------
+    data : FitData
+        For the number of residuals ``N``.
+    model : FittedModel
+        The effects accepted so far.
+    fits : list of FittedModel
+        ``model`` plus one hypothesis each, fitted jointly.
+    n_tested : int
+        Hypotheses tested at this step (the Bonferroni family).
 
     Returns
     -------

@@ -133,12 +133,6 @@ def _input_words(name: str) -> str:
     return name if phrase == name else f"{name}, the {phrase}"
 
 
-def _named_input(name: str) -> str:
-    """``"lateral cyclic pitch (theta_1c)"``: an input in words with its name, or the name alone."""
-    words = column_phrase(name)
-    return f"{words} ({name})" if words != name else name
-
-
 def _improvement(finding: dict, fit: dict) -> str:
     """``" Adding it cuts held-out pitch rate RMSE from 0.031 to 0.006 rad/s."``"""
     name = finding.get("main_output")
@@ -196,19 +190,18 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
             text = (f"The {words} response is smoothed by a first-order lag of {_number(value)} s "
                     f"{interval} on {control}: unmodelled actuator or rotor dynamics.")
     elif kind == "dead_band":
-        text = (f"The {_named_input(finding['input'])} moves nothing within {_number(value)} {unit} {interval} "
-                "of where it started, and beyond that arrives short by as much: a dead band (free play) on "
-                f"{finding['input']}.")
+        text = (f"A dead band (free play) on {_input_words(finding['input'])}: nothing passes within "
+                f"{_number(value)} {unit} {interval} of where it started, and beyond that the input arrives short "
+                "by as much.")
     elif kind == "saturation":
-        text = (f"The {_named_input(finding['input'])} stops at {_number(value)} {unit} {interval} from trim: a "
-                f"position limit (saturation) on {finding['input']}.")
+        text = (f"A position limit (saturation) on {_input_words(finding['input'])}: it stops at {_number(value)} "
+                f"{unit} {interval} from trim.")
     elif kind == "rate_limit":
-        text = (f"The {_named_input(finding['input'])} moves no faster than {_number(value)} {unit} {interval}: "
-                f"a rate limit on {finding['input']} (its actuator ramps where the command steps, longer on "
-                "larger steps).")
+        text = (f"A rate limit on {_input_words(finding['input'])}: it moves no faster than {_number(value)} "
+                f"{unit} {interval}, so its actuator ramps where the command steps, longer on larger steps.")
     elif kind == "input_gain":
-        text = (f"The {_named_input(finding['input'])} acts {_number(value)} times as strongly as the model "
-                f"has it {interval}: a control-effectiveness (gain) error.")
+        text = (f"A control-effectiveness (gain) error on {_input_words(finding['input'])}: it acts "
+                f"{_number(value)} times as strongly as the model has it {interval}.")
     elif kind == "output_scale":
         text = (f"The {column_phrase(finding['output'])} reads {_number(value)} times the model's {interval}: "
                 f"a scale-factor error on {finding['output']}.")

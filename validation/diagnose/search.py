@@ -64,6 +64,11 @@ SCREEN_ALPHA = 0.01
 #: A library term whose weighted sensitivity the linear terms reproduce to this fraction of its
 #: energy is left out: these data cannot tell it from a linear derivative.
 COLLINEAR = 1e-3
+#: Screening step of a search term, a fraction of the regression's coefficient: 5 %, as a
+#: derivative's (:meth:`validation.vehicles.linear_effects.LinearEffects.term_hypotheses`), where
+#: one Gauss-Newton step stays near linear; the floor keeps a step where the coefficient is 0.
+SEARCH_STEP = 0.05
+SEARCH_STEP_FLOOR = 1e-12
 #: Survivors offered to each step of the stepwise search, the largest |t| first (each with its
 #: sibling, :func:`_sibling`).
 MAX_CANDIDATES = 4
@@ -92,9 +97,25 @@ class SearchCandidates:
 
 
 def search_candidates(data: FitData, reference: EffectModel, model: FittedModel, *, excited) -> SearchCandidates:
-    """Regress the error of ``model`` (the effects found so far, fitted) on the term library
-    (module docstring) and return its nonlinear survivors as hypotheses. ``excited``: the
-    inputs that move."""
+    """Regress the error of ``model`` on the term library (module docstring) and return its
+    nonlinear survivors as hypotheses.
+
+    Parameters
+    ----------
+    data : FitData
+        The recordings; the terms' inputs are the recorded ones (a screen: output error then
+        replays each survivor with the model's own input effects).
+    reference : EffectModel
+        A linear reference (one that takes ``search_term``); any other gets a reason.
+    model : FittedModel
+        The effects found so far, jointly fitted.
+    excited : sequence of str
+        The inputs that move (the others get no linear or library terms).
+
+    Returns
+    -------
+    SearchCandidates
+    """
     linear = getattr(reference, "reference", None)
     if "search_term" not in reference.kinds or not hasattr(linear, "row_letters"):
         return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms "
@@ -134,8 +155,10 @@ def _sibling(term: str, linear, coefficient: float, *, gram: np.ndarray, names: 
 
 
 def _hypothesis(term: str, coefficient: float) -> Hypothesis:
-    """A search term free from 0 (no term), unbounded, its step 5 % of the regression's value."""
-    return Hypothesis("search_term", term, 0.0, -math.inf, math.inf, max(0.05 * abs(coefficient), 1e-12))
+    """A search term free from 0 (no term), unbounded, screened at :data:`SEARCH_STEP` of the
+    regression's value (at least :data:`SEARCH_STEP_FLOOR`)."""
+    return Hypothesis("search_term", term, 0.0, -math.inf, math.inf,
+                      max(SEARCH_STEP * abs(coefficient), SEARCH_STEP_FLOOR))
 
 
 def _library(linear, A: np.ndarray, signal_rms: np.ndarray, excited) -> tuple[list, list, list]:

@@ -193,12 +193,12 @@ def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarr
 
 
 def _shaped_inputs(effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-    """The inputs (n, 3) through ``effects``' dead bands and limits about rest (0) and their
-    rate limits (interval means of the ramps, rows 0 .. n-2; the last row as recorded)."""
+    """The inputs (n, 3) through ``effects``' dead bands, then limits about rest (0), then rate
+    limits (interval means of the ramps, rows 0 .. n-2; the last row as recorded), in that order
+    whatever the order of ``effects``, as on every reference."""
     shaped = inputs
-    for effect in effects:
-        kind = effect["effect"]
-        if kind in ("dead_band", "saturation", "rate_limit"):
+    for kind in ("dead_band", "saturation", "rate_limit"):  # this order, whatever the list's
+        for effect in (e for e in effects if e["effect"] == kind):
             shaped = shaped.copy() if shaped is inputs else shaped
             j = INPUT_NAMES.index(effect["input"])
             if kind == "dead_band":

@@ -354,9 +354,10 @@ def rate_limited_interval_means(held: np.ndarray, rate: float, steps: np.ndarray
     rate-limit nonlinearity of an actuator, Slotine and Li, *Applied Nonlinear Control*, 1991,
     sec. 5.2; continuous in time, so a step of ``d`` ramps over ``|d| / rate`` s whatever the
     sampling). Starting at ``centre`` (trim, or the command held before the recording), with
-    ``d`` the distance to the command at an interval's start and ``tau = |d| / rate``: the mean
-    is ``u - d tau / (2 h)`` when the ramp ends within the interval (``tau <= h``), else
-    ``y + sign(d) rate h / 2``; the input's integral over each interval is exact.
+    ``y`` the actuator's position at an interval's start, ``u`` the command held over it,
+    ``d = u - y`` and ``tau = |d| / rate``: the mean is ``u - d tau / (2 h)`` when the ramp ends
+    within the interval (``tau <= h``), else ``y + sign(d) rate h / 2``; the input's integral over
+    each interval is exact.
 
     Parameters
     ----------

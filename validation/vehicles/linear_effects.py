@@ -140,14 +140,14 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
     rates = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "rate_limit"]
     if bands or gains or limits or rates:  # about trim (0): the inputs are perturbations from it
         held = held.copy()
-        for column, half_width in bands:
+        for column, half_width in bands:  # the order of every reference: band, limit, rate limit, gain
             held[:, column] = dead_band_inputs(held[:, column], half_width)
-        for column, gain in gains:
-            held[:, column] *= gain
         for column, limit in limits:
             np.clip(held[:, column], -limit, limit, out=held[:, column])
         for column, rate in rates:
             held[:, column] = rate_limited_interval_means(held[:, column], rate, np.full(len(held), step))
+        for column, gain in gains:
+            held[:, column] *= gain
     undelayed = [column for column in range(n_inputs) if column not in delays]
     forcing = held[:, undelayed] @ Gamma[:, undelayed].T
     for column, delay in delays.items():
@@ -213,7 +213,10 @@ class LinearEffects:
         self.terms = {"control_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.input_names),
                       "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names),
                       "nonlinear_damping": tuple(term_name(a, "signed_square", s) for a, s in letters.items()),
-                      "search_term": tuple(library(letters, reference.state_names + reference.input_names))}
+                      "search_term": ()}
+        damping = set(self.terms["nonlinear_damping"])  # a named term is not also a searched one
+        signals = reference.state_names + reference.input_names
+        self.terms["search_term"] = tuple(term for term in library(letters, signals) if term not in damping)
         self.sensor_noise_sd = dict.fromkeys(reference.state_names, 0.0)
 
     def _polynomial(self, term: str):
@@ -249,7 +252,7 @@ class LinearEffects:
         due to <column>"`` (``"side force due to longitudinal cyclic pitch"``); a polynomial term
         as ``"<row force or moment> proportional to <factor>"``, with what it means where the
         factor is the row's own state (damping that grows with it) or another state's signed
-        square or cube (a restoring term that is not linear); else ``term``."""
+        square or cube (not linear in that state); else ``term``."""
         if term in DERIVATIVE_NAMES:
             return DERIVATIVE_NAMES[term]
         letter, _, column = term.partition("_")
@@ -260,7 +263,7 @@ class LinearEffects:
             if polynomial.kind != "product" and signal == self.reference.row_letters[letter]:
                 meaning = f" (damping that grows with {column_phrase(signal)})"
             elif polynomial.kind != "product" and signal in self.state_names:
-                meaning = f" (a {column_phrase(signal)} stiffness that is not linear)"
+                meaning = f" (not linear in {column_phrase(signal)})"
             return f"{_ROW_WORDS[letter]} proportional to {polynomial.factor}{meaning}"
         if letter in _ROW_WORDS and column in self.state_names + self.input_names:
             return f"{_ROW_WORDS[letter]} due to {column_phrase(column)}"

@@ -12,7 +12,8 @@ state (:attr:`validation.vehicles.state_space.LinearReference.row_letters`). A f
   Nayfeh & Mook, *Nonlinear Oscillations*, 1979, ch. 4);
 - ``a*b``: product of two different signals (an inertial or aerodynamic coupling).
 
-Inputs in a factor are the held inputs after the input effects (what reaches the vehicle). The
+Inputs in a factor are the held inputs after the dead bands, limits, rate limits and gains of
+the input effects, before their delays and lags. The
 replay (:func:`propagate_with_terms`) enters the terms through the reference's exact
 zero-order-hold discretisation as extra inputs, each held over a sample interval at its mean of
 the interval's two ends (Heun's predictor-corrector); its error is second order in the step.
@@ -150,7 +151,8 @@ def propagate_with_terms(terms, values, rows, *, F: np.ndarray, step: float, Phi
     forcing : ndarray, shape (n - 1, size)
         The inputs' contribution over each interval.
     held : ndarray, shape (n - 1, n_inputs)
-        The held inputs after the input effects.
+        The held inputs after the dead bands, limits, rate limits and gains (before delays and
+        lags).
     n_states : int
         Rigid-body states (the first ``n_states`` of the augmented state).
     signal_names : sequence of str

@@ -130,6 +130,10 @@ def test_command_limits_are_the_reference_flown_with_the_shaped_commands(manoeuv
         got = _states([effect], time, inputs)
         np.testing.assert_allclose(got, _states([], time, flown), rtol=0, atol=1e-12)
         assert np.abs(got - plain).max() > 1e-3, effect
+    # One order whatever the list's: a limit then a rate limit on the same input.
+    both = [{"effect": "rate_limit", "input": "u_gondola", "value": 1.0},
+            {"effect": "saturation", "input": "u_gondola", "value": 0.6}]
+    np.testing.assert_array_equal(_states(both, time, inputs), _states(both[::-1], time, inputs))
 
 
 BLIMP_CASES = {

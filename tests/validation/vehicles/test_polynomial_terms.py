@@ -77,6 +77,7 @@ def test_search_terms_have_units_and_words():
     assert "N_v^3" in model.terms["search_term"] and model.model_value("N_v^3") == 0.0
     assert model.term_unit("N_v^3") == "(rad/s^2)/(m/s)^3"
     assert model.term_unit("M_q*w") == "(rad/s^2)/(rad/s m/s)"
-    assert model.term_description("N_v^3") == ("yaw moment proportional to v^3 (a lateral velocity stiffness "
-                                               "that is not linear)")
+    assert model.term_description("N_v^3") == "yaw moment proportional to v^3 (not linear in lateral velocity)"
+    # A named term is not also a searched one: M_q|q| is nonlinear damping only.
+    assert "M_q|q|" in model.terms["nonlinear_damping"] and "M_q|q|" not in model.terms["search_term"]
     assert model.term_description("M_q|q|").endswith("(damping that grows with pitch rate)")
