@@ -132,3 +132,33 @@ def test_a_siblings_coefficient_matches_the_survivors_sensitivity():
     assert _sibling("N_v^3", linear, 1.0, gram=gram, names=names) == ("N_v|v|", 2.0 / 4.0)
     assert _sibling("N_v*p", linear, 1.0, gram=gram, names=names) is None
     assert _sibling("N_v^3", linear, 1.0, gram=gram[1:, 1:], names=names[1:]) is None
+
+
+def test_a_step_is_accepted_only_past_both_thresholds_and_lists_its_close_competitors():
+    """weigh_step: the best fit is accepted when its likelihood ratio passes the Bonferroni
+    chi-squared threshold and 5 % of the unexplained energy; its confidence is its Akaike weight
+    and the competitors within the evidence limit are its alternatives."""
+    import math
+
+    from validation.diagnose.fitting import FittedModel, weigh_step
+    from validation.vehicles.effects import Hypothesis
+
+    class Data:
+        n_residuals = 1000
+
+    def fitted(name, rss):
+        return FittedModel([Hypothesis("time_delay", name, 0.0, 0.0, 1.0, 0.01)], np.array([0.05]), rss,
+                           np.eye(1))
+
+    model = FittedModel([], np.zeros(0), 1100.0, np.zeros((0, 0)))
+    best, step, rejected = weigh_step(Data, model, [fitted("a", 1010.0), fitted("b", 1012.0), fitted("c", 1090.0)],
+                                      n_tested=10)
+    assert rejected is None and best.hypotheses[0].target == "a" and step["lr"] == pytest.approx(90.0)
+    weights = np.exp(-(np.array([1100.0, 1012.0, 1012.0 + 2.0, 1092.0]) - 1012.0) / 2)
+    assert step["confidence"] == pytest.approx(weights[1] / weights.sum())
+    assert [a["input"] for a in step["alternatives"]] == ["b"]  # c is 1e17:1 against
+    assert step["alternatives"][0]["evidence_ratio"] == pytest.approx(math.exp(1.0))
+    # An LR of 5 is under the threshold: chi-squared at 0.01 / 10 (10.8), above 5 % of the 100 unexplained.
+    _, step, rejected = weigh_step(Data, model, [fitted("a", 1095.0)], n_tested=10)
+    assert step is None and rejected["lr"] == pytest.approx(5.0)
+    assert rejected["threshold"] == pytest.approx(max(stats.chi2.isf(0.001, 1), 0.05 * 100.0))

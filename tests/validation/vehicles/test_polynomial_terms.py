@@ -81,3 +81,38 @@ def test_search_terms_have_units_and_words():
     # A named term is not also a searched one: M_q|q| is nonlinear damping only.
     assert "M_q|q|" in model.terms["nonlinear_damping"] and "M_q|q|" not in model.terms["search_term"]
     assert model.term_description("M_q|q|").endswith("(damping that grows with pitch rate)")
+
+
+def test_a_term_with_a_lagged_input_follows_rk4_of_the_augmented_model():
+    """The terms' forcing goes through the augmented system of the lags: N_v^3 with an 80 ms lag
+    on theta_1c against RK4 of ``x_dot = A x + B' u + b_c z + e_N c v^3``, ``T z_dot = u_c - z``
+    (``B'`` without theta_1c's column): within 1e-3 of each state's largest excursion."""
+    model = effect_model("bo105-80kt", purpose="test")
+    linear = model.reference
+    time, inputs = identification_manoeuvre(duration=10.0, sample_time=0.01)
+    lag, value = 0.08, 0.006
+    replay = model.simulate_many([[{"effect": "input_lag", "input": "theta_1c", "value": lag},
+                                   {"effect": "search_term", "term": "N_v^3", "value": value}]], time, inputs)[0]
+    A, B = linear.A, linear.B
+    column = linear.input_names.index("theta_1c")
+    b_lagged = B[:, column].copy()
+    B[:, column] = 0.0
+    n_row, v = linear.state_names.index("r"), linear.state_names.index("v")
+
+    def rate(state, u):
+        x, z = state[:-1], state[-1]
+        dx = A @ x + B @ u + b_lagged * z
+        dx[n_row] += value * x[v] ** 3
+        return np.append(dx, (u[column] - z) / lag)
+
+    h = time[1] - time[0]
+    states = np.zeros((len(time), len(linear.state_names) + 1))
+    for k in range(len(time) - 1):
+        s, u = states[k], inputs[k]
+        k1 = rate(s, u)
+        k2 = rate(s + h / 2 * k1, u)
+        k3 = rate(s + h / 2 * k2, u)
+        k4 = rate(s + h * k3, u)
+        states[k + 1] = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    rk4 = states[:, :-1]
+    assert np.all(np.abs(replay - rk4).max(axis=0) <= 1e-3 * np.abs(rk4).max(axis=0))
