@@ -7,9 +7,10 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
 - **single** named effects on several channels and at several magnitudes, all at or above
   realistic sizes (delay >= 40 ms, lag >= 50 ms, derivative changes >= 25 %, biases >= 3x the
   sensor noise; dead bands, limits and rate limits that bite on the manoeuvre's steps). A
-  quadratic pitch damping ``M_q|q|`` is a named effect (``nonlinear_damping``) and a cubic
-  weathercock stiffness ``N_v^3`` a term the residual search must find (``search_term``), both
-  flown by RK4 of the continuous model rather than by the replay diagnose fits with;
+  quadratic pitch damping ``M_q|q|`` and a cubic weathercock stiffness ``N_v^3`` are named
+  effects (``nonlinear_damping``, ``nonlinear_stiffness``) and a pitch control power quadratic
+  in deflection a term the residual search must find (``search_term``), all flown by RK4 of the
+  continuous model rather than by the replay diagnose fits with;
 - **pair**: two named effects at once (one of them nonlinear in one pair);
 - **none**: the reference itself (any finding is a false finding);
 - **ambiguous**: a dead band flown at one amplitude, which no data of that manoeuvre can tell
@@ -247,13 +248,21 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                       ({"effect": "nonlinear_damping", "term": "M_q|q|", "value": -40.0},),
                       outside=("polynomial_term", "M_q|q|", -40.0),
                       description="quadratic pitch damping M_q|q| = -40 (rad/s^2)/(rad/s)^2, flown by RK4"),
-        # Not a named effect: weathercock stiffness cubic in the sideslip velocity (at the 2.5 m/s
-        # the manoeuvre reaches, c v^3 is 0.094 rad/s^2 against N_v v = 0.32), flown by RK4. The
-        # residual search must find it; a linear N_v must not be taken for it.
+        # Weathercock stiffness cubic in the sideslip velocity (at the 2.5 m/s the manoeuvre
+        # reaches, c v^3 is 0.094 rad/s^2 against N_v v = 0.32), flown by RK4: a linear N_v must
+        # not be taken for it.
         ConcealedCase("cubic-stiffness-N_v^3", "single",
-                      ({"effect": "search_term", "term": "N_v^3", "value": 0.006},),
+                      ({"effect": "nonlinear_stiffness", "term": "N_v^3", "value": 0.006},),
                       outside=("polynomial_term", "N_v^3", 0.006),
                       description="yaw moment cubic in lateral velocity N_v^3 = 0.006 (rad/s^2)/(m/s)^3, flown by RK4"),
+        # Not a named effect: pitch control power growing with deflection, c u|u| (+30 % of the
+        # linear M_theta_1s u at 2 deg), flown by RK4 at 1 and 2 deg. The residual search must
+        # find it (a gain, a dead band or a limit fits neither amplitude).
+        ConcealedCase("control-power-M_theta_1s|theta_1s|", "single",
+                      ({"effect": "search_term", "term": "M_theta_1s|theta_1s|", "value": 400.0},),
+                      outside=("polynomial_term", "M_theta_1s|theta_1s|", 400.0), fit_variant=2,
+                      description="pitch control power quadratic in deflection, M_theta_1s|theta_1s| = 400 "
+                                  "(rad/s^2)/rad^2, 1 and 2 deg steps, flown by RK4; found by search"),
     ]
     return cases
 

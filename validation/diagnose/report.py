@@ -213,6 +213,11 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         term = finding["term"]
         text = (f"Found by search of the residual, not a named effect: the {reference.term_description(term)}, "
                 f"{term} = {_number(value)} {unit} {interval}, a term the model does not have.")
+    elif kind == "nonlinear_stiffness":
+        term = finding["term"]
+        text = (f"The {reference.term_description(term)}: {term} = {_number(value)} {unit} {interval}, a term "
+                "the linear model does not have. The restoring force or moment hardens or softens with the size "
+                "of the excursion, which no linear derivative can follow.")
     elif kind == "nonlinear_damping":
         term = finding["term"]
         text = (f"The {reference.term_description(term)}: {term} = {_number(value)} {unit} {interval}, a term "

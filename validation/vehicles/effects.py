@@ -44,7 +44,8 @@ TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative"
                "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
                "added_mass": "term", "steady_wind": "term", "input_gain": "input", "output_scale": "output",
                "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term",
-               "saturation": "input", "rate_limit": "input", "search_term": "term"}
+               "saturation": "input", "rate_limit": "input", "search_term": "term",
+               "nonlinear_stiffness": "term"}
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.

@@ -31,6 +31,11 @@ How each effect enters ``x_dot = A x + B u``:
   held over each interval at its mean, so the input's integral is exact and the state error is
   second order in the step. A rate limit costs a step of ``d`` a ramp of ``d / rate``: on the
   3-2-1-1's steps of one and two amplitudes it is neither a delay nor a lag;
+- ``nonlinear_stiffness`` ``<row>_<s>^3`` adds ``c s^3`` to the derivative of the row's state,
+  ``s`` another state the row depends on (``N_v^3``: a weathercock stability that hardens or
+  softens with sideslip, the Duffing term of Nayfeh & Mook, *Nonlinear Oscillations*, 1979,
+  ch. 4), replayed as the damping below; ``search_term``: any polynomial term
+  (:mod:`validation.vehicles.polynomial_terms`), what the residual search of ``diagnose`` finds;
 - ``nonlinear_damping`` ``<row>_<s>|<s>|`` adds ``c s |s|`` to the derivative of the row's
   state, ``s`` that state itself (``M_q|q|``: a pitch moment per unit inertia quadratic in the
   pitch rate, as blade stall or a fuselage's cross-flow drag make it; Padfield, *Helicopter
@@ -112,7 +117,7 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
     derivatives = {e["term"]: e["value"] for e in effects
                    if e["effect"] in ("control_derivative", "stability_derivative")}
     polynomial = [(e["term"], e["value"]) for e in effects
-                  if e["effect"] in ("nonlinear_damping", "search_term") and e["value"] != 0]
+                  if e["effect"] in POLYNOMIAL_KINDS and e["value"] != 0]
     model = reference.with_derivatives(derivatives) if derivatives else reference
     A, B = model.A, model.B
     n_states, n_inputs = B.shape
@@ -175,6 +180,22 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
 
 
 
+#: The effect kinds that are polynomial terms (:mod:`validation.vehicles.polynomial_terms`).
+POLYNOMIAL_KINDS = ("nonlinear_damping", "nonlinear_stiffness", "search_term")
+
+
+def _stiffness_pairs(reference: LinearReference) -> list[tuple[str, str]]:
+    """``(row letter, state)`` of every stiffness a row takes: each state other than the row's
+    own that its linear rate depends on (a non-zero ``A`` entry: ``N_v`` gives ``N_v^3``)."""
+    A = reference.A
+    pairs = []
+    for letter, row_state in reference.row_letters.items():
+        row = reference.state_names.index(row_state)
+        pairs += [(letter, state) for column, state in enumerate(reference.state_names)
+                  if state != row_state and A[row, column] != 0.0]
+    return pairs
+
+
 class LinearEffects:
     """The :class:`~validation.vehicles.effects.EffectModel` of a linear reference (module
     docstring): a state-space model read from JSON (family ``"state-space"``);
@@ -196,7 +217,8 @@ class LinearEffects:
 
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-             "nonlinear_damping", "dead_band", "input_gain", "saturation", "rate_limit", "search_term")
+             "nonlinear_damping", "nonlinear_stiffness", "dead_band", "input_gain", "saturation", "rate_limit",
+             "search_term")
     batches_simulations = False
     absolute_inputs = False
     needs_even_sampling = True
@@ -213,10 +235,10 @@ class LinearEffects:
         self.terms = {"control_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.input_names),
                       "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names),
                       "nonlinear_damping": tuple(term_name(a, "signed_square", s) for a, s in letters.items()),
-                      "search_term": ()}
-        damping = set(self.terms["nonlinear_damping"])  # a named term is not also a searched one
-        signals = reference.state_names + reference.input_names
-        self.terms["search_term"] = tuple(term for term in library(letters, signals) if term not in damping)
+                      "nonlinear_stiffness": tuple(term_name(a, "cube", s) for a, s in _stiffness_pairs(reference))}
+        named = set(self.terms["nonlinear_damping"]) | set(self.terms["nonlinear_stiffness"])
+        signals = reference.state_names + reference.input_names  # a named term is not also a searched one
+        self.terms["search_term"] = tuple(term for term in library(letters, signals) if term not in named)
         self.sensor_noise_sd = dict.fromkeys(reference.state_names, 0.0)
 
     def _polynomial(self, term: str):
@@ -277,7 +299,8 @@ class LinearEffects:
         """Every control derivative of an excited input and every stability derivative (each
         derivative row x every state, off-axis couplings included), unbounded; screening step 5 % of the value, at
         least 1 % of the row's largest entry (so that zero entries move too) and 1e-6; each
-        row's nonlinear damping term (``M_q|q|``), null 0, unbounded."""
+        row's nonlinear damping term (``M_q|q|``) and its cubic stiffness in every other state it
+        depends on (``N_v^3``, :func:`_stiffness_pairs`), null 0, unbounded."""
         hypotheses = []
         A, B = self.reference.A, self.reference.B
         for letter, row_state in self.reference.row_letters.items():
@@ -297,6 +320,12 @@ class LinearEffects:
             damping = abs(A[row, row])
             hypotheses.append(Hypothesis("nonlinear_damping", term_name(letter, "signed_square", row_state), 0.0,
                                          -math.inf, math.inf, max(damping, 1e-3)))
+        # c s^3 beside the linear A_rs s: screened at 5 % of |A_rs| per squared state unit.
+        for letter, state in _stiffness_pairs(self.reference):
+            row = self.state_names.index(self.reference.row_letters[letter])
+            derivative = abs(A[row, self.state_names.index(state)])
+            hypotheses.append(Hypothesis("nonlinear_stiffness", term_name(letter, "cube", state), 0.0,
+                                         -math.inf, math.inf, 0.05 * derivative))
         return hypotheses
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:

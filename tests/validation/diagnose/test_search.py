@@ -13,6 +13,7 @@ from validation.diagnose.search import _linear_in_these_data, search_candidates
 from validation.vehicles.effect_vehicle import effect_model
 
 CUBIC = next(c for c in concealed_cases() if c.name == "cubic-stiffness-N_v^3")
+CONTROL_POWER = next(c for c in concealed_cases() if c.name == "control-power-M_theta_1s|theta_1s|")
 
 
 def _prepared(case, seed=0):
@@ -21,26 +22,30 @@ def _prepared(case, seed=0):
     return prepare([recordings.fit], reference, holdout=[recordings.holdout]), reference
 
 
-def test_a_cubic_stiffness_is_offered_first_with_its_sibling_and_nothing_without_one():
-    """On the reference's residual of the RK4-flown N_v^3 = 0.006 (seed 0) the first survivor is
-    N_v^3 (measured t = 27; the regression's coefficient 0.0042, the linearisation's, where output
-    error finds 0.0060), offered with N_v|v|; weaker survivors follow (at most four). On the
-    reference itself with noise, what survives the 1 % screen is what 214 tests at 1 % let
-    through by chance: below the Bonferroni level over the library (measured: L_w*theta_1c,
-    t = 3.4), which the output-error decision applies."""
-    data, reference = _prepared(CUBIC)
+def test_a_control_power_nonlinearity_is_offered_first_with_its_sibling_and_nothing_without_one():
+    """On the reference's residual of the RK4-flown M_theta_1s|theta_1s| = 400 at 1 and 2 deg
+    (seed 0) the first survivor is that term (measured t = 197, coefficient 401), offered with
+    its cube; at most four survive. On the reference itself with noise, what survives the 1 %
+    screen is what 215 tests at 1 % let through by chance: below the Bonferroni level over the
+    library (measured: L_w*theta_1c, t = 3.4), which the output-error decision applies. A named
+    term (the cubic stiffness N_v^3) is never offered as a search term."""
+    data, reference = _prepared(CONTROL_POWER)
     found = search_candidates(data, reference, null_model(data, reference), excited=data.excited)
     assert found.reason is None and found.library_terms > 100
     first = found.survivors[0]
-    assert first["term"] == "N_v^3" and first["t"] > 10 and 0.002 < first["coefficient"] < 0.008
-    assert [h.target for h in found.hypotheses][:2] == ["N_v^3", "N_v|v|"]
-    assert len(found.survivors) <= 4 and all(abs(s["t"]) < first["t"] for s in found.survivors[1:])
+    assert first["term"] == "M_theta_1s|theta_1s|" and first["t"] > 10 and 350 < first["coefficient"] < 450
+    assert [h.target for h in found.hypotheses][:2] == ["M_theta_1s|theta_1s|", "M_theta_1s^3"]
+    assert len(found.survivors) <= 4
     assert all(h.effect == "search_term" and h.null == 0.0 for h in found.hypotheses)
     none = ConcealedCase("none", "none")
     data, reference = _prepared(none)
     quiet = search_candidates(data, reference, null_model(data, reference), excited=data.excited)
     bonferroni = stats.norm.isf(0.01 / (2 * quiet.library_terms))
     assert quiet.reason is None and all(abs(s["t"]) < bonferroni for s in quiet.survivors)
+    data, reference = _prepared(CUBIC)
+    cubic = search_candidates(data, reference, null_model(data, reference), excited=data.excited)
+    assert "N_v^3" in reference.terms["nonlinear_stiffness"]
+    assert "N_v^3" not in {s["term"] for s in cubic.survivors} | {h.target for h in cubic.hypotheses}
 
 
 def test_an_inputs_odd_powers_at_one_amplitude_are_linear_in_the_data():
@@ -62,20 +67,20 @@ def test_the_search_says_why_it_did_not_run():
 
 
 @pytest.mark.slow
-def test_a_cubic_stiffness_outside_the_named_list_is_found_by_search_and_cuts_yaw_rate():
-    """The RK4-flown N_v^3: the one finding is the cubic term, found by search, its truth inside
-    the interval, and it cuts held-out yaw-rate RMSE by at least 60 % (measured 78 %: 0.0139 ->
-    0.0030 rad/s, the noise); no linear N_v is stated (the named search alone took N_v +11 % at
-    confidence 1.0 and then two derivatives that mimic the rest)."""
-    recordings = case_recordings(CUBIC, seed=0)
+def test_a_control_power_nonlinearity_outside_the_named_list_is_found_by_search_and_cuts_pitch_attitude():
+    """The RK4-flown M_theta_1s|theta_1s| at 1 and 2 deg: the one finding is that term, found by
+    search, its truth inside the interval, and it cuts held-out pitch-attitude RMSE by at least
+    60 % (measured 91 %: 0.0237 -> 0.0021 rad, the noise)."""
+    recordings = case_recordings(CONTROL_POWER, seed=0)
     diagnosis = diagnose([recordings.fit], reference="bo105-80kt", holdout=[recordings.holdout], seed=0).as_dict()
     named = [f for f in diagnosis["findings"] if f["effect"] != "unexplained"]
-    assert [(f["effect"], f["term"], f["found_by"]) for f in named] == [("search_term", "N_v^3", "search")]
-    assert named[0]["interval"][0] <= 0.006 <= named[0]["interval"][1]
-    assert named[0]["statement"].startswith("Found by search of the residual, not a named effect: the yaw moment "
-                                            "proportional to v^3")
+    assert [(f["effect"], f["term"], f["found_by"]) for f in named] == [
+        ("search_term", "M_theta_1s|theta_1s|", "search")]
+    assert named[0]["interval"][0] <= 400.0 <= named[0]["interval"][1]
+    assert named[0]["statement"].startswith("Found by search of the residual, not a named effect: the pitch moment "
+                                            "proportional to theta_1s|theta_1s|")
     fit = diagnosis["fit"]
-    assert fit["rmse_corrected"]["r"] <= 0.4 * fit["rmse_reference"]["r"]
+    assert fit["rmse_corrected"]["theta"] <= 0.4 * fit["rmse_reference"]["theta"]
     assert diagnosis["search"]["residual_search"]["ran"]
 
 

@@ -34,7 +34,7 @@ def test_factors_and_library():
 
 
 @pytest.mark.parametrize("effects", [
-    [("search_term", "N_v^3", 0.006)],
+    [("nonlinear_stiffness", "N_v^3", 0.006)],
     [("search_term", "M_q*w", -0.5), ("nonlinear_damping", "M_q|q|", -20.0)],
     [("search_term", "L_theta_1c|theta_1c|", 400.0)],
 ])
@@ -74,7 +74,8 @@ def test_the_replay_with_terms_follows_rk4_of_the_continuous_model(effects):
 
 def test_search_terms_have_units_and_words():
     model = effect_model("bo105-80kt", purpose="test")
-    assert "N_v^3" in model.terms["search_term"] and model.model_value("N_v^3") == 0.0
+    assert "N_v^3" in model.terms["nonlinear_stiffness"] and model.model_value("N_v^3") == 0.0
+    assert "N_v|v|" in model.terms["search_term"] and "N_v^3" not in model.terms["search_term"]
     assert model.term_unit("N_v^3") == "(rad/s^2)/(m/s)^3"
     assert model.term_unit("M_q*w") == "(rad/s^2)/(rad/s m/s)"
     assert model.term_description("N_v^3") == "yaw moment proportional to v^3 (not linear in lateral velocity)"
@@ -92,7 +93,8 @@ def test_a_term_with_a_lagged_input_follows_rk4_of_the_augmented_model():
     time, inputs = identification_manoeuvre(duration=10.0, sample_time=0.01)
     lag, value = 0.08, 0.006
     replay = model.simulate_many([[{"effect": "input_lag", "input": "theta_1c", "value": lag},
-                                   {"effect": "search_term", "term": "N_v^3", "value": value}]], time, inputs)[0]
+                                   {"effect": "nonlinear_stiffness", "term": "N_v^3", "value": value}]], time,
+                                  inputs)[0]
     A, B = linear.A, linear.B
     column = linear.input_names.index("theta_1c")
     b_lagged = B[:, column].copy()
