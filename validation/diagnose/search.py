@@ -32,11 +32,12 @@ physics is missing, so its t statistics are optimistic); the decision below has 
 multiplicity correction.
 
 Surviving nonlinear terms (linear survivors are derivative errors, the named hypotheses'
-business, and are not offered, nor are terms a named hypothesis already has, such as ``M_q|q|``)
+business, and are not offered, nor are terms a named hypothesis already has, ``M_q|q|`` or
+``N_v^3``)
 become ``search_term`` hypotheses beside the named ones, the :data:`MAX_CANDIDATES` largest |t|
 with their siblings: screened, fitted by output error and accepted by the same rule
 (:func:`validation.diagnose.fitting.weigh_step`, Bonferroni over the named hypotheses and the
-library together), so a cubic stiffness competes with the linear derivative it would otherwise be
+library together), so a nonlinear term competes with the linear derivative it would otherwise be
 taken for. Accepted terms are reported as found by search, not as named effects.
 
 The terms are evaluated on the model's replayed states, so outputs need not all be measured; the
