@@ -240,24 +240,39 @@ def _sparse_regression(gram: np.ndarray, projection: np.ndarray, energy: float, 
     base = list(np.flatnonzero(usable & ~nonlinear))
     pool = list(np.flatnonzero(usable & nonlinear))
     critical = stats.norm.isf(SCREEN_ALPHA / 2)
-    selected, last = [], None
+    selected = []
     for _ in range(MAX_CANDIDATES):
-        best = None
-        for column in pool:
-            columns = base + selected + [column]
-            fit = _least_squares(gram, projection, energy, count, columns)
-            if best is None or abs(fit[1][-1]) > abs(best[1][1][-1]):
-                best = (column, fit)
-        if best is None or abs(best[1][1][-1]) < critical:
+        if not pool:
             break
-        selected.append(best[0])
-        pool.remove(best[0])
-        last = best[1]
-    if last is None:
+        t = _t_if_added(gram, projection, energy, count, base + selected, pool)
+        best = int(np.argmax(np.abs(t)))
+        if abs(t[best]) < critical:
+            break
+        selected.append(pool.pop(best))
+    if not selected:
         return []
-    coefficients, t = last
+    coefficients, t = _least_squares(gram, projection, energy, count, base + selected)
     offset = len(base)
     return [(names[column], float(coefficients[offset + i]), float(t[offset + i])) for i, column in enumerate(selected)]
+
+
+def _t_if_added(gram, projection, energy, count, active: list, pool: list) -> np.ndarray:
+    """The t statistic each column of ``pool`` would have, added alone to the regression on
+    ``active`` (from the normal equations by the Schur complement, one factorisation for the
+    whole pool): with ``W = G_AA^-1 G_Ap``, the column's energy beyond the active ones is
+    ``d = G_pp - G_pA W``, its coefficient ``c = (r_p - W^T r_A) / d``, the residual sum of squares
+    falls by ``c^2 d``, and ``t = c sqrt(d / s^2)``. Zero where ``d`` vanishes (a column the active
+    ones reproduce)."""
+    inverse = np.linalg.pinv(gram[np.ix_(active, active)])
+    cross = gram[np.ix_(active, pool)]
+    weights = inverse @ cross
+    beyond = np.diag(gram)[pool] - np.einsum("ap,ap->p", cross, weights)
+    along = projection[pool] - weights.T @ projection[active]
+    rss_active = energy - float(projection[active] @ inverse @ projection[active])
+    safe = np.where(beyond > 1e-12 * np.diag(gram)[pool], beyond, np.inf)
+    coefficient = along / safe
+    variance = np.maximum(rss_active - coefficient * along, 1e-300) / max(count - len(active) - 1, 1)
+    return coefficient * np.sqrt(np.where(np.isfinite(safe), safe, 0.0) / variance)
 
 
 def _least_squares(gram, projection, energy, count, columns) -> tuple[np.ndarray, np.ndarray]:

@@ -236,6 +236,8 @@ class LinearEffects:
                       "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names),
                       "nonlinear_damping": tuple(term_name(a, "signed_square", s) for a, s in letters.items()),
                       "nonlinear_stiffness": tuple(term_name(a, "cube", s) for a, s in _stiffness_pairs(reference))}
+        self._stiffness = [parse_term(term, letters, reference.state_names)
+                           for term in self.terms["nonlinear_stiffness"]]
         named = set(self.terms["nonlinear_damping"]) | set(self.terms["nonlinear_stiffness"])
         signals = reference.state_names + reference.input_names  # a named term is not also a searched one
         self.terms["search_term"] = tuple(term for term in library(letters, signals) if term not in named)
@@ -321,11 +323,10 @@ class LinearEffects:
             hypotheses.append(Hypothesis("nonlinear_damping", term_name(letter, "signed_square", row_state), 0.0,
                                          -math.inf, math.inf, max(damping, 1e-3)))
         # c s^3 beside the linear A_rs s: screened at 5 % of |A_rs| per squared state unit.
-        for letter, state in _stiffness_pairs(self.reference):
-            row = self.state_names.index(self.reference.row_letters[letter])
-            derivative = abs(A[row, self.state_names.index(state)])
-            hypotheses.append(Hypothesis("nonlinear_stiffness", term_name(letter, "cube", state), 0.0,
-                                         -math.inf, math.inf, 0.05 * derivative))
+        for term in self._stiffness:
+            row = self.state_names.index(self.reference.row_letters[term.letter])
+            derivative = abs(A[row, self.state_names.index(term.signals[0])])
+            hypotheses.append(Hypothesis("nonlinear_stiffness", term.name, 0.0, -math.inf, math.inf, 0.05 * derivative))
         return hypotheses
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:

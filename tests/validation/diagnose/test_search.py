@@ -24,7 +24,7 @@ def _prepared(case, seed=0):
 
 def test_a_control_power_nonlinearity_is_offered_first_with_its_sibling_and_nothing_without_one():
     """On the reference's residual of the RK4-flown M_theta_1s|theta_1s| = 400 at 1 and 2 deg
-    (seed 0) the first survivor is that term (measured t = 197, coefficient 401), offered with
+    (seed 0) the first survivor is that term (measured t = 197, coefficient 402), offered with
     its cube; at most four survive. On the reference itself with noise, what survives the 1 %
     screen is what 215 tests at 1 % let through by chance: below the Bonferroni level over the
     library (measured: L_w*theta_1c, t = 3.4), which the output-error decision applies. A named

@@ -1,13 +1,25 @@
 """validation.vehicles.polynomial_terms: names parse and print back, factors are what they say,
 and the replay of a linear reference with polynomial terms follows RK4 of the continuous model."""
+from functools import partial
+
 import numpy as np
 import pytest
 
+from validation.vehicles.blimp_equations import rk4
 from validation.vehicles.bo105_effects import identification_manoeuvre
 from validation.vehicles.effect_vehicle import effect_model
 from validation.vehicles.polynomial_terms import factor_values, library, parse_term, term_name
 
 LETTERS = {"M": "q", "N": "r"}
+
+
+def _rk4_flight(rate, time, inputs, start) -> np.ndarray:
+    """Classical RK4 (:func:`validation.vehicles.blimp_equations.rk4`) of ``rate(x, u)`` at the
+    recording's step, the inputs held over each interval: the states at every sample."""
+    states = [start]
+    for k in range(len(time) - 1):
+        states.append(rk4(partial(rate, u=inputs[k]), states[-1], time[k + 1] - time[k]))
+    return np.array(states)
 SIGNALS = ("q", "w", "theta_1s")
 
 
@@ -57,15 +69,7 @@ def test_the_replay_with_terms_follows_rk4_of_the_continuous_model(effects):
                 value * factor_values([term], names, np.concatenate((x, u)))[0]
         return dx
 
-    h = time[1] - time[0]
-    rk4 = np.zeros_like(replay)
-    for k in range(len(time) - 1):
-        x, u = rk4[k], inputs[k]
-        k1 = rate(x, u)
-        k2 = rate(x + h / 2 * k1, u)
-        k3 = rate(x + h / 2 * k2, u)
-        k4 = rate(x + h * k3, u)
-        rk4[k + 1] = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    rk4 = _rk4_flight(rate, time, inputs, np.zeros(replay.shape[1]))
     linear_replay = model.simulate_many([[]], time, inputs)[0]
     scale = np.abs(rk4).max(axis=0)
     assert np.all(np.abs(replay - rk4).max(axis=0) <= 1e-3 * scale)
@@ -107,14 +111,5 @@ def test_a_term_with_a_lagged_input_follows_rk4_of_the_augmented_model():
         dx[n_row] += value * x[v] ** 3
         return np.append(dx, (u[column] - z) / lag)
 
-    h = time[1] - time[0]
-    states = np.zeros((len(time), len(linear.state_names) + 1))
-    for k in range(len(time) - 1):
-        s, u = states[k], inputs[k]
-        k1 = rate(s, u)
-        k2 = rate(s + h / 2 * k1, u)
-        k3 = rate(s + h / 2 * k2, u)
-        k4 = rate(s + h * k3, u)
-        states[k + 1] = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    rk4 = states[:, :-1]
+    rk4 = _rk4_flight(rate, time, inputs, np.zeros(len(linear.state_names) + 1))[:, :-1]
     assert np.all(np.abs(replay - rk4).max(axis=0) <= 1e-3 * np.abs(rk4).max(axis=0))
