@@ -167,3 +167,21 @@ def test_a_step_is_accepted_only_past_both_thresholds_and_lists_its_close_compet
     _, step, rejected = weigh_step(Data, model, [fitted("a", 1095.0)], n_tested=10)
     assert step is None and rejected["lr"] == pytest.approx(5.0)
     assert rejected["threshold"] == pytest.approx(max(stats.chi2.isf(0.001, 1), 0.05 * 100.0))
+
+
+def test_the_pools_t_by_schur_complement_is_the_joint_fits_t():
+    """Each pool column's t, from one factorisation of the active columns, equals the t it has
+    in the explicit least-squares fit on the active columns and itself; a column the active ones
+    reproduce scores 0."""
+    from validation.diagnose.search import _least_squares, _t_if_added
+
+    rng = np.random.default_rng(3)
+    design = rng.standard_normal((300, 6))
+    design[:, 5] = design[:, 0] - 2 * design[:, 1]  # reproduced by active columns 0 and 1
+    target = design[:, :3] @ [1.0, -0.5, 0.2] + 0.6 * design[:, 3] + rng.standard_normal(300)
+    gram, projection, energy = design.T @ design, design.T @ target, float(target @ target)
+    active, pool = [0, 1, 2], [3, 4, 5]
+    t = _t_if_added(gram, projection, energy, 300, active, pool)
+    for position, column in enumerate(pool[:2]):
+        assert t[position] == pytest.approx(_least_squares(gram, projection, energy, 300, active + [column])[1][-1])
+    assert t[2] == 0.0 and abs(t[0]) > 5
