@@ -91,6 +91,9 @@
 /* Terms of a pair block of eq. 6 computed per tile (block_body): whole rows, at most TILE_TERMS
    terms (a 32 KB tile of doubles stays in the first-level cache), or one row if a row is longer. */
 #define TILE_TERMS 4096
+/* Rows of a tile accumulated together (block_body): each column sum is loaded and stored once per
+   ROW_GROUP rows, not once per row, a chain through memory that bounded the loop. */
+#define ROW_GROUP 4
 
 /* One output's GP (pointers into Model.data). */
 typedef struct {
@@ -139,6 +142,7 @@ struct Model {
     double *u_M;                                      /* (N_Z, m_max) */
     double *tile;                                     /* a pair block's tile (PairBlock) */
     float *tile_single;                               /* the same in single precision */
+    float *columns_single;                            /* ((N_Z + 1) m_max,) PairBlock.columns_single */
     double *column_sum, *column_trace;                /* (m_max,) */
     int single_precision;                             /* the step's pair blocks: !exact_moments */
     double *half_a, *half_b;                          /* (m_max,) */
@@ -172,6 +176,7 @@ void model_free(Model *model) {
     free(model->u_M);
     free(model->tile);
     free(model->tile_single);
+    free(model->columns_single);
     free(model->column_sum);
     free(model->column_trace);
     free(model->half_a);
@@ -201,12 +206,13 @@ static int prepare_free_run(Model *model, int m_max) {
     const size_t tile_terms = m_max > TILE_TERMS ? (size_t)m_max : TILE_TERMS;
     model->tile = malloc(sizeof(double) * tile_terms);
     model->tile_single = malloc(sizeof(float) * tile_terms);
+    model->columns_single = malloc(sizeof(float) * (N_Z + 1) * (size_t)m_max);
     model->column_sum = malloc(sizeof(double) * (size_t)m_max);
     model->column_trace = malloc(sizeof(double) * (size_t)m_max);
     model->half_a = malloc(sizeof(double) * (size_t)m_max);
     model->half_b = malloc(sizeof(double) * (size_t)m_max);
     int ok = dense != NULL && model->sample_means != NULL && model->u_M != NULL && model->tile != NULL
-             && model->tile_single != NULL && model->column_sum != NULL && model->column_trace != NULL
+             && model->tile_single != NULL && model->columns_single != NULL && model->column_sum != NULL && model->column_trace != NULL
              && model->half_a != NULL
              && model->half_b != NULL;
     for (int j = 0; j < N_OUTPUTS && ok; j++) {
@@ -296,7 +302,7 @@ static char *read_mixture(Model *model, const double *p) {
     return NULL;
 }
 
-static void select_block_kernels(void); /* the pair blocks' vectorised kernels (below) */
+static void select_moment_match(void); /* the free run's step compiled per instruction set (below) */
 
 Model *model_load(const char *resources_dir, char **error) {
     Model *model = calloc(1, sizeof(Model));
@@ -332,7 +338,7 @@ Model *model_load(const char *resources_dir, char **error) {
     model->v = malloc(sizeof(double) * (size_t)m_max);
     if (model->squared == NULL || model->k == NULL || model->v == NULL) return fail(model, error, NULL);
     if (!prepare_free_run(model, m_max)) return fail(model, error, NULL);
-    select_block_kernels();
+    select_moment_match();
     return model;
 }
 
@@ -372,20 +378,20 @@ static void predict_output(const Model *model, const OutputGP *gp, const double 
  * the identity and M zero: eqs. 1-6 need the N_Z x N_Z block only. I + T has all eigenvalues
  * >= 1, so its Cholesky factor exists; returns 0 if it does not (S is then far from positive
  * semi-definite: a bug, refused as a step). M is symmetrised as there. */
-static int woodbury_terms(WoodburyScratch *w, const double precision[N_Z], const double S[N_Z * N_Z],
+static inline __attribute__((always_inline)) int woodbury_terms(WoodburyScratch *w, const double precision[N_Z], const double S[N_Z * N_Z],
                           double M[N_Z * N_Z], double *log_det) {
     double *root = w->root, *T = w->T, *L = w->L, *Y = w->Y;
     for (int i = 0; i < N_Z; i++) root[i] = sqrt(precision[i]);
     for (int i = 0; i < N_Z; i++)
         for (int j = 0; j < N_Z; j++) T[i * N_Z + j] = S[i * N_Z + j] * (root[i] * root[j]);
     /* L L^T = I + T (Cholesky, lower) */
-    double sum_log = 0.0;
+    double determinant = 1.0; /* |I + T|, the product of the pivots: each >= 1 up to rounding */
     for (int j = 0; j < N_Z; j++) {
         double pivot = 1.0 + T[j * N_Z + j];
         for (int k = 0; k < j; k++) pivot -= L[j * N_Z + k] * L[j * N_Z + k];
         if (!(pivot > 0.0)) return 0;
         L[j * N_Z + j] = sqrt(pivot);
-        sum_log += log(L[j * N_Z + j]);
+        determinant *= pivot;
         for (int i = j + 1; i < N_Z; i++) {
             double value = T[i * N_Z + j];
             for (int k = 0; k < j; k++) value -= L[i * N_Z + k] * L[j * N_Z + k];
@@ -411,12 +417,12 @@ static int woodbury_terms(WoodburyScratch *w, const double precision[N_Z], const
     for (int i = 0; i < N_Z; i++)
         for (int j = i + 1; j < N_Z; j++)
             M[i * N_Z + j] = M[j * N_Z + i] = 0.5 * (M[i * N_Z + j] + M[j * N_Z + i]);
-    *log_det = 2.0 * sum_log;
+    *log_det = log(determinant);
     return 1;
 }
 
 /* u^T M u for u (N_Z,), entry c at u[c * stride], and a symmetric M (N_Z x N_Z). */
-static double quadratic_form(const double *u, size_t stride, const double M[N_Z * N_Z]) {
+static inline __attribute__((always_inline)) double quadratic_form(const double *u, size_t stride, const double M[N_Z * N_Z]) {
     double total = 0.0;
     for (int i = 0; i < N_Z; i++) {
         double row = 0.0;
@@ -571,14 +577,15 @@ static char *cholesky_failure(void) {
  * stay far below +EXPM1_BOUND (a q_ai q_bj of e^700 would have overflowed eq. 1 long before). */
 #define EXPM1_BOUND 700.0
 
-/* expm1(x) without branches or library calls, so that gcc vectorises the loops that call it:
+/* expm1(x) without branches or library calls, so that gcc vectorises the loops that call it
+ * (reduced_expm1 returns expm1(r) and sets 2^k, expm1_branchless combines them):
  * x = k ln2 + r with k = round(x / ln2) and |r| <= ln2 / 2; expm1(r) by its Taylor series to
  * r^14 / 14! (the first term left out is below 1.1e-17 |expm1(r)| for |r| <= 0.347: Horner's
  * rounding dominates, a few ulp); expm1(x) = 2^k expm1(r) + (2^k - 1), which for k = 0 is
  * expm1(r) itself, so the relative accuracy holds for tiny x, where exp(x) - 1 would lose it.
  * 2^k is built in the exponent bits from the rounded k (k + 1023 in [3, 2033]). Checked against
  * libm's expm1 in the tests: 2 ulp at most over [-EXPM1_BOUND, EXPM1_BOUND], the test allows 4. */
-static inline __attribute__((always_inline)) double expm1_branchless(double x) {
+static inline __attribute__((always_inline)) double reduced_expm1(double x, double *two_k) {
     x = x < -EXPM1_BOUND ? -EXPM1_BOUND : x;
     x = x > EXPM1_BOUND ? EXPM1_BOUND : x;
     double shifted = x * INV_LN2 + ROUNDING_SHIFT;
@@ -599,11 +606,23 @@ static inline __attribute__((always_inline)) double expm1_branchless(double x) {
     p = p * r + 1.0 / 24.0;
     p = p * r + 1.0 / 6.0;
     p = p * r + 0.5;
-    p = p * (r * r) + r; /* expm1(r) */
     const int64_t exponent = (bits + 1023) << 52; /* the low 12 bits of bits hold k mod 2^12 */
+    memcpy(two_k, &exponent, sizeof *two_k);
+    return p * (r * r) + r; /* expm1(r) */
+}
+
+static inline __attribute__((always_inline)) double expm1_branchless(double x) {
     double two_k;
-    memcpy(&two_k, &exponent, sizeof two_k);
+    const double p = reduced_expm1(x, &two_k);
     return two_k * p + (two_k - 1.0);
+}
+
+/* exp(x) = 2^k (1 + expm1(r)) by the same steps (relative accuracy a few ulp; an argument below
+ * -EXPM1_BOUND gives exp(-EXPM1_BOUND), about 1e-304, for 0): eq. 1's q_ai (sample_terms). */
+static inline __attribute__((always_inline)) double exp_branchless(double x) {
+    double two_k;
+    const double p = reduced_expm1(x, &two_k);
+    return two_k * (1.0 + p);
 }
 
 /* expm1 in single precision, the steps of expm1_branchless in float: Taylor series to r^7 / 7!
@@ -653,6 +672,7 @@ typedef struct {
     const double *K_inv, *q;        /* a == b only: (m, m) A_t and (m,) q_t */
     double *tile;                   /* scratch (max(TILE_TERMS, mb),): expm1(D_ij) of a tile */
     float *tile_single;             /* the same in single precision */
+    float *columns_single;          /* scratch ((N_Z + 1) mb,): half_b and u_b in float (single) */
     double *column_sum, *column_trace; /* scratch (mb,) */
 } PairBlock;
 
@@ -666,124 +686,161 @@ static inline __attribute__((always_inline)) double pair_exponent(double half_a,
     return exponent;
 }
 
-/* The block's sums in passes over tiles of whole rows, each pass a loop gcc vectorises without
- * reordering a sum (so without SIMD reductions): the exponents D_ij = half_a_i + half_b_j +
- * (M_ab u_ai) . u_bj (eq. 6), then expm1 over the tile as one flat array (single: of the
- * exponents rounded to float, 16 (8) lanes wide where double has 8 (4)), then the rows
- * accumulated per column, column_sum_j += w_ai expm1(D_ij) (and, own, column_trace_j +=
- * q_i A_ij (1 + expm1(D_ij))). Returns sum_j w_bj column_sum_j = sum_ij w_ai w_bj expm1(D_ij);
- * own (a == b, same t) also sets *trace = sum_j q_j column_trace_j = tr(A_t Q^aa) (eq. 4). The
- * own block's symmetry is not used: whole rows vectorise better than a triangle's. */
-static inline __attribute__((always_inline)) double block_body(const PairBlock *block, double *trace, int own,
-                                                               int single) {
+/* A block's terms are computed in tiles of whole rows (rows first.. of the block, its columns
+ * from first_column on, row stride L = mb - first_column), in passes that each are one loop gcc
+ * vectorises without reordering a sum (so without SIMD reductions): the exponents (tile_exponents),
+ * expm1 over the tile as one flat array (tile_expm1), then the rows accumulated per column
+ * (tile_accumulate). single: the exponents and expm1 in float, 16 (8) lanes wide where double
+ * has 8 (4), from float copies of the columns' arrays (columns_to_single); the sums in double. */
+
+/* half_b and u_b in float, for the exponents of the single-precision path. */
+static inline __attribute__((always_inline)) void columns_to_single(const PairBlock *block) {
+    const int mb = block->mb;
+    float *restrict half_b = block->columns_single, *restrict u_b = block->columns_single + mb;
+    for (int j = 0; j < mb; j++) half_b[j] = (float)block->half_b[j];
+    for (int k = 0; k < N_Z * mb; k++) u_b[k] = (float)block->u_b[k];
+}
+
+/* tile[r L + j - first_column] = D_ij (eq. 6) for rows i = first + r < first + rows and columns
+ * j >= first_column: half_a_i + half_b_j + (M_ab u_ai) . u_bj. */
+static inline __attribute__((always_inline)) void tile_exponents(const PairBlock *block, int single, int first,
+                                                                 int rows, int first_column) {
+    const int ma = block->ma, mb = block->mb, L = mb - first_column;
+    for (int r = 0; r < rows; r++) {
+        const int i = first + r;
+        if (single) {
+            const float *restrict half_b = block->columns_single, *restrict u_b = block->columns_single + mb;
+            float *restrict out = block->tile_single + (size_t)r * L;
+            float x[N_Z];
+            for (int c = 0; c < N_Z; c++) x[c] = (float)block->u_M[c * ma + i];
+            const float half_a = (float)block->half_a[i];
+SIMD_LOOP
+            for (int j = first_column; j < mb; j++) {
+                float exponent = half_a + half_b[j];
+#pragma GCC unroll 16
+                for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
+                out[j - first_column] = exponent;
+            }
+        } else {
+            const double *restrict half_b = block->half_b, *restrict u_b = block->u_b;
+            double *restrict out = block->tile + (size_t)r * L;
+            double x[N_Z];
+            for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * ma + i];
+            const double half_a = block->half_a[i];
+SIMD_LOOP
+            for (int j = first_column; j < mb; j++) {
+                double exponent = half_a + half_b[j];
+#pragma GCC unroll 16
+                for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
+                out[j - first_column] = exponent;
+            }
+        }
+    }
+}
+
+/* The tile's first `terms` exponents replaced by their expm1. */
+static inline __attribute__((always_inline)) void tile_expm1(const PairBlock *block, int single, int terms) {
+    if (single) {
+        float *restrict tile = block->tile_single;
+SIMD_LOOP
+        for (int k = 0; k < terms; k++) tile[k] = expm1_single(tile[k]);
+    } else {
+        double *restrict tile = block->tile;
+SIMD_LOOP
+        for (int k = 0; k < terms; k++) tile[k] = expm1_branchless(tile[k]);
+    }
+}
+
+/* The tile's rows (as tile_exponents wrote them, now expm1(D_ij)) added per column j >=
+ * first_column + skip: column_sum_j += w_ai expm1(D_ij) and, own, column_trace_j += q_i A_ij (1 +
+ * expm1(D_ij)) (eq. 4's trace). ROW_GROUP rows at a time, so that a column's sums are loaded and
+ * stored once per group: one row at a time, that chain through memory bounded the loop. */
+static inline __attribute__((always_inline)) void tile_accumulate(const PairBlock *block, int single, int own,
+                                                                  int first, int rows, int first_column, int skip) {
+    const int mb = block->mb, L = mb - first_column;
+    double *restrict column_sum = block->column_sum, *restrict column_trace = block->column_trace;
+    for (int r = 0; r < rows; r += ROW_GROUP) {
+        const int group = rows - r < ROW_GROUP ? rows - r : ROW_GROUP, i = first + r;
+        const double *restrict w = block->weighted_a + i, *restrict q = block->q + i;
+        const double *restrict A = own ? block->K_inv + (size_t)i * mb : NULL;
+        const double *restrict excess = block->tile + (size_t)r * L - first_column;
+        const float *restrict excess_single = block->tile_single + (size_t)r * L - first_column;
+#define EXCESS(g, j) (single ? (double)excess_single[(g) * L + (j)] : excess[(g) * L + (j)])
+        if (group == ROW_GROUP && own) {
+SIMD_LOOP
+            for (int j = first_column + skip; j < mb; j++) {
+                const double v0 = EXCESS(0, j), v1 = EXCESS(1, j), v2 = EXCESS(2, j), v3 = EXCESS(3, j);
+                column_sum[j] += w[0] * v0 + w[1] * v1 + w[2] * v2 + w[3] * v3;
+                column_trace[j] += q[0] * A[j] * (1.0 + v0) + q[1] * A[mb + j] * (1.0 + v1)
+                                   + q[2] * A[2 * mb + j] * (1.0 + v2) + q[3] * A[3 * mb + j] * (1.0 + v3);
+            }
+        } else if (group == ROW_GROUP) {
+SIMD_LOOP
+            for (int j = first_column + skip; j < mb; j++)
+                column_sum[j] += w[0] * EXCESS(0, j) + w[1] * EXCESS(1, j) + w[2] * EXCESS(2, j) + w[3] * EXCESS(3, j);
+        } else {
+            for (int g = 0; g < group; g++) {
+SIMD_LOOP
+                for (int j = first_column + skip; j < mb; j++) {
+                    column_sum[j] += w[g] * EXCESS(g, j);
+                    if (own) column_trace[j] += q[g] * A[g * mb + j] * (1.0 + EXCESS(g, j));
+                }
+            }
+        }
+#undef EXCESS
+    }
+}
+
+/* A cross block (a != b, or two samples of one output; ma x mb): returns sum_j w_bj column_sum_j
+ * = sum_ij w_ai w_bj expm1(D_ij), over tiles of at most TILE_TERMS terms (whole rows). */
+static inline __attribute__((always_inline)) double cross_block_body(const PairBlock *block, int single) {
     const int ma = block->ma, mb = block->mb;
     const int rows_per_tile = mb >= TILE_TERMS ? 1 : TILE_TERMS / mb;
-    const double *restrict half_b = block->half_b, *restrict u_b = block->u_b;
-    double *restrict tile = block->tile, *restrict column_sum = block->column_sum;
-    double *restrict column_trace = block->column_trace;
-    float *restrict tile_single = block->tile_single;
-    for (int j = 0; j < mb; j++) column_sum[j] = 0.0, column_trace[j] = 0.0;
+    for (int j = 0; j < mb; j++) block->column_sum[j] = 0.0;
+    if (single) columns_to_single(block);
     for (int first = 0; first < ma; first += rows_per_tile) {
-        const int rows = ma - first < rows_per_tile ? ma - first : rows_per_tile, terms = rows * mb;
-        for (int r = 0; r < rows; r++) {
-            const int i = first + r;
-            double x[N_Z];
-            const double half_a = block->half_a[i];
-            for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * ma + i];
-            if (single) {
-                float *restrict out = tile_single + (size_t)r * mb;
-SIMD_LOOP
-                for (int j = 0; j < mb; j++) out[j] = (float)pair_exponent(half_a, x, half_b, u_b, mb, j);
-            } else {
-                double *restrict out = tile + (size_t)r * mb;
-SIMD_LOOP
-                for (int j = 0; j < mb; j++) out[j] = pair_exponent(half_a, x, half_b, u_b, mb, j);
-            }
-        }
-        if (single) {
-SIMD_LOOP
-            for (int k = 0; k < terms; k++) tile_single[k] = expm1_single(tile_single[k]);
-        } else {
-SIMD_LOOP
-            for (int k = 0; k < terms; k++) tile[k] = expm1_branchless(tile[k]);
-        }
-        for (int r = 0; r < rows; r++) {
-            const int i = first + r;
-            const double w_i = block->weighted_a[i];
-            const double *restrict excess = tile + (size_t)r * mb;
-            const float *restrict excess_single = tile_single + (size_t)r * mb;
-            if (own) {
-                const double q_i = block->q[i], *restrict A = block->K_inv + (size_t)i * mb;
-SIMD_LOOP
-                for (int j = 0; j < mb; j++) {
-                    const double value = single ? (double)excess_single[j] : excess[j];
-                    column_sum[j] += w_i * value;
-                    column_trace[j] += q_i * A[j] * (1.0 + value);
-                }
-            } else {
-SIMD_LOOP
-                for (int j = 0; j < mb; j++) column_sum[j] += w_i * (single ? (double)excess_single[j] : excess[j]);
-            }
-        }
+        const int rows = ma - first < rows_per_tile ? ma - first : rows_per_tile;
+        tile_exponents(block, single, first, rows, 0);
+        tile_expm1(block, single, rows * mb);
+        tile_accumulate(block, single, 0, first, rows, 0, 0);
     }
-    double sum = 0.0, total_trace = 0.0;
-    for (int j = 0; j < mb; j++) sum += column_sum[j] * block->weighted_b[j];
-    if (own) {
-        for (int j = 0; j < mb; j++) total_trace += column_trace[j] * block->q[j];
-        *trace = total_trace;
-    }
+    double sum = 0.0;
+    for (int j = 0; j < mb; j++) sum += block->column_sum[j] * block->weighted_b[j];
     return sum;
 }
 
-static inline __attribute__((always_inline)) double cross_block_body(const PairBlock *block, int single) {
-    return block_body(block, NULL, 0, single);
-}
-
+/* An own block (a == b, the same sample t; m x m): returns sum_ij w_i w_j expm1(D_ij) and sets
+ * *trace = sum_ij q_i q_j A_ij (1 + expm1(D_ij)) = tr(A_t Q^aa) (eq. 4). Both summands are
+ * symmetric in i and j (D_ij = D_ji, as M_ab is symmetric and half_b is half_a less the
+ * constant; A_t is symmetric), so each group of ROW_GROUP rows (one tile) takes the columns from
+ * its first row on: its square on the diagonal whole, the columns right of it twice. The paper's
+ * 32 x 32 block is then 576 terms instead of 1024, and half of A_t is read. */
 static inline __attribute__((always_inline)) double own_block_body(const PairBlock *block, double *trace, int single) {
-    return block_body(block, trace, 1, single);
-}
-
-/* The bodies compiled three times, for AVX-512, for AVX2 with FMA and for any x86-64, each in
- * double and in single precision, and the widest the processor runs picked once at load
- * (select_block_kernels): the FMU stays portable while the loops above run 8 or 4 doubles wide
- * where they can. */
-typedef double (*CrossBlockKernel)(const PairBlock *);
-typedef double (*OwnBlockKernel)(const PairBlock *, double *);
-typedef struct {
-    CrossBlockKernel cross;
-    OwnBlockKernel own;
-} BlockKernels;
-#define BLOCK_KERNELS(suffix, target)                                                                            \
-    target static double cross_block_##suffix(const PairBlock *block) { return cross_block_body(block, 0); }     \
-    target static double own_block_##suffix(const PairBlock *block, double *trace) {                             \
-        return own_block_body(block, trace, 0);                                                                  \
-    }                                                                                                            \
-    target static double cross_block_single_##suffix(const PairBlock *block) { return cross_block_body(block, 1); } \
-    target static double own_block_single_##suffix(const PairBlock *block, double *trace) {                      \
-        return own_block_body(block, trace, 1);                                                                  \
+    const int m = block->ma;
+    const double *restrict w = block->weighted_a, *restrict q = block->q, *restrict A = block->K_inv;
+    double diagonal_sum = 0.0, diagonal_trace = 0.0;
+    for (int j = 0; j < m; j++) block->column_sum[j] = 0.0, block->column_trace[j] = 0.0;
+    if (single) columns_to_single(block);
+    for (int first = 0; first < m; first += ROW_GROUP) {
+        const int rows = m - first < ROW_GROUP ? m - first : ROW_GROUP, L = m - first;
+        tile_exponents(block, single, first, rows, first);
+        tile_expm1(block, single, rows * L);
+        for (int g = 0; g < rows; g++) /* the square on the diagonal: every term once */
+            for (int h = 0; h < rows; h++) {
+                const int i = first + g, j = first + h;
+                const double value = single ? (double)block->tile_single[g * L + h] : block->tile[g * L + h];
+                diagonal_sum += w[i] * w[j] * value;
+                diagonal_trace += q[i] * q[j] * A[(size_t)i * m + j] * (1.0 + value);
+            }
+        tile_accumulate(block, single, 1, first, rows, first, rows);
     }
-#if defined(__x86_64__) && defined(__GNUC__)
-BLOCK_KERNELS(avx512, __attribute__((target("avx512f,avx512dq,avx512vl,avx2,fma"))))
-BLOCK_KERNELS(avx2, __attribute__((target("avx2,fma"))))
-#endif
-BLOCK_KERNELS(generic, )
-
-/* [0]: double precision (exact_moments), [1]: single-precision expm1 (the fast path). */
-static BlockKernels block_kernels[2] = {{cross_block_generic, own_block_generic},
-                                        {cross_block_single_generic, own_block_single_generic}};
-
-static void select_block_kernels(void) {
-#if defined(__x86_64__) && defined(__GNUC__)
-    __builtin_cpu_init();
-    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq")
-        && __builtin_cpu_supports("avx512vl")) {
-        block_kernels[0] = (BlockKernels){cross_block_avx512, own_block_avx512};
-        block_kernels[1] = (BlockKernels){cross_block_single_avx512, own_block_single_avx512};
-    } else if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
-        block_kernels[0] = (BlockKernels){cross_block_avx2, own_block_avx2};
-        block_kernels[1] = (BlockKernels){cross_block_single_avx2, own_block_single_avx2};
+    double sum = 0.0, total_trace = 0.0;
+    for (int j = 0; j < m; j++) {
+        sum += block->column_sum[j] * w[j];
+        total_trace += block->column_trace[j] * q[j];
     }
-#endif
+    *trace = 2.0 * total_trace + diagonal_trace;
+    return 2.0 * sum + diagonal_sum;
 }
 
 /* -- eqs. 1-6 per distinct sample and per distinct sample pair ------------------------------ */
@@ -795,7 +852,7 @@ static void select_block_kernels(void) {
  * Cov[x, f_a] = M_a sum_i u_ai beta_ai q_ai (eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i, zero
  * on the known regressors) added count[t] times to cross_sum. m: the standardised input mean,
  * S_z the uncertain regressors' covariance. Returns 0 if a Cholesky factor of eq. 6 fails. */
-static int sample_terms(Model *model, int a, int t, const double m[D], const double S_z[N_Z * N_Z],
+static inline __attribute__((always_inline)) int sample_terms(Model *model, int a, int t, const double m[D], const double S_z[N_Z * N_Z],
                         double cross_sum[D * N_OUTPUTS]) {
     OutputGP *gp = &model->gp[a];
     const size_t n = (size_t)gp->m;
@@ -806,14 +863,18 @@ static int sample_terms(Model *model, int a, int t, const double m[D], const dou
     double *q = gp->q + (size_t)t * n, *weighted = gp->weighted + (size_t)t * n;
     if (!woodbury_terms(&model->woodbury, precision + KNOWN_REGRESSORS, S_z, M, &gp->log_det[t])) return 0;
     double mean = 0.0, sum_u[N_Z] = {0.0};
-    for (size_t i = 0; i < n; i++) {
+    for (size_t i = 0; i < n; i++) { /* q_ai's exponent, then q_ai in a loop that vectorises */
         double nu_u = 0.0;
         for (int c = 0; c < D; c++) {
             const double nu = gp->frame_basis[i * D + c] - m[c], u = nu * precision[c];
             nu_u += nu * u;
             if (c >= KNOWN_REGRESSORS) u_z[(c - KNOWN_REGRESSORS) * n + i] = u;
         }
-        q[i] = exp(log_signal_variance - 0.5 * gp->log_det[t] - 0.5 * nu_u + 0.5 * quadratic_form(u_z + i, n, M));
+        q[i] = log_signal_variance - 0.5 * gp->log_det[t] - 0.5 * nu_u + 0.5 * quadratic_form(u_z + i, n, M);
+    }
+SIMD_LOOP
+    for (size_t i = 0; i < n; i++) q[i] = exp_branchless(q[i]);
+    for (size_t i = 0; i < n; i++) {
         weighted[i] = beta[i] * q[i];
         mean += weighted[i];
         for (int c = 0; c < N_Z; c++) sum_u[c] += u_z[c * n + i] * weighted[i];
@@ -834,7 +895,7 @@ static int sample_terms(Model *model, int a, int t, const double m[D], const dou
 /* out_i = 1/2 u_i^T M u_i + constant for n vectors u_i and a symmetric M (N_Z x N_Z), from the
  * products u_i,c u_i,e (c <= e) that sample_terms keeps (products[k * n + i], k counting the
  * pairs c <= e row by row): one pass over i, N_PRODUCTS multiply-adds each. */
-static void half_quadratic_forms(size_t n, const double *restrict products, const double M[N_Z * N_Z],
+static inline __attribute__((always_inline)) void half_quadratic_forms(size_t n, const double *restrict products, const double M[N_Z * N_Z],
                                  double constant, double *restrict out) {
     double factor[N_PRODUCTS];
     for (int c = 0, k = 0; c < N_Z; c++)
@@ -853,7 +914,7 @@ static void half_quadratic_forms(size_t n, const double *restrict products, cons
  * for a == b (then t_a == t_b) plus the expected variance (eq. 4, clipped at zero as
  * GaussianProcess.predict) and the noise (eq. 5). Standardised output units. Returns 0 if a
  * Cholesky factor of eq. 6 fails. */
-static int pair_covariance(Model *model, int a, int t_a, int b, int t_b, const double S_z[N_Z * N_Z],
+static inline __attribute__((always_inline)) int pair_covariance(Model *model, int a, int t_a, int b, int t_b, const double S_z[N_Z * N_Z],
                            double *covariance) {
     const OutputGP *ga = &model->gp[a], *gb = &model->gp[b];
     const size_t ma = (size_t)ga->m, mb = (size_t)gb->m;
@@ -876,23 +937,24 @@ static int pair_covariance(Model *model, int a, int t_a, int b, int t_b, const d
     }
     for (int c = 0; c < N_Z; c++) {
         double *restrict u_M = model->u_M + c * ma;
-        for (size_t i = 0; i < ma; i++) u_M[i] = 0.0;
-        for (int e = 0; e < N_Z; e++) {
-            const double M_ce = M_ab[c * N_Z + e], *restrict u = u_a + e * ma;
-            for (size_t i = 0; i < ma; i++) u_M[i] += M_ce * u[i];
+        const double *restrict M_c = M_ab + c * N_Z;
+SIMD_LOOP
+        for (size_t i = 0; i < ma; i++) {
+            double value = 0.0;
+            for (int e = 0; e < N_Z; e++) value += M_c[e] * u_a[e * ma + i];
+            u_M[i] = value;
         }
     }
     PairBlock block = {(int)ma, (int)mb, model->half_a, model->half_b, model->u_M, u_b,
                        ga->weighted + (size_t)t_a * ma, gb->weighted + (size_t)t_b * mb,
-                       ga->K_inv + (size_t)t_a * ma * ma, ga->q + (size_t)t_a * ma, model->tile, model->tile_single,
+                       ga->K_inv + (size_t)t_a * ma * ma, ga->q + (size_t)t_a * ma, model->tile, model->tile_single, model->columns_single,
                        model->column_sum, model->column_trace};
-    const BlockKernels *kernels = &block_kernels[model->single_precision];
     if (a != b) {
-        *covariance = kernels->cross(&block);
+        *covariance = model->single_precision ? cross_block_body(&block, 1) : cross_block_body(&block, 0);
         return 1;
     }
     double trace; /* tr(A_t Q^aa) (eq. 4) */
-    double sum = kernels->own(&block, &trace);
+    const double sum = model->single_precision ? own_block_body(&block, &trace, 1) : own_block_body(&block, &trace, 0);
     const double *sample = ga->samples + (size_t)t_a * ga->sample_size;
     const double expected_var = ga->signal_variance[t_a] - trace;
     *covariance = sum + (expected_var > 0.0 ? expected_var : 0.0) + sample[ma + D + 1];
@@ -903,7 +965,7 @@ static int pair_covariance(Model *model, int a, int t_a, int b, int t_b, const d
  * adds exact zeros: E[f] = E_s[m_s], Cov[f] = E_s[C_s] + Cov_s[m_s], Cov[x, f] = E_s[Cov_s[x, f]],
  * in raw units, from the per-sample means (model->sample_means) and the sums over the samples of
  * the covariances (cov_sum) and cross-covariances (cross_sum) in standardised units. */
-static void mixture_moments(const Model *model, int n_samples, const double cov_sum[N_OUTPUTS * N_OUTPUTS],
+static inline __attribute__((always_inline)) void mixture_moments(const Model *model, int n_samples, const double cov_sum[N_OUTPUTS * N_OUTPUTS],
                             const double cross_sum[D * N_OUTPUTS], double out_mean[N_OUTPUTS],
                             double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS]) {
     for (int a = 0; a < N_OUTPUTS; a++) {
@@ -936,8 +998,9 @@ static void mixture_moments(const Model *model, int n_samples, const double cov_
  * counted as often as the joint samples hold it, then the mixture (mixture_moments). Returns 0
  * and sets *problem (a malloc'd message; NULL if out of memory) if x_cov fails the checks of
  * covariance_problem or a Cholesky factor of eq. 6 fails. */
-static int moment_match(Model *model, const double x_mean[D], const double x_cov[D * D], double out_mean[N_OUTPUTS],
-                        double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS], char **problem) {
+static inline __attribute__((always_inline)) int moment_match_body(Model *model, const double x_mean[D], const double x_cov[D * D],
+                                                           double out_mean[N_OUTPUTS], double out_cov[N_OUTPUTS * N_OUTPUTS],
+                                                           double cross_cov[D * N_OUTPUTS], char **problem) {
     double m[D], S[D * D], S_z[N_Z * N_Z];
     int failed;
     /* MomentMatcher._standardise: into the common frame, checked, S symmetrised */
@@ -979,6 +1042,35 @@ static int moment_match(Model *model, const double x_mean[D], const double x_cov
 cholesky_failed:
     *problem = cholesky_failure();
     return 0;
+}
+
+/* moment_match_body compiled three times, for AVX-512, for AVX2 with FMA and for any x86-64
+ * (everything it calls per sample and per pair block inlined into each), and the widest the
+ * processor runs picked once at load (select_moment_match): the FMU stays portable while its
+ * loops run 8 or 4 doubles (16 or 8 floats) wide where they can. */
+typedef int (*MomentMatch)(Model *, const double *, const double *, double *, double *, double *, char **);
+#define MOMENT_MATCH(suffix, target)                                                                              \
+    target static int moment_match_##suffix(Model *model, const double *x_mean, const double *x_cov,             \
+                                            double *out_mean, double *out_cov, double *cross_cov, char **problem) { \
+        return moment_match_body(model, x_mean, x_cov, out_mean, out_cov, cross_cov, problem);                   \
+    }
+#if defined(__x86_64__) && defined(__GNUC__)
+MOMENT_MATCH(avx512, __attribute__((target("avx512f,avx512dq,avx512vl,avx2,fma"))))
+MOMENT_MATCH(avx2, __attribute__((target("avx2,fma"))))
+#endif
+MOMENT_MATCH(generic, )
+
+static MomentMatch moment_match = moment_match_generic;
+
+static void select_moment_match(void) {
+#if defined(__x86_64__) && defined(__GNUC__)
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq")
+        && __builtin_cpu_supports("avx512vl"))
+        moment_match = moment_match_avx512;
+    else if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))
+        moment_match = moment_match_avx2;
+#endif
 }
 
 /* narx_belief_step (include_noise = True): predict y(k) from the belief over y(k-1), ..., y(k-L)
