@@ -62,8 +62,10 @@
  * block's columns vectorise; and the kernels are compiled for AVX-512 and AVX2 besides plain
  * x86-64, picked at load. The FMU then runs the formulas of MomentMatcher exactly (to rounding).
  */
+#define _POSIX_C_SOURCE 200809L /* clock_gettime */
 #include <float.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -130,6 +132,41 @@ typedef struct {
     double root[N_Z], T[N_Z * N_Z], L[N_Z * N_Z], Y[N_Z * N_Z];
 } WoodburyScratch;
 
+/* One thread's scratch for its share of a free-run step (moment_match_share), and its partial
+ * sums over the samples and pair blocks it took. */
+typedef struct {
+    double *u_M;                                      /* (N_Z, m_max) */
+    double *tile;                                     /* a pair block's tile (PairBlock) */
+    float *tile_single;                               /* the same in single precision */
+    float *columns_single;                            /* ((N_Z + 1) m_max,) PairBlock.columns_single */
+    double *column_sum, *column_trace;                /* (m_max,) */
+    double *half_a, *half_b;                          /* (m_max,) */
+    WoodburyScratch woodbury;
+    double cov_sum[N_OUTPUTS * N_OUTPUTS];            /* sum of count-weighted covariances (standardised) */
+    double cross_sum[D * N_OUTPUTS];                  /* sum of count-weighted Cov[x, f_a] (standardised) */
+    int failed;                                       /* a Cholesky factor of eq. 6 failed */
+} Scratch;
+
+/* One pair block of a step: output a's distinct sample t_a with output b's t_b (a == b and t_a
+ * == t_b: an own block), counted `weight` times (joint samples holding it). */
+typedef struct {
+    int a, t_a, b, t_b;
+    double weight;
+} PairJob;
+
+/* The free run's threads (moment_match): the second one (worker_main) is started at the
+ * first step with parallel = true and stopped by model_free. It waits on `start` for a new
+ * `generation`, computes its share and publishes the generation in `finished`. */
+#define THREADS 2
+typedef struct {
+    pthread_t thread;
+    pthread_mutex_t lock;
+    pthread_cond_t start;
+    int running, quit;
+    unsigned generation, finished;                    /* finished: read and written atomically */
+    unsigned barrier_count, barrier_phase;            /* the spin barrier between a share's phases */
+} Worker;
+
 struct Model {
     double *data;
     OutputGP gp[N_OUTPUTS];
@@ -139,17 +176,20 @@ struct Model {
     double *k, *v;                                    /* scratch (m_max,) */
     /* free-run scratch */
     double *sample_means;                             /* (JOINT_SAMPLES, N_OUTPUTS) mixture components */
-    double *u_M;                                      /* (N_Z, m_max) */
-    double *tile;                                     /* a pair block's tile (PairBlock) */
-    float *tile_single;                               /* the same in single precision */
-    float *columns_single;                            /* ((N_Z + 1) m_max,) PairBlock.columns_single */
-    double *column_sum, *column_trace;                /* (m_max,) */
+    Scratch scratch[THREADS];                         /* one per thread */
     int single_precision;                             /* the step's pair blocks: !exact_moments */
-    double *half_a, *half_b;                          /* (m_max,) */
+    int threads;                                      /* the step's threads: 2 if parallel (and started) */
     double frame_mean[D], frame_scale[D];             /* output 0's input standardisation */
-    WoodburyScratch woodbury;
+    int *sample_jobs;                                 /* (n_sample_jobs, 2): output a, distinct sample t */
+    PairJob *pair_jobs;                               /* the own blocks, then each output pair's */
+    int n_sample_jobs, n_pair_jobs;
+    int sample_split[THREADS + 1], pair_split[THREADS + 1]; /* the second thread's share of the jobs */
+    double step_m[D], step_S_z[N_Z * N_Z];            /* the step's standardised regressor belief */
+    Worker worker;
     double next_state[MODEL_STATE_SIZE];              /* a step's result before its commit */
 };
+
+static void stop_worker(Model *model); /* below */
 
 void model_free(Model *model) {
     if (model == NULL) return;
@@ -172,15 +212,21 @@ void model_free(Model *model) {
     free(model->squared);
     free(model->k);
     free(model->v);
+    stop_worker(model);
     free(model->sample_means);
-    free(model->u_M);
-    free(model->tile);
-    free(model->tile_single);
-    free(model->columns_single);
-    free(model->column_sum);
-    free(model->column_trace);
-    free(model->half_a);
-    free(model->half_b);
+    for (int k = 0; k < THREADS; k++) {
+        Scratch *scratch = &model->scratch[k];
+        free(scratch->u_M);
+        free(scratch->tile);
+        free(scratch->tile_single);
+        free(scratch->columns_single);
+        free(scratch->column_sum);
+        free(scratch->column_trace);
+        free(scratch->half_a);
+        free(scratch->half_b);
+    }
+    free(model->sample_jobs);
+    free(model->pair_jobs);
     free(model);
 }
 
@@ -202,19 +248,22 @@ static int prepare_free_run(Model *model, int m_max) {
     }
     double *dense = malloc(sizeof(double) * (size_t)m_max * (size_t)m_max); /* V_t, row-major */
     model->sample_means = malloc(sizeof(double) * (size_t)JOINT_SAMPLES * N_OUTPUTS);
-    model->u_M = malloc(sizeof(double) * (size_t)m_max * N_Z);
+    int ok = dense != NULL && model->sample_means != NULL;
     const size_t tile_terms = m_max > TILE_TERMS ? (size_t)m_max : TILE_TERMS;
-    model->tile = malloc(sizeof(double) * tile_terms);
-    model->tile_single = malloc(sizeof(float) * tile_terms);
-    model->columns_single = malloc(sizeof(float) * (N_Z + 1) * (size_t)m_max);
-    model->column_sum = malloc(sizeof(double) * (size_t)m_max);
-    model->column_trace = malloc(sizeof(double) * (size_t)m_max);
-    model->half_a = malloc(sizeof(double) * (size_t)m_max);
-    model->half_b = malloc(sizeof(double) * (size_t)m_max);
-    int ok = dense != NULL && model->sample_means != NULL && model->u_M != NULL && model->tile != NULL
-             && model->tile_single != NULL && model->columns_single != NULL && model->column_sum != NULL && model->column_trace != NULL
-             && model->half_a != NULL
-             && model->half_b != NULL;
+    for (int k = 0; k < THREADS; k++) {
+        Scratch *scratch = &model->scratch[k];
+        scratch->u_M = malloc(sizeof(double) * (size_t)m_max * N_Z);
+        scratch->tile = malloc(sizeof(double) * tile_terms);
+        scratch->tile_single = malloc(sizeof(float) * tile_terms);
+        scratch->columns_single = malloc(sizeof(float) * (N_Z + 1) * (size_t)m_max);
+        scratch->column_sum = malloc(sizeof(double) * (size_t)m_max);
+        scratch->column_trace = malloc(sizeof(double) * (size_t)m_max);
+        scratch->half_a = malloc(sizeof(double) * (size_t)m_max);
+        scratch->half_b = malloc(sizeof(double) * (size_t)m_max);
+        ok = ok && scratch->u_M != NULL && scratch->tile != NULL && scratch->tile_single != NULL
+             && scratch->columns_single != NULL && scratch->column_sum != NULL && scratch->column_trace != NULL
+             && scratch->half_a != NULL && scratch->half_b != NULL;
+    }
     for (int j = 0; j < N_OUTPUTS && ok; j++) {
         OutputGP *gp = &model->gp[j];
         const size_t m = (size_t)gp->m, T = (size_t)gp->T;
@@ -260,6 +309,67 @@ static int prepare_free_run(Model *model, int m_max) {
     }
     free(dense);
     return ok;
+}
+
+/* A pair block's cost in terms of eq. 6 (own_block_body, cross_block_body), plus its set-up
+ * (Woodbury factor, quadratic forms) counted as BLOCK_SET_UP_TERMS: measured on the paper's model,
+ * a step's set-up took 93 us for 766 blocks, about what 170 terms of a block take. */
+#define BLOCK_SET_UP_TERMS 170.0
+
+static double pair_job_cost(const Model *model, const PairJob *job) {
+    const int ma = model->gp[job->a].m, mb = model->gp[job->b].m;
+    if (job->a != job->b) return (double)ma * mb + BLOCK_SET_UP_TERMS;
+    double terms = 0.0;
+    for (int first = 0; first < ma; first += ROW_GROUP) terms += (double)(ma - first < ROW_GROUP ? ma - first : ROW_GROUP) * (ma - first);
+    return terms + BLOCK_SET_UP_TERMS;
+}
+
+/* The index of the first job of the second thread's share: where the running cost reaches half
+ * the total. */
+static int half_way(const double *costs, int n) {
+    double total = 0.0, running = 0.0;
+    for (int j = 0; j < n; j++) total += costs[j];
+    int j = 0;
+    while (j < n && running + costs[j] <= 0.5 * total) running += costs[j++];
+    return j;
+}
+
+/* The free run's jobs: every distinct sample of every output (sample_terms), then the pair
+ * blocks (pair_covariance) in the order of MomentMatcher's loops: each output's own blocks,
+ * then each output pair's distinct sample pairs; and the two threads' shares, split by cost.
+ * Returns 0 if out of memory. */
+static int prepare_jobs(Model *model) {
+    int n_samples = 0, n_pairs = 0;
+    for (int a = 0; a < N_OUTPUTS; a++) n_samples += model->gp[a].T;
+    n_pairs = n_samples;
+    for (int p = 0; p < N_PAIRS; p++) n_pairs += model->pairs[p].n;
+    model->sample_jobs = malloc(sizeof(int) * 2 * (size_t)n_samples);
+    model->pair_jobs = malloc(sizeof(PairJob) * (size_t)n_pairs);
+    double *costs = malloc(sizeof(double) * (size_t)(n_pairs > n_samples ? n_pairs : n_samples));
+    if (model->sample_jobs == NULL || model->pair_jobs == NULL || costs == NULL) {
+        free(costs);
+        return 0;
+    }
+    int j = 0;
+    for (int a = 0; a < N_OUTPUTS; a++)
+        for (int t = 0; t < model->gp[a].T; t++, j++) {
+            model->sample_jobs[2 * j] = a, model->sample_jobs[2 * j + 1] = t;
+            model->pair_jobs[j] = (PairJob){a, t, a, t, model->gp[a].count[t]};
+            costs[j] = model->gp[a].m;
+        }
+    model->n_sample_jobs = n_samples;
+    model->sample_split[0] = 0, model->sample_split[1] = half_way(costs, n_samples);
+    model->sample_split[2] = n_samples;
+    for (int p = 0; p < N_PAIRS; p++)
+        for (int k = 0; k < model->pairs[p].n; k++, j++) {
+            const double *combo = model->pairs[p].combos + 3 * k;
+            model->pair_jobs[j] = (PairJob){model->pairs[p].a, (int)combo[0], model->pairs[p].b, (int)combo[1], combo[2]};
+        }
+    model->n_pair_jobs = n_pairs;
+    for (j = 0; j < n_pairs; j++) costs[j] = pair_job_cost(model, &model->pair_jobs[j]);
+    model->pair_split[0] = 0, model->pair_split[1] = half_way(costs, n_pairs), model->pair_split[2] = n_pairs;
+    free(costs);
+    return 1;
 }
 
 /* The joint table and the sample pairs (layout above), checked: every index names a distinct
@@ -338,6 +448,8 @@ Model *model_load(const char *resources_dir, char **error) {
     model->v = malloc(sizeof(double) * (size_t)m_max);
     if (model->squared == NULL || model->k == NULL || model->v == NULL) return fail(model, error, NULL);
     if (!prepare_free_run(model, m_max)) return fail(model, error, NULL);
+    if (!prepare_jobs(model)) return fail(model, error, NULL);
+    model->threads = 1;
     select_moment_match();
     return model;
 }
@@ -585,9 +697,13 @@ static char *cholesky_failure(void) {
  * expm1(r) itself, so the relative accuracy holds for tiny x, where exp(x) - 1 would lose it.
  * 2^k is built in the exponent bits from the rounded k (k + 1023 in [3, 2033]). Checked against
  * libm's expm1 in the tests: 2 ulp at most over [-EXPM1_BOUND, EXPM1_BOUND], the test allows 4. */
-static inline __attribute__((always_inline)) double reduced_expm1(double x, double *two_k) {
+static inline __attribute__((always_inline)) double clamp_double(double x) {
     x = x < -EXPM1_BOUND ? -EXPM1_BOUND : x;
-    x = x > EXPM1_BOUND ? EXPM1_BOUND : x;
+    return x > EXPM1_BOUND ? EXPM1_BOUND : x;
+}
+
+/* x must be clamped (clamp_double). */
+static inline __attribute__((always_inline)) double reduced_expm1(double x, double *two_k) {
     double shifted = x * INV_LN2 + ROUNDING_SHIFT;
     int64_t bits;
     memcpy(&bits, &shifted, sizeof bits);
@@ -611,17 +727,19 @@ static inline __attribute__((always_inline)) double reduced_expm1(double x, doub
     return p * (r * r) + r; /* expm1(r) */
 }
 
-static inline __attribute__((always_inline)) double expm1_branchless(double x) {
+static inline __attribute__((always_inline)) double expm1_clamped(double x) {
     double two_k;
     const double p = reduced_expm1(x, &two_k);
     return two_k * p + (two_k - 1.0);
 }
 
+static inline __attribute__((always_inline)) double expm1_branchless(double x) { return expm1_clamped(clamp_double(x)); }
+
 /* exp(x) = 2^k (1 + expm1(r)) by the same steps (relative accuracy a few ulp; an argument below
  * -EXPM1_BOUND gives exp(-EXPM1_BOUND), about 1e-304, for 0): eq. 1's q_ai (sample_terms). */
 static inline __attribute__((always_inline)) double exp_branchless(double x) {
     double two_k;
-    const double p = reduced_expm1(x, &two_k);
+    const double p = reduced_expm1(clamp_double(x), &two_k);
     return two_k * (1.0 + p);
 }
 
@@ -630,9 +748,12 @@ static inline __attribute__((always_inline)) double exp_branchless(double x) {
  * float's exponent bits (k + 127 in [2, 252] for |x| <= SINGLE_BOUND). Relative error a few
  * float ulp (about 1e-7): the fast path's pair blocks (single_precision). */
 #define SINGLE_BOUND 87.0f
-static inline __attribute__((always_inline)) float expm1_single(float x) {
+static inline __attribute__((always_inline)) float clamp_single(float x) {
     x = x < -SINGLE_BOUND ? -SINGLE_BOUND : x;
-    x = x > SINGLE_BOUND ? SINGLE_BOUND : x;
+    return x > SINGLE_BOUND ? SINGLE_BOUND : x;
+}
+
+static inline __attribute__((always_inline)) float expm1_single_clamped(float x) {
     const float shifted = x * 1.44269504f + 12582912.0f; /* 1.5 * 2^23 */
     int32_t bits;
     memcpy(&bits, &shifted, sizeof bits);
@@ -650,6 +771,8 @@ static inline __attribute__((always_inline)) float expm1_single(float x) {
     memcpy(&two_k, &exponent, sizeof two_k);
     return two_k * p + (two_k - 1.0f);
 }
+
+static inline __attribute__((always_inline)) float expm1_single(float x) { return expm1_single_clamped(clamp_single(x)); }
 
 /* The loops over a pair block's terms below vectorise (the clamps of expm1 becoming blends,
  * and gcc told that a row's small array of N_Z numbers does not alias them) only under OpenMP's
@@ -719,7 +842,7 @@ SIMD_LOOP
                 float exponent = half_a + half_b[j];
 #pragma GCC unroll 16
                 for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
-                out[j - first_column] = exponent;
+                out[j - first_column] = clamp_single(exponent);
             }
         } else {
             const double *restrict half_b = block->half_b, *restrict u_b = block->u_b;
@@ -732,7 +855,7 @@ SIMD_LOOP
                 double exponent = half_a + half_b[j];
 #pragma GCC unroll 16
                 for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
-                out[j - first_column] = exponent;
+                out[j - first_column] = clamp_double(exponent);
             }
         }
     }
@@ -743,11 +866,11 @@ static inline __attribute__((always_inline)) void tile_expm1(const PairBlock *bl
     if (single) {
         float *restrict tile = block->tile_single;
 SIMD_LOOP
-        for (int k = 0; k < terms; k++) tile[k] = expm1_single(tile[k]);
+        for (int k = 0; k < terms; k++) tile[k] = expm1_single_clamped(tile[k]);
     } else {
         double *restrict tile = block->tile;
 SIMD_LOOP
-        for (int k = 0; k < terms; k++) tile[k] = expm1_branchless(tile[k]);
+        for (int k = 0; k < terms; k++) tile[k] = expm1_clamped(tile[k]);
     }
 }
 
@@ -850,10 +973,11 @@ static inline __attribute__((always_inline)) double own_block_body(const PairBlo
  * Woodbury form -1/2 nu^T (S + Lambda)^-1 nu = -1/2 nu^T u + 1/2 u^T M_a u), kept in the
  * OutputGP for pair_covariance; E[f_a] = beta_a^T q_a (eq. 1, standardised) in gp->mean[t];
  * Cov[x, f_a] = M_a sum_i u_ai beta_ai q_ai (eq. 2 with S (S + Lambda_a)^-1 nu_i = M_a u_i, zero
- * on the known regressors) added count[t] times to cross_sum. m: the standardised input mean,
+ * on the known regressors) added count[t] times to scratch->cross_sum. m: the standardised input mean,
  * S_z the uncertain regressors' covariance. Returns 0 if a Cholesky factor of eq. 6 fails. */
-static inline __attribute__((always_inline)) int sample_terms(Model *model, int a, int t, const double m[D], const double S_z[N_Z * N_Z],
-                        double cross_sum[D * N_OUTPUTS]) {
+static inline __attribute__((always_inline)) int sample_terms(Model *model, Scratch *scratch, int a, int t,
+                                                              const double m[D], const double S_z[N_Z * N_Z]) {
+    double *cross_sum = scratch->cross_sum;
     OutputGP *gp = &model->gp[a];
     const size_t n = (size_t)gp->m;
     const double *sample = gp->samples + (size_t)t * gp->sample_size;
@@ -861,7 +985,7 @@ static inline __attribute__((always_inline)) int sample_terms(Model *model, int 
     const double *precision = gp->precision + (size_t)t * D;
     double *M = gp->M + (size_t)t * N_Z * N_Z, *u_z = gp->uz + (size_t)t * N_Z * n;
     double *q = gp->q + (size_t)t * n, *weighted = gp->weighted + (size_t)t * n;
-    if (!woodbury_terms(&model->woodbury, precision + KNOWN_REGRESSORS, S_z, M, &gp->log_det[t])) return 0;
+    if (!woodbury_terms(&scratch->woodbury, precision + KNOWN_REGRESSORS, S_z, M, &gp->log_det[t])) return 0;
     double mean = 0.0, sum_u[N_Z] = {0.0};
     for (size_t i = 0; i < n; i++) { /* q_ai's exponent, then q_ai in a loop that vectorises */
         double nu_u = 0.0;
@@ -914,7 +1038,8 @@ static inline __attribute__((always_inline)) void half_quadratic_forms(size_t n,
  * for a == b (then t_a == t_b) plus the expected variance (eq. 4, clipped at zero as
  * GaussianProcess.predict) and the noise (eq. 5). Standardised output units. Returns 0 if a
  * Cholesky factor of eq. 6 fails. */
-static inline __attribute__((always_inline)) int pair_covariance(Model *model, int a, int t_a, int b, int t_b, const double S_z[N_Z * N_Z],
+static inline __attribute__((always_inline)) int pair_covariance(const Model *model, Scratch *scratch, int a, int t_a,
+                                                                 int b, int t_b, const double S_z[N_Z * N_Z],
                            double *covariance) {
     const OutputGP *ga = &model->gp[a], *gb = &model->gp[b];
     const size_t ma = (size_t)ga->m, mb = (size_t)gb->m;
@@ -922,21 +1047,21 @@ static inline __attribute__((always_inline)) int pair_covariance(Model *model, i
     const double *precision_b = gb->precision + (size_t)t_b * D + KNOWN_REGRESSORS;
     double precision_ab[N_Z], M_ab[N_Z * N_Z], M_diff[N_Z * N_Z], log_det_ab;
     for (int c = 0; c < N_Z; c++) precision_ab[c] = precision_a[c] + precision_b[c];
-    if (!woodbury_terms(&model->woodbury, precision_ab, S_z, M_ab, &log_det_ab)) return 0;
+    if (!woodbury_terms(&scratch->woodbury, precision_ab, S_z, M_ab, &log_det_ab)) return 0;
     const double constant = -0.5 * (log_det_ab - ga->log_det[t_a] - gb->log_det[t_b]);
     const double *u_a = ga->uz + (size_t)t_a * N_Z * ma, *u_b = gb->uz + (size_t)t_b * N_Z * mb;
     /* half_a_i = 1/2 u_ai^T (M_ab - M_a) u_ai + the constant; half_b_j likewise; u_M = M_ab u_a */
     const double *M_a = ga->M + (size_t)t_a * N_Z * N_Z, *M_b = gb->M + (size_t)t_b * N_Z * N_Z;
     for (int c = 0; c < N_Z * N_Z; c++) M_diff[c] = M_ab[c] - M_a[c];
-    half_quadratic_forms(ma, ga->uu + (size_t)t_a * N_PRODUCTS * ma, M_diff, constant, model->half_a);
+    half_quadratic_forms(ma, ga->uu + (size_t)t_a * N_PRODUCTS * ma, M_diff, constant, scratch->half_a);
     if (a == b) { /* the same sample: half_b = half_a without the constant */
-        for (size_t j = 0; j < mb; j++) model->half_b[j] = model->half_a[j] - constant;
+        for (size_t j = 0; j < mb; j++) scratch->half_b[j] = scratch->half_a[j] - constant;
     } else {
         for (int c = 0; c < N_Z * N_Z; c++) M_diff[c] = M_ab[c] - M_b[c];
-        half_quadratic_forms(mb, gb->uu + (size_t)t_b * N_PRODUCTS * mb, M_diff, 0.0, model->half_b);
+        half_quadratic_forms(mb, gb->uu + (size_t)t_b * N_PRODUCTS * mb, M_diff, 0.0, scratch->half_b);
     }
     for (int c = 0; c < N_Z; c++) {
-        double *restrict u_M = model->u_M + c * ma;
+        double *restrict u_M = scratch->u_M + c * ma;
         const double *restrict M_c = M_ab + c * N_Z;
 SIMD_LOOP
         for (size_t i = 0; i < ma; i++) {
@@ -945,10 +1070,10 @@ SIMD_LOOP
             u_M[i] = value;
         }
     }
-    PairBlock block = {(int)ma, (int)mb, model->half_a, model->half_b, model->u_M, u_b,
+    PairBlock block = {(int)ma, (int)mb, scratch->half_a, scratch->half_b, scratch->u_M, u_b,
                        ga->weighted + (size_t)t_a * ma, gb->weighted + (size_t)t_b * mb,
-                       ga->K_inv + (size_t)t_a * ma * ma, ga->q + (size_t)t_a * ma, model->tile, model->tile_single, model->columns_single,
-                       model->column_sum, model->column_trace};
+                       ga->K_inv + (size_t)t_a * ma * ma, ga->q + (size_t)t_a * ma, scratch->tile, scratch->tile_single, scratch->columns_single,
+                       scratch->column_sum, scratch->column_trace};
     if (a != b) {
         *covariance = model->single_precision ? cross_block_body(&block, 1) : cross_block_body(&block, 0);
         return 1;
@@ -989,88 +1114,208 @@ static inline __attribute__((always_inline)) void mixture_moments(const Model *m
                                            * model->gp[a].output_scale;
 }
 
-/* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance
- * (N_OUTPUTS x N_OUTPUTS, row-major) and input-output cross-covariance (d x N_OUTPUTS) of the
- * mixture over the JOINT_SAMPLES hyperparameter samples (sample s of every output forms model s)
- * at a regressor x ~ N(x_mean, x_cov) (raw units): the input standardised and checked
- * (covariance_problem), then eqs. 1-2 per distinct sample (sample_terms), eqs. 3-6 per distinct
- * sample of each output and per distinct sample pair of each output pair (pair_covariance), each
- * counted as often as the joint samples hold it, then the mixture (mixture_moments). Returns 0
- * and sets *problem (a malloc'd message; NULL if out of memory) if x_cov fails the checks of
- * covariance_problem or a Cholesky factor of eq. 6 fails. */
-static inline __attribute__((always_inline)) int moment_match_body(Model *model, const double x_mean[D], const double x_cov[D * D],
-                                                           double out_mean[N_OUTPUTS], double out_cov[N_OUTPUTS * N_OUTPUTS],
-                                                           double cross_cov[D * N_OUTPUTS], char **problem) {
-    double m[D], S[D * D], S_z[N_Z * N_Z];
-    int failed;
-    /* MomentMatcher._standardise: into the common frame, checked, S symmetrised */
-    *problem = covariance_problem(model, x_mean, x_cov, S, &failed);
-    if (failed) return 0;
-    for (int i = 0; i < D; i++) m[i] = (x_mean[i] - model->frame_mean[i]) / model->frame_scale[i];
-    for (int i = 0; i < N_Z; i++)
-        for (int j = 0; j < N_Z; j++) S_z[i * N_Z + j] = S[(KNOWN_REGRESSORS + i) * D + KNOWN_REGRESSORS + j];
-    double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
-    for (int a = 0; a < N_OUTPUTS; a++)
-        for (int t = 0; t < model->gp[a].T; t++)
-            if (!sample_terms(model, a, t, m, S_z, cross_sum)) goto cholesky_failed;
-    for (int s = 0; s < JOINT_SAMPLES; s++)
-        for (int a = 0; a < N_OUTPUTS; a++) {
-            const OutputGP *gp = &model->gp[a];
-            const int t = (int)model->joint[(size_t)s * N_OUTPUTS + a];
-            model->sample_means[(size_t)s * N_OUTPUTS + a] = gp->output_mean + gp->output_scale * gp->mean[t];
-        }
-    for (int a = 0; a < N_OUTPUTS; a++)
-        for (int t = 0; t < model->gp[a].T; t++) {
-            double covariance;
-            if (!pair_covariance(model, a, t, a, t, S_z, &covariance)) goto cholesky_failed;
-            cov_sum[a * N_OUTPUTS + a] += model->gp[a].count[t] * covariance;
-        }
-    for (int p = 0; p < N_PAIRS; p++) {
-        const SamplePairs *pair = &model->pairs[p];
-        double total = 0.0;
-        for (int k = 0; k < pair->n; k++) {
-            const double *combo = pair->combos + 3 * k;
-            double covariance;
-            if (!pair_covariance(model, pair->a, (int)combo[0], pair->b, (int)combo[1], S_z, &covariance))
-                goto cholesky_failed;
-            total += combo[2] * covariance;
-        }
-        cov_sum[pair->a * N_OUTPUTS + pair->b] = cov_sum[pair->b * N_OUTPUTS + pair->a] = total;
+/* -- a free-run step on one or two threads ------------------------------------------------ */
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#define CPU_RELAX() __builtin_ia32_pause()
+#else
+#define CPU_RELAX() ((void)0)
+#endif
+
+/* The two threads meet between a share's phases (every sample's terms before any pair block):
+ * the last to arrive moves the phase on, the other spins until it does. */
+static void spin_barrier(Worker *worker) {
+    const unsigned phase = __atomic_load_n(&worker->barrier_phase, __ATOMIC_ACQUIRE);
+    if (__atomic_add_fetch(&worker->barrier_count, 1, __ATOMIC_ACQ_REL) == THREADS) {
+        __atomic_store_n(&worker->barrier_count, 0, __ATOMIC_RELAXED);
+        __atomic_store_n(&worker->barrier_phase, phase + 1, __ATOMIC_RELEASE);
+    } else {
+        while (__atomic_load_n(&worker->barrier_phase, __ATOMIC_ACQUIRE) == phase) CPU_RELAX();
     }
-    mixture_moments(model, JOINT_SAMPLES, cov_sum, cross_sum, out_mean, out_cov, cross_cov);
-    return 1;
-cholesky_failed:
-    *problem = cholesky_failure();
-    return 0;
 }
 
-/* moment_match_body compiled three times, for AVX-512, for AVX2 with FMA and for any x86-64
- * (everything it calls per sample and per pair block inlined into each), and the widest the
- * processor runs picked once at load (select_moment_match): the FMU stays portable while its
- * loops run 8 or 4 doubles (16 or 8 floats) wide where they can. */
-typedef int (*MomentMatch)(Model *, const double *, const double *, double *, double *, double *, char **);
-#define MOMENT_MATCH(suffix, target)                                                                              \
-    target static int moment_match_##suffix(Model *model, const double *x_mean, const double *x_cov,             \
-                                            double *out_mean, double *out_cov, double *cross_cov, char **problem) { \
-        return moment_match_body(model, x_mean, x_cov, out_mean, out_cov, cross_cov, problem);                   \
+/* Thread k's share of a step (k < model->threads) at the standardised regressor belief
+ * (model->step_m, model->step_S_z): eqs. 1-2 of its samples (sample_terms), then, when every
+ * thread has done its samples, eqs. 3-6 of its pair blocks (pair_covariance), each added
+ * `weight` times to its scratch's cov_sum. With one thread, thread 0 takes every job in the
+ * order of the original loops. Sets scratch->failed if a Cholesky factor of eq. 6 fails. */
+static inline __attribute__((always_inline)) void moment_match_share_body(Model *model, int k) {
+    Scratch *scratch = &model->scratch[k];
+    const int threads = model->threads;
+    const double *m = model->step_m, *S_z = model->step_S_z;
+    for (int c = 0; c < N_OUTPUTS * N_OUTPUTS; c++) scratch->cov_sum[c] = 0.0;
+    for (int c = 0; c < D * N_OUTPUTS; c++) scratch->cross_sum[c] = 0.0;
+    scratch->failed = 0;
+    const int first_sample = threads == 1 ? 0 : model->sample_split[k];
+    const int last_sample = threads == 1 ? model->n_sample_jobs : model->sample_split[k + 1];
+    for (int j = first_sample; j < last_sample && !scratch->failed; j++)
+        scratch->failed = !sample_terms(model, scratch, model->sample_jobs[2 * j], model->sample_jobs[2 * j + 1], m, S_z);
+    if (threads > 1) {
+        spin_barrier(&model->worker);
+        for (int other = 0; other < threads; other++)
+            if (model->scratch[other].failed) return;
+    } else if (scratch->failed) {
+        return;
     }
-#if defined(__x86_64__) && defined(__GNUC__)
-MOMENT_MATCH(avx512, __attribute__((target("avx512f,avx512dq,avx512vl,avx2,fma"))))
-MOMENT_MATCH(avx2, __attribute__((target("avx2,fma"))))
-#endif
-MOMENT_MATCH(generic, )
+    const int first_pair = threads == 1 ? 0 : model->pair_split[k];
+    const int last_pair = threads == 1 ? model->n_pair_jobs : model->pair_split[k + 1];
+    for (int j = first_pair; j < last_pair; j++) {
+        const PairJob *job = &model->pair_jobs[j];
+        double covariance;
+        if (!pair_covariance(model, scratch, job->a, job->t_a, job->b, job->t_b, S_z, &covariance)) {
+            scratch->failed = 1;
+            return;
+        }
+        scratch->cov_sum[job->a * N_OUTPUTS + job->b] += job->weight * covariance;
+    }
+}
 
-static MomentMatch moment_match = moment_match_generic;
+/* moment_match_share_body compiled three times, for AVX-512, for AVX2 with FMA and for any
+ * x86-64 (everything it calls per sample and per pair block inlined into each), and the widest
+ * the processor runs picked once at load (select_moment_match): the FMU stays portable while its
+ * loops run 8 or 4 doubles (16 or 8 floats) wide where they can. */
+typedef void (*MomentMatchShare)(Model *, int);
+#define MOMENT_MATCH_SHARE(suffix, target) \
+    target static void moment_match_share_##suffix(Model *model, int k) { moment_match_share_body(model, k); }
+#if defined(__x86_64__) && defined(__GNUC__)
+MOMENT_MATCH_SHARE(avx512, __attribute__((target("avx512f,avx512dq,avx512vl,avx2,fma"))))
+MOMENT_MATCH_SHARE(avx2, __attribute__((target("avx2,fma"))))
+#endif
+MOMENT_MATCH_SHARE(generic, )
+
+static MomentMatchShare moment_match_share = moment_match_share_generic;
 
 static void select_moment_match(void) {
 #if defined(__x86_64__) && defined(__GNUC__)
     __builtin_cpu_init();
     if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq")
         && __builtin_cpu_supports("avx512vl"))
-        moment_match = moment_match_avx512;
+        moment_match_share = moment_match_share_avx512;
     else if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))
-        moment_match = moment_match_avx2;
+        moment_match_share = moment_match_share_avx2;
 #endif
+}
+
+/* How long the second thread spins for the next step before it sleeps on the condition
+ * variable: a host that steps in a loop (the C host, fmpy) calls again within this, and the
+ * thread then starts without a system call; a host stepping in real time finds it asleep. */
+#define WORKER_SPIN_NS 200000L
+
+static long elapsed_ns(const struct timespec *since) {
+    struct timespec now;
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    return (now.tv_sec - since->tv_sec) * 1000000000L + (now.tv_nsec - since->tv_nsec);
+}
+
+/* The second thread: thread 1's share of every step, until stop_worker. */
+static void *worker_main(void *argument) {
+    Model *model = argument;
+    Worker *worker = &model->worker;
+    unsigned seen = 0;
+    for (;;) {
+        struct timespec spin_start;
+        clock_gettime(CLOCK_MONOTONIC, &spin_start);
+        unsigned generation;
+        for (int spins = 1; (generation = __atomic_load_n(&worker->generation, __ATOMIC_ACQUIRE)) == seen; spins++) {
+            if (spins % 64 == 0 && elapsed_ns(&spin_start) > WORKER_SPIN_NS) {
+                pthread_mutex_lock(&worker->lock);
+                while (worker->generation == seen) pthread_cond_wait(&worker->start, &worker->lock);
+                pthread_mutex_unlock(&worker->lock);
+            }
+            CPU_RELAX();
+        }
+        if (__atomic_load_n(&worker->quit, __ATOMIC_ACQUIRE)) return NULL;
+        seen = generation;
+        moment_match_share(model, 1);
+        __atomic_store_n(&worker->finished, seen, __ATOMIC_RELEASE);
+    }
+}
+
+/* Starts the second thread once (the first step with parallel = true); returns 0 if the system
+ * refuses it (the step then runs on one thread). */
+static int start_worker(Model *model) {
+    Worker *worker = &model->worker;
+    if (worker->running) return 1;
+    if (pthread_mutex_init(&worker->lock, NULL) != 0) return 0;
+    if (pthread_cond_init(&worker->start, NULL) != 0) {
+        pthread_mutex_destroy(&worker->lock);
+        return 0;
+    }
+    worker->generation = worker->finished = 0;
+    worker->quit = 0;
+    if (pthread_create(&worker->thread, NULL, worker_main, model) != 0) {
+        pthread_cond_destroy(&worker->start);
+        pthread_mutex_destroy(&worker->lock);
+        return 0;
+    }
+    worker->running = 1;
+    return 1;
+}
+
+/* Wakes the second thread for a new generation (a step, or quitting). */
+static void wake_worker(Worker *worker) {
+    pthread_mutex_lock(&worker->lock);
+    __atomic_store_n(&worker->generation, worker->generation + 1, __ATOMIC_RELEASE);
+    pthread_cond_signal(&worker->start);
+    pthread_mutex_unlock(&worker->lock);
+}
+
+static void stop_worker(Model *model) {
+    Worker *worker = &model->worker;
+    if (!worker->running) return;
+    __atomic_store_n(&worker->quit, 1, __ATOMIC_RELEASE);
+    wake_worker(worker);
+    pthread_join(worker->thread, NULL);
+    pthread_cond_destroy(&worker->start);
+    pthread_mutex_destroy(&worker->lock);
+    worker->running = 0;
+}
+
+/* MomentMatcher.__call__ with include_noise = True: the exact mean (N_OUTPUTS), covariance
+ * (N_OUTPUTS x N_OUTPUTS, row-major) and input-output cross-covariance (d x N_OUTPUTS) of the
+ * mixture over the JOINT_SAMPLES hyperparameter samples (sample s of every output forms model s)
+ * at a regressor x ~ N(x_mean, x_cov) (raw units): the input standardised and checked
+ * (covariance_problem), then eqs. 1-2 per distinct sample (sample_terms), eqs. 3-6 per distinct
+ * sample of each output and per distinct sample pair of each output pair (pair_covariance), each
+ * counted as often as the joint samples hold it, on model->threads threads
+ * (moment_match_share_body; the second thread's partial sums added to the first's), then the
+ * mixture (mixture_moments). Returns 0 and sets *problem (a malloc'd message; NULL if out of
+ * memory) if x_cov fails the checks of covariance_problem or a Cholesky factor of eq. 6 fails. */
+static int moment_match(Model *model, const double x_mean[D], const double x_cov[D * D], double out_mean[N_OUTPUTS],
+                        double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS], char **problem) {
+    double S[D * D];
+    int failed;
+    /* MomentMatcher._standardise: into the common frame, checked, S symmetrised */
+    *problem = covariance_problem(model, x_mean, x_cov, S, &failed);
+    if (failed) return 0;
+    for (int i = 0; i < D; i++) model->step_m[i] = (x_mean[i] - model->frame_mean[i]) / model->frame_scale[i];
+    for (int i = 0; i < N_Z; i++)
+        for (int j = 0; j < N_Z; j++)
+            model->step_S_z[i * N_Z + j] = S[(KNOWN_REGRESSORS + i) * D + KNOWN_REGRESSORS + j];
+    if (model->threads > 1) wake_worker(&model->worker);
+    moment_match_share(model, 0);
+    if (model->threads > 1)
+        while (__atomic_load_n(&model->worker.finished, __ATOMIC_ACQUIRE) != model->worker.generation) CPU_RELAX();
+    double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
+    for (int k = 0; k < model->threads; k++) {
+        const Scratch *scratch = &model->scratch[k];
+        if (scratch->failed) {
+            *problem = cholesky_failure();
+            return 0;
+        }
+        for (int c = 0; c < N_OUTPUTS * N_OUTPUTS; c++) cov_sum[c] += scratch->cov_sum[c];
+        for (int c = 0; c < D * N_OUTPUTS; c++) cross_sum[c] += scratch->cross_sum[c];
+    }
+    for (int a = 0; a < N_OUTPUTS; a++) /* the pair jobs add to (a, b), a < b, only */
+        for (int b = a + 1; b < N_OUTPUTS; b++) cov_sum[b * N_OUTPUTS + a] = cov_sum[a * N_OUTPUTS + b];
+    for (int s = 0; s < JOINT_SAMPLES; s++)
+        for (int a = 0; a < N_OUTPUTS; a++) {
+            const OutputGP *gp = &model->gp[a];
+            const int t = (int)model->joint[(size_t)s * N_OUTPUTS + a];
+            model->sample_means[(size_t)s * N_OUTPUTS + a] = gp->output_mean + gp->output_scale * gp->mean[t];
+        }
+    mixture_moments(model, JOINT_SAMPLES, cov_sum, cross_sum, out_mean, out_cov, cross_cov);
+    return 1;
 }
 
 /* narx_belief_step (include_noise = True): predict y(k) from the belief over y(k-1), ..., y(k-L)
@@ -1210,6 +1455,13 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
     double *inputs = next + INPUT_HISTORY, *outputs = next + OUTPUT_HISTORY;
     const int free_run = values[FREE_RUN_VR] != 0.0;
     model->single_precision = values[EXACT_MOMENTS_VR] == 0.0;
+    model->threads = 1;
+    if (free_run && values[PARALLEL_VR] != 0.0) {
+        if (start_worker(model))
+            model->threads = THREADS;
+        else
+            slave_log(slave, fmi2Warning, "parallel: the second thread could not be started; this step runs on one");
+    }
     /* Push the current sample (row 0) into both histories; free run feeds back the means. */
     for (int lag = MAX_LAG - 1; lag > 0; lag--) {
         for (int c = 0; c < N_INPUTS; c++) inputs[lag * N_INPUTS + c] = state[INPUT_HISTORY + (lag - 1) * N_INPUTS + c];

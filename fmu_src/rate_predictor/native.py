@@ -47,7 +47,7 @@ MODEL_SOURCE = Path(__file__).with_name("narx_model.c")
 #: OpenMP's SIMD directive (``FLIGHTGP_OPENMP_SIMD`` switches it on in the source), with fused
 #: multiply-adds allowed, and the short loops of each block's set-up only at ``-O3`` (after the
 #: layer's ``-O2``, so it wins): 670 against 1040 us per free-run step of the paper's model.
-MODEL_FLAGS = ("-O3", "-fopenmp-simd", "-DFLIGHTGP_OPENMP_SIMD", "-ffp-contract=fast")
+MODEL_FLAGS = ("-O3", "-fopenmp-simd", "-DFLIGHTGP_OPENMP_SIMD", "-ffp-contract=fast", "-pthread")
 
 _DATA_MAGIC = b"FGPNARX2"
 
@@ -130,7 +130,8 @@ def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredicto
         c_array("unsigned", "UPPER_VR", [reference[f"{n}_upper"] for n in outputs]).rstrip(),
         f"#define CONFIDENCE_LEVEL_VR {reference['confidence_level']}",
         f"#define FREE_RUN_VR {reference['free_run']}",
-        f"#define EXACT_MOMENTS_VR {reference['exact_moments']}", "",
+        f"#define EXACT_MOMENTS_VR {reference['exact_moments']}",
+        f"#define PARALLEL_VR {reference['parallel']}", "",
         *envelope_lines("REGRESSOR_NAMES", predictor.envelope), "",
         f"/* GP arrays in resources/{DATA_FILE} (layout: narx_model.c) */",
         f"#define DATA_FILE {c_string(DATA_FILE)}",

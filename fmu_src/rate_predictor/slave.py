@@ -67,7 +67,7 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
     -------
     tuple of Variable
         Controls, previous outputs (inputs); predicted outputs and their bounds (outputs);
-        ``confidence_level``, ``free_run`` and ``exact_moments`` (parameters).
+        ``confidence_level``, ``free_run``, ``exact_moments`` and ``parallel`` (parameters).
     """
     table = []
     for name, unit, limit, phrase in inputs:
@@ -100,6 +100,10 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
                  "lets the native FMU take those of its pair terms in single precision, 2x faster, "
                  "within 2 % of the predicted standard deviation (the pythonfmu FMU is exact either way)",
                  False),
+        Variable("parallel", "parameter", "fixed", "exact", None,
+                 "free run: the native FMU computes each step on two threads, its own and one it starts "
+                 "(about 1.8x faster where two cores are free; the pythonfmu FMU runs on one thread "
+                 "either way)", False),
     ]
     return tuple(table)
 

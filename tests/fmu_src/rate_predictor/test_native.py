@@ -47,12 +47,13 @@ class TestNativeRatePredictorFmu(NativeFmuContract, RatePredictorContract):
     """The native FMU contract and the rate predictor's, on the native rate predictor."""
 
 
-def _run_fmpy(path, inputs: dict, *, free_run: bool, exact_moments: bool = True) -> np.ndarray:
+def _run_fmpy(path, inputs: dict, *, free_run: bool, exact_moments: bool = True, parallel: bool = False) -> np.ndarray:
     """Every output of :data:`OUTPUTS` at every communication point of fmpy's simulate_fmu, the
     inputs (name -> (n,)) at the NARX step, in one-step or free-run mode; by default with the
-    exact moments (the native FMU's fast path is tested on its own)."""
+    exact moments on one thread (the native FMU's fast path and its second thread are tested on
+    their own)."""
     return run_in_fmpy(path, inputs, step=STEP, outputs=OUTPUTS,
-                       start_values={"free_run": free_run, "exact_moments": exact_moments})
+                       start_values={"free_run": free_run, "exact_moments": exact_moments, "parallel": parallel})
 
 
 @pytest.mark.parametrize("flight", ["training", "unseen"])
@@ -75,21 +76,70 @@ def test_outputs_equal_the_pythonfmu_fmu(case, bo105_flights, flight):
     assert np.abs(outputs[True] - outputs[False]).max() > 1e-3  # the modes differ
 
 
+@pytest.mark.parametrize("parallel", [False, True])
 @pytest.mark.parametrize("flight", ["training", "unseen"])
-def test_the_fast_free_run_is_within_2_percent_of_the_predicted_sd_of_the_exact_one(case, bo105_flights, flight):
-    """exact_moments = false (the default) takes the exponentials of the pair terms of eq. 6 in
-    single precision. Along the paper's 3-2-1-1 and the unseen one, the means and the bound
-    half-widths (z sd) of the free run stay within 2 % of the exact run's predicted standard
-    deviation (the tolerance of the fast path, docs/fmus.md); measured 7e-6 (means) and 1.7e-4
-    (standard deviations). The fast path must differ at all, or it would not be the single-
-    precision one."""
+def test_the_fast_free_run_is_within_2_percent_of_the_predicted_sd_of_the_exact_one(case, bo105_flights, flight,
+                                                                                    parallel):
+    """exact_moments = false (the default) takes the exponents and exponentials of the pair terms
+    of eq. 6 in single precision. Along the paper's 3-2-1-1 and the unseen one, on one thread and
+    on two, the means and the bound half-widths (z sd) of the free run stay within 2 % of the exact
+    run's predicted standard deviation (the tolerance of the fast path, docs/fmus.md); measured
+    7e-6 (means) and 1.7e-4 (standard deviations) with the exponents in double. The fast path must
+    differ at all, or it would not be the single-precision one."""
     u = bo105_flights[flight].input("theta_1s")[::10]
-    exact, fast = (_run_fmpy(case.path, {"theta_1s": u}, free_run=True, exact_moments=e) for e in (True, False))
+    exact, fast = (_run_fmpy(case.path, {"theta_1s": u}, free_run=True, exact_moments=e, parallel=parallel and not e)
+                   for e in (True, False))
     means, uppers = [OUTPUTS.index(a) for a in "pqr"], [OUTPUTS.index(f"{a}_upper") for a in "pqr"]
     half_width = exact[1:, uppers] - exact[1:, means]  # z sd of the exact run
     assert np.max(np.abs(fast[1:, means] - exact[1:, means]) / half_width) <= 0.02
     assert np.max(np.abs((fast[1:, uppers] - fast[1:, means]) - half_width) / half_width) <= 0.02
     assert np.max(np.abs(fast - exact)) > 0.0
+
+
+def test_the_exact_free_run_on_two_threads_equals_the_one_on_one(case, bo105_flights):
+    """parallel = true splits each step's samples and pair blocks between the FMU's thread and a
+    second one: the same terms, each thread summing its share, the two partial sums added. Along
+    the unseen 3-2-1-1, with the exact moments, every output equals the one-thread run's to 1e-9
+    rad/s, the tolerance against the pythonfmu FMU: only the order of the sums differs, and eq. 4
+    subtracts tr(A Q), whose terms are up to the inverse of K's smallest eigenvalue, from s2
+    (measured 2.2e-10). (On the fast path a change in the last bit can round an exponent to
+    another float, so two threads are held to the fast path's own tolerance against the exact
+    run, in the test below.)"""
+    u = bo105_flights["unseen"].input("theta_1s")[::10]
+    one, two = (_run_fmpy(case.path, {"theta_1s": u}, free_run=True, parallel=p) for p in (False, True))
+    np.testing.assert_allclose(two, one, rtol=0, atol=1e-9)
+    assert np.ptp(two[:, OUTPUTS.index("q_upper")]) > 1e-3
+
+
+def _threads_of_this_process() -> int:
+    import os
+
+    return len(os.listdir("/proc/self/task"))
+
+
+def test_the_second_thread_starts_with_the_first_parallel_free_run_step_and_stops_with_the_instance(
+        case, unzipdir, bo105_flights):
+    """The second thread is the FMU's own: none before the first free-run step with parallel =
+    true, one while the instance lives (across steps and a reset), none after fmi2FreeInstance.
+    A one-step (not free-run) instance never starts it."""
+    u = bo105_flights["unseen"].input("theta_1s")[::10]
+    before = _threads_of_this_process()
+    for free_run, started in ((True, 1), (False, 0)):
+        host = Host(unzipdir, name=f"threads_{free_run}")
+        try:
+            host.set({"free_run": free_run, "parallel": True})
+            host.start(case, case.inputs(0) if not free_run else {"theta_1s": u[0]})
+            assert _threads_of_this_process() == before
+            host.run(case, 0, 5, inputs=(lambda k: {"theta_1s": u[k]}) if free_run else None)
+            assert _threads_of_this_process() == before + started
+            host.fmu.reset()
+            host.set({"free_run": free_run, "parallel": True})
+            host.start(case, case.inputs(0) if not free_run else {"theta_1s": u[0]})
+            host.run(case, 0, 3, inputs=(lambda k: {"theta_1s": u[k]}) if free_run else None)
+            assert _threads_of_this_process() == before + started
+        finally:
+            host.close()
+        assert _threads_of_this_process() == before
 
 
 def test_free_run_belief_is_part_of_the_fmu_state(case, unzipdir, host):
