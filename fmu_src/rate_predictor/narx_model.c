@@ -96,6 +96,10 @@
 /* Rows of a tile accumulated together (block_body): each column sum is loaded and stored once per
    ROW_GROUP rows, not once per row, a chain through memory that bounded the loop. */
 #define ROW_GROUP 4
+/* Rows of an own block's band (own_block_body): on the paper's model 8 rows (640 terms per
+   block) measured 610-630 us per step, 16 rows (768 terms, whole vectors) 620-640, 4 rows (576
+   terms, shorter loops) 650-660. */
+#define OWN_BAND 8
 
 /* One output's GP (pointers into Model.data). */
 typedef struct {
@@ -809,12 +813,12 @@ static inline __attribute__((always_inline)) double pair_exponent(double half_a,
     return exponent;
 }
 
-/* A block's terms are computed in tiles of whole rows (rows first.. of the block, its columns
- * from first_column on, row stride L = mb - first_column), in passes that each are one loop gcc
- * vectorises without reordering a sum (so without SIMD reductions): the exponents (tile_exponents),
- * expm1 over the tile as one flat array (tile_expm1), then the rows accumulated per column
- * (tile_accumulate). single: the exponents and expm1 in float, 16 (8) lanes wide where double
- * has 8 (4), from float copies of the columns' arrays (columns_to_single); the sums in double. */
+/* A block's terms are computed in tiles of rows (rows first.. of the block, each from column
+ * first_column on), in passes that each are one loop gcc vectorises without reordering a sum (so
+ * without SIMD reductions): the exponents (tile_exponents), expm1 over the tile as one flat array
+ * (tile_expm1), then the rows accumulated per column (tile_accumulate). single: the exponents
+ * and expm1 in float, 16 (8) lanes wide where double has 8 (4), from float copies of the
+ * columns' arrays (columns_to_single); the sums in double. */
 
 /* half_b and u_b in float, for the exponents of the single-precision path. */
 static inline __attribute__((always_inline)) void columns_to_single(const PairBlock *block) {
@@ -824,16 +828,17 @@ static inline __attribute__((always_inline)) void columns_to_single(const PairBl
     for (int k = 0; k < N_Z * mb; k++) u_b[k] = (float)block->u_b[k];
 }
 
-/* tile[r L + j - first_column] = D_ij (eq. 6) for rows i = first + r < first + rows and columns
- * j >= first_column: half_a_i + half_b_j + (M_ab u_ai) . u_bj. */
-static inline __attribute__((always_inline)) void tile_exponents(const PairBlock *block, int single, int first,
-                                                                 int rows, int first_column) {
+/* The exponents D_ij (eq. 6), clamped for expm1, of rows i = first + r < first + rows and columns
+ * j >= first_column: half_a_i + half_b_j + (M_ab u_ai) . u_bj, at tile[at + r L + j -
+ * first_column] with L = mb - first_column. */
+static inline __attribute__((always_inline)) void tile_exponents(const PairBlock *block, int single, size_t at,
+                                                                 int first, int rows, int first_column) {
     const int ma = block->ma, mb = block->mb, L = mb - first_column;
     for (int r = 0; r < rows; r++) {
         const int i = first + r;
         if (single) {
             const float *restrict half_b = block->columns_single, *restrict u_b = block->columns_single + mb;
-            float *restrict out = block->tile_single + (size_t)r * L;
+            float *restrict out = block->tile_single + at + (size_t)r * L;
             float x[N_Z];
             for (int c = 0; c < N_Z; c++) x[c] = (float)block->u_M[c * ma + i];
             const float half_a = (float)block->half_a[i];
@@ -846,7 +851,7 @@ SIMD_LOOP
             }
         } else {
             const double *restrict half_b = block->half_b, *restrict u_b = block->u_b;
-            double *restrict out = block->tile + (size_t)r * L;
+            double *restrict out = block->tile + at + (size_t)r * L;
             double x[N_Z];
             for (int c = 0; c < N_Z; c++) x[c] = block->u_M[c * ma + i];
             const double half_a = block->half_a[i];
@@ -861,52 +866,63 @@ SIMD_LOOP
     }
 }
 
-/* The tile's first `terms` exponents replaced by their expm1. */
-static inline __attribute__((always_inline)) void tile_expm1(const PairBlock *block, int single, int terms) {
+/* The tile's first `terms` (clamped) exponents replaced by their expm1. */
+static inline __attribute__((always_inline)) void tile_expm1(const PairBlock *block, int single, size_t terms) {
     if (single) {
         float *restrict tile = block->tile_single;
 SIMD_LOOP
-        for (int k = 0; k < terms; k++) tile[k] = expm1_single_clamped(tile[k]);
+        for (size_t k = 0; k < terms; k++) tile[k] = expm1_single_clamped(tile[k]);
     } else {
         double *restrict tile = block->tile;
 SIMD_LOOP
-        for (int k = 0; k < terms; k++) tile[k] = expm1_clamped(tile[k]);
+        for (size_t k = 0; k < terms; k++) tile[k] = expm1_clamped(tile[k]);
     }
 }
 
-/* The tile's rows (as tile_exponents wrote them, now expm1(D_ij)) added per column j >=
- * first_column + skip: column_sum_j += w_ai expm1(D_ij) and, own, column_trace_j += q_i A_ij (1 +
- * expm1(D_ij)) (eq. 4's trace). ROW_GROUP rows at a time, so that a column's sums are loaded and
- * stored once per group: one row at a time, that chain through memory bounded the loop. */
+/* Rows first.. (< first + rows) of the tile as tile_exponents wrote them at `at` (now expm1(D_ij)),
+ * added per column j in [begin, mb), the columns [begin, begin + halved) at half weight:
+ * column_sum_j += w_ai expm1(D_ij) and, own, column_trace_j += q_i A_ij (1 + expm1(D_ij)) (eq. 4's
+ * trace). ROW_GROUP rows at a time, so that a column's sums are loaded and stored once per group:
+ * one row at a time, that chain through memory bounded the loop. */
 static inline __attribute__((always_inline)) void tile_accumulate(const PairBlock *block, int single, int own,
-                                                                  int first, int rows, int first_column, int skip) {
+                                                                  size_t at, int first, int rows, int first_column,
+                                                                  int halved) {
     const int mb = block->mb, L = mb - first_column;
     double *restrict column_sum = block->column_sum, *restrict column_trace = block->column_trace;
     for (int r = 0; r < rows; r += ROW_GROUP) {
         const int group = rows - r < ROW_GROUP ? rows - r : ROW_GROUP, i = first + r;
-        const double *restrict w = block->weighted_a + i, *restrict q = block->q + i;
         const double *restrict A = own ? block->K_inv + (size_t)i * mb : NULL;
-        const double *restrict excess = block->tile + (size_t)r * L - first_column;
-        const float *restrict excess_single = block->tile_single + (size_t)r * L - first_column;
+        const double *restrict excess = block->tile + at + (size_t)r * L - first_column;
+        const float *restrict excess_single = block->tile_single + at + (size_t)r * L - first_column;
 #define EXCESS(g, j) (single ? (double)excess_single[(g) * L + (j)] : excess[(g) * L + (j)])
-        if (group == ROW_GROUP && own) {
-SIMD_LOOP
-            for (int j = first_column + skip; j < mb; j++) {
-                const double v0 = EXCESS(0, j), v1 = EXCESS(1, j), v2 = EXCESS(2, j), v3 = EXCESS(3, j);
-                column_sum[j] += w[0] * v0 + w[1] * v1 + w[2] * v2 + w[3] * v3;
-                column_trace[j] += q[0] * A[j] * (1.0 + v0) + q[1] * A[mb + j] * (1.0 + v1)
-                                   + q[2] * A[2 * mb + j] * (1.0 + v2) + q[3] * A[3 * mb + j] * (1.0 + v3);
-            }
-        } else if (group == ROW_GROUP) {
-SIMD_LOOP
-            for (int j = first_column + skip; j < mb; j++)
-                column_sum[j] += w[0] * EXCESS(0, j) + w[1] * EXCESS(1, j) + w[2] * EXCESS(2, j) + w[3] * EXCESS(3, j);
-        } else {
+        for (int part = 0; part < 2; part++) { /* the halved columns, then the rest */
+            const int begin = part == 0 ? first_column : first_column + halved;
+            const int end = part == 0 ? first_column + halved : mb;
+            const double weight = part == 0 ? 0.5 : 1.0;
+            double w[ROW_GROUP] = {0.0}, q[ROW_GROUP] = {0.0};
             for (int g = 0; g < group; g++) {
+                w[g] = weight * block->weighted_a[i + g];
+                if (own) q[g] = weight * block->q[i + g];
+            }
+            if (group == ROW_GROUP && own) {
 SIMD_LOOP
-                for (int j = first_column + skip; j < mb; j++) {
-                    column_sum[j] += w[g] * EXCESS(g, j);
-                    if (own) column_trace[j] += q[g] * A[g * mb + j] * (1.0 + EXCESS(g, j));
+                for (int j = begin; j < end; j++) {
+                    const double v0 = EXCESS(0, j), v1 = EXCESS(1, j), v2 = EXCESS(2, j), v3 = EXCESS(3, j);
+                    column_sum[j] += w[0] * v0 + w[1] * v1 + w[2] * v2 + w[3] * v3;
+                    column_trace[j] += q[0] * A[j] * (1.0 + v0) + q[1] * A[mb + j] * (1.0 + v1)
+                                       + q[2] * A[2 * mb + j] * (1.0 + v2) + q[3] * A[3 * mb + j] * (1.0 + v3);
+                }
+            } else if (group == ROW_GROUP) {
+SIMD_LOOP
+                for (int j = begin; j < end; j++)
+                    column_sum[j] += w[0] * EXCESS(0, j) + w[1] * EXCESS(1, j) + w[2] * EXCESS(2, j) + w[3] * EXCESS(3, j);
+            } else {
+                for (int g = 0; g < group; g++) {
+SIMD_LOOP
+                    for (int j = begin; j < end; j++) {
+                        column_sum[j] += w[g] * EXCESS(g, j);
+                        if (own) column_trace[j] += q[g] * A[g * mb + j] * (1.0 + EXCESS(g, j));
+                    }
                 }
             }
         }
@@ -923,9 +939,9 @@ static inline __attribute__((always_inline)) double cross_block_body(const PairB
     if (single) columns_to_single(block);
     for (int first = 0; first < ma; first += rows_per_tile) {
         const int rows = ma - first < rows_per_tile ? ma - first : rows_per_tile;
-        tile_exponents(block, single, first, rows, 0);
-        tile_expm1(block, single, rows * mb);
-        tile_accumulate(block, single, 0, first, rows, 0, 0);
+        tile_exponents(block, single, 0, first, rows, 0);
+        tile_expm1(block, single, (size_t)rows * mb);
+        tile_accumulate(block, single, 0, 0, first, rows, 0, 0);
     }
     double sum = 0.0;
     for (int j = 0; j < mb; j++) sum += block->column_sum[j] * block->weighted_b[j];
@@ -935,35 +951,40 @@ static inline __attribute__((always_inline)) double cross_block_body(const PairB
 /* An own block (a == b, the same sample t; m x m): returns sum_ij w_i w_j expm1(D_ij) and sets
  * *trace = sum_ij q_i q_j A_ij (1 + expm1(D_ij)) = tr(A_t Q^aa) (eq. 4). Both summands are
  * symmetric in i and j (D_ij = D_ji, as M_ab is symmetric and half_b is half_a less the
- * constant; A_t is symmetric), so each group of ROW_GROUP rows (one tile) takes the columns from
- * its first row on: its square on the diagonal whole, the columns right of it twice. The paper's
- * 32 x 32 block is then 576 terms instead of 1024, and half of A_t is read. */
+ * constant; A_t is symmetric), so each band of OWN_BAND rows takes the columns from its first
+ * row on: the square on the diagonal at half weight (it holds both (i, j) and (j, i)), and both
+ * sums are doubled at the end. Bands are packed into tiles of at most TILE_TERMS terms (one band
+ * if longer). The paper's 32 x 32 block is then 640 terms instead of 1024 (one tile), and about
+ * half of A_t is read. */
 static inline __attribute__((always_inline)) double own_block_body(const PairBlock *block, double *trace, int single) {
     const int m = block->ma;
-    const double *restrict w = block->weighted_a, *restrict q = block->q, *restrict A = block->K_inv;
-    double diagonal_sum = 0.0, diagonal_trace = 0.0;
     for (int j = 0; j < m; j++) block->column_sum[j] = 0.0, block->column_trace[j] = 0.0;
     if (single) columns_to_single(block);
-    for (int first = 0; first < m; first += ROW_GROUP) {
-        const int rows = m - first < ROW_GROUP ? m - first : ROW_GROUP, L = m - first;
-        tile_exponents(block, single, first, rows, first);
-        tile_expm1(block, single, rows * L);
-        for (int g = 0; g < rows; g++) /* the square on the diagonal: every term once */
-            for (int h = 0; h < rows; h++) {
-                const int i = first + g, j = first + h;
-                const double value = single ? (double)block->tile_single[g * L + h] : block->tile[g * L + h];
-                diagonal_sum += w[i] * w[j] * value;
-                diagonal_trace += q[i] * q[j] * A[(size_t)i * m + j] * (1.0 + value);
-            }
-        tile_accumulate(block, single, 1, first, rows, first, rows);
+    for (int first = 0; first < m;) { /* one tile: bands first .. last - 1 */
+        int last = first;
+        size_t terms = 0;
+        while (last < m) {
+            const int rows = m - last < OWN_BAND ? m - last : OWN_BAND;
+            const size_t band_terms = (size_t)rows * (size_t)(m - last);
+            if (last > first && terms + band_terms > TILE_TERMS) break;
+            tile_exponents(block, single, terms, last, rows, last);
+            terms += band_terms;
+            last += rows;
+        }
+        tile_expm1(block, single, terms);
+        for (size_t at = 0; first < last; first += OWN_BAND) {
+            const int rows = m - first < OWN_BAND ? m - first : OWN_BAND;
+            tile_accumulate(block, single, 1, at, first, rows, first, rows);
+            at += (size_t)rows * (size_t)(m - first);
+        }
     }
     double sum = 0.0, total_trace = 0.0;
     for (int j = 0; j < m; j++) {
-        sum += block->column_sum[j] * w[j];
-        total_trace += block->column_trace[j] * q[j];
+        sum += block->column_sum[j] * block->weighted_a[j];
+        total_trace += block->column_trace[j] * block->q[j];
     }
-    *trace = 2.0 * total_trace + diagonal_trace;
-    return 2.0 * sum + diagonal_sum;
+    *trace = 2.0 * total_trace;
+    return 2.0 * sum;
 }
 
 /* -- eqs. 1-6 per distinct sample and per distinct sample pair ------------------------------ */
