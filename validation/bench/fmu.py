@@ -219,20 +219,21 @@ NATIVE_IDS = ("paper", "single", "n500", "sparse50")
 NATIVE_GOAL_REAL_TIME = 200.0
 
 
-#: FLOPs per term of a pair block of eq. 6 in narx_model.c (block_body), with N_Z uncertain
-#: regressors: the exponent (one add, N_Z multiply-adds), in double; expm1 of it, in single
-#: precision on the fast path (expm1_single: 23) or double on the exact one (expm1_branchless:
-#: 37), counting a fused multiply-add as 2; the accumulation in double (cross blocks one
-#: multiply-add, own blocks three more operations for eq. 4's trace).
+#: FLOPs per term of a pair block of eq. 6 in narx_model.c (tile_exponents, tile_expm1,
+#: tile_accumulate), with N_Z uncertain regressors: the exponent (one add, N_Z multiply-adds),
+#: in single precision on the fast path and double on the exact one; expm1 of it (expm1_single:
+#: 23, expm1_clamped: 37), counting a fused multiply-add as 2; the accumulation in double (cross
+#: blocks one multiply-add, own blocks three more operations for eq. 4's trace).
 EXPM1_FLOPS = {"single": 23, "double": 37}
 ACCUMULATE_FLOPS = {"cross": 2, "own": 6}
 
 
 def free_run_flops(fmu_path) -> dict:
     """FLOPs of one free-run step of a native rate-predictor FMU in its pair blocks (eq. 6; the
-    rest of a step, eqs. 1-2 and each block's set-up, is a few per cent of its FLOPs), read from
-    the FMU's ``model_config.h``: every distinct sample's own block (m x m terms) and every
-    distinct sample pair's cross block (m_a x m_b).
+    rest of a step, eqs. 1-2 and each block's set-up, is not counted), read from the FMU's
+    ``model_config.h`` and ``narx_model.c``: every distinct sample's own block (symmetric: bands
+    of ``OWN_BAND`` rows from the diagonal on, own_block_body) and every distinct sample pair's
+    cross block (m_a x m_b).
 
     Returns
     -------
@@ -244,23 +245,26 @@ def free_run_flops(fmu_path) -> dict:
 
     with zipfile.ZipFile(fmu_path) as archive:
         config = archive.read("sources/model_config.h").decode()
+        source = archive.read("sources/narx_model.c").decode()
 
     def numbers(name):
         return [int(v) for v in re.search(rf"{name}\[\d+\] = {{([^}}]*)}}", config).group(1).split(",")]
 
-    def constant(name):
-        return int(re.search(rf"#define {name} (\d+)", config).group(1))
+    def constant(text, name):
+        return int(re.search(rf"#define {name} (\d+)", text).group(1))
 
     m, distinct = numbers("BASIS_POINTS"), numbers("DISTINCT_SAMPLES")
-    n_z = constant("N_OUTPUTS") * constant("N_OUTPUT_LAGS")
-    own = sum(t * mj * mj for t, mj in zip(distinct, m))
+    n_z = constant(config, "N_OUTPUTS") * constant(config, "N_OUTPUT_LAGS")
+    band = constant(source, "OWN_BAND")
+    own = sum(t * sum(min(band, mj - first) * (mj - first) for first in range(0, mj, band))
+              for t, mj in zip(distinct, m))
     pairs = [(a, b) for a in range(len(m)) for b in range(a + 1, len(m))]
     counts = numbers("PAIR_COUNT") if pairs else []
     cross = sum(n * m[a] * m[b] for n, (a, b) in zip(counts, pairs))
     exponent = (own + cross) * (1 + 2 * n_z)
     accumulate = own * ACCUMULATE_FLOPS["own"] + cross * ACCUMULATE_FLOPS["cross"]
     return {"terms": own + cross,
-            "fast": {"double": exponent + accumulate, "single": (own + cross) * EXPM1_FLOPS["single"]},
+            "fast": {"double": accumulate, "single": exponent + (own + cross) * EXPM1_FLOPS["single"]},
             "exact": {"double": exponent + accumulate + (own + cross) * EXPM1_FLOPS["double"], "single": 0}}
 
 
@@ -280,32 +284,44 @@ def machine_peak_flops() -> dict:
     return {"double": float(words[1]) * 1e9, "single": float(words[3]) * 1e9, "isa": words[4]}
 
 
+#: The paper model's free-run paths ``bench fmu`` times in the C host: key -> (summary id,
+#: label, ``exact_moments``, ``parallel``). The fast path on two threads is the one ``bench
+#: cosim`` co-simulates.
+FREE_RUN_PATHS = {"fast": ("fmu.paper.native.step_us", "fast, two threads (parallel)", False, True),
+                  "fast_one_thread": ("fmu.paper.native.one_thread_step_us", "fast, one thread", False, False),
+                  "exact": ("fmu.paper.native.exact_step_us", "exact_moments, one thread", True, False)}
+
+
 def paper_free_run_rows(fmu_path, theta_1s, *, step: float, runs: int = 3) -> dict:
     """The paper model's native FMU stepping the free run along ``theta_1s`` (the NARX grid) in
-    the plain C host, on the fast path and with ``exact_moments``: ``runs`` runs each (one pass
-    over the manoeuvre after loading the FMU), with the FLOPs per step
-    (:func:`free_run_flops`) and the share of the machine's peak (:func:`machine_peak_flops`)
-    they run at: the time the step's FLOPs would take at peak over the measured time.
+    the plain C host on each of :data:`FREE_RUN_PATHS`: ``runs`` runs each (one pass over the
+    manoeuvre after loading the FMU), with the FLOPs per step (:func:`free_run_flops`) and the
+    share of the machine's peak (:func:`machine_peak_flops`, one core; two threads have twice
+    that) they run at: the time the step's FLOPs would take at peak over the measured time. The
+    peak is that of multiply-adds alone; where additions run on units of their own beside them
+    (AMD's Zen), code that mixes both can exceed it, by up to a half.
 
     Returns
     -------
     dict
-        ``{"steps", "peak", "flops", "fast": {...}, "exact": {...}}``, each path ``{"us_per_step":
-        [runs], "median_us", "real_time_factor", "gflops", "share_of_peak"}``.
+        ``{"steps", "peak", "flops", <path>: {...}}``, each path ``{"label", "threads",
+        "us_per_step": [runs], "median_us", "real_time_factor", "gflops", "share_of_peak"}``.
     """
     from validation.cosim.hosts import simulate_in_c_host
 
     n_steps = len(theta_1s) - 1
     flops, peak = free_run_flops(fmu_path), machine_peak_flops()
     report = {"steps": n_steps, "flops": flops, "peak": peak}
-    for path, exact in (("fast", False), ("exact", True)):
+    for path, (_, label, exact, parallel) in FREE_RUN_PATHS.items():
         times = [simulate_in_c_host(fmu_path, step_size=step, n_steps=n_steps, inputs={"theta_1s": theta_1s},
-                                    outputs=["q", "q_upper"], start_values={"free_run": True, "exact_moments": exact},
+                                    outputs=["q", "q_upper"],
+                                    start_values={"free_run": True, "exact_moments": exact, "parallel": parallel},
                                     repeats=1)["us_per_step"] for _ in range(runs)]
         median_s = float(np.median(times)) * 1e-6
-        count = flops[path]
-        at_peak_s = count["double"] / peak["double"] + count["single"] / peak["single"]
-        report[path] = {"us_per_step": times, "median_us": median_s * 1e6, "real_time_factor": step / median_s,
+        count, threads = flops["exact" if exact else "fast"], 2 if parallel else 1
+        at_peak_s = (count["double"] / peak["double"] + count["single"] / peak["single"]) / threads
+        report[path] = {"label": label, "threads": threads, "us_per_step": times, "median_us": median_s * 1e6,
+                        "real_time_factor": step / median_s,
                         "gflops": (count["double"] + count["single"]) / median_s * 1e-9,
                         "share_of_peak": at_peak_s / median_s}
     return report
@@ -469,11 +485,11 @@ def format_table(report: dict) -> str:
             f"machine peak ({peak['isa']}) {peak['double'] * 1e-9:.1f} GFLOP/s double, "
             f"{peak['single'] * 1e-9:.1f} single",
             f"{'path':<32} {'us/step median':>15} {'runs':>24} {'x real time':>12} {'GFLOP/s':>8} {'of peak':>8}",
-            *(f"{label:<32} {free_run[key]['median_us']:>15.0f} "
+            *(f"{free_run[key]['label']:<32} {free_run[key]['median_us']:>15.0f} "
               f"{' '.join(f'{t:.0f}' for t in free_run[key]['us_per_step']):>24} "
               f"{free_run[key]['real_time_factor']:>12.0f} {free_run[key]['gflops']:>8.1f} "
               f"{100 * free_run[key]['share_of_peak']:>7.0f}%"
-              for key, label in (("fast", "fast (single-precision expm1)"), ("exact", "exact_moments"))),
+              for key in FREE_RUN_PATHS if key in free_run),
         ]
     return "\n".join([
         f"Rate-predictor FMU step cost in fmpy (setReal + doStep + getReal, best of 3 x "
@@ -501,13 +517,16 @@ def summary_rows(report: dict) -> list[SummaryRow]:
         if key == "paper":
             free_run = report.get("paper_free_run")
             if free_run:
-                for path, label in (("fast", ""), ("exact", ", exact_moments")):
+                for path, (summary_id, *_) in FREE_RUN_PATHS.items():
+                    if path not in free_run:
+                        continue
                     rows.append(SummaryRow(
-                        "fmu.paper.native.step_us" if path == "fast" else "fmu.paper.native.exact_step_us",
-                        f"native FMU free-run step in the C host{label}, {row['model']}",
+                        summary_id,
+                        f"native FMU free-run step in the C host, {free_run[path]['label']}, {row['model']}",
                         free_run[path]["median_us"], "us", budget_us, at_least=False,
                         note=f"median of {len(free_run[path]['us_per_step'])}; "
-                             f"{100 * free_run[path]['share_of_peak']:.0f}% of the machine's peak FLOP rate"))
+                             f"{100 * free_run[path]['share_of_peak']:.0f}% of the peak FLOP rate of "
+                             f"{free_run[path]['threads']} core{'s' if free_run[path]['threads'] > 1 else ''}"))
             rows.append(SummaryRow("fmu.paper.native.one_step_us", f"native FMU one-step prediction in the C host, "
                                    f"{row['model']}", row["native_c_host_us_per_step"], "us", None, note=cheaper))
             continue

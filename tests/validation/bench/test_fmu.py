@@ -22,19 +22,24 @@ def test_times_the_gp_fmu_against_a_bare_one_and_the_native_fmus(monkeypatch):
     assert len(times) >= 3 and all(math.isfinite(t) and t > 0 for t in times)
     assert "bare us/step" in fmu.format_table(report)
     # Headline rows: the pythonfmu FMU against the bare one, the paper's native FMU free run
-    # (fast and exact, against 200x real time) and one step, each other native rate predictor
-    # run (here the single-sample one), the blimp.
+    # (fast on two threads and on one, exact; against 200x real time) and one step, each other
+    # native rate predictor run (here the single-sample one), the blimp.
     rows = {row.id: row for row in fmu.summary_rows(report)}
-    assert list(rows) == ["fmu.pythonfmu.gp_over_bare", "fmu.paper.native.step_us", "fmu.paper.native.exact_step_us",
+    assert list(rows) == ["fmu.pythonfmu.gp_over_bare", "fmu.paper.native.step_us",
+                          "fmu.paper.native.one_thread_step_us", "fmu.paper.native.exact_step_us",
                           "fmu.paper.native.one_step_us", "fmu.single.native.speedup", "fmu.blimp_rkgp.native.speedup"]
     free_run = report["paper_free_run"]
-    for key, path in (("fmu.paper.native.step_us", "fast"), ("fmu.paper.native.exact_step_us", "exact")):
+    for path, (key, _, _, parallel) in fmu.FREE_RUN_PATHS.items():
         paper = rows[key]
         assert paper.value == free_run[path]["median_us"] and len(free_run[path]["us_per_step"]) == 3
         assert paper.goal == pytest.approx(report["narx_step_s"] * 1e6 / 200) and not paper.at_least
         assert paper.met == (paper.value <= paper.goal)
-        assert 0 < free_run[path]["share_of_peak"] <= 1.2  # FLOPs counted, not measured: a margin
-    # The fast path takes its exponentials in single precision: fewer double FLOPs, some single.
+        assert free_run[path]["threads"] == (2 if parallel else 1)
+        # Counted FLOPs over the peak of multiply-adds alone: additions beside them run on their own
+        # units on some processors (AMD's Zen), up to half as many FLOPs again.
+        assert 0 < free_run[path]["share_of_peak"] <= 1.5
+    # The fast path takes its exponents and exponentials in single precision: fewer double FLOPs,
+    # some single.
     flops = free_run["flops"]
     assert flops["fast"]["double"] < flops["exact"]["double"]
     assert flops["fast"]["single"] > 0 == flops["exact"]["single"]
