@@ -55,12 +55,16 @@
  *
  * Free-run cost. Eq. 6 takes one expm1 per pair of basis points, for every distinct sample of
  * each output and every distinct sample pair of each output pair: the paper's model has 279
- * own blocks (symmetric: 528 of the 1024 terms needed) and 487 cross blocks of 32 x 32, about
- * 650 000 terms per step. Three things keep a term cheap, none of them an approximation: the
- * known regressors have zero variance, so the exponents need the N_Z uncertain ones only (3 of
- * the paper's 5); expm1 is a branch-free polynomial (expm1_branchless) so that the loops over a
- * block's columns vectorise; and the kernels are compiled for AVX-512 and AVX2 besides plain
- * x86-64, picked at load. The FMU then runs the formulas of MomentMatcher exactly (to rounding).
+ * own blocks and 487 cross blocks of 32 x 32. None of what keeps a term cheap is an
+ * approximation: the known regressors have zero variance, so the exponents need the N_Z
+ * uncertain ones only (3 of the paper's 5); an own block is symmetric, so 640 of its 1024 terms
+ * are computed (own_block_body); expm1 is a branch-free polynomial (expm1_clamped) so that the
+ * loops over a block's terms vectorise, and the column sums are accumulated four rows at a time;
+ * the whole step is compiled for AVX-512 and AVX2 besides plain x86-64, picked at load. The FMU
+ * then runs the formulas of MomentMatcher exactly (to rounding). Two options: the fast
+ * path (exact_moments = false, the default) takes the exponents and expm1 in single precision
+ * (within 2 % of the predicted standard deviation, tested), and parallel = true splits each
+ * step's samples and blocks between two threads (moment_match).
  */
 #define _POSIX_C_SOURCE 200809L /* clock_gettime */
 #include <float.h>
@@ -693,20 +697,22 @@ static char *cholesky_failure(void) {
  * stay far below +EXPM1_BOUND (a q_ai q_bj of e^700 would have overflowed eq. 1 long before). */
 #define EXPM1_BOUND 700.0
 
-/* expm1(x) without branches or library calls, so that gcc vectorises the loops that call it
- * (reduced_expm1 returns expm1(r) and sets 2^k, expm1_branchless combines them):
+/* expm1(x) without branches or library calls, so that gcc vectorises the loops that call it:
  * x = k ln2 + r with k = round(x / ln2) and |r| <= ln2 / 2; expm1(r) by its Taylor series to
  * r^14 / 14! (the first term left out is below 1.1e-17 |expm1(r)| for |r| <= 0.347: Horner's
  * rounding dominates, a few ulp); expm1(x) = 2^k expm1(r) + (2^k - 1), which for k = 0 is
  * expm1(r) itself, so the relative accuracy holds for tiny x, where exp(x) - 1 would lose it.
- * 2^k is built in the exponent bits from the rounded k (k + 1023 in [3, 2033]). Checked against
- * libm's expm1 in the tests: 2 ulp at most over [-EXPM1_BOUND, EXPM1_BOUND], the test allows 4. */
+ * 2^k is built in the exponent bits from the rounded k (k + 1023 in [3, 2033]). The argument is
+ * clamped to [-EXPM1_BOUND, EXPM1_BOUND] first (clamp_double): in the pair blocks that is done
+ * where the exponents are written (tile_exponents), because a clamp inside the loop over expm1
+ * made gcc mask the whole polynomial for the clamped lanes. reduced_expm1 returns expm1(r) and
+ * sets 2^k; expm1_clamped combines them. Checked against libm's expm1 in the tests: 2 ulp at
+ * most over [-EXPM1_BOUND, EXPM1_BOUND], the test allows 4. */
 static inline __attribute__((always_inline)) double clamp_double(double x) {
     x = x < -EXPM1_BOUND ? -EXPM1_BOUND : x;
     return x > EXPM1_BOUND ? EXPM1_BOUND : x;
 }
 
-/* x must be clamped (clamp_double). */
 static inline __attribute__((always_inline)) double reduced_expm1(double x, double *two_k) {
     double shifted = x * INV_LN2 + ROUNDING_SHIFT;
     int64_t bits;
@@ -737,8 +743,6 @@ static inline __attribute__((always_inline)) double expm1_clamped(double x) {
     return two_k * p + (two_k - 1.0);
 }
 
-static inline __attribute__((always_inline)) double expm1_branchless(double x) { return expm1_clamped(clamp_double(x)); }
-
 /* exp(x) = 2^k (1 + expm1(r)) by the same steps (relative accuracy a few ulp; an argument below
  * -EXPM1_BOUND gives exp(-EXPM1_BOUND), about 1e-304, for 0): eq. 1's q_ai (sample_terms). */
 static inline __attribute__((always_inline)) double exp_branchless(double x) {
@@ -747,10 +751,10 @@ static inline __attribute__((always_inline)) double exp_branchless(double x) {
     return two_k * (1.0 + p);
 }
 
-/* expm1 in single precision, the steps of expm1_branchless in float: Taylor series to r^7 / 7!
+/* expm1 in single precision, the steps of expm1_clamped in float: Taylor series to r^7 / 7!
  * (the first term left out is below 6e-9 |expm1(r)|, a tenth of float's rounding), 2^k in
- * float's exponent bits (k + 127 in [2, 252] for |x| <= SINGLE_BOUND). Relative error a few
- * float ulp (about 1e-7): the fast path's pair blocks (single_precision). */
+ * float's exponent bits (k + 127 in [2, 252] for |x| <= SINGLE_BOUND, clamp_single). Relative
+ * error a few float ulp (about 1e-7): the fast path's pair blocks (single_precision). */
 #define SINGLE_BOUND 87.0f
 static inline __attribute__((always_inline)) float clamp_single(float x) {
     x = x < -SINGLE_BOUND ? -SINGLE_BOUND : x;
@@ -776,9 +780,7 @@ static inline __attribute__((always_inline)) float expm1_single_clamped(float x)
     return two_k * p + (two_k - 1.0f);
 }
 
-static inline __attribute__((always_inline)) float expm1_single(float x) { return expm1_single_clamped(clamp_single(x)); }
-
-/* The loops over a pair block's terms below vectorise (the clamps of expm1 becoming blends,
+/* The loops over a pair block's terms below vectorise (the clamps becoming minima and maxima,
  * and gcc told that a row's small array of N_Z numbers does not alias them) only under OpenMP's
  * SIMD directive, on when built with -fopenmp-simd -DFLIGHTGP_OPENMP_SIMD (native.py, MODEL_FLAGS);
  * without it (e.g. rebuilt from these sources by other tools) they may run scalar, with the same
