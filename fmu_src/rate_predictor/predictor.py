@@ -289,7 +289,7 @@ class NarxPredictor:
         ``outputs`` (n_outputs,) before the first predicted sample."""
         return narx_belief_start(np.tile(outputs, (max(self.output_lags), 1)))
 
-    def free_run_step(self, input_history: np.ndarray, belief) -> tuple:
+    def free_run_step(self, input_history: np.ndarray, belief, *, exact_moments: bool = True) -> tuple:
         """Predict the next sample of a free run by moment matching over the hyperparameter
         samples (``GPNarx.free_run(method="moment_matching")``, noisy outputs fed back).
 
@@ -299,6 +299,9 @@ class NarxPredictor:
             As :meth:`known_regressors`.
         belief : tuple of ndarray
             From :meth:`free_run_start` or the previous step.
+        exact_moments : bool, default True
+            False: the pair terms' exponents and exponentials in single precision
+            (``MomentMatcher``'s ``single_precision``), the FMU's fast path.
 
         Returns
         -------
@@ -309,7 +312,7 @@ class NarxPredictor:
         """
         y_mean, y_cov, *belief = narx_belief_step(self.matcher, self.known_regressors(input_history),
                                                   *belief, output_lags=self.output_lags,
-                                                  include_noise=True)
+                                                  include_noise=True, single_precision=not exact_moments)
         return y_mean, np.diag(y_cov).copy(), tuple(belief)
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

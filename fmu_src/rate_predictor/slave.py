@@ -97,9 +97,8 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
                  "(moment matching: the bounds grow with the horizon)", False),
         Variable("exact_moments", "parameter", "fixed", "exact", None,
                  "free run: every exponential of the moment matching in double precision; false "
-                 "lets the native FMU take those of its pair terms in single precision, 2x faster, "
-                 "within 2 % of the predicted standard deviation (the pythonfmu FMU is exact either way)",
-                 False),
+                 "takes the exponents and exponentials of its pair terms in single precision, faster, "
+                 "within 2 % of the predicted standard deviation", False),
         Variable("parallel", "parameter", "fixed", "exact", None,
                  "free run: the native FMU computes each step on two threads, its own and one it starts "
                  "(about 1.8x faster where two cores are free; the pythonfmu FMU runs on one thread "
@@ -141,7 +140,8 @@ class RatePredictor(FlightgpSlave):
         x = predictor.regressor(input_history, output_history)
         belief = self._belief
         if self.values["free_run"]:
-            mean, var, belief = predictor.free_run_step(input_history, belief)
+            mean, var, belief = predictor.free_run_step(input_history, belief,
+                                                        exact_moments=bool(self.values["exact_moments"]))
         else:
             mean, var = predictor.predict(x)
         if not (np.isfinite(mean).all() and np.isfinite(var).all()):

@@ -320,3 +320,18 @@ def test_inputs_known_exactly_give_the_textbook_moments(known):
     # exact zeros in both.
     for got, expected in zip(matcher(MEAN, cov), textbook_moments(matcher, MEAN, cov)):
         np.testing.assert_allclose(got, expected, rtol=1e-9, atol=0)
+
+
+def test_single_precision_stays_within_2_percent_of_the_predicted_sd():
+    """single_precision takes eq. 6's exponents and expm1 in float32 (the FMUs' fast path): an
+    approximation held to 2 % of the predicted standard deviation (the fast path's tolerance,
+    docs/fmus.md; in a free run the means then move too, through the fed-back covariance); it must
+    differ from the exact covariance at all, and the means and cross-covariances (eqs. 1-2, no
+    pair terms) are the exact ones."""
+    matcher = moment_matcher(fit_pair())
+    (mean, cov, cross), (fast_mean, fast_cov, fast_cross) = (matcher(MEAN, COV, single_precision=s)
+                                                            for s in (False, True))
+    sd, fast_sd = np.sqrt(np.diag(cov)), np.sqrt(np.diag(fast_cov))
+    assert np.max(np.abs(fast_sd - sd) / sd) <= 0.02 and np.max(np.abs(fast_cov - cov)) > 0.0
+    np.testing.assert_array_equal(fast_mean, mean)
+    np.testing.assert_array_equal(fast_cross, cross)

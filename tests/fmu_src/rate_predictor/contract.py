@@ -69,11 +69,11 @@ class RatePredictorContract:
         free = lambda k: {"theta_1s": u[k, 0]}  # noqa: E731 - the rates are not driven
         half = case.n_steps // 2
         try:
-            host.set({"free_run": True, "exact_moments": True})  # the native FMU: its exact path
+            host.set({"free_run": True, "exact_moments": True})  # the exact path of either FMU
             outputs = np.vstack([host.start(case, free(0)), host.run(case, inputs=free)])
             # The propagated belief is state: saved mid-run and restored, the run repeats exactly.
             host.fmu.reset()
-            host.set({"free_run": True, "exact_moments": True})  # the native FMU: its exact path
+            host.set({"free_run": True, "exact_moments": True})  # the exact path of either FMU
             host.start(case, free(0))
             host.run(case, 0, half, inputs=free)
             state = host.fmu.getFMUstate()
