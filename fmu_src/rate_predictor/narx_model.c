@@ -70,6 +70,7 @@
 #include <float.h>
 #include <math.h>
 #include <pthread.h>
+#include <sched.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -1145,6 +1146,18 @@ static inline __attribute__((always_inline)) void mixture_moments(const Model *m
 #define CPU_RELAX() ((void)0)
 #endif
 
+/* Waiting for the other thread: spin (it is usually a few microseconds away), but after
+ * SPINS_BEFORE_YIELD turns give the processor up on every turn, so that a thread waiting on a
+ * processor that both threads ended up on (the other one busy with another program) does not
+ * hold up the thread it waits for. */
+#define SPINS_BEFORE_YIELD 2000
+static void wait_turn(int *spins) {
+    if (++*spins > SPINS_BEFORE_YIELD)
+        sched_yield();
+    else
+        CPU_RELAX();
+}
+
 /* The two threads meet between a share's phases (every sample's terms before any pair block):
  * the last to arrive moves the phase on, the other spins until it does. */
 static void spin_barrier(Worker *worker) {
@@ -1153,7 +1166,8 @@ static void spin_barrier(Worker *worker) {
         __atomic_store_n(&worker->barrier_count, 0, __ATOMIC_RELAXED);
         __atomic_store_n(&worker->barrier_phase, phase + 1, __ATOMIC_RELEASE);
     } else {
-        while (__atomic_load_n(&worker->barrier_phase, __ATOMIC_ACQUIRE) == phase) CPU_RELAX();
+        int spins = 0;
+        while (__atomic_load_n(&worker->barrier_phase, __ATOMIC_ACQUIRE) == phase) wait_turn(&spins);
     }
 }
 
@@ -1318,7 +1332,8 @@ static int moment_match(Model *model, const double x_mean[D], const double x_cov
     if (model->threads > 1) wake_worker(&model->worker);
     moment_match_share(model, 0);
     if (model->threads > 1)
-        while (__atomic_load_n(&model->worker.finished, __ATOMIC_ACQUIRE) != model->worker.generation) CPU_RELAX();
+        for (int spins = 0; __atomic_load_n(&model->worker.finished, __ATOMIC_ACQUIRE) != model->worker.generation;)
+            wait_turn(&spins);
     double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
     for (int k = 0; k < model->threads; k++) {
         const Scratch *scratch = &model->scratch[k];
