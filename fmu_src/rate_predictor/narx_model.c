@@ -171,7 +171,7 @@ typedef struct {
     pthread_t thread;
     pthread_mutex_t lock;
     pthread_cond_t start;
-    int running, quit;
+    int running, quit, refused;                      /* refused: pthread_create failed (not retried) */
     unsigned generation, finished;                    /* finished: read and written atomically */
     unsigned barrier_count, barrier_phase;            /* the spin barrier between a share's phases */
 } Worker;
@@ -1494,11 +1494,13 @@ char *model_advance(Model *model, const Slave *slave, double *values, double *st
     const int free_run = values[FREE_RUN_VR] != 0.0;
     model->single_precision = values[EXACT_MOMENTS_VR] == 0.0;
     model->threads = 1;
-    if (free_run && values[PARALLEL_VR] != 0.0) {
-        if (start_worker(model))
+    if (free_run && values[PARALLEL_VR] != 0.0 && !model->worker.refused) {
+        if (start_worker(model)) {
             model->threads = THREADS;
-        else
-            slave_log(slave, fmi2Warning, "parallel: the second thread could not be started; this step runs on one");
+        } else {
+            model->worker.refused = 1;
+            slave_log(slave, fmi2Warning, "parallel: the system refused a second thread; the free run goes on one");
+        }
     }
     /* Push the current sample (row 0) into both histories; free run feeds back the means. */
     for (int lag = MAX_LAG - 1; lag > 0; lag--) {

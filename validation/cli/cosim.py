@@ -24,6 +24,11 @@ def register(subparsers) -> None:
     parser.add_argument("--recording", type=Path, metavar="FILE.csv",
                         help="recording whose inputs drive the FMUs and whose outputs they are compared with")
     add_flight_arguments(parser, required=False)
+    parser.add_argument("--exact-moments", action="store_true",
+                        help="the GP FMU's moment matching in double precision throughout (its parameter "
+                             "exact_moments; default: its fast path, within 2 %% of the predicted sd)")
+    parser.add_argument("--parallel", action="store_true",
+                        help="the native GP FMU's free run on two threads (its parameter parallel)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.set_defaults(func=run)
 
@@ -45,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
             raise BadInputError("--vehicle needs --input (the control that flies the manoeuvre)")
         recording, _ = fly(args)
         source = f"{args.vehicle} {args.manoeuvre} on {args.input}, seed {args.seed}"
-    result = cosimulate(args.gp_fmu, recording, reference_fmu=args.reference, out_dir=args.out)
+    result = cosimulate(args.gp_fmu, recording, reference_fmu=args.reference, out_dir=args.out,
+                        exact_moments=args.exact_moments, parallel=args.parallel)
     rmse, coverage = result.rmse(), result.coverage()
     print(f"fmpy co-simulation against {source}, step {result.time[1] - result.time[0]:g} s")
     print(f"{'RMSE [rad/s]':24}" + "".join(f"{a:>9}" for a in result.axes))

@@ -151,7 +151,8 @@ class CosimResult:
         return result
 
 
-def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None) -> CosimResult:
+def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None, exact_moments: bool = False,
+               parallel: bool = False) -> CosimResult:
     """Co-simulate the GP rate predictor (free run) and a reference FMU under a recording's
     inputs and compare both with it.
 
@@ -167,6 +168,10 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
         GP's outputs (e.g. ``flightgp build-fmu --reference bo105-80kt``).
     out_dir : path, optional
         Where to write the Cross-Check files, ``cosim.json`` and ``cosim.png`` (atomically).
+    exact_moments, parallel : bool, default False
+        The GP FMU's parameters of these names (docs/fmus.md, "GP-NARX rate predictor"): the
+        moment matching in double precision throughout; the free run on two threads (native
+        FMU). True with an FMU that lacks the parameter is refused.
     """
     from fmpy import read_model_description
 
@@ -185,6 +190,10 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
     if decimation < 1 or abs(decimation * sample - step) > 1e-6 * step:
         raise BadInputError(f"the recording is sampled every {sample:g} s, which does not divide the "
                             f"FMU's step of {step:g} s")
+    options = {"exact_moments": exact_moments, "parallel": parallel}
+    lacking = [name for name, wanted in options.items() if wanted and name not in variables]
+    if lacking:
+        raise BadInputError(f"{gp_fmu}: no parameter {', '.join(lacking)}; rebuild the FMU with this flightgp")
     missing = [c for c in (*controls, *axes) if c not in (*recording.input_names, *recording.output_names)]
     if missing:
         raise BadInputError(f"the recording has no column(s) {', '.join(missing)} the FMU needs")
@@ -196,7 +205,7 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
     held = {f"{a}_prev": np.full(len(time), measured[0, j]) for j, a in enumerate(axes)}
     gp = simulate(gp_fmu, time=time, inputs={**{c: recording.input(c)[rows] for c in controls}, **held},
                   outputs=[n for a in axes for n in (a, f"{a}_lower", f"{a}_upper")],
-                  start_values={"free_run": True,
+                  start_values={"free_run": True, **{n: v for n, v in options.items() if n in variables},
                                 **{f"{a}_prev": float(measured[0, j]) for j, a in enumerate(axes)}})
     reference = None
     if reference_fmu is not None:
