@@ -202,6 +202,7 @@ static void stop_worker(Model *model); /* below */
 
 void model_free(Model *model) {
     if (model == NULL) return;
+    stop_worker(model); /* before anything it reads is freed */
     for (int j = 0; j < N_OUTPUTS; j++) {
         OutputGP *gp = &model->gp[j];
         free(gp->signal_variance);
@@ -221,7 +222,6 @@ void model_free(Model *model) {
     free(model->squared);
     free(model->k);
     free(model->v);
-    stop_worker(model);
     free(model->sample_means);
     for (int k = 0; k < THREADS; k++) {
         Scratch *scratch = &model->scratch[k];
