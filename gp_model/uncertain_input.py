@@ -134,6 +134,11 @@ def frame_gp(*, basis, weights, variance_factor, kernel_weights, log_signal_vari
     )
 
 
+#: Eq. 6's exponents are clamped to +-this before their float32 expm1 (single_precision), below
+#: float32's overflow at 88.7; the native FMU's expm1_single does the same (SINGLE_BOUND).
+SINGLE_PRECISION_BOUND = 87.0
+
+
 class MomentMatcher:
     """Eqs. (1)-(6) for a fixed list of single-output GPs in one input frame.
 
@@ -237,9 +242,12 @@ class MomentMatcher:
             Predict noisy observations (add each GP's noise variance) rather than latent values.
         single_precision : bool, default False
             Take the exponents of eq. 6 and their ``expm1`` in float32 (the sums over a block's
-            rows too; everything else in float64): an approximation, about 1.6x faster, for the
-            rate-predictor FMU's fast path, within 2 % of the predicted standard deviation along
-            the Bo105 paper's free runs (docs/fmus.md, "Free run at simulator speed").
+            rows too; everything else in float64; the exponents clamped to
+            +-:data:`SINGLE_PRECISION_BOUND`): an approximation, about 1.4x faster, for the
+            rate-predictor FMU's fast path. Its error grows with the cancellation in eq. 6's sums
+            (GPs of very low noise, large weights): within 2 % of the predicted standard deviation
+            along the Bo105 paper's free runs (measured 6.6e-4), 30 % on a 60-point GP of noise
+            variance 1e-6 (docs/fmus.md, "Free run at simulator speed").
 
         Returns
         -------
@@ -325,6 +333,8 @@ class MomentMatcher:
         if single_precision:
             left, right, weights_a = (x.astype(np.float32) for x in (left, right, weights_a))
         excess = np.matmul(left.transpose(0, 2, 1), right)  # D, then in place:
+        if single_precision:  # float32's exp overflows above 88.7: clamped as the native FMU does
+            np.clip(excess, -SINGLE_PRECISION_BOUND, SINGLE_PRECISION_BOUND, out=excess)
         np.expm1(excess, out=excess)  # (Q^ab - q_a q_b^T) / (q_a q_b^T), elementwise
         # sum_ij w_ai w_bj excess_ij; single: the sums over i in float32, over j in float64
         cov_t = ((weights_a[:, None, :] @ excess).astype(float, copy=False) @ weights_b[:, :, None])[:, 0, 0]
@@ -374,13 +384,24 @@ def _distinct_samples(frame: FrameGP) -> tuple[np.ndarray, np.ndarray]:
     """The rows (T,) of ``frame``'s distinct samples in order of first occurrence, and which of
     them each of its S samples is (S,)."""
     n_samples = len(frame.beta)
-    rows = np.column_stack([frame.precision, frame.beta, frame.log_signal_variance, frame.noise_variance,
-                            frame.K_inv.reshape(n_samples, -1)])
-    _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)  # distinct samples by first occurrence
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    return first[order], rank[inverse.ravel()]
+    return first_occurrences(np.column_stack([frame.precision, frame.beta, frame.log_signal_variance,
+                                              frame.noise_variance, frame.K_inv.reshape(n_samples, -1)]))
+
+
+def first_occurrences(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``rows`` (S, p), told apart by their bytes, in order of first
+    occurrence: the index of each one's first row (T,) and which of them each row is (S,).
+
+    A dictionary of the rows' bytes, linear in the array's size: ``np.unique(axis=0)`` sorts rows
+    of p fields, 5 s for three single rows of a 530-point GP's 280 000 numbers.
+    """
+    seen, first = {}, []
+    which = np.empty(len(rows), dtype=np.intp)
+    for s, row in enumerate(np.ascontiguousarray(rows)):
+        which[s] = seen.setdefault(row.tobytes(), len(first))
+        if which[s] == len(first):
+            first.append(s)
+    return np.array(first, dtype=np.intp), which
 
 
 def _frame_samples(frame: FrameGP, rows: np.ndarray) -> FrameGP:

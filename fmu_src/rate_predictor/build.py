@@ -10,9 +10,10 @@ import numpy as np
 from fmu_src.fmi.naming import default_name, fmu_target
 from fmu_src.fmi.pythonfmu import build_pythonfmu
 from fmu_src.fmi.signals import signal
-from fmu_src.rate_predictor.predictor import pack_model
+from fmu_src.rate_predictor.predictor import NarxPredictor, pack_model
 from fmu_src.rate_predictor.slave import RatePredictor, rate_predictor_variables
 from validation.core.errors import BadInputError
+from validation.core.manoeuvres import three_two_one_one
 from validation.models.narx import load_trained
 
 
@@ -60,7 +61,8 @@ class RatePredictorParts:
     arrays : dict of str -> ndarray
         :func:`export_narx_arrays` of the model.
     interface : dict
-        ``inputs`` and ``outputs`` for :func:`fmu_src.rate_predictor.slave.rate_predictor_variables`.
+        ``inputs``, ``outputs`` and ``exact_moments`` (the default :func:`fast_path_error` chose)
+        for :func:`fmu_src.rate_predictor.slave.rate_predictor_variables`.
     description : str
         The FMU's one-line description.
     step : float
@@ -86,12 +88,49 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> Rat
     target = fmu_target(out_dir, default_name(model_path.stem) if name is None else name)
     trained = load_trained(model_path)
     arrays = export_narx_arrays(trained)
+    interface = _interface(trained.config)
+    error = fast_path_error(NarxPredictor(arrays))
+    exact = not error <= FAST_PATH_CHECK
     description = (f"GP-NARX predictor of {', '.join(trained.config.outputs)} with confidence bounds "
                    f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
                    f"{trained.step:g} s; {len(arrays['0/basis'])} basis points, "
-                   f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}")
-    return RatePredictorParts(target=target, arrays=arrays, interface=_interface(trained.config),
+                   f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}; "
+                   f"free run's fast path off by {error:.2g} of the sd on a test 3-2-1-1, so exact_moments "
+                   f"defaults to {'true' if exact else 'false'}")
+    return RatePredictorParts(target=target, arrays=arrays, interface={**interface, "exact_moments": exact},
                               description=description, step=float(trained.step))
+
+
+#: The fast path's tolerance (docs/fmus.md, "Free run at simulator speed"): the free run's means
+#: and standard deviations within this fraction of the exact predicted standard deviation.
+FAST_PATH_TOLERANCE = 0.02
+#: What :func:`fast_path_error` may measure for the FMU to default to the fast path: half the
+#: tolerance, as the test manoeuvre is one of many a simulator flies.
+FAST_PATH_CHECK = FAST_PATH_TOLERANCE / 2
+
+
+def fast_path_error(predictor: NarxPredictor, *, duration: float = 8.0) -> float:
+    """The largest error of the free run's fast path (``exact_moments = false``: the pair terms
+    in single precision) against the exact moments, in exact predicted standard deviations, of
+    the means and of the standard deviations, along a test manoeuvre from rest: a 3-2-1-1 on the
+    first input (amplitude its training standard deviation, steps of 4 NARX steps, from 1 s),
+    ``duration`` s. The error grows with the cancellation in eq. 6's sums (GPs of very low noise,
+    large weights), so it is measured per model (:func:`rate_predictor_parts`)."""
+    n = int(round(duration / predictor.step))
+    controls = np.zeros((n, len(predictor.input_names)))
+    controls[:, 0] = three_two_one_one(np.arange(n) * predictor.step, amplitude=float(predictor.matcher.input_scale[0]),
+                                       step_time=4 * predictor.step, start=1.0)
+    history = np.zeros((predictor.max_lag, len(predictor.input_names)))  # row i: i steps ago
+    exact = fast = predictor.free_run_start(np.zeros(len(predictor.output_names)))
+    worst = 0.0
+    for row in controls:
+        history = np.vstack([row, history[:-1]])
+        exact_mean, exact_var, exact = predictor.free_run_step(history, exact, exact_moments=True)
+        fast_mean, fast_var, fast = predictor.free_run_step(history, fast, exact_moments=False)
+        sd = np.sqrt(exact_var)
+        worst = max(worst, float(np.max(np.abs(fast_mean - exact_mean) / sd)),
+                    float(np.max(np.abs(np.sqrt(fast_var) - sd) / sd)))
+    return worst
 
 
 def export_narx_arrays(trained) -> dict:
@@ -139,7 +178,7 @@ def _interface(config) -> dict:
     inputs = tuple(signal(n, "input").row() for n in config.inputs)
     outputs = tuple(signal(n, "output").row() for n in config.outputs)
     generated = {f"{n}{suffix}" for n in config.outputs for suffix in ("_prev", "_lower", "_upper")}
-    reserved = generated | {"confidence_level", "free_run"}
+    reserved = generated | {"confidence_level", "free_run", "exact_moments", "parallel"}
     clash = sorted((set(config.inputs) | set(config.outputs)) & reserved)
     if clash:
         raise BadInputError(f"signal name(s) {', '.join(clash)} clash with the FMU's generated variables")

@@ -95,11 +95,12 @@
 #define KNOWN_REGRESSORS (N_INPUTS * N_INPUT_LAGS)     /* the exact part of the regressor */
 #define N_Z (N_OUTPUTS * N_OUTPUT_LAGS)                /* lagged outputs that are regressors */
 #define N_PRODUCTS (N_Z * (N_Z + 1) / 2)               /* products u_c u_e, c <= e, of their u */
-/* Terms of a pair block of eq. 6 computed per tile (block_body): whole rows, at most TILE_TERMS
-   terms (a 32 KB tile of doubles stays in the first-level cache), or one row if a row is longer. */
+/* Terms of a pair block of eq. 6 computed per tile (cross_block_body, own_block_body): whole rows,
+   at most TILE_TERMS terms (a 32 KB tile of doubles stays in the first-level cache), or one row of
+   a cross block, one band of an own block, if that is longer (prepare_free_run sizes the tile). */
 #define TILE_TERMS 4096
-/* Rows of a tile accumulated together (block_body): each column sum is loaded and stored once per
-   ROW_GROUP rows, not once per row, a chain through memory that bounded the loop. */
+/* Rows of a tile accumulated together (tile_accumulate): each column sum is loaded and stored once
+   per ROW_GROUP rows, not once per row, a chain through memory that bounded the loop. */
 #define ROW_GROUP 4
 /* Rows of an own block's band (own_block_body): on the paper's model 8 rows (640 terms per
    block) measured 610-630 us per step, 16 rows (768 terms, whole vectors) 620-640, 4 rows (576
@@ -153,7 +154,7 @@ typedef struct {
     WoodburyScratch woodbury;
     double cov_sum[N_OUTPUTS * N_OUTPUTS];            /* sum of count-weighted covariances (standardised) */
     double cross_sum[D * N_OUTPUTS];                  /* sum of count-weighted Cov[x, f_a] (standardised) */
-    int failed;                                       /* a Cholesky factor of eq. 6 failed */
+    int samples_failed, failed;                       /* a Cholesky factor of eq. 6 failed (samples; blocks) */
 } Scratch;
 
 /* One pair block of a step: output a's distinct sample t_a with output b's t_b (a == b and t_a
@@ -258,7 +259,9 @@ static int prepare_free_run(Model *model, int m_max) {
     double *dense = malloc(sizeof(double) * (size_t)m_max * (size_t)m_max); /* V_t, row-major */
     model->sample_means = malloc(sizeof(double) * (size_t)JOINT_SAMPLES * N_OUTPUTS);
     int ok = dense != NULL && model->sample_means != NULL;
-    const size_t tile_terms = m_max > TILE_TERMS ? (size_t)m_max : TILE_TERMS;
+    /* a tile holds TILE_TERMS terms, or one band of an own block (OWN_BAND x m) if that is more */
+    const size_t band_terms = (size_t)OWN_BAND * (size_t)m_max;
+    const size_t tile_terms = band_terms > TILE_TERMS ? band_terms : TILE_TERMS;
     for (int k = 0; k < THREADS; k++) {
         Scratch *scratch = &model->scratch[k];
         scratch->u_M = malloc(sizeof(double) * (size_t)m_max * N_Z);
@@ -329,7 +332,7 @@ static double pair_job_cost(const Model *model, const PairJob *job) {
     const int ma = model->gp[job->a].m, mb = model->gp[job->b].m;
     if (job->a != job->b) return (double)ma * mb + BLOCK_SET_UP_TERMS;
     double terms = 0.0;
-    for (int first = 0; first < ma; first += ROW_GROUP) terms += (double)(ma - first < ROW_GROUP ? ma - first : ROW_GROUP) * (ma - first);
+    for (int first = 0; first < ma; first += OWN_BAND) terms += (double)(ma - first < OWN_BAND ? ma - first : OWN_BAND) * (ma - first);
     return terms + BLOCK_SET_UP_TERMS;
 }
 
@@ -800,7 +803,7 @@ typedef struct {
     const double *u_M, *u_b;        /* (N_Z, ma) M_ab u_ai, (N_Z, mb) u_bj */
     const double *weighted_a, *weighted_b; /* (ma,), (mb,) beta q */
     const double *K_inv, *q;        /* a == b only: (m, m) A_t and (m,) q_t */
-    double *tile;                   /* scratch (max(TILE_TERMS, mb),): expm1(D_ij) of a tile */
+    double *tile;                   /* scratch (max(TILE_TERMS, OWN_BAND m),): expm1(D_ij) of a tile */
     float *tile_single;             /* the same in single precision */
     float *columns_single;          /* scratch ((N_Z + 1) mb,): half_b and u_b in float (single) */
     double *column_sum, *column_trace; /* scratch (mb,) */
@@ -1175,25 +1178,23 @@ static void spin_barrier(Worker *worker) {
  * (model->step_m, model->step_S_z): eqs. 1-2 of its samples (sample_terms), then, when every
  * thread has done its samples, eqs. 3-6 of its pair blocks (pair_covariance), each added
  * `weight` times to its scratch's cov_sum. With one thread, thread 0 takes every job in the
- * order of the original loops. Sets scratch->failed if a Cholesky factor of eq. 6 fails. */
+ * order of the original loops. Sets scratch->samples_failed or ->failed if a Cholesky factor of
+ * eq. 6 fails (in its samples or its blocks; the threads read each other's samples_failed only). */
 static inline __attribute__((always_inline)) void moment_match_share_body(Model *model, int k) {
     Scratch *scratch = &model->scratch[k];
     const int threads = model->threads;
     const double *m = model->step_m, *S_z = model->step_S_z;
     for (int c = 0; c < N_OUTPUTS * N_OUTPUTS; c++) scratch->cov_sum[c] = 0.0;
     for (int c = 0; c < D * N_OUTPUTS; c++) scratch->cross_sum[c] = 0.0;
-    scratch->failed = 0;
+    scratch->samples_failed = scratch->failed = 0;
     const int first_sample = threads == 1 ? 0 : model->sample_split[k];
     const int last_sample = threads == 1 ? model->n_sample_jobs : model->sample_split[k + 1];
-    for (int j = first_sample; j < last_sample && !scratch->failed; j++)
-        scratch->failed = !sample_terms(model, scratch, model->sample_jobs[2 * j], model->sample_jobs[2 * j + 1], m, S_z);
-    if (threads > 1) {
-        spin_barrier(&model->worker);
-        for (int other = 0; other < threads; other++)
-            if (model->scratch[other].failed) return;
-    } else if (scratch->failed) {
-        return;
-    }
+    for (int j = first_sample; j < last_sample && !scratch->samples_failed; j++)
+        scratch->samples_failed = !sample_terms(model, scratch, model->sample_jobs[2 * j],
+                                                model->sample_jobs[2 * j + 1], m, S_z);
+    if (threads > 1) spin_barrier(&model->worker); /* every thread's samples_failed is final now */
+    for (int other = 0; other < threads; other++)
+        if (model->scratch[other].samples_failed) return;
     const int first_pair = threads == 1 ? 0 : model->pair_split[k];
     const int last_pair = threads == 1 ? model->n_pair_jobs : model->pair_split[k + 1];
     for (int j = first_pair; j < last_pair; j++) {
@@ -1337,7 +1338,7 @@ static int moment_match(Model *model, const double x_mean[D], const double x_cov
     double cov_sum[N_OUTPUTS * N_OUTPUTS] = {0.0}, cross_sum[D * N_OUTPUTS] = {0.0};
     for (int k = 0; k < model->threads; k++) {
         const Scratch *scratch = &model->scratch[k];
-        if (scratch->failed) {
+        if (scratch->samples_failed || scratch->failed) {
             *problem = cholesky_failure();
             return 0;
         }

@@ -52,7 +52,7 @@ from fmu_src.fmi.runtime import (
     read_model_file,
     read_part,
 )
-from gp_model.uncertain_input import MomentMatcher, frame_gp, narx_belief_start, narx_belief_step
+from gp_model.uncertain_input import MomentMatcher, first_occurrences, frame_gp, narx_belief_start, narx_belief_step
 
 FORMAT = "flightgp-fmu-narx"
 VERSION = 1
@@ -117,11 +117,9 @@ def _distinct_samples(part: dict) -> tuple[dict, np.ndarray]:
     n = len(part["weights"])
     rows = np.column_stack([part["weights"], part["variance_factor"].reshape(n, -1), part["kernel_weights"],
                             part["log_signal_variance"], part["noise_variance"]])
-    _, first, counts = np.unique(rows, axis=0, return_index=True, return_counts=True)
-    order = np.argsort(first)
-    keep = first[order]
+    keep, which = first_occurrences(rows)
     per_sample = ("weights", "variance_factor", "kernel_weights", "log_signal_variance", "noise_variance")
-    return {**part, **{name: part[name][keep] for name in per_sample}}, counts[order].astype(float)
+    return {**part, **{name: part[name][keep] for name in per_sample}}, np.bincount(which).astype(float)
 
 
 class _Block:

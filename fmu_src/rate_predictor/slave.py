@@ -53,7 +53,7 @@ from fmu_src.fmi.slave import FlightgpSlave, Variable
 from fmu_src.rate_predictor.predictor import NarxPredictor
 
 
-def rate_predictor_variables(*, inputs, outputs) -> tuple:
+def rate_predictor_variables(*, inputs, outputs, exact_moments: bool = False) -> tuple:
     """The variable table of a GP-NARX rate predictor.
 
     Parameters
@@ -62,6 +62,9 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
         The model's control inputs and predicted outputs: name, unit (a key of
         :data:`fmu_src.fmi.slave.UNITS`), largest plausible magnitude (None: unbounded) and a phrase saying
         what it is (e.g. ``"longitudinal cyclic"``).
+    exact_moments : bool, default False
+        The start value of ``exact_moments`` (the build's choice from its check of the fast path,
+        :func:`fmu_src.rate_predictor.build.fast_path_error`).
 
     Returns
     -------
@@ -97,11 +100,12 @@ def rate_predictor_variables(*, inputs, outputs) -> tuple:
                  "(moment matching: the bounds grow with the horizon)", False),
         Variable("exact_moments", "parameter", "fixed", "exact", None,
                  "free run: every exponential of the moment matching in double precision; false "
-                 "takes the exponents and exponentials of its pair terms in single precision, faster, "
-                 "within 2 % of the predicted standard deviation", False),
+                 "takes the exponents and exponentials of its pair terms in single precision, faster; "
+                 "the build measured that path on a test manoeuvre and chose this default (see the "
+                 "FMU's description)", exact_moments),
         Variable("parallel", "parameter", "fixed", "exact", None,
                  "free run: the native FMU computes each step on two threads, its own and one it starts "
-                 "(about 1.8x faster where two cores are free; the pythonfmu FMU runs on one thread "
+                 "(about 1.5x faster where two cores are free; the pythonfmu FMU runs on one thread "
                  "either way)", False),
     ]
     return tuple(table)

@@ -335,3 +335,16 @@ def test_single_precision_stays_within_2_percent_of_the_predicted_sd():
     assert np.max(np.abs(fast_sd - sd) / sd) <= 0.02 and np.max(np.abs(fast_cov - cov)) > 0.0
     np.testing.assert_array_equal(fast_mean, mean)
     np.testing.assert_array_equal(fast_cross, cross)
+
+
+def test_single_precision_stays_finite_where_exponents_exceed_float32():
+    """Just outside the data of a GP with a short length scale, eq. 6's exponents exceed float32's
+    exp range (88.7): single_precision clamps them (at 87, as the native FMU) and stays finite and
+    within 2 % of the exact sd, where an unclamped float32 expm1 gave inf and then NaN."""
+    x = np.random.default_rng(0).uniform(-2.0, 2.0, (40, 1))
+    gp = GaussianProcess(SquaredExponentialARD(1.0, [0.15]), noise_variance=1e-2).fit(x, np.sin(3.0 * x[:, 0]))
+    matcher = moment_matcher([gp])
+    for mean in (2.5, 3.0):
+        exact, fast = (matcher(np.array([mean]), np.array([[0.01]]), single_precision=s)[1][0, 0]
+                       for s in (False, True))
+        assert np.isfinite(fast) and abs(np.sqrt(fast) - np.sqrt(exact)) <= 0.02 * np.sqrt(exact)

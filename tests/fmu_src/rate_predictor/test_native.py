@@ -380,3 +380,32 @@ def test_each_distinct_annealing_sample_is_stored_once(native_rate_predictor_fmu
     expected = [len(np.unique(gp.theta_samples_, axis=0)) for gp in bo105_trained.model.model.gps]
     assert distinct == expected and max(distinct) < 400
     assert "#define JOINT_SAMPLES 400" in config
+
+
+def test_an_exact_model_of_more_than_512_points_free_runs_as_the_python_model(tmp_path):
+    """An own block's band (8 rows of m) outgrows the 4096-term tile above m = 512, so the tile is
+    sized by the band: an exact GP of 530 points (maximum likelihood on 5.5 s of the 3-2-1-1 at
+    100 Hz, stride 1) free-runs in the native FMU, on one thread and on two, as GPNarx's
+    moment-matching free run, to 1e-9 rad/s over 8 steps (the tolerance of the sparse model's test
+    above). With a tile of 4096 terms the step wrote past it and the process aborted."""
+    from dataclasses import replace as replace_config
+
+    from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+    config = replace_config(PAPER_CONFIG, hyperparameters="maximum_likelihood", stride=1)
+    recording = fly_3211("bo105-80kt-flight", input_name="theta_1s", amplitude=np.radians(1.0),
+                         step_time=TRAINING_MANOEUVRE["step_time"], start=1.0, duration=5.49, seed=0)
+    trained = train_narx([recording], config, seed=0, n_restarts=0)
+    assert len(trained.model.model.gps[0].X_train_) > 512
+    native = build_native_rate_predictor_fmu(save_trained(tmp_path / "large.npz", trained), tmp_path)
+    u = recording.input("theta_1s")[20:100:10, None]
+    lag = trained.model.structure.max_lag
+    for parallel in (False, True):
+        free = _run_fmpy(native, {"theta_1s": u[:, 0]}, free_run=True, parallel=parallel)
+        means = free[:, [OUTPUTS.index(a) for a in "pqr"]]
+        upper = free[:, [OUTPUTS.index(f"{a}_upper") for a in "pqr"]]
+        python = trained.model.free_run(np.vstack([np.repeat(u[:1], lag - 1, axis=0), u]),
+                                        np.tile(means[0], (lag, 1)), method="moment_matching", use_samples=True)
+        np.testing.assert_allclose(means[1:], python.mean[lag:], rtol=0, atol=1e-9)
+        z = NormalDist().inv_cdf(0.975)
+        np.testing.assert_allclose((upper - means)[1:] / z, np.sqrt(python.var[lag:]), rtol=0, atol=1e-9)

@@ -67,3 +67,28 @@ def test_the_fast_free_run_is_within_2_percent_of_the_predicted_sd_of_the_exact_
     assert np.max(np.abs(fast[1:, means] - exact[1:, means]) / half_width) <= 0.02
     assert np.max(np.abs((fast[1:, uppers] - fast[1:, means]) - half_width) / half_width) <= 0.02
     assert np.max(np.abs(fast - exact)) > 0.0
+
+
+def test_the_build_defaults_to_the_exact_moments_where_its_check_of_the_fast_path_fails(bo105_model_file, tmp_path,
+                                                                                        monkeypatch):
+    """The build free-runs a test 3-2-1-1 with both paths (fast_path_error): on the paper's model
+    the fast path is off by 6.4e-4 of the sd, under the check's 1 %, so exact_moments defaults to
+    false and the description says what was measured; a model whose check fails (its error stood
+    in for here) gets exact_moments = true by default, in the pythonfmu and the native FMU alike."""
+    from fmpy import read_model_description
+
+    import fmu_src.rate_predictor.build as build
+    from fmu_src import build_native_rate_predictor_fmu
+
+    def default(fmu):
+        description = read_model_description(str(fmu))
+        start = next(v.start for v in description.modelVariables if v.name == "exact_moments")
+        return start in (True, "true"), description.description
+
+    exact, text = default(build_rate_predictor_fmu(bo105_model_file, tmp_path / "checked"))
+    error = float(text.split("fast path off by ")[1].split(" ")[0])
+    assert not exact and 0 < error <= build.FAST_PATH_CHECK and "defaults to false" in text
+    monkeypatch.setattr(build, "fast_path_error", lambda predictor: 0.05)
+    for builder in (build_rate_predictor_fmu, build_native_rate_predictor_fmu):
+        exact, text = default(builder(bo105_model_file, tmp_path / builder.__name__))
+        assert exact and "off by 0.05 of the sd" in text and "defaults to true" in text
