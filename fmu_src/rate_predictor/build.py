@@ -109,13 +109,15 @@ FAST_PATH_TOLERANCE = 0.02
 FAST_PATH_CHECK = FAST_PATH_TOLERANCE / 2
 
 
-def fast_path_error(predictor: NarxPredictor, *, duration: float = 8.0) -> float:
+def fast_path_error(predictor: NarxPredictor, *, duration: float = 5.0) -> float:
     """The largest error of the free run's fast path (``exact_moments = false``: the pair terms
     in single precision) against the exact moments, in exact predicted standard deviations, of
     the means and of the standard deviations, along a test manoeuvre from rest: a 3-2-1-1 on the
     first input (amplitude its training standard deviation, steps of 4 NARX steps, from 1 s),
-    ``duration`` s. The error grows with the cancellation in eq. 6's sums (GPs of very low noise,
-    large weights), so it is measured per model (:func:`rate_predictor_parts`)."""
+    ``duration`` s (the 3-2-1-1 and 1.2 s after it at the paper's 0.1 s step; a step of each path
+    costs 2-3 ms for the paper's model). The error grows with the cancellation in eq. 6's sums
+    (GPs of very low noise, large weights), so it is measured per model
+    (:func:`rate_predictor_parts`)."""
     n = int(round(duration / predictor.step))
     controls = np.zeros((n, len(predictor.input_names)))
     controls[:, 0] = three_two_one_one(np.arange(n) * predictor.step, amplitude=float(predictor.matcher.input_scale[0]),
