@@ -109,9 +109,9 @@ def format_table(report: dict) -> str:
         f"co-simulation next to the Bo105 reference FMU (best of {report.get('repeats', 3)}; reference FMU alone "
         f"{report['reference_alone_s'] * 1e3:.0f} ms); goal >= {report['goal_real_time']:g}x real time native, "
         f">= {COSIM_GOAL_REAL_TIME_PYTHONFMU:g}x pythonfmu",
-        f"{'model':<40} {'GP FMU':<10} {'loop s (runs)':>24} {'x real time':>12} {'load s':>7} {'cosim s':>8} "
+        f"{'model':<40} {'GP FMU':<17} {'loop s (runs)':>24} {'x real time':>12} {'load s':>7} {'cosim s':>8} "
         f"{'x ref.':>7} {'met':>4}",
-        *(f"{r['model']:<40} {r['fmu']:<10} {' '.join(f'{t:.3f}' for t in r['loop_s']):>24} "
+        *(f"{r['model']:<40} {r['fmu']:<17} {' '.join(f'{t:.3f}' for t in r['loop_s']):>24} "
           f"{r['real_time_factor']:12.1f} {r['load_s']:7.3f} {r['cosim_s']:8.3f} {r['over_reference_alone']:7.1f} "
           f"{'yes' if r['goal_met'] else 'no':>4}" for r in report["rows"]),
     ])
