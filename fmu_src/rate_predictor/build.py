@@ -67,6 +67,8 @@ class RatePredictorParts:
         The FMU's one-line description.
     step : float
         The NARX step, s: the FMU's communication step.
+    predictor : NarxPredictor
+        The model as the FMUs run it (built from ``arrays``, which checks them).
     """
 
     target: Path
@@ -74,6 +76,7 @@ class RatePredictorParts:
     interface: dict
     description: str
     step: float
+    predictor: NarxPredictor
 
 
 def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> RatePredictorParts:
@@ -89,7 +92,8 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> Rat
     trained = load_trained(model_path)
     arrays = export_narx_arrays(trained)
     interface = _interface(trained.config)
-    error = fast_path_error(NarxPredictor(arrays))
+    predictor = NarxPredictor(arrays)  # checks shapes and finiteness
+    error = fast_path_error(predictor)
     exact = not error <= FAST_PATH_CHECK
     description = (f"GP-NARX predictor of {', '.join(trained.config.outputs)} with confidence bounds "
                    f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
@@ -98,7 +102,7 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> Rat
                    f"free run's fast path off by {error:.2g} of the sd on a test 3-2-1-1, so exact_moments "
                    f"defaults to {'true' if exact else 'false'}")
     return RatePredictorParts(target=target, arrays=arrays, interface={**interface, "exact_moments": exact},
-                              description=description, step=float(trained.step))
+                              description=description, step=float(trained.step), predictor=predictor)
 
 
 #: The fast path's tolerance (docs/fmus.md, "Free run at simulator speed"): the free run's means

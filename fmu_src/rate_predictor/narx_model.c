@@ -425,6 +425,8 @@ static char *read_mixture(Model *model, const double *p) {
 }
 
 static void select_moment_match(void); /* the free run's step compiled per instruction set (below) */
+/* select_moment_match runs once per process, whatever number of instances load at once. */
+static pthread_once_t moment_match_selected = PTHREAD_ONCE_INIT;
 
 Model *model_load(const char *resources_dir, char **error) {
     Model *model = calloc(1, sizeof(Model));
@@ -462,7 +464,7 @@ Model *model_load(const char *resources_dir, char **error) {
     if (!prepare_free_run(model, m_max)) return fail(model, error, NULL);
     if (!prepare_jobs(model)) return fail(model, error, NULL);
     model->threads = 1;
-    select_moment_match();
+    pthread_once(&moment_match_selected, select_moment_match);
     return model;
 }
 
@@ -706,7 +708,7 @@ static char *cholesky_failure(void) {
  * r^14 / 14! (the first term left out is below 1.1e-17 |expm1(r)| for |r| <= 0.347: Horner's
  * rounding dominates, a few ulp); expm1(x) = 2^k expm1(r) + (2^k - 1), which for k = 0 is
  * expm1(r) itself, so the relative accuracy holds for tiny x, where exp(x) - 1 would lose it.
- * 2^k is built in the exponent bits from the rounded k (k + 1023 in [3, 2033]). The argument is
+ * 2^k is built in the exponent bits from the rounded k (k + 1023 in [13, 2033]). The argument is
  * clamped to [-EXPM1_BOUND, EXPM1_BOUND] first (clamp_double): in the pair blocks that is done
  * where the exponents are written (tile_exponents), because a clamp inside the loop over expm1
  * made gcc mask the whole polynomial for the clamped lanes. reduced_expm1 returns expm1(r) and
@@ -757,7 +759,7 @@ static inline __attribute__((always_inline)) double exp_branchless(double x) {
 
 /* expm1 in single precision, the steps of expm1_clamped in float: Taylor series to r^7 / 7!
  * (the first term left out is below 6e-9 |expm1(r)|, a tenth of float's rounding), 2^k in
- * float's exponent bits (k + 127 in [2, 252] for |x| <= SINGLE_BOUND, clamp_single). Relative
+ * float's exponent bits (k + 127 in [1, 253] for |x| <= SINGLE_BOUND, clamp_single). Relative
  * error a few float ulp (about 1e-7): the fast path's pair blocks (single_precision). */
 #define SINGLE_BOUND 87.0f
 static inline __attribute__((always_inline)) float clamp_single(float x) {
@@ -808,16 +810,6 @@ typedef struct {
     float *columns_single;          /* scratch ((N_Z + 1) mb,): half_b and u_b in float (single) */
     double *column_sum, *column_trace; /* scratch (mb,) */
 } PairBlock;
-
-/* D_ij = half_a_i + half_b_j + (M_ab u_ai) . u_bj (eq. 6), x = M_ab u_ai. */
-static inline __attribute__((always_inline)) double pair_exponent(double half_a, const double x[N_Z],
-                                                                  const double *restrict half_b,
-                                                                  const double *restrict u_b, int mb, int j) {
-    double exponent = half_a + half_b[j];
-#pragma GCC unroll 16
-    for (int c = 0; c < N_Z; c++) exponent += x[c] * u_b[c * mb + j];
-    return exponent;
-}
 
 /* A block's terms are computed in tiles of rows (rows first.. of the block, each from column
  * first_column on), in passes that each are one loop gcc vectorises without reordering a sum (so

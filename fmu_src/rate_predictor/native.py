@@ -82,7 +82,7 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     """
     check_platform()
     parts = rate_predictor_parts(model_path, out_dir, name=name)
-    predictor = NarxPredictor(parts.arrays)  # checks shapes and finiteness
+    predictor = parts.predictor
     variables = rate_predictor_variables(**parts.interface)
     identifier = parts.target.stem
     slave_class = type(identifier, (RatePredictor,), {

@@ -221,7 +221,7 @@ NATIVE_GOAL_REAL_TIME = 200.0
 
 #: FLOPs per term of a pair block of eq. 6 in narx_model.c (tile_exponents, tile_expm1,
 #: tile_accumulate), with N_Z uncertain regressors: the exponent (one add, N_Z multiply-adds),
-#: in single precision on the fast path and double on the exact one; expm1 of it (expm1_single:
+#: in single precision on the fast path and double on the exact one; expm1 of it (expm1_single_clamped:
 #: 23, expm1_clamped: 37), counting a fused multiply-add as 2; the accumulation in double (cross
 #: blocks one multiply-add, own blocks three more operations for eq. 4's trace).
 EXPM1_FLOPS = {"single": 23, "double": 37}

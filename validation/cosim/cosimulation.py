@@ -191,7 +191,8 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
         raise BadInputError(f"the recording is sampled every {sample:g} s, which does not divide the "
                             f"FMU's step of {step:g} s")
     options = {"exact_moments": exact_moments, "parallel": parallel}
-    lacking = [name for name, wanted in options.items() if wanted and name not in variables]
+    has = {name for name in options if name in variables and variables[name].causality == "parameter"}
+    lacking = [name for name, wanted in options.items() if wanted and name not in has]
     if lacking:
         raise BadInputError(f"{gp_fmu}: no parameter {', '.join(lacking)}; rebuild the FMU with this flightgp")
     missing = [c for c in (*controls, *axes) if c not in (*recording.input_names, *recording.output_names)]
@@ -205,7 +206,7 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
     held = {f"{a}_prev": np.full(len(time), measured[0, j]) for j, a in enumerate(axes)}
     gp = simulate(gp_fmu, time=time, inputs={**{c: recording.input(c)[rows] for c in controls}, **held},
                   outputs=[n for a in axes for n in (a, f"{a}_lower", f"{a}_upper")],
-                  start_values={"free_run": True, **{n: v for n, v in options.items() if n in variables},
+                  start_values={"free_run": True, **{n: v for n, v in options.items() if n in has},
                                 **{f"{a}_prev": float(measured[0, j]) for j, a in enumerate(axes)}})
     reference = None
     if reference_fmu is not None:
@@ -220,6 +221,7 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
             files.update(cross_check_files(reference, out_dir))
         summary = {"step_s": step, "axes": list(axes), "rmse": result.rmse(),
                    "coverage": result.coverage(), "gp_fmu": str(gp_fmu),
+                   "gp_parameters": {n: v for n, v in options.items() if n in has},
                    "reference_fmu": str(reference_fmu) if reference_fmu else None}
         files[out_dir / "cosim.json"] = json_text(summary)
         files[out_dir / "cosim.png"] = png_bytes(_figure(result))

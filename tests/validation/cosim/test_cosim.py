@@ -54,6 +54,7 @@ def test_cross_check_files_and_summary(case, tmp_path):
     assert float(options["StepSize"]) == pytest.approx(0.1) and float(options["StopTime"]) == pytest.approx(8.0)
     summary = json.loads((tmp_path / "cosim.json").read_text())
     assert summary["rmse"] == result.rmse() and summary["axes"] == ["p", "q", "r"]
+    assert summary["gp_parameters"] == {"exact_moments": False, "parallel": False}  # the FMU's defaults, as run
     assert (tmp_path / "cosim.png").stat().st_size > 10_000
 
 
