@@ -139,6 +139,13 @@ def frame_gp(*, basis, weights, variance_factor, kernel_weights, log_signal_vari
 SINGLE_PRECISION_BOUND = 87.0
 
 
+#: The pair blocks (eq. 6's ``D``, float32 or float64) are computed in chunks of at most this many
+#: bytes: fewer numpy calls than one chunk per pair of outputs, and less memory traffic than all
+#: at once when that is larger (on the paper's model, 3-4 MB chunks measured fastest in float32
+#: and float64 alike), with a bound on the memory of large models.
+PAIR_CHUNK_BYTES = 4 * 2**20
+
+
 class MomentMatcher:
     """Eqs. (1)-(6) for a fixed list of single-output GPs in one input frame.
 
@@ -171,38 +178,36 @@ class MomentMatcher:
                              "moment matching pairs sample s of every GP")
         # Per GP: its distinct samples (in order of first occurrence), which of them each joint
         # sample is, and how often each occurs.
-        self._distinct, self._rows, self._index, self._counts = [], [], [], []
+        distinct, self._rows, self._index, row_counts = [], [], [], []
         for frame in self.frames:
             keep, index = _distinct_samples(frame)
-            self._distinct.append(_frame_samples(frame, keep))
+            distinct.append(_frame_samples(frame, keep))
             self._rows.append(keep)
             self._index.append(index)
-            self._counts.append(np.bincount(index, minlength=len(keep)).astype(float))
+            row_counts.append(np.bincount(index, minlength=len(keep)).astype(float))
         n_out = len(self.frames)
         self._pairs = {(a, b): _pair_counts(self._index, (a, b))
                        for a in range(n_out) for b in range(a + 1, n_out)}
-        # The blocks Q^ab (eq. 3) a call needs, one group per pair of outputs a <= b. With the
-        # distinct samples of all GPs stacked as R rows (GP 0's first), pair p of all P pairs of
-        # the groups is (row _pair_rows[0][p], row _pair_rows[1][p]).
-        first_row = np.cumsum([0] + [len(gp.beta) for gp in self._distinct])
-        self._gp_rows = [slice(first_row[a], first_row[a + 1]) for a in range(n_out)]
-        self._groups, pair_rows = [], []
-        for a in range(n_out):
-            for b in range(a, n_out):
-                if a == b:  # each distinct sample with itself: all rows in order, taken as views
-                    rows_a = rows_b = slice(None)
-                    pair_counts = self._counts[a]
-                    pair_rows.append(2 * (first_row[a] + np.arange(len(pair_counts)),))
-                else:
-                    rows_a, rows_b, pair_counts = self._pairs[a, b]
-                    pair_rows.append((first_row[a] + rows_a, first_row[b] + rows_b))
-                start = sum(len(rows) for rows, _ in pair_rows[:-1])
-                self._groups.append(_BlockGroup(a, b, rows_a, rows_b, pair_counts,
-                                                slice(start, start + len(pair_counts))))
-        self._pair_rows = tuple(np.concatenate(rows) for rows in zip(*pair_rows))  # (P,) each
+        # The distinct samples of all GPs stacked as R rows (GP 0's first), every GP padded to the
+        # largest basis (its first basis point repeated, of zero weight: it adds exact zeros).
+        self._stack = _stack_rows(distinct)
+        gp_rows = self._stack.gp_rows
+        self._row_of_sample = np.column_stack([rows.start + index for rows, index in zip(gp_rows, self._index)])
+        # The blocks Q^ab (eq. 3) a call needs, as P sample pairs (row _pair_rows[0][p], row
+        # _pair_rows[1][p]), each counted _pair_counts[p] times: first every row with itself (the
+        # blocks Q^aa, so the first R pairs), then the distinct pairs of outputs a < b; the pairs
+        # of outputs (a, b) form one segment, starting at _segment_starts, in _segment_outputs.
+        segments = [(a, a, np.arange(rows.start, rows.stop), np.arange(rows.start, rows.stop), counts)
+                    for a, (rows, counts) in enumerate(zip(gp_rows, row_counts))]
+        segments += [(a, b, gp_rows[a].start + rows_a, gp_rows[b].start + rows_b, pair_counts)
+                     for (a, b), (rows_a, rows_b, pair_counts) in self._pairs.items()]
+        self._segment_outputs = tuple(np.array([s[i] for s in segments], dtype=np.intp) for i in (0, 1))
+        self._segment_starts = np.cumsum([0] + [len(s[4]) for s in segments[:-1]])
+        self._pair_rows = tuple(np.concatenate([s[i] for s in segments]) for i in (2, 3))  # (P,) each
+        self._pair_counts = np.concatenate([s[4] for s in segments])
         # Every precision P whose M(P) (eq. 6) a call needs, as P^1/2 stacked along the last
         # axis, (d, R + P): Lambda^-1 of the R rows, then Lambda_a^-1 + Lambda_b^-1 of the P pairs.
-        precision = np.concatenate([gp.precision for gp in self._distinct])
+        precision = self._stack.precision
         self._precision_roots = np.sqrt(np.concatenate(
             [precision, precision[self._pair_rows[0]] + precision[self._pair_rows[1]]]).T.copy())
 
@@ -241,13 +246,14 @@ class MomentMatcher:
         include_noise : bool, default True
             Predict noisy observations (add each GP's noise variance) rather than latent values.
         single_precision : bool, default False
-            Take the exponents of eq. 6 and their ``expm1`` in float32 (the sums over a block's
-            rows too; everything else in float64; the exponents clamped to
-            +-:data:`SINGLE_PRECISION_BOUND`): an approximation, about 1.4x faster, for the
-            rate-predictor FMU's fast path. Its error grows with the cancellation in eq. 6's sums
-            (GPs of very low noise, large weights): within 2 % of the predicted standard deviation
-            along the Bo105 paper's free runs (measured 6.6e-4), 30 % on a 60-point GP of noise
-            variance 1e-6 (docs/fmus.md, "Free run at simulator speed").
+            Take the exponents of eq. 6, their ``expm1``, the sums over a block's rows and eq.
+            4's ``q^T (K_inv o excess) q`` in float32, everything else in float64 (the
+            exponents clamped to +-:data:`SINGLE_PRECISION_BOUND` where float32 would
+            overflow): an approximation, about 1.6x faster, for the rate-predictor FMU's fast
+            path. Its error grows with the cancellation in eq. 6's sums (GPs of very low noise,
+            large weights): within 2 % of the predicted standard deviation along the Bo105
+            paper's free runs (measured 3.9e-4), 30 % on a 60-point GP of noise variance 1e-6
+            (docs/fmus.md, "Free run at simulator speed").
 
         Returns
         -------
@@ -270,29 +276,27 @@ class MomentMatcher:
         # with M need only the k uncertain dims.
         uncertain = np.flatnonzero(np.any(S != 0.0, axis=0))
         M, log_det = _woodbury_terms(self._precision_roots[uncertain], S[np.ix_(uncertain, uncertain)])
-        n_rows = self._gp_rows[-1].stop
-        singles = [_single_terms(gp, m, uncertain, M[rows], log_det[rows])
-                   for gp, rows in zip(self._distinct, self._gp_rows)]
-        # M_ab and ln|I + T_ab| - ln|I + T_a| - ln|I + T_b| (eq. 6) of the P pairs of all groups.
-        M_pairs = M[n_rows:]
+        n_rows = len(self._stack.beta)
+        rows = _single_terms(self._stack, m, uncertain, M[:n_rows], log_det[:n_rows])
+        # M_ab and ln|I + T_ab| - ln|I + T_a| - ln|I + T_b| (eq. 6) of the P pairs.
         log_det_change = log_det[n_rows:] - log_det[self._pair_rows[0]] - log_det[self._pair_rows[1]]
+        cov_pairs = np.concatenate([
+            self._pair_covariances(rows, M[n_rows:], log_det_change, chunk, include_noise=include_noise,
+                                   single_precision=single_precision)
+            for chunk in _chunks(len(log_det_change), self._stack.beta.shape[1] ** 2 * (4 if single_precision else 8))])
+        cov_sum = np.empty((self.n_outputs, self.n_outputs))  # sum over the samples of C_s
+        cov_sum[self._segment_outputs] = np.add.reduceat(self._pair_counts * cov_pairs, self._segment_starts)
+        cov_sum[self._segment_outputs[::-1]] = cov_sum[self._segment_outputs]
 
-        n_out, n_samples = len(self.frames), self.n_samples
-        mean_s = np.column_stack([single.weights.sum(axis=1)[index]
-                                  for single, index in zip(singles, self._index)])  # (S, m), eq. 1
-        cross_sum = np.zeros((self.n_dims, n_out))  # eq. 2 summed over the samples
-        for a, (single, counts) in enumerate(zip(singles, self._counts)):
-            # S (S + Lambda_a)^-1 nu_i = M_a u_i; zero in the certain dims.
-            weighted_u = single.u @ single.weights[:, :, None]  # (T, k, 1)
-            cross_sum[uncertain, a] = counts @ (single.M @ weighted_u)[:, :, 0]
-        cov_sum = np.empty((n_out, n_out))  # sum over the samples of C_s
-        for group in self._groups:
-            cov_t = self._block_covariances(group, singles, M_pairs[group.pairs], log_det_change[group.pairs],
-                                            include_noise=include_noise, single_precision=single_precision)
-            cov_sum[group.a, group.b] = cov_sum[group.b, group.a] = group.counts @ cov_t
+        mean_s = rows.weights.sum(axis=1)[self._row_of_sample]  # (S, m), eq. 1
+        # Eq. 2 summed over the samples: S (S + Lambda_a)^-1 nu_i = M_a u_i, zero in the certain dims.
+        cross_rows = (rows.M @ (rows.u @ rows.weights[:, :, None]))[:, :, 0] * self._pair_counts[:n_rows, None]
+        cross_sum = np.zeros((self.n_dims, self.n_outputs))
+        cross_sum[uncertain] = np.add.reduceat(cross_rows, [rows.start for rows in self._stack.gp_rows]).T
 
         # Back to raw units (eq. 5 scaled): y = mu_y + s_y f and x = mu_0 + s_0 z; then the
         # mixture over samples (class docstring), centred so that S = 1 adds exact zeros.
+        n_samples = self.n_samples
         output_scale = np.array([gp.output_scale for gp in self.frames])
         means = np.array([gp.output_mean for gp in self.frames]) + output_scale * mean_s  # (S, m)
         out_mean = means.mean(axis=0)
@@ -302,59 +306,68 @@ class MomentMatcher:
         cross_cov = cross_sum / n_samples * self.input_scale[:, None] * output_scale[None, :]
         return out_mean, out_cov, cross_cov
 
-    def _block_covariances(self, group: _BlockGroup, singles: list, M_ab: np.ndarray,
-                           log_det_change: np.ndarray, *, include_noise: bool,
-                           single_precision: bool, clamp: bool = False) -> np.ndarray:
-        """``C_s[a, b]`` (eq. 5 without the mixture) for each sample pair of ``group``, shape (T,).
+    def _pair_covariances(self, rows: _SingleTerms, M_pairs: np.ndarray, log_det_change: np.ndarray,
+                          pairs: slice, *, include_noise: bool, single_precision: bool,
+                          clamp: bool = False) -> np.ndarray:
+        """``C_s[a, b]`` (eq. 5 without the mixture) of the sample pairs ``pairs`` (a slice of
+        the P, with a step of 1), shape (len(pairs),).
 
-        ``M_ab`` (T, k, k) is eq. 6's ``M_ab`` of the pairs on the uncertain dims, and
-        ``log_det_change`` (T,) their ``ln|I + T_ab| - ln|I + T_a| - ln|I + T_b|``;
+        ``M_pairs`` (P, k, k) is eq. 6's ``M_ab`` of all pairs on the uncertain dims, and
+        ``log_det_change`` (P,) their ``ln|I + T_ab| - ln|I + T_a| - ln|I + T_b|``;
         ``single_precision`` as :meth:`__call__`. float32's exp overflows above 88.7: where an
-        exponent did (the result is not finite), the group is computed again with the exponents
+        exponent did (a result is not finite), the pairs are computed again with the exponents
         clamped to +-:data:`SINGLE_PRECISION_BOUND` (``clamp``), as the native FMU clamps them. A
         clamp on every call would cost a pass over the blocks, 0.3 ms a step on the paper's model.
         """
-        own = group.a == group.b
-        terms_a, terms_b = singles[group.a], singles[group.b]
-        u_a, u_b = terms_a.u[group.rows_a], terms_b.u[group.rows_b]  # (T, k, n_a), (T, k, n_b)
-        n_pairs, k = M_ab.shape[:2]
+        rows_a, rows_b = (r[pairs] for r in self._pair_rows)
+        M_ab = M_pairs[pairs]
+        n_rows = len(rows.u)  # the first R of the P pairs are the rows with themselves (blocks Q^aa)
+        own = slice(pairs.start, max(pairs.start, min(pairs.stop, n_rows)))
+        n_own = own.stop - own.start
+        u_a, u_b = rows.u[rows_a], rows.u[rows_b[n_own:]]  # (T, k, n), (T - n_own, k, n)
+        n_pairs, k, n = u_a.shape
         # Eq. 6 as one matrix product per pair, D = left^T @ right, with z^T M_ab z expanded over
         # z_ij = u_ai + u_bj: column i of left is [M_ab u_ai, h_ai, 1] and column j of right is
         # [u_bj, 1, h_bj], where h_ai = 1/2 u_ai^T (M_ab - M_a) u_ai - 1/2 (ln|I + T_ab| -
-        # ln|I + T_a| - ln|I + T_b|) and h_bj = 1/2 u_bj^T (M_ab - M_b) u_bj.
-        left = np.empty((n_pairs, k + 2, u_a.shape[2]))
-        right = np.empty((n_pairs, k + 2, u_b.shape[2]))
-        M_ab_u_a = np.matmul(M_ab, u_a, out=left[:, :k])
-        h_a = 0.5 * (_column_dots(M_ab_u_a, u_a) - terms_a.uMu[group.rows_a])
-        h_b = h_a if own else 0.5 * (_column_dots(M_ab @ u_b, u_b) - terms_b.uMu[group.rows_b])
-        left[:, k] = h_a - 0.5 * log_det_change[:, None]
+        # ln|I + T_a| - ln|I + T_b|) and h_bj = 1/2 u_bj^T (M_ab - M_b) u_bj (h_b = h_a for Q^aa).
+        dtype = np.float32 if single_precision else float
+        left, right = np.empty((n_pairs, k + 2, n), dtype), np.empty((n_pairs, k + 2, n), dtype)
+        M_ab_u_a = M_ab @ u_a
+        left[:, :k] = M_ab_u_a
+        h_a = 0.5 * (_column_dots(M_ab_u_a, u_a) - rows.uMu[rows_a])
+        left[:, k] = h_a - 0.5 * log_det_change[pairs, None]
         left[:, k + 1] = 1.0
-        right[:, :k] = u_b
+        right[:n_own, :k] = rows.u[own]
+        right[n_own:, :k] = u_b
         right[:, k] = 1.0
-        right[:, k + 1] = h_b
-        weights_a, weights_b = terms_a.weights[group.rows_a], terms_b.weights[group.rows_b]
-        if single_precision:
-            left, right, weights_a = (x.astype(np.float32) for x in (left, right, weights_a))
-        excess = np.matmul(left.transpose(0, 2, 1), right)  # D, then in place:
+        right[:n_own, k + 1] = h_a[:n_own]
+        right[n_own:, k + 1] = 0.5 * (_column_dots(M_ab[n_own:] @ u_b, u_b) - rows.uMu[rows_b[n_own:]])
+        excess = np.matmul(left.transpose(0, 2, 1), right)  # D (T, n, n), then in place:
         if clamp:
             np.clip(excess, -SINGLE_PRECISION_BOUND, SINGLE_PRECISION_BOUND, out=excess)
-        with np.errstate(over="ignore", invalid="ignore"):  # float32 overflow: retried clamped, below
-            np.expm1(excess, out=excess)  # (Q^ab - q_a q_b^T) / (q_a q_b^T), elementwise
-            # sum_ij w_ai w_bj excess_ij; single: the sums over i in float32, over j in float64
-            cov_t = ((weights_a[:, None, :] @ excess).astype(float, copy=False) @ weights_b[:, :, None])[:, 0, 0]
-        if single_precision and not clamp and not np.isfinite(cov_t).all():
-            return self._block_covariances(group, singles, M_ab, log_det_change, include_noise=include_noise,
-                                           single_precision=True, clamp=True)
-        if not own:
-            return cov_t
         # Eq. 4 with Q^aa = q q^T o (1 + excess) of eq. 3, so that (K_inv symmetric)
         # tr(K_inv Q^aa) = q^T K_inv q + q^T (K_inv o excess) q; clipped at zero as
         # GaussianProcess.predict clips its variance; eq. 5 adds it and the noise to the diagonal.
-        gp, q = self._distinct[group.a], terms_a.q
-        excess_K_inv = np.multiply(excess, gp.K_inv, out=None if single_precision else excess)  # float64
-        trace = _bilinear_forms(q, gp.K_inv, q) + _bilinear_forms(q, excess_K_inv, q)
-        expected_var = np.exp(gp.log_signal_variance) - trace
-        return cov_t + np.maximum(expected_var, 0.0) + (gp.noise_variance if include_noise else 0.0)
+        # single_precision: the second term in float32 too, but in float64 once clamped (a
+        # clamped exponential times a large K_inv entry can overflow float32).
+        stack, q = self._stack, rows.q[own]
+        K_inv = stack.K_inv_single[own] if single_precision and not clamp else stack.K_inv[own]
+        with np.errstate(over="ignore", invalid="ignore"):  # float32 overflow: retried clamped, below
+            np.expm1(excess, out=excess)  # (Q^ab - q_a q_b^T) / (q_a q_b^T), elementwise
+            # sum_ij w_ai w_bj excess_ij; single: the sums over i in float32, over j in float64
+            weights_a = rows.weights[rows_a].astype(dtype, copy=False)
+            cov_t = ((weights_a[:, None, :] @ excess).astype(float, copy=False)
+                     @ rows.weights[rows_b][:, :, None])[:, 0, 0]
+            own_excess = excess[:n_own]
+            excess_K_inv = np.multiply(own_excess, K_inv, out=own_excess if K_inv.dtype == dtype else None)
+            trace = (_bilinear_forms(q, stack.K_inv[own], q)
+                     + _bilinear_forms(q.astype(excess_K_inv.dtype, copy=False), excess_K_inv, q))
+        expected_var = np.exp(stack.log_signal_variance[own]) - trace
+        cov_t[:n_own] += np.maximum(expected_var, 0.0) + (stack.noise_variance[own] if include_noise else 0.0)
+        if single_precision and not clamp and not np.isfinite(cov_t).all():
+            return self._pair_covariances(rows, M_pairs, log_det_change, pairs, include_noise=include_noise,
+                                          single_precision=True, clamp=True)
+        return cov_t
 
     def _standardise(self, mean, cov) -> tuple[np.ndarray, np.ndarray]:
         """Check ``mean`` (d,) and ``cov`` (d, d); return them in the common frame."""
@@ -385,6 +398,14 @@ class MomentMatcher:
                 f"cov is not positive semi-definite: the standardised covariance has eigenvalue "
                 f"{eigenvalues[0]:.3g} (largest {eigenvalues[-1]:.3g}); check how it was formed")
         return m, S
+
+
+def _chunks(n_pairs: int, bytes_per_pair: int) -> list[slice]:
+    """``range(n_pairs)`` in equal slices of at most :data:`PAIR_CHUNK_BYTES` (at least one pair
+    each)."""
+    n_chunks = -(-n_pairs * bytes_per_pair // PAIR_CHUNK_BYTES)
+    size = -(-n_pairs // max(n_chunks, 1))
+    return [slice(start, min(start + size, n_pairs)) for start in range(0, n_pairs, size)]
 
 
 def _distinct_samples(frame: FrameGP) -> tuple[np.ndarray, np.ndarray]:
@@ -427,42 +448,64 @@ def _pair_counts(index: list, pair: tuple) -> tuple:
 
 
 @dataclass(frozen=True)
-class _BlockGroup:
-    """The blocks ``Q^ab`` (eq. 3) of outputs ``a <= b`` over their T sample pairs
-    ``(rows_a[t], rows_b[t])``, rows into each GP's distinct samples (all of them, in order, for
-    ``a == b``), pair ``t`` occurring ``counts[t]`` times among the joint samples."""
+class _RowStack:
+    """The distinct samples of m GPs stacked as R rows, every GP's basis padded to the largest, n
+    points: the padding repeats the GP's first basis point with zero weight and zero ``K_inv``
+    rows and columns, so that it adds exact zeros to every sum."""
 
-    a: int
-    b: int
-    rows_a: np.ndarray | slice  # (T,)
-    rows_b: np.ndarray | slice  # (T,)
-    counts: np.ndarray  # (T,)
-    pairs: slice  # the group's T among the P pairs of all groups (MomentMatcher._pair_rows)
+    inputs: np.ndarray  # (m, n, d) basis inputs X_a of each GP
+    gp: np.ndarray  # (R,) the GP of each row
+    gp_rows: tuple  # (m,) the slice of rows of each GP
+    precision: np.ndarray  # (R, d) diagonal of Lambda^-1
+    beta: np.ndarray  # (R, n)
+    log_signal_variance: np.ndarray  # (R,)
+    K_inv: np.ndarray  # (R, n, n)
+    K_inv_single: np.ndarray  # (R, n, n) K_inv in float32
+    noise_variance: np.ndarray  # (R,)
+
+
+def _stack_rows(frames: list) -> _RowStack:
+    """The :class:`_RowStack` of ``frames`` (each at its distinct samples)."""
+    n = max(len(frame.inputs) for frame in frames)
+    pads = [n - len(frame.inputs) for frame in frames]
+    first_rows = np.cumsum([0] + [len(frame.beta) for frame in frames])
+    K_inv = np.concatenate([np.pad(frame.K_inv, ((0, 0), (0, pad), (0, pad))) for frame, pad in zip(frames, pads)])
+    return _RowStack(
+        inputs=np.stack([np.concatenate([frame.inputs, np.repeat(frame.inputs[:1], pad, axis=0)])
+                         for frame, pad in zip(frames, pads)]),
+        gp=np.concatenate([np.full(len(frame.beta), a) for a, frame in enumerate(frames)]),
+        gp_rows=tuple(slice(start, stop) for start, stop in zip(first_rows[:-1], first_rows[1:])),
+        precision=np.concatenate([frame.precision for frame in frames]),
+        beta=np.concatenate([np.pad(frame.beta, ((0, 0), (0, pad))) for frame, pad in zip(frames, pads)]),
+        log_signal_variance=np.concatenate([frame.log_signal_variance for frame in frames]),
+        K_inv=K_inv, K_inv_single=K_inv.astype(np.float32),
+        noise_variance=np.concatenate([frame.noise_variance for frame in frames]))
 
 
 @dataclass(frozen=True)
 class _SingleTerms:
-    """One GP's terms at one input distribution, per distinct sample (leading axis T), on the k
-    uncertain input dims (the ``u`` and ``M`` of the module docstring restricted to them)."""
+    """The GPs' terms at one input distribution, per row of a :class:`_RowStack` (leading axis
+    R), on the k uncertain input dims (the ``u`` and ``M`` of the module docstring restricted to
+    them)."""
 
-    u: np.ndarray  # (T, k, n) u_ai (eq. 3) as columns
-    M: np.ndarray  # (T, k, k) M_a (eq. 6)
-    uMu: np.ndarray  # (T, n) u_ai^T M_a u_ai
-    q: np.ndarray  # (T, n) q_a (eq. 1)
-    weights: np.ndarray  # (T, n) beta_a q_a
+    u: np.ndarray  # (R, k, n) u_ai (eq. 3) as columns
+    M: np.ndarray  # (R, k, k) M_a (eq. 6)
+    uMu: np.ndarray  # (R, n) u_ai^T M_a u_ai
+    q: np.ndarray  # (R, n) q_a (eq. 1)
+    weights: np.ndarray  # (R, n) beta_a q_a
 
 
-def _single_terms(gp: FrameGP, m: np.ndarray, uncertain: np.ndarray, M: np.ndarray,
+def _single_terms(stack: _RowStack, m: np.ndarray, uncertain: np.ndarray, M: np.ndarray,
                   log_det: np.ndarray) -> _SingleTerms:
-    """:class:`_SingleTerms` of ``gp`` (distinct samples) at the standardised input mean ``m``
-    (d,), given its ``M`` (T, k, k) and ``ln|I + T_a|`` (T,) on the ``uncertain`` dims (k,)."""
-    nu = gp.inputs - m  # (n, d)
-    u = gp.precision[:, uncertain, None] * nu.T[uncertain]  # (T, k, n)
+    """:class:`_SingleTerms` of the rows of ``stack`` at the standardised input mean ``m`` (d,),
+    given their ``M`` (R, k, k) and ``ln|I + T_a|`` (R,) on the ``uncertain`` dims (k,)."""
+    nu = stack.inputs - m  # (m, n, d)
+    u = stack.precision[:, uncertain, None] * nu[:, :, uncertain].transpose(0, 2, 1)[stack.gp]  # (R, k, n)
     uMu = _column_dots(M @ u, u)
     # Eq. 1 in the Woodbury form -1/2 nu^T (S + Lambda)^-1 nu = -1/2 nu^T Lambda^-1 nu + 1/2 u^T M_a u.
-    q = np.exp(gp.log_signal_variance[:, None] - 0.5 * log_det[:, None]
-               - 0.5 * (gp.precision @ (nu * nu).T) + 0.5 * uMu)
-    return _SingleTerms(u=u, M=M, uMu=uMu, q=q, weights=gp.beta * q)
+    nu_Lambda_nu = np.concatenate([stack.precision[rows] @ (x * x).T for x, rows in zip(nu, stack.gp_rows)])  # (R, n)
+    q = np.exp(stack.log_signal_variance[:, None] - 0.5 * log_det[:, None] - 0.5 * nu_Lambda_nu + 0.5 * uMu)
+    return _SingleTerms(u=u, M=M, uMu=uMu, q=q, weights=stack.beta * q)
 
 
 def _column_dots(x: np.ndarray, y: np.ndarray) -> np.ndarray:
