@@ -310,7 +310,8 @@ def textbook_moments(matcher, mean, cov, include_noise=True):
 def test_inputs_known_exactly_give_the_textbook_moments(known):
     """An input known exactly (a zero row and column of the covariance, as the exogenous
     regressors of a NARX free run) is left out of the Woodbury terms (M_a = 0 there): the moments
-    must still be those of eqs. (1)-(5) over all input dims, computed the textbook way."""
+    must still be those of eqs. (1)-(5) over all input dims, computed the textbook way. The two
+    GPs have 40 and 50 training points, so the matcher pads the first with zero-weight points."""
     cov = COV.copy()
     cov[known, :] = cov[:, known] = 0.0
     matcher = moment_matcher(fit_pair())
