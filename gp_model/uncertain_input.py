@@ -166,6 +166,12 @@ class MomentMatcher:
         number S of samples.
     input_mean, input_scale : ndarray, shape (d,)
         The common frame: ``z = (x - input_mean) / input_scale`` (raw input units).
+
+    Notes
+    -----
+    GPs of different basis sizes are padded to the largest (zero-weight points): every pair of
+    samples then costs the largest size squared, so one exact GP beside sparse ones makes every
+    block as large as its own (5.5x slower, measured on 300 points beside three of 20).
     """
 
     def __init__(self, frames, *, input_mean, input_scale) -> None:
@@ -252,8 +258,8 @@ class MomentMatcher:
             overflow): an approximation, about 1.6x faster, for the rate-predictor FMU's fast
             path. Its error grows with the cancellation in eq. 6's sums (GPs of very low noise,
             large weights): within 2 % of the predicted standard deviation along the Bo105
-            paper's free runs (measured 3.9e-4), 30 % on a 60-point GP of noise variance 1e-6
-            (docs/fmus.md, "Free run at simulator speed").
+            paper's free runs (measured 3.9e-4), but tens of % or more on GPs of noise variance
+            1e-6 (docs/fmus.md, "Free run at simulator speed").
 
         Returns
         -------
@@ -364,7 +370,8 @@ class MomentMatcher:
                      + _bilinear_forms(q.astype(excess_K_inv.dtype, copy=False), excess_K_inv, q))
         expected_var = np.exp(stack.log_signal_variance[own]) - trace
         cov_t[:n_own] += np.maximum(expected_var, 0.0) + (stack.noise_variance[own] if include_noise else 0.0)
-        if single_precision and not clamp and not np.isfinite(cov_t).all():
+        # A float32 overflow in the trace would be clipped to zero variance below: retried too.
+        if single_precision and not clamp and not (np.isfinite(cov_t).all() and np.isfinite(trace).all()):
             return self._pair_covariances(rows, M_pairs, log_det_change, pairs, include_noise=include_noise,
                                           single_precision=True, clamp=True)
         return cov_t
@@ -401,10 +408,10 @@ class MomentMatcher:
 
 
 def _chunks(n_pairs: int, bytes_per_pair: int) -> list[slice]:
-    """``range(n_pairs)`` in equal slices of at most :data:`PAIR_CHUNK_BYTES` (at least one pair
-    each)."""
-    n_chunks = -(-n_pairs * bytes_per_pair // PAIR_CHUNK_BYTES)
-    size = -(-n_pairs // max(n_chunks, 1))
+    """``range(n_pairs)`` in slices of near-equal length, each of at most
+    :data:`PAIR_CHUNK_BYTES` (or of one pair, where a pair is larger)."""
+    most = max(PAIR_CHUNK_BYTES // bytes_per_pair, 1)
+    size = -(-n_pairs // -(-n_pairs // most))  # ceil(n / ceil(n / most)) <= most
     return [slice(start, min(start + size, n_pairs)) for start in range(0, n_pairs, size)]
 
 

@@ -349,3 +349,17 @@ def test_single_precision_stays_finite_where_exponents_exceed_float32():
         exact, fast = (matcher(np.array([mean]), np.array([[0.01]]), single_precision=s)[1][0, 0]
                        for s in (False, True))
         assert np.isfinite(fast) and abs(np.sqrt(fast) - np.sqrt(exact)) <= 0.02 * np.sqrt(exact)
+
+
+def test_single_precision_retries_a_trace_that_overflows_float32():
+    """Far from the data (here 55 length scales) eq. 4's float32 product K_inv o (Q / q q^T - 1)
+    can overflow where the pair sums stay finite; clipped at zero, that trace would leave only the
+    noise variance (4e-6 where the exact variance is 0.015). single_precision must compute such
+    blocks again clamped, with the product in float64, and stay within 2 % of the exact sd."""
+    x = np.array([[-3.673274601972766], [-6.018362590405937]])
+    gp = GaussianProcess(SquaredExponentialARD(1.0, [3.039103459016252]),
+                         noise_variance=2.715924146370525e-4).fit(x, np.sin(x[:, 0]))
+    matcher = moment_matcher([gp])
+    exact, fast = (matcher(np.array([166.1282968292834]), np.array([[150.73641298017375]]),
+                           single_precision=s)[1][0, 0] for s in (False, True))
+    assert exact > 0.01 and abs(np.sqrt(fast) - np.sqrt(exact)) <= 0.02 * np.sqrt(exact)
