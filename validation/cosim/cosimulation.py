@@ -151,8 +151,8 @@ class CosimResult:
         return result
 
 
-def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None, exact_moments: bool = False,
-               parallel: bool = False) -> CosimResult:
+def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None,
+               exact_moments: bool | None = None, parallel: bool | None = None) -> CosimResult:
     """Co-simulate the GP rate predictor (free run) and a reference FMU under a recording's
     inputs and compare both with it.
 
@@ -168,10 +168,12 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
         GP's outputs (e.g. ``flightgp build-fmu --reference bo105-80kt``).
     out_dir : path, optional
         Where to write the Cross-Check files, ``cosim.json`` and ``cosim.png`` (atomically).
-    exact_moments, parallel : bool, default False
+    exact_moments, parallel : bool, optional
         The GP FMU's parameters of these names (docs/fmus.md, "GP-NARX rate predictor"): the
         moment matching in double precision throughout; the free run on two threads (native
-        FMU). True with an FMU that lacks the parameter is refused.
+        FMU). None (default): the FMU's own default, which for ``exact_moments`` its build chose
+        by measuring its fast path. Given for an FMU that lacks the parameter: refused.
+        ``cosim.json`` records the values run.
     """
     from fmpy import read_model_description
 
@@ -190,11 +192,16 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
     if decimation < 1 or abs(decimation * sample - step) > 1e-6 * step:
         raise BadInputError(f"the recording is sampled every {sample:g} s, which does not divide the "
                             f"FMU's step of {step:g} s")
-    options = {"exact_moments": exact_moments, "parallel": parallel}
-    has = {name for name in options if name in variables and variables[name].causality == "parameter"}
-    lacking = [name for name, wanted in options.items() if wanted and name not in has]
+    asked = {name: value for name, value in (("exact_moments", exact_moments), ("parallel", parallel))
+             if value is not None}
+    lacking = [name for name in asked if name not in variables or variables[name].causality != "parameter"]
     if lacking:
-        raise BadInputError(f"{gp_fmu}: no parameter {', '.join(lacking)}; rebuild the FMU with this flightgp")
+        raise BadInputError(f"{gp_fmu}: no parameter {', '.join(lacking)} (a rate-predictor FMU of this "
+                            "flightgp has it)")
+    # As run: the values asked for, else the FMU's defaults.
+    run_with = {name: asked.get(name, variables[name].start in ("true", True))
+                for name in ("exact_moments", "parallel")
+                if name in variables and variables[name].causality == "parameter"}
     missing = [c for c in (*controls, *axes) if c not in (*recording.input_names, *recording.output_names)]
     if missing:
         raise BadInputError(f"the recording has no column(s) {', '.join(missing)} the FMU needs")
@@ -206,7 +213,7 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
     held = {f"{a}_prev": np.full(len(time), measured[0, j]) for j, a in enumerate(axes)}
     gp = simulate(gp_fmu, time=time, inputs={**{c: recording.input(c)[rows] for c in controls}, **held},
                   outputs=[n for a in axes for n in (a, f"{a}_lower", f"{a}_upper")],
-                  start_values={"free_run": True, **{n: v for n, v in options.items() if n in has},
+                  start_values={"free_run": True, **asked,
                                 **{f"{a}_prev": float(measured[0, j]) for j, a in enumerate(axes)}})
     reference = None
     if reference_fmu is not None:
@@ -221,7 +228,7 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
             files.update(cross_check_files(reference, out_dir))
         summary = {"step_s": step, "axes": list(axes), "rmse": result.rmse(),
                    "coverage": result.coverage(), "gp_fmu": str(gp_fmu),
-                   "gp_parameters": {n: v for n, v in options.items() if n in has},
+                   "gp_parameters": run_with,
                    "reference_fmu": str(reference_fmu) if reference_fmu else None}
         files[out_dir / "cosim.json"] = json_text(summary)
         files[out_dir / "cosim.png"] = png_bytes(_figure(result))

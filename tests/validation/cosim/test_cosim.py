@@ -4,6 +4,7 @@ from statistics import NormalDist
 
 import numpy as np
 import pytest
+from fmpy import read_model_description
 
 from validation.cli import main
 from validation.core.recordings import write_recording
@@ -54,7 +55,11 @@ def test_cross_check_files_and_summary(case, tmp_path):
     assert float(options["StepSize"]) == pytest.approx(0.1) and float(options["StopTime"]) == pytest.approx(8.0)
     summary = json.loads((tmp_path / "cosim.json").read_text())
     assert summary["rmse"] == result.rmse() and summary["axes"] == ["p", "q", "r"]
-    assert summary["gp_parameters"] == {"exact_moments": False, "parallel": False}  # the FMU's defaults, as run
+    # Nothing asked: the FMU's own defaults run and are recorded (the paper model's build measured
+    # its fast path within 1 %, so exact_moments defaults to false).
+    starts = {v.name: v.start for v in read_model_description(str(fmu)).modelVariables}
+    assert summary["gp_parameters"] == {"exact_moments": False, "parallel": False}
+    assert starts["exact_moments"] == starts["parallel"] == "false"
     assert (tmp_path / "cosim.png").stat().st_size > 10_000
 
 
@@ -72,6 +77,26 @@ def test_cli_cosim_with_a_recording_and_with_a_manoeuvre(case, tmp_path, capsys)
     assert main(["cosim", str(fmu), "--recording", str(folder / "flight.csv"), "--exact-moments",
                  "--out", str(tmp_path / "c")]) == 0
     assert capsys.readouterr().out.splitlines()[1:4] == first.splitlines()[1:4]
+    ran = [json.loads((tmp_path / out / "cosim.json").read_text())["gp_parameters"] for out in "ac"]
+    assert ran == [{"exact_moments": False, "parallel": False}, {"exact_moments": True, "parallel": False}]
+
+
+def test_cosim_keeps_the_fmus_own_default_of_exact_moments(case, bo105_model_file, tmp_path, monkeypatch):
+    """A GP FMU whose build found its fast path too far off (its error stood in for here) defaults
+    to exact_moments = true; a co-simulation that does not ask must run it so, and say so in
+    cosim.json."""
+    import fmu_src.rate_predictor.build as build
+    from fmu_src import build_rate_predictor_fmu
+
+    _, recording, _, fmu = case
+    monkeypatch.setattr(build, "fast_path_error", lambda predictor: 0.05)
+    exact_default = build_rate_predictor_fmu(bo105_model_file, tmp_path / "fmu", name="exact_default")
+    ran = cosimulate(exact_default, recording, out_dir=tmp_path / "out")
+    summary = json.loads((tmp_path / "out" / "cosim.json").read_text())
+    assert summary["gp_parameters"] == {"exact_moments": True, "parallel": False}
+    exact, fast = (cosimulate(fmu, recording, exact_moments=e).gp.outputs["q_upper"] for e in (True, False))
+    np.testing.assert_array_equal(ran.gp.outputs["q_upper"], exact)
+    assert np.abs(exact - fast).max() > 0.0
 
 
 def test_an_fmu_without_the_asked_parameter_is_refused(case, bo105_reference_fmu, tmp_path, capsys):
