@@ -92,3 +92,25 @@ def test_the_build_defaults_to_the_exact_moments_where_its_check_of_the_fast_pat
     for builder in (build_rate_predictor_fmu, build_native_rate_predictor_fmu):
         exact, text = default(builder(bo105_model_file, tmp_path / builder.__name__))
         assert exact and "off by 0.05 of the sd" in text and "defaults to true" in text
+
+
+@pytest.mark.parametrize("fault", ["nan", "refused"])
+def test_a_test_free_run_that_fails_counts_as_an_infinite_fast_path_error(bo105_trained, monkeypatch, fault):
+    """fast_path_error must not let a failed measurement pass for a small error (max() drops NaN):
+    a fast path turning non-finite, or a belief the matcher refuses, gives inf, so the FMU
+    defaults to the exact moments."""
+    from fmu_src.rate_predictor.build import FAST_PATH_CHECK, export_narx_arrays, fast_path_error
+    from fmu_src.rate_predictor.predictor import NarxPredictor
+
+    predictor = NarxPredictor(export_narx_arrays(bo105_trained))
+    assert 0.0 < fast_path_error(predictor) <= FAST_PATH_CHECK
+    step = predictor.free_run_step
+
+    def faulty(history, belief, *, exact_moments=True):
+        mean, var, belief = step(history, belief, exact_moments=exact_moments)
+        if not exact_moments and fault == "refused":
+            raise ValueError("mean or cov contains NaN or inf")
+        return mean, var if exact_moments else np.full_like(var, np.nan), belief
+
+    monkeypatch.setattr(predictor, "free_run_step", faulty)
+    assert fast_path_error(predictor) == np.inf
