@@ -102,6 +102,7 @@
 /* Rows of a tile accumulated together (tile_accumulate): each column sum is loaded and stored once
    per ROW_GROUP rows, not once per row, a chain through memory that bounded the loop. */
 #define ROW_GROUP 4
+_Static_assert(ROW_GROUP == 4, "tile_accumulate's unrolled loops add four rows");
 /* Rows of an own block's band (own_block_body): on the paper's model 8 rows (640 terms per
    block) measured 610-630 us per step, 16 rows (768 terms, whole vectors) 620-640, 4 rows (576
    terms, shorter loops) 650-660. */
@@ -173,7 +174,7 @@ typedef struct {
     pthread_mutex_t lock;
     pthread_cond_t start;
     int running, quit, refused;                      /* refused: pthread_create failed (not retried) */
-    unsigned generation, finished;                    /* finished: read and written atomically */
+    unsigned generation, finished;                    /* changed atomically (generation also under lock) */
     unsigned barrier_count, barrier_phase;            /* the spin barrier between a share's phases */
 } Worker;
 
@@ -190,10 +191,9 @@ struct Model {
     int single_precision;                             /* the step's pair blocks: !exact_moments */
     int threads;                                      /* the step's threads: 2 if parallel (and started) */
     double frame_mean[D], frame_scale[D];             /* output 0's input standardisation */
-    int *sample_jobs;                                 /* (n_sample_jobs, 2): output a, distinct sample t */
     PairJob *pair_jobs;                               /* the own blocks, then each output pair's */
     int n_sample_jobs, n_pair_jobs;
-    int sample_split[THREADS + 1], pair_split[THREADS + 1]; /* the second thread's share of the jobs */
+    int sample_split[THREADS], pair_split[THREADS];    /* where each thread's share of the jobs begins */
     double step_m[D], step_S_z[N_Z * N_Z];            /* the step's standardised regressor belief */
     Worker worker;
     double next_state[MODEL_STATE_SIZE];              /* a step's result before its commit */
@@ -235,7 +235,6 @@ void model_free(Model *model) {
         free(scratch->half_a);
         free(scratch->half_b);
     }
-    free(model->sample_jobs);
     free(model->pair_jobs);
     free(model);
 }
@@ -328,11 +327,14 @@ static int prepare_free_run(Model *model, int m_max) {
  * a step's set-up took 93 us for 766 blocks, about what 170 terms of a block take. */
 #define BLOCK_SET_UP_TERMS 170.0
 
+/* The rows of the band of an own block (m x m) that begins at row first. */
+static inline int band_rows(int m, int first) { return m - first < OWN_BAND ? m - first : OWN_BAND; }
+
 static double pair_job_cost(const Model *model, const PairJob *job) {
     const int ma = model->gp[job->a].m, mb = model->gp[job->b].m;
     if (job->a != job->b) return (double)ma * mb + BLOCK_SET_UP_TERMS;
     double terms = 0.0;
-    for (int first = 0; first < ma; first += OWN_BAND) terms += (double)(ma - first < OWN_BAND ? ma - first : OWN_BAND) * (ma - first);
+    for (int first = 0; first < ma; first += OWN_BAND) terms += (double)band_rows(ma, first) * (ma - first);
     return terms + BLOCK_SET_UP_TERMS;
 }
 
@@ -346,32 +348,29 @@ static int half_way(const double *costs, int n) {
     return j;
 }
 
-/* The free run's jobs: every distinct sample of every output (sample_terms), then the pair
- * blocks (pair_covariance) in the order of MomentMatcher's loops: each output's own blocks,
- * then each output pair's distinct sample pairs; and the two threads' shares, split by cost.
- * Returns 0 if out of memory. */
+/* The free run's jobs: the pair blocks (pair_covariance) in the order of MomentMatcher's loops,
+ * each output's own blocks (one per distinct sample, so the first n_sample_jobs are also the
+ * sample jobs of sample_terms), then each output pair's distinct sample pairs; and where the
+ * second thread's shares begin, split by cost. Returns 0 if out of memory. */
 static int prepare_jobs(Model *model) {
     int n_samples = 0, n_pairs = 0;
     for (int a = 0; a < N_OUTPUTS; a++) n_samples += model->gp[a].T;
     n_pairs = n_samples;
     for (int p = 0; p < N_PAIRS; p++) n_pairs += model->pairs[p].n;
-    model->sample_jobs = malloc(sizeof(int) * 2 * (size_t)n_samples);
     model->pair_jobs = malloc(sizeof(PairJob) * (size_t)n_pairs);
-    double *costs = malloc(sizeof(double) * (size_t)(n_pairs > n_samples ? n_pairs : n_samples));
-    if (model->sample_jobs == NULL || model->pair_jobs == NULL || costs == NULL) {
+    double *costs = malloc(sizeof(double) * (size_t)n_pairs);
+    if (model->pair_jobs == NULL || costs == NULL) {
         free(costs);
         return 0;
     }
     int j = 0;
     for (int a = 0; a < N_OUTPUTS; a++)
         for (int t = 0; t < model->gp[a].T; t++, j++) {
-            model->sample_jobs[2 * j] = a, model->sample_jobs[2 * j + 1] = t;
             model->pair_jobs[j] = (PairJob){a, t, a, t, model->gp[a].count[t]};
             costs[j] = model->gp[a].m;
         }
     model->n_sample_jobs = n_samples;
     model->sample_split[0] = 0, model->sample_split[1] = half_way(costs, n_samples);
-    model->sample_split[2] = n_samples;
     for (int p = 0; p < N_PAIRS; p++)
         for (int k = 0; k < model->pairs[p].n; k++, j++) {
             const double *combo = model->pairs[p].combos + 3 * k;
@@ -379,7 +378,7 @@ static int prepare_jobs(Model *model) {
         }
     model->n_pair_jobs = n_pairs;
     for (j = 0; j < n_pairs; j++) costs[j] = pair_job_cost(model, &model->pair_jobs[j]);
-    model->pair_split[0] = 0, model->pair_split[1] = half_way(costs, n_pairs), model->pair_split[2] = n_pairs;
+    model->pair_split[0] = 0, model->pair_split[1] = half_way(costs, n_pairs);
     free(costs);
     return 1;
 }
@@ -890,9 +889,10 @@ static inline __attribute__((always_inline)) void tile_accumulate(const PairBloc
     for (int r = 0; r < rows; r += ROW_GROUP) {
         const int group = rows - r < ROW_GROUP ? rows - r : ROW_GROUP, i = first + r;
         const double *restrict A = own ? block->K_inv + (size_t)i * mb : NULL;
-        const double *restrict excess = block->tile + at + (size_t)r * L - first_column;
-        const float *restrict excess_single = block->tile_single + at + (size_t)r * L - first_column;
-#define EXCESS(g, j) (single ? (double)excess_single[(g) * L + (j)] : excess[(g) * L + (j)])
+        const double *restrict excess = block->tile + at + (size_t)r * L; /* column j at j - first_column */
+        const float *restrict excess_single = block->tile_single + at + (size_t)r * L;
+#define EXCESS(g, j) (single ? (double)excess_single[(g) * L + (j) - first_column] \
+                            : excess[(g) * L + (j) - first_column])
         for (int part = 0; part < 2; part++) { /* the halved columns, then the rest */
             const int begin = part == 0 ? first_column : first_column + halved;
             const int end = part == 0 ? first_column + halved : mb;
@@ -928,7 +928,7 @@ SIMD_LOOP
     }
 }
 
-/* A cross block (a != b, or two samples of one output; ma x mb): returns sum_j w_bj column_sum_j
+/* A cross block (a != b; ma x mb): returns sum_j w_bj column_sum_j
  * = sum_ij w_ai w_bj expm1(D_ij), over tiles of at most TILE_TERMS terms (whole rows). */
 static inline __attribute__((always_inline)) double cross_block_body(const PairBlock *block, int single) {
     const int ma = block->ma, mb = block->mb;
@@ -962,7 +962,7 @@ static inline __attribute__((always_inline)) double own_block_body(const PairBlo
         int last = first;
         size_t terms = 0;
         while (last < m) {
-            const int rows = m - last < OWN_BAND ? m - last : OWN_BAND;
+            const int rows = band_rows(m, last);
             const size_t band_terms = (size_t)rows * (size_t)(m - last);
             if (last > first && terms + band_terms > TILE_TERMS) break;
             tile_exponents(block, single, terms, last, rows, last);
@@ -971,7 +971,7 @@ static inline __attribute__((always_inline)) double own_block_body(const PairBlo
         }
         tile_expm1(block, single, terms);
         for (size_t at = 0; first < last; first += OWN_BAND) {
-            const int rows = m - first < OWN_BAND ? m - first : OWN_BAND;
+            const int rows = band_rows(m, first);
             tile_accumulate(block, single, 1, at, first, rows, first, rows);
             at += (size_t)rows * (size_t)(m - first);
         }
@@ -1109,7 +1109,7 @@ SIMD_LOOP
  * adds exact zeros: E[f] = E_s[m_s], Cov[f] = E_s[C_s] + Cov_s[m_s], Cov[x, f] = E_s[Cov_s[x, f]],
  * in raw units, from the per-sample means (model->sample_means) and the sums over the samples of
  * the covariances (cov_sum) and cross-covariances (cross_sum) in standardised units. */
-static inline __attribute__((always_inline)) void mixture_moments(const Model *model, int n_samples, const double cov_sum[N_OUTPUTS * N_OUTPUTS],
+static void mixture_moments(const Model *model, int n_samples, const double cov_sum[N_OUTPUTS * N_OUTPUTS],
                             const double cross_sum[D * N_OUTPUTS], double out_mean[N_OUTPUTS],
                             double out_cov[N_OUTPUTS * N_OUTPUTS], double cross_cov[D * N_OUTPUTS]) {
     for (int a = 0; a < N_OUTPUTS; a++) {
@@ -1179,17 +1179,15 @@ static inline __attribute__((always_inline)) void moment_match_share_body(Model 
     for (int c = 0; c < N_OUTPUTS * N_OUTPUTS; c++) scratch->cov_sum[c] = 0.0;
     for (int c = 0; c < D * N_OUTPUTS; c++) scratch->cross_sum[c] = 0.0;
     scratch->samples_failed = scratch->failed = 0;
-    const int first_sample = threads == 1 ? 0 : model->sample_split[k];
-    const int last_sample = threads == 1 ? model->n_sample_jobs : model->sample_split[k + 1];
-    for (int j = first_sample; j < last_sample && !scratch->samples_failed; j++)
-        scratch->samples_failed = !sample_terms(model, scratch, model->sample_jobs[2 * j],
-                                                model->sample_jobs[2 * j + 1], m, S_z);
+    const int last_share = k + 1 == threads;
+    const int last_sample = last_share ? model->n_sample_jobs : model->sample_split[k + 1];
+    for (int j = model->sample_split[k]; j < last_sample && !scratch->samples_failed; j++)
+        scratch->samples_failed = !sample_terms(model, scratch, model->pair_jobs[j].a, model->pair_jobs[j].t_a, m, S_z);
     if (threads > 1) spin_barrier(&model->worker); /* every thread's samples_failed is final now */
     for (int other = 0; other < threads; other++)
         if (model->scratch[other].samples_failed) return;
-    const int first_pair = threads == 1 ? 0 : model->pair_split[k];
-    const int last_pair = threads == 1 ? model->n_pair_jobs : model->pair_split[k + 1];
-    for (int j = first_pair; j < last_pair; j++) {
+    const int last_pair = last_share ? model->n_pair_jobs : model->pair_split[k + 1];
+    for (int j = model->pair_split[k]; j < last_pair; j++) {
         const PairJob *job = &model->pair_jobs[j];
         double covariance;
         if (!pair_covariance(model, scratch, job->a, job->t_a, job->b, job->t_b, S_z, &covariance)) {
