@@ -43,10 +43,11 @@ from fmu_src.rate_predictor.slave import RatePredictor, rate_predictor_variables
 
 #: The model's C file, compiled with the FMI layer.
 MODEL_SOURCE = Path(__file__).with_name("narx_model.c")
-#: gcc flags of the FMU's one compile (``narx_model.c`` with the FMI layer): the model's loops over the pair blocks of eq. 6 vectorise only under
-#: OpenMP's SIMD directive (``FLIGHTGP_OPENMP_SIMD`` switches it on in the source), with fused
-#: multiply-adds allowed, and the short loops of each block's set-up only at ``-O3`` (after the
-#: layer's ``-O2``, so it wins): 670 against 1040 us per free-run step of the paper's model.
+#: gcc flags of the FMU's one compile (``narx_model.c`` with the FMI layer): the model's loops
+#: over the pair blocks of eq. 6 vectorise only under OpenMP's SIMD directive
+#: (``FLIGHTGP_OPENMP_SIMD`` switches it on in the source), with fused multiply-adds allowed, and
+#: the short loops of each block's set-up only at ``-O3`` (after the layer's ``-O2``, so it
+#: wins): 670 against 1040 us per free-run step of the paper's model.
 MODEL_FLAGS = ("-O3", "-fopenmp-simd", "-DFLIGHTGP_OPENMP_SIMD", "-ffp-contract=fast", "-pthread")
 
 _DATA_MAGIC = b"FGPNARX2"

@@ -8,8 +8,25 @@ import numpy as np
 import pytest
 from fmpy import extract
 
-from tests.fmu_src.contract import FmuCase, Host
+from tests.fmu_src.contract import FmuCase, Host, run_in_fmpy
 from validation.models.narx import one_step
+
+
+def assert_fast_free_run_within_tolerance(path, theta_1s, *, parallel: bool = False) -> None:
+    """The free run of the rate predictor FMU at ``path`` under ``theta_1s`` (at the 0.1 s NARX
+    step) on its fast path (``exact_moments = false``: the pair terms of eq. 6 in single
+    precision), on two threads if ``parallel``, against its exact path on one: the means and the
+    bound half-widths (z sd) within 2 % of the exact run's predicted standard deviation (the fast
+    path's tolerance, docs/fmus.md), and different at all, or it would not be the fast path."""
+    outputs = [f"{axis}{suffix}" for axis in "pqr" for suffix in ("", "_lower", "_upper")]
+    exact, fast = (run_in_fmpy(path, {"theta_1s": theta_1s}, step=0.1, outputs=outputs,
+                               start_values={"free_run": True, "exact_moments": e, "parallel": parallel and not e})
+                   for e in (True, False))
+    means, uppers = [outputs.index(a) for a in "pqr"], [outputs.index(f"{a}_upper") for a in "pqr"]
+    half_width = exact[1:, uppers] - exact[1:, means]  # z sd of the exact run
+    assert np.max(np.abs(fast[1:, means] - exact[1:, means]) / half_width) <= 0.02
+    assert np.max(np.abs((fast[1:, uppers] - fast[1:, means]) - half_width) / half_width) <= 0.02
+    assert np.max(np.abs(fast - exact)) > 0.0
 
 
 def rate_predictor_case(path, trained, recording) -> FmuCase:
