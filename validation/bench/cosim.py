@@ -129,4 +129,4 @@ def summary_rows(report: dict) -> list[SummaryRow]:
                        f"{r['fmu']} GP FMU stepping in fmpy, free run, {r['model']}", r["real_time_factor"],
                        "x real time", r.get("goal_real_time", _goal(r["fmu"])),
                        note=f"median of {len(r['loop_s'])}; load {r['load_s']:.3f} s; next to the reference FMU "
-                            f"{r['cosim_real_time_factor']:.1f}x") for r in report["rows"]]
+                            f"{r['cosim_real_time_factor']:.1f}x (the FMU's defaults)") for r in report["rows"]]

@@ -489,7 +489,7 @@ def format_table(report: dict) -> str:
               f"{' '.join(f'{t:.0f}' for t in free_run[key]['us_per_step']):>24} "
               f"{free_run[key]['real_time_factor']:>12.0f} {free_run[key]['gflops']:>8.1f} "
               f"{100 * free_run[key]['share_of_peak']:>7.0f}%"
-              for key in FREE_RUN_PATHS if key in free_run),
+              for key in FREE_RUN_PATHS),
         ]
     return "\n".join([
         f"Rate-predictor FMU step cost in fmpy (setReal + doStep + getReal, best of 3 x "
@@ -518,8 +518,6 @@ def summary_rows(report: dict) -> list[SummaryRow]:
             free_run = report.get("paper_free_run")
             if free_run:
                 for path, (summary_id, *_) in FREE_RUN_PATHS.items():
-                    if path not in free_run:
-                        continue
                     rows.append(SummaryRow(
                         summary_id,
                         f"native FMU free-run step in the C host, {free_run[path]['label']}, {row['model']}",
