@@ -445,6 +445,10 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
         if key == "term":
             allowed = reference.terms[kind]
         if target not in allowed:
+            other = [k for k, terms in reference.terms.items() if key == "term" and k != kind and target in terms]
+            if other:
+                raise BadInputError(f"{where} ({kind}): {target} is a {other[0]} of {reference.name}; "
+                                    f"give it as {{\"effect\": \"{other[0]}\", \"term\": \"{target}\"}}")
             listed = ", ".join(allowed) if len(allowed) <= 20 else f"{', '.join(allowed[:8])}, ... ({len(allowed)})"
             raise BadInputError(f"{where} ({kind}): {key} {target!r} is not one of {listed}")
         value = _finite_value(effect, f"{where} ({kind} on {target})")

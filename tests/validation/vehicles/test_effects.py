@@ -1,6 +1,8 @@
 """validation.vehicles.effects and effect_vehicle: each named effect on a Bo105 does what its
 docstring says, against independent constructions; model files round-trip; bad effects are
 refused with one clear line; every diagnosable reference implements the EffectModel protocol."""
+import re
+
 import numpy as np
 import pytest
 
@@ -101,8 +103,10 @@ def test_model_file_round_trip(tmp_path, manoeuvre):
 @pytest.mark.parametrize("effect, message", [
     ({"effect": "gremlin", "input": "theta_0", "value": 1}, "unknown effect"),
     ({"effect": "time_delay", "input": "stick", "value": 0.1}, "is not one of"),
-    ({"effect": "stability_derivative", "term": "M_theta_1s", "value": 1}, "is not one of"),
-    ({"effect": "control_derivative", "term": "M_q", "value": 1}, "is not one of"),
+    ({"effect": "stability_derivative", "term": "M_theta_1s", "value": 1}, "M_theta_1s is a control_derivative of"),
+    ({"effect": "stability_derivative", "term": "M_x", "value": 1}, "is not one of"),
+    ({"effect": "control_derivative", "term": "M_q", "value": 1}, "M_q is a stability_derivative of"),
+    ({"effect": "search_term", "term": "N_v^3", "value": 1}, re.escape('give it as {"effect": "nonlinear_stiffness"')),
     ({"effect": "input_lag", "input": "theta_0", "value": -0.1}, "outside"),
     ({"effect": "sensor_bias", "output": "q", "value": float("nan")}, "finite"),
 ])
