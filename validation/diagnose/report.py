@@ -21,6 +21,15 @@ from validation.diagnose.replicate import Replication
 from validation.vehicles.effect_vehicle import EffectVehicle
 from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
+#: Why a named nonlinear term is physics no linear derivative holds, closing its statement. A
+#: stiffness term may also be a cube of a rate (any state its row depends on), so its words speak
+#: of the excursion, not of a restoring force.
+_NONLINEAR_WHY = {
+    "nonlinear_stiffness": "It grows with the cube of the excursion, so the response hardens or softens with "
+                           "its size, which no linear derivative can follow.",
+    "nonlinear_damping": "The damping grows with the rate's size, so the large excursions are damped more than "
+                         "any linear derivative can damp them.",
+}
 #: The term effect kinds of the contract (:data:`validation.vehicles.effects.TARGET_KEYS`) in words,
 #: where the name with spaces would not do.
 _KIND_WORDS = {"quadratic_drag": "quadratic drag derivative", "cg_offset": "centre-of-gravity position",
@@ -213,16 +222,10 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         term = finding["term"]
         text = (f"Found by search of the residual, not a named effect: the {reference.term_description(term)}, "
                 f"{term} = {_number(value)} {unit} {interval}, a term the model does not have.")
-    elif kind == "nonlinear_stiffness":
+    elif kind in _NONLINEAR_WHY:
         term = finding["term"]
         text = (f"The {reference.term_description(term)}: {term} = {_number(value)} {unit} {interval}, a term "
-                "the linear model does not have. The restoring force or moment hardens or softens with the size "
-                "of the excursion, which no linear derivative can follow.")
-    elif kind == "nonlinear_damping":
-        term = finding["term"]
-        text = (f"The {reference.term_description(term)}: {term} = {_number(value)} {unit} {interval}, a term "
-                "the linear model does not have. The damping grows with the rate's size, so the large "
-                "excursions are damped more than any linear derivative can damp them.")
+                f"the linear model does not have. {_NONLINEAR_WHY[kind]}")
     else:
         term, model_value = finding["term"], finding["model_value"]
         description = reference.term_description(term)

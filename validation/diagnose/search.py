@@ -125,10 +125,11 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
     if equations is None:
         return SearchCandidates(reason="no fitted samples")
     gram, projection, energy, count, names = equations
-    survivors = _sparse_regression(gram, projection, energy, count, names)
+    # Terms already hypotheses, or named effects screened as such, are not offered again.
     taken = {h.target for h in model.hypotheses if h.effect == "search_term"}
     taken |= {term for kind, terms in reference.terms.items() if kind != "search_term" for term in terms}
-    survivors = sorted((s for s in survivors if s[0] not in taken), key=lambda survivor: -abs(survivor[2]))
+    survivors = sorted(_sparse_regression(gram, projection, energy, count, names, offered_not=taken),
+                       key=lambda survivor: -abs(survivor[2]))
     offered = {}
     for term, coefficient, _ in survivors[:MAX_CANDIDATES]:
         offered.setdefault(term, coefficient)
@@ -231,14 +232,17 @@ def _normal_equations(data: FitData, reference: EffectModel, linear, effects: li
 
 
 def _sparse_regression(gram: np.ndarray, projection: np.ndarray, energy: float, count: int,
-                       names: list) -> list:
+                       names: list, *, offered_not=frozenset()) -> list:
     """Forward selection of nonlinear terms on t statistics beside every linear term (module
     docstring), from the normal equations: the survivors as ``(term, coefficient, t)``, at most
-    :data:`MAX_CANDIDATES`, in the order selected."""
+    :data:`MAX_CANDIDATES`, in the order selected. Terms in ``offered_not`` are left out, so they
+    take no candidate's place; not regressed either, as they are screened on their own, and a
+    sibling the data barely tell from one of them (``N_v|v|`` for ``N_v^3``) may stand in for it."""
     nonlinear = np.array([_is_nonlinear(name) for name in names])
     usable = (np.diag(gram) > 0) & ~(nonlinear & _linear_in_these_data(gram, nonlinear))
+    kept_out = np.array([name in offered_not for name in names])
     base = list(np.flatnonzero(usable & ~nonlinear))
-    pool = list(np.flatnonzero(usable & nonlinear))
+    pool = list(np.flatnonzero(usable & nonlinear & ~kept_out))
     critical = stats.norm.isf(SCREEN_ALPHA / 2)
     selected = []
     for _ in range(MAX_CANDIDATES):

@@ -35,7 +35,7 @@ def test_a_control_power_nonlinearity_is_offered_first_with_its_sibling_and_noth
     first = found.survivors[0]
     assert first["term"] == "M_theta_1s|theta_1s|" and first["t"] > 10 and 350 < first["coefficient"] < 450
     assert [h.target for h in found.hypotheses][:2] == ["M_theta_1s|theta_1s|", "M_theta_1s^3"]
-    assert len(found.survivors) <= 4
+    assert all(abs(s["t"]) < first["t"] / 10 for s in found.survivors[1:])  # measured 197 against 2.7
     assert all(h.effect == "search_term" and h.null == 0.0 for h in found.hypotheses)
     none = ConcealedCase("none", "none")
     data, reference = _prepared(none)
@@ -46,6 +46,9 @@ def test_a_control_power_nonlinearity_is_offered_first_with_its_sibling_and_noth
     cubic = search_candidates(data, reference, null_model(data, reference), excited=data.excited)
     assert "N_v^3" in reference.terms["nonlinear_stiffness"]
     assert "N_v^3" not in {s["term"] for s in cubic.survivors} | {h.target for h in cubic.hypotheses}
+    # Left out of the selection, the named term takes no candidate's place; its sibling the data
+    # barely tell from it stands in (measured t = 26) and output error chooses between them.
+    assert cubic.survivors[0]["term"] == "N_v|v|" and abs(cubic.survivors[0]["t"]) > 10
 
 
 def test_an_inputs_odd_powers_at_one_amplitude_are_linear_in_the_data():
