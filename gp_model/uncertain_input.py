@@ -286,17 +286,19 @@ class MomentMatcher:
         rows = _single_terms(self._stack, m, uncertain, M[:n_rows], log_det[:n_rows])
         # M_ab and ln|I + T_ab| - ln|I + T_a| - ln|I + T_b| (eq. 6) of the P pairs.
         log_det_change = log_det[n_rows:] - log_det[self._pair_rows[0]] - log_det[self._pair_rows[1]]
+        block_bytes = self._stack.beta.shape[1] ** 2 * np.dtype(np.float32 if single_precision else float).itemsize
         cov_pairs = np.concatenate([
             self._pair_covariances(rows, M[n_rows:], log_det_change, chunk, include_noise=include_noise,
                                    single_precision=single_precision)
-            for chunk in _chunks(len(log_det_change), self._stack.beta.shape[1] ** 2 * (4 if single_precision else 8))])
+            for chunk in _chunks(len(log_det_change), block_bytes)])
         cov_sum = np.empty((self.n_outputs, self.n_outputs))  # sum over the samples of C_s
         cov_sum[self._segment_outputs] = np.add.reduceat(self._pair_counts * cov_pairs, self._segment_starts)
         cov_sum[self._segment_outputs[::-1]] = cov_sum[self._segment_outputs]
 
         mean_s = rows.weights.sum(axis=1)[self._row_of_sample]  # (S, m), eq. 1
         # Eq. 2 summed over the samples: S (S + Lambda_a)^-1 nu_i = M_a u_i, zero in the certain dims.
-        cross_rows = (rows.M @ (rows.u @ rows.weights[:, :, None]))[:, :, 0] * self._pair_counts[:n_rows, None]
+        row_counts = self._pair_counts[:n_rows]  # the first R pairs are the rows with themselves
+        cross_rows = (rows.M @ (rows.u @ rows.weights[:, :, None]))[:, :, 0] * row_counts[:, None]
         cross_sum = np.zeros((self.n_dims, self.n_outputs))
         cross_sum[uncertain] = np.add.reduceat(cross_rows, [rows.start for rows in self._stack.gp_rows]).T
 
