@@ -9,7 +9,8 @@ from validation.cli.arguments import add_cluster_arguments, seed
 from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder
 
-PAPERS = ("bo105", "blimp", "blimp-settings", "rgblimp", "rgblimp-settings", "rgblimp-diagnose")
+PAPERS = ("bo105", "blimp", "blimp-settings", "rgblimp", "rgblimp-settings", "rgblimp-hybrid-settings",
+          "rgblimp-diagnose")
 
 
 def seed_list(text: str) -> tuple[int, ...]:
@@ -44,7 +45,9 @@ def register(subparsers) -> None:
                     "models/rgblimp_rkgp_J.npz (--configurations selects; --seed applies). "
                     "rgblimp-settings: the validation-flight study behind the rgblimp settings (fit on each "
                     "configuration's lowest-numbered flight, validate on the next; the test flight unread); "
-                    "writes settings.json. rgblimp-diagnose: flightgp diagnose --reference rgblimp on the "
+                    "writes settings.json. rgblimp-hybrid-settings: the same study for the rollout-trained "
+                    "hybrid's settings; writes hybrid_settings.json. "
+                    "rgblimp-diagnose: flightgp diagnose --reference rgblimp on the "
                     "flights of several configurations (default 0 6 12 18 24 27 30 33) but the highest-numbered, "
                     "its findings replicated on two folds (each configuration's first and second flight), "
                     "and the corrected model free-run on the held-out flights and scored as the source scores; "
@@ -74,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.paper != "blimp" and (args.scheduler is not None or args.cluster_workers is not None):
         raise BadInputError("--scheduler and --cluster-workers apply to reproduce blimp only (its seeds run "
                             "side by side)")
-    if args.paper in ("rgblimp", "rgblimp-settings", "rgblimp-diagnose"):
+    if args.paper in ("rgblimp", "rgblimp-settings", "rgblimp-hybrid-settings", "rgblimp-diagnose"):
         return _run_rgblimp(args)
     if args.data is not None or args.configurations is not None:
         raise BadInputError("--data and --configurations apply to reproduce rgblimp only")
@@ -108,6 +111,16 @@ def run(args: argparse.Namespace) -> int:
         print(format_settings(results))
         print(f"written {args.out}/settings.json")
         return 0
+    if args.paper == "rgblimp-hybrid-settings":
+        from validation.core.files import write_json
+        from validation.reproduce.rgblimp_settings import format_hybrid_settings, study_hybrid_settings
+
+        results = study_hybrid_settings(args.data, configurations=args.configurations,
+                                        seed=0 if args.seed is None else args.seed, progress=True)
+        write_json(args.out / "hybrid_settings.json", results)
+        print(format_hybrid_settings(results))
+        print(f"written {args.out}/hybrid_settings.json")
+        return 0
     if args.seeds is not None or args.quick:
         raise BadInputError("--seeds and --quick apply to reproduce blimp only")
     from validation.reproduce.bo105 import format_results, reproduce_bo105
@@ -139,6 +152,16 @@ def _run_rgblimp(args: argparse.Namespace) -> int:
         write_json(args.out / "settings.json", results)
         print(format_settings(results))
         print(f"written {args.out}/settings.json")
+        return 0
+    if args.paper == "rgblimp-hybrid-settings":
+        from validation.core.files import write_json
+        from validation.reproduce.rgblimp_settings import format_hybrid_settings, study_hybrid_settings
+
+        results = study_hybrid_settings(args.data, configurations=args.configurations,
+                                        seed=0 if args.seed is None else args.seed, progress=True)
+        write_json(args.out / "hybrid_settings.json", results)
+        print(format_hybrid_settings(results))
+        print(f"written {args.out}/hybrid_settings.json")
         return 0
     if args.paper == "rgblimp-diagnose":
         from validation.reproduce.rgblimp_diagnose import DEFAULT_CONFIGURATIONS, reproduce_rgblimp_diagnose

@@ -35,6 +35,7 @@ described by :class:`~validation.models.rgblimp_greybox.RGBlimpStepDescription`)
 """
 from __future__ import annotations
 
+import dataclasses
 import time as clock
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,6 +67,7 @@ from validation.models.rgblimp_identification import (
     identify_parameters,
     wrapped_difference,
 )
+from validation.models.rgblimp_rollout import TUNED_COEFFICIENTS, RolloutHybrid, RolloutSetup, fit_rollout
 from validation.models.rgblimp_sindyc import SINDYcResidual, fit_sindyc, require_pysindy
 from validation.reproduce import rgblimp_report
 from validation.reproduce.rgblimp_report import BAND_MODELS, BAND_QUANTILE, MODELS
@@ -88,6 +90,16 @@ FIGURE_CONFIGURATIONS = 3
 #: on the test flights there).
 GOAL_SCORE_FACTOR = 5.0
 GOAL_POSITION_RMSE_M = 0.15
+#: The model flightgp recommends for the RGBlimp, one of the model keys (``results.json``'s
+#: ``default_model``): chosen on the validation flights (docs/rgblimp.md, "Rollout-trained
+#: hybrid"), never on the test flights.
+DEFAULT_MODEL = "hybrid"
+#: The rollout-trained hybrid's goals: better than the identified model in score on at least
+#: this share of the test flights, a mean score at most this fraction of the identified model's,
+#: and a mean position RMSE at most this.
+GOAL_HYBRID_BEATS_IDENTIFIED_SHARE = 30 / 35
+GOAL_HYBRID_SCORE_FRACTION = 0.5
+GOAL_HYBRID_POSITION_RMSE_M = 0.25
 #: The folder of OUT that holds each configuration's RKGP model file (:func:`rkgp_model_path`).
 MODELS_FOLDER = "models"
 
@@ -105,6 +117,7 @@ class RGBlimpSetup:
     global_training_points: int = 2 * TRAINING_POINTS
     min_noise_variance: float = MIN_NOISE_VARIANCE
     smoothing: tuple = (SMOOTHING_WINDOW, SMOOTHING_ORDER)
+    rollout: RolloutSetup = RolloutSetup()
 
 
 DEFAULT_SETUP = RGBlimpSetup()
@@ -161,6 +174,13 @@ def rkgp_model_path(out_dir, configuration: int) -> Path:
     """Where :func:`reproduce_rgblimp` writes configuration ``configuration``'s RKGP:
     ``out_dir/models/rgblimp_rkgp_<configuration>.npz``."""
     return Path(out_dir) / MODELS_FOLDER / f"rgblimp_rkgp_{configuration}.npz"
+
+
+def hybrid_model_path(out_dir, configuration: int) -> Path:
+    """Where :func:`reproduce_rgblimp` writes configuration ``configuration``'s rollout-trained
+    hybrid (:meth:`~validation.models.rgblimp_rollout.RolloutHybrid.as_dict`, JSON):
+    ``out_dir/models/rgblimp_hybrid_<configuration>.json``."""
+    return Path(out_dir) / MODELS_FOLDER / f"rgblimp_hybrid_{configuration}.json"
 
 
 def _describe(present: dict) -> str:
@@ -305,7 +325,7 @@ def free_runs(recorded, inputs, models: dict) -> tuple[dict, dict, dict]:
     predicted, position_sd, seconds = {}, {}, {}
     for name, model in models.items():
         began = clock.perf_counter()
-        if isinstance(model, (RGBlimpModel, SINDYcResidual)):
+        if isinstance(model, (RGBlimpModel, SINDYcResidual, RolloutHybrid)):
             predicted[name] = model.simulate(recorded[0], inputs)
         else:
             greybox, physics = model
@@ -377,7 +397,11 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
                    "rkgp": "identified model plus residual GPs per configuration, GreyBoxGP.propagate",
                    "rkgp_global": "one identified model and RKGP fitted on all configurations' fitting flights",
                    "sindyc": "published model plus a PySINDy sparse polynomial (STLSQ) of its residual "
-                             "accelerations, per configuration"},
+                             "accelerations, per configuration",
+                   "hybrid": "identified model plus a sparse-GP correction of the body accelerations, both "
+                             "trained through multiple-shooting free runs (exact gradients through RK4), "
+                             "per configuration"},
+        "default_model": DEFAULT_MODEL,
         "setup": {"identified_parameters": list(setup.identified_parameters),
                   "segment_duration_s": setup.segment_duration, "max_segments": setup.max_segments,
                   "global_max_segments": setup.global_max_segments, "max_iterations": setup.max_iterations,
@@ -386,7 +410,7 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
                   "min_noise_variance": setup.min_noise_variance,
                   "training_states": "recorded" if setup.smoothing is None else
                   f"from the poses, local polynomial of degree {setup.smoothing[1]} over {setup.smoothing[0]} samples",
-                  "seed": seed,
+                  "seed": seed, "rollout": dataclasses.asdict(setup.rollout),
                   "score_ranges": {kind: [float(v) for v in r] for kind, r in ranges.items()}},
         "global": {"fit": [f"data_{n}.csv" for s in splits for n in s.fit],
                    "identification": global_identified.as_dict(),
@@ -463,9 +487,13 @@ def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlim
                             meta={"configuration": split.configuration, "fit": [f"data_{n}.csv" for n in split.fit]})
     sindyc = fit_sindyc(fitting)
     fit_seconds["sindyc"] = sindyc.fit_seconds
+    hybrid = fit_rollout(fitting, identified.model, setup=setup.rollout)
+    fit_seconds["hybrid"] = hybrid.fit_seconds
+    hybrid_file = write_json(hybrid_model_path(out_dir, split.configuration), hybrid.as_dict())
     test = flights[split.test].recording
     models = {"physics": RGBlimpModel(), "identified": identified.model, "rkgp": (rkgp, identified.model),
-              "rkgp_global": (global_rkgp, global_model), "sindyc": sindyc, "identified_global": global_model}
+              "rkgp_global": (global_rkgp, global_model), "sindyc": sindyc, "hybrid": hybrid,
+              "identified_global": global_model}
     predicted, position_sd, run_seconds = free_runs(test.outputs, test.inputs, models)
     metrics = {name: flight_metrics(predicted[name], test.outputs, ranges, position_sd=position_sd.get(name))
                for name in models}
@@ -473,7 +501,8 @@ def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlim
              "fit": [f"data_{n}.csv" for n in split.fit], "test": f"data_{split.test}.csv",
              "test_samples": len(test.time), "test_duration_s": float(test.time[-1]),
              "inputs": {name: float(v) for name, v in zip(test.input_names, test.inputs[0])},
-             "rkgp_model_file": model_file.relative_to(out_dir).as_posix()}
+             "rkgp_model_file": model_file.relative_to(out_dir).as_posix(),
+             "hybrid_model_file": hybrid_file.relative_to(out_dir).as_posix()}
     for key in ("score", "position_rmse_m", "final_position_error_m", "yaw_rmse_rad", "score_source_literal"):
         # A free run that diverged (a SINDYc polynomial can) has no score: null, counted apart.
         entry[key] = {name: metrics[name][key] if np.all(np.isfinite(predicted[name])) else None
@@ -484,6 +513,8 @@ def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlim
                                   for key in ("score", "position_rmse_m", "final_position_error_m", "yaw_rmse_rad")}
     entry["identification"] = identified.as_dict()
     entry["sindyc_terms"] = sindyc.n_terms
+    entry["hybrid"] = {"iterations": hybrid.iterations, "loss": hybrid.loss,
+                       "physics": {name: hybrid.physics.value(name) for name in TUNED_COEFFICIENTS}}
     entry["fit_seconds"] = fit_seconds
     entry["free_run_seconds"] = {name: run_seconds[name] for name in MODELS}
     entry["seconds"] = clock.perf_counter() - started
@@ -520,7 +551,10 @@ def summarise(entries: list[dict]) -> dict:
 
     summary["physics_over_model_mean_score"] = {name: ratio(name) for name in MODELS[1:]}
     summary["mean_fit_seconds"] = {name: float(np.mean([e["fit_seconds"][name] for e in entries]))
-                                   for name in ("identified", "rkgp", "sindyc")}
+                                   for name in ("identified", "rkgp", "sindyc", "hybrid")}
+    summary["beats_identified_in_score"] = {
+        name: int(sum(None not in (e["score"][name], e["score"]["identified"])
+                      and e["score"][name] < e["score"]["identified"] for e in entries)) for name in MODELS[2:]}
     summary["mean_free_run_seconds"] = mean("free_run_seconds")
     return summary
 
@@ -544,4 +578,16 @@ def goals(results: dict) -> dict:
         out[f"{name}_mean_position_rmse_below_{GOAL_POSITION_RMSE_M:g}_m"] = {
             "target": f"mean position RMSE < {GOAL_POSITION_RMSE_M:g} m", "measured": rmse,
             "met": rmse < GOAL_POSITION_RMSE_M}
+    beats = summary["beats_identified_in_score"]["hybrid"]
+    needed = int(np.ceil(GOAL_HYBRID_BEATS_IDENTIFIED_SHARE * n - 1e-9))
+    out["hybrid_beats_identified"] = {"target": f"score below the identified model's on at least {needed} of {n}",
+                                      "measured": f"{beats} of {n}", "met": beats >= needed}
+    fraction = summary["mean_score"]["hybrid"] / summary["mean_score"]["identified"]
+    out["hybrid_mean_score_at_most_half_identified"] = {
+        "target": f"mean score of hybrid / identified <= {GOAL_HYBRID_SCORE_FRACTION:g}", "measured": fraction,
+        "met": fraction <= GOAL_HYBRID_SCORE_FRACTION}
+    rmse = summary["mean_position_rmse_m"]["hybrid"]
+    out[f"hybrid_mean_position_rmse_at_most_{GOAL_HYBRID_POSITION_RMSE_M:g}_m"] = {
+        "target": f"mean position RMSE <= {GOAL_HYBRID_POSITION_RMSE_M:g} m", "measured": rmse,
+        "met": rmse <= GOAL_HYBRID_POSITION_RMSE_M}
     return out

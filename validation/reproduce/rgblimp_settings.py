@@ -153,3 +153,111 @@ def format_settings(results: dict) -> str:
     lines.append(f"{'published model':28}{first['mean_score']['physics']:13.5f}{'':12}"
                  f"{first['mean_position_rmse_m']['physics']:14.3f}")
     return "\n".join(lines)
+
+
+#: The rollout-trained hybrid's chosen settings and the variants the validation flights compared
+#: (docs/rgblimp.md, "Rollout-trained hybrid"): name -> RolloutSetup.
+HYBRID_CANDIDATES = {
+    "chosen": DEFAULT_SETUP.rollout,
+    "physics not tuned": replace(DEFAULT_SETUP.rollout, tune_physics=False),
+    "segments 6 s": replace(DEFAULT_SETUP.rollout, segment_duration=6.0),
+    "prior weight 1": replace(DEFAULT_SETUP.rollout, prior_weight=1.0),
+    "8 inducing inputs": replace(DEFAULT_SETUP.rollout, inducing_points=8),
+}
+
+
+def study_hybrid_settings(data_dir, *, configurations=None, candidates=None, seed: int = 0,
+                          progress: bool = False) -> dict:
+    """Score each candidate setup of the rollout-trained hybrid on the validation flights.
+
+    The splits are :func:`validation_splits`' (fit on ``4j+1``, validate on ``4j+2``); the
+    identified model each hybrid starts from is the reproduction's (a global identification on
+    the fitting flights, then one per configuration started from it, with
+    :data:`validation.reproduce.rgblimp.DEFAULT_SETUP`), shared by the candidates.
+
+    Parameters
+    ----------
+    data_dir : path
+    configurations : sequence of int, optional
+    candidates : dict, optional
+        name -> :class:`~validation.models.rgblimp_rollout.RolloutSetup`; default
+        :data:`HYBRID_CANDIDATES`.
+    seed : int
+        Ignored by the identification; the hybrid's own seed is the candidate's.
+    progress : bool
+
+    Returns
+    -------
+    dict
+        ``splits``, and per candidate its setup, the mean over configurations of the ``score``
+        and ``position_rmse_m`` of the published, identified and hybrid models, how often the
+        hybrid beats the identified model, per configuration the same, and the mean fit time.
+    """
+    from validation.models.rgblimp_rollout import fit_rollout
+
+    candidates = HYBRID_CANDIDATES if candidates is None else candidates
+    splits = validation_splits(data_dir, configurations=configurations)
+    ranges = read_score_ranges(data_dir, kinds=sorted({s.kind for s in splits}))
+    flights = {n: read_rgblimp_flight(Path(data_dir) / f"data_{n}.csv")
+               for s in splits for n in (*s.fit, s.test)}
+    fitting = [flights[n] for s in splits for n in s.fit]
+    setup = DEFAULT_SETUP
+    global_model = fit_global(fitting, setup, seed=seed, with_rkgp=False)[0].model
+    identified, baseline = {}, {}
+    for split in splits:
+        test = flights[split.test].recording
+        model = identify_parameters(
+            [flights[n] for n in split.fit], names=setup.identified_parameters, initial=global_model,
+            segment_duration=setup.segment_duration, max_segments=setup.max_segments,
+            max_iterations=setup.max_iterations).model
+        identified[split] = model
+        baseline[split] = {name: flight_metrics(m.simulate(test.outputs[0], test.inputs), test.outputs,
+                                                ranges[split.kind])
+                           for name, m in (("physics", RGBlimpModel()), ("identified", model))}
+    scored = {}
+    models = ("physics", "identified", "hybrid")
+    with progress_bar("rgblimp hybrid settings", enabled=progress, total=len(candidates) * len(splits),
+                      unit="fit") as update:
+        for name, rollout_setup in candidates.items():
+            per_configuration, seconds = [], []
+            for split in splits:
+                test = flights[split.test].recording
+                hybrid = fit_rollout([flights[n] for n in split.fit], identified[split], setup=rollout_setup)
+                seconds.append(hybrid.fit_seconds)
+                metrics = {**baseline[split], "hybrid": flight_metrics(
+                    hybrid.simulate(test.outputs[0], test.inputs), test.outputs, ranges[split.kind])}
+                per_configuration.append({"index": split.configuration,
+                                          **{key: {m: metrics[m][key] for m in models}
+                                             for key in ("score", "position_rmse_m")}})
+                if update:
+                    update(1, candidate=name)
+            scored[name] = {
+                "setup": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(rollout_setup).items()},
+                **{f"mean_{k}": {m: float(np.mean([e[k][m] for e in per_configuration])) for m in models}
+                   for k in ("score", "position_rmse_m")},
+                "hybrid_beats_identified": int(sum(e["score"]["hybrid"] < e["score"]["identified"]
+                                                   for e in per_configuration)),
+                "configurations": per_configuration, "mean_fit_seconds": float(np.mean(seconds))}
+    return {"splits": [{"index": s.configuration, "fit": [f"data_{n}.csv" for n in s.fit],
+                        "validation": f"data_{s.test}.csv"} for s in splits],
+            "metric": "mean over configurations of a free run of the whole validation flight from its first "
+                      "recorded state: the source's score and the position RMSE (m)",
+            "candidates": scored}
+
+
+def format_hybrid_settings(results: dict) -> str:
+    """The hybrid's study as a plain-text table."""
+    n = len(results["splits"])
+    lines = [f"RGBlimp rollout-trained hybrid on {n} validation flights (fit on one flight per configuration, "
+             "free run of the next): means over configurations",
+             f"{'candidate':24}{'score ident.':>13}{'score hybrid':>13}{'pos ident. m':>14}{'pos hybrid m':>14}"
+             f"{'beats ident.':>14}{'fit s':>8}"]
+    for name, entry in results["candidates"].items():
+        lines.append(f"{name:24}{entry['mean_score']['identified']:13.5f}{entry['mean_score']['hybrid']:13.5f}"
+                     f"{entry['mean_position_rmse_m']['identified']:14.3f}"
+                     f"{entry['mean_position_rmse_m']['hybrid']:14.3f}"
+                     f"{entry['hybrid_beats_identified']:>9} of {n}{entry['mean_fit_seconds']:8.1f}")
+    first = next(iter(results["candidates"].values()))
+    lines.append(f"{'published model':24}{first['mean_score']['physics']:13.5f}{'':13}"
+                 f"{first['mean_position_rmse_m']['physics']:14.3f}")
+    return "\n".join(lines)

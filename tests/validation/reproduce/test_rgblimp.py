@@ -22,6 +22,7 @@ from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.models.rgblimp_greybox import RGBlimpStepDescription
 from validation.models.rgblimp_identification import RGBlimpModel
+from validation.models.rgblimp_rollout import RolloutHybrid, RolloutSetup
 from validation.reproduce.rgblimp import (
     SOURCE_STATE_WIDTH,
     RGBlimpSetup,
@@ -151,7 +152,8 @@ def test_options_of_other_papers_are_refused(tmp_path):
 
 #: Short fits: 3 s segments, 60 GP points; the schema and the bookkeeping, not the numbers.
 QUICK = RGBlimpSetup(segment_duration=3.0, max_segments=8, global_max_segments=12, max_iterations=8,
-                     training_points=60, global_training_points=80)
+                     training_points=60, global_training_points=80,
+                     rollout=RolloutSetup(inducing_points=8, segment_duration=3.0, max_segments=8, max_iterations=3))
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +180,7 @@ def test_results_json_has_the_issues_schema(small_run):
             assert set(entry[key]) == set(MODELS)
             assert all(math.isfinite(v) and v >= 0 for v in entry[key].values())
         assert set(entry["coverage95_position"]) == set(BAND_MODELS)
-        assert set(entry["fit_seconds"]) == {"identified", "rkgp", "sindyc"}
+        assert set(entry["fit_seconds"]) == {"identified", "rkgp", "sindyc", "hybrid"}
         assert set(entry["free_run_seconds"]) == set(MODELS)
         assert all(0 <= v <= 1 for v in entry["coverage95_position"].values())
     summary = written["summary"]
@@ -187,6 +189,9 @@ def test_results_json_has_the_issues_schema(small_run):
         for name in MODELS:
             assert math.isclose(summary[key][name], np.mean([e[entry_key][name] for e in written["configurations"]]))
     assert written["global"]["fit"] == ["data_117.csv", "data_118.csv", "data_121.csv", "data_122.csv"]
+    assert written["default_model"] in MODELS
+    for name in ("score", "position_rmse_m"):
+        assert set(summary[f"mean_{name}"]) >= {written["default_model"]}
     for name in ("report.md", "scores.png", "flight_29.png", "flight_30.png"):
         assert (out / name).stat().st_size > 0
     assert all(name in (out / "report.md").read_text() for name in ("## Goals", "scores.png", "data_123.csv"))
@@ -205,6 +210,8 @@ def test_the_published_model_is_scored_as_it_is_and_goals_follow_the_summary(sma
         assert goal["met"] in (True, False) and "measured" in goal, name
     beats = results["summary"]["beats_physics_in_score"]["rkgp"]
     assert results["goals"]["rkgp_beats_physics_on_every_test_flight"]["met"] == (beats == 2)
+    beats = results["summary"]["beats_identified_in_score"]["hybrid"]
+    assert results["goals"]["hybrid_beats_identified"]["met"] == (beats == 2)  # 30 of 35 of 2 flights: both
 
 
 @pytest.mark.slow
@@ -219,3 +226,16 @@ def test_each_configurations_rkgp_is_written_as_a_model_file_its_fmu_is_built_fr
         identified = RGBlimpStepDescription.from_dict(read_header(path)["physics"]).model
         for name, fitted in entry["identification"]["parameters"].items():
             assert identified.value(name) == fitted["value"], name
+
+
+@pytest.mark.slow
+def test_each_configurations_hybrid_is_written_and_reads_back_to_its_free_run(small_run):
+    data, out, results = small_run
+    for entry in results["configurations"]:
+        hybrid = RolloutHybrid.from_dict(json.loads((out / entry["hybrid_model_file"]).read_text()))
+        for name, value in entry["hybrid"]["physics"].items():
+            assert hybrid.physics.value(name) == value, name
+        test = read_rgblimp_flight(data / entry["test"]).recording
+        ranges = read_score_ranges(data, kinds=[entry["kind"]])[entry["kind"]]
+        predicted = hybrid.simulate(test.outputs[0], test.inputs)
+        assert math.isclose(entry["score"]["hybrid"], source_score(predicted, test.outputs, ranges), rel_tol=1e-12)

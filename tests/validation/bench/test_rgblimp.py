@@ -1,0 +1,24 @@
+"""validation.bench.rgblimp: the RGBlimp JAX free run against numpy, and the hybrid's fit time."""
+import pytest
+
+from validation.bench import rgblimp
+from validation.models.rgblimp_rollout import RolloutSetup
+
+
+@pytest.mark.slow
+def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
+    # Two timed runs and a 2-iteration fit: the report's rows and their arithmetic are what is
+    # checked here, not the speed.
+    monkeypatch.setattr(rgblimp, "FREE_RUN_REPEATS", 2)
+    report = rgblimp.run(progress=False, setup=RolloutSetup(inducing_points=4, segment_duration=2.0,
+                                                            max_segments=4, max_iterations=2))
+    free, fit = report["free_run"], report["fit"]
+    assert len(free["numpy_s"]) == len(free["jax_s"]) == 2
+    ratios = sorted(n / j for n, j in zip(free["numpy_s"], free["jax_s"]))
+    assert free["speedup"] == pytest.approx(sum(ratios) / 2)  # the median of two
+    assert free["speedup_range"] == pytest.approx([ratios[0], ratios[-1]])
+    assert fit["goal_met"] == (fit["hybrid_s"] <= rgblimp.FIT_GOAL_S) and 1 <= fit["iterations"] <= 2
+    rows = {row.id: row for row in rgblimp.summary_rows(report)}
+    assert rows["rgblimp.hybrid.fit_s"].met == fit["goal_met"]
+    assert rows["rgblimp.free_run.jax_over_numpy"].value == free["speedup"]
+    assert "speed-up" in rgblimp.format_table(report)

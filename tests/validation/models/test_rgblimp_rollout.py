@@ -1,0 +1,146 @@
+"""Tests of the RGBlimp's rollout-trained hybrid (validation/models/rgblimp_rollout.py).
+
+Properties: the physics written in jax.numpy equals the numpy free run (wind and thrust gain
+included); the loss's gradient through the RK4 rollouts equals central differences in every kind
+of parameter; the correction is zero far from its inducing inputs; a correction concealed in a
+known model is recovered from its flight and carries over to a flight from another start; the
+model file reads back to the same free run and bad files are refused with one line.
+"""
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from tests.validation.models.test_rgblimp_identification import INPUTS, START, synthetic_flight
+from validation.core.errors import BadInputError
+from validation.models import rgblimp_rollout as rollout
+from validation.models.rgblimp_identification import RGBlimpModel, cut_segments, wrapped_difference
+from validation.vehicles.rgblimp_equations import RGBlimpParameters, body_accelerations
+
+#: A small, fast setup: 2 s segments, 8 inducing inputs.
+QUICK = rollout.RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=8, max_iterations=40,
+                             tune_physics=False)
+
+
+def test_jax_physics_equals_the_numpy_free_run_with_wind_and_thrust_gain():
+    model = RGBlimpModel(thrust_gain=0.9, wind=(0.02, -0.03))
+    inputs = np.tile(INPUTS, (600, 1))
+    expected = model.simulate(START, inputs)
+    hybrid = rollout.RolloutHybrid(model, None, QUICK)
+    path = hybrid.simulate(START, inputs)
+    assert np.max(np.abs(wrapped_difference(path, expected))) < 1e-9
+
+
+def _loss_and_gradient(x_physics, theta, segments):
+    compiled = rollout._compiled()  # noqa: SLF001 - the test differentiates the module's own loss
+    jnp = compiled["jnp"]
+    data = tuple(jnp.asarray(part) for part in rollout._padded(segments))  # noqa: SLF001
+    groups = jnp.zeros(len(data[0]), dtype=int)
+    p = {name: jnp.asarray(value)[None] for name, value in x_physics.items()}
+    th = {name: jnp.asarray(value) for name, value in theta.items()}
+    value, (gp, gtheta) = compiled["value_and_grad"](p, th, groups, *data, 0.7)
+    loss = compiled["loss"]
+    gp = {name: np.asarray(value)[0] for name, value in gp.items()}
+    return float(value), gp, gtheta, lambda pp, tt: float(loss({k: jnp.asarray(v)[None] for k, v in pp.items()},
+                                                                 {k: jnp.asarray(v) for k, v in tt.items()},
+                                                                 groups, *data, 0.7))
+
+
+def test_rollout_gradient_equals_central_differences():
+    flight = synthetic_flight(RGBlimpModel(), samples=121)
+    segments = cut_segments([flight], duration=1.0, max_segments=2)
+    rng = np.random.default_rng(1)
+    theta = rollout.initial_correction([flight], QUICK)
+    theta["whitened"] = 0.3 * rng.standard_normal(theta["whitened"].shape)
+    physics = rollout.physics_parameters(RGBlimpModel(wind=(0.01, 0.02)))
+    _, gp, gtheta, loss = _loss_and_gradient(physics, theta, segments)
+    checks = [("physics", "c_my0", (), 1e-6), ("physics", "buoyancy_mass", (), 1e-8), ("physics", "wind", (1,), 1e-6),
+              ("theta", "whitened", (3, 4), 1e-6), ("theta", "log_length_scale", (5,), 1e-6),
+              ("theta", "inducing", (2, 0), 1e-6), ("theta", "log_amplitude", (4,), 1e-6)]
+    for kind, name, index, step in checks:
+        values = physics if kind == "physics" else theta
+        plus = {k: np.array(v, dtype=float) for k, v in values.items()}
+        minus = {k: np.array(v, dtype=float) for k, v in values.items()}
+        plus[name][index] += step
+        minus[name][index] -= step
+        if kind == "physics":
+            numeric = (loss(plus, theta) - loss(minus, theta)) / (2 * step)
+            exact = float(np.asarray(gp[name])[index])
+        else:
+            numeric = (loss(physics, plus) - loss(physics, minus)) / (2 * step)
+            exact = float(np.asarray(gtheta[name])[index])
+        assert exact != 0, name
+        assert abs(exact - numeric) <= 1e-6 * abs(exact) + 1e-10, (name, exact, numeric)
+
+
+def test_correction_returns_to_zero_far_from_its_data():
+    flight = synthetic_flight(RGBlimpModel(), samples=60)
+    theta = rollout.initial_correction([flight], QUICK)
+    theta["whitened"] = np.ones_like(theta["whitened"])
+    hybrid = rollout.RolloutHybrid(RGBlimpModel(), theta, QUICK)
+    near = hybrid.correction_at(flight.recording.outputs[0], flight.recording.inputs[0])
+    far_state = flight.recording.outputs[0].copy()
+    far_state[6] += 5.0  # 5 m/s faster: 50 feature scales away
+    far = hybrid.correction_at(far_state, flight.recording.inputs[0])
+    assert np.all(np.abs(near) > 1e-3)
+    assert np.all(np.abs(far) < 1e-12)
+
+
+@pytest.fixture(scope="module")
+def concealed():
+    """A model whose pitching moment at zero incidence is larger than the published one's (c_my0
+    0.0568 -> 0.0868 m): the hybrid starts from the published model and fits the correction on
+    one 6 s flight of the concealed one."""
+    truth = RGBlimpModel(dataclasses.replace(RGBlimpParameters(), c_my0=0.0868))
+    flight = synthetic_flight(truth, samples=361)
+    hybrid = rollout.fit_rollout([flight], RGBlimpModel(), setup=QUICK)
+    return truth, flight, hybrid
+
+
+@pytest.mark.slow
+def test_a_concealed_pitching_moment_is_recovered_and_carries_over(concealed):
+    truth, flight, hybrid = concealed
+    states, inputs = flight.recording.outputs[::30], flight.recording.inputs[::30]
+    params = truth.params
+    missing = body_accelerations(states, inputs, params) - body_accelerations(states, inputs, RGBlimpParameters())
+    learned = hybrid.correction_at(states, inputs)
+    # The pitch acceleration is the concealed moment's main effect: recovered to 25 %.
+    assert np.sqrt(np.mean((learned[:, 4] - missing[:, 4]) ** 2)) < 0.25 * np.sqrt(np.mean(missing[:, 4] ** 2))
+    # A flight from another start (pitched up and turning the other way) the fit never saw.
+    start = START.copy()
+    start[4] += 0.05
+    start[11] *= -0.5
+    unseen = np.tile(INPUTS, (361, 1))
+    recorded = truth.simulate(start, unseen)
+    before = np.abs(wrapped_difference(RGBlimpModel().simulate(start, unseen), recorded)[:, 4]).max()
+    after = np.abs(wrapped_difference(hybrid.simulate(start, unseen), recorded)[:, 4]).max()
+    assert after < 0.25 * before, (before, after)
+
+
+@pytest.mark.slow
+def test_model_file_round_trip_and_bad_files(concealed, tmp_path):
+    _, flight, hybrid = concealed
+    data = json.loads(json.dumps(hybrid.as_dict()))
+    again = rollout.RolloutHybrid.from_dict(data)
+    inputs = flight.recording.inputs[:120]
+    assert np.array_equal(again.simulate(START, inputs), hybrid.simulate(START, inputs))
+    with pytest.raises(BadInputError, match="not a flightgp RGBlimp hybrid"):
+        rollout.RolloutHybrid.from_dict({"format": "something else"})
+    bad = json.loads(json.dumps(data))
+    bad["correction"]["whitened"][0][0] = float("nan")
+    with pytest.raises(BadInputError, match="whitened must be finite"):
+        rollout.RolloutHybrid.from_dict(bad)
+    bad = json.loads(json.dumps(data))
+    bad["version"] = 99
+    with pytest.raises(BadInputError, match="version 99"):
+        rollout.RolloutHybrid.from_dict(bad)
+
+
+def test_a_flight_with_a_nan_state_is_refused_with_one_line():
+    flight = synthetic_flight(RGBlimpModel(), samples=30)
+    flight.recording.outputs[5, 2] = np.nan
+    with pytest.raises(BadInputError, match="non-finite"):
+        rollout.fit_rollout([flight], RGBlimpModel(), setup=QUICK)
+    with pytest.raises(BadInputError, match="no flights"):
+        rollout.fit_rollout([], RGBlimpModel(), setup=QUICK)

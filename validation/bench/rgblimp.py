@@ -1,0 +1,96 @@
+"""``flightgp bench rgblimp``: the RGBlimp rollout-trained hybrid's free run and fit, against the
+numpy free run and the output-error identification in the same process (docs/benchmarks.md).
+
+Both on the excerpt shipped with the package (configuration 29: fit on ``data_117.csv`` and
+``data_118.csv``, 18 and 14 s; free run of ``data_119.csv``, 12 s):
+
+- the free run of the physics through the JAX step (:mod:`validation.models.rgblimp_rollout`,
+  compiled once, then timed) against :meth:`validation.models.rgblimp_identification.RGBlimpModel.simulate`
+  (numpy), as a ratio, over several runs;
+- the hybrid's fit with the default setup (:func:`validation.models.rgblimp_rollout.fit_rollout`,
+  compilation included, as a user meets it) against the goal of :data:`FIT_GOAL_S` per
+  configuration, beside the identification the hybrid starts from (the peer).
+"""
+from __future__ import annotations
+
+import time as clock
+
+import numpy as np
+
+from validation.bench.rows import SummaryRow
+from validation.core.progress import progress_bar
+
+#: Goal: seconds to fit one configuration's hybrid (two flights) on 2 cores.
+FIT_GOAL_S = 60.0
+#: Timed runs of each free run.
+FREE_RUN_REPEATS = 5
+
+
+def run(*, progress: bool = True, setup=None) -> dict:
+    """Time the free runs and the fit (module docstring).
+
+    ``setup``: the hybrid's :class:`~validation.models.rgblimp_rollout.RolloutSetup` (default
+    the reproduction's).
+
+    Returns
+    -------
+    dict
+        ``free_run``: ``numpy_s`` and ``jax_s`` (lists over runs), ``speedup`` (median ratio),
+        ``samples``; ``fit``: ``hybrid_s``, ``identification_s``, ``iterations``, ``goal_s``,
+        ``goal_met``.
+    """
+    from validation.models.rgblimp_identification import RGBlimpModel, identify_parameters
+    from validation.models.rgblimp_rollout import RolloutHybrid, RolloutSetup, fit_rollout
+    from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
+
+    fitting = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv") for n in (117, 118)]
+    test = read_rgblimp_flight(EXCERPT_FOLDER / "data_119.csv").recording
+    with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 2, unit="run") as update:
+        began = clock.perf_counter()
+        identified = identify_parameters(fitting).model
+        identification_s = clock.perf_counter() - began
+        if update:
+            update(1, stage="identification")
+        physics = RolloutHybrid(identified, None, RolloutSetup())
+        physics.simulate(test.outputs[0], test.inputs)  # compile once
+        numpy_s, jax_s = [], []
+        for _ in range(FREE_RUN_REPEATS):
+            for times, model in ((numpy_s, identified), (jax_s, physics)):
+                began = clock.perf_counter()
+                model.simulate(test.outputs[0], test.inputs)
+                times.append(clock.perf_counter() - began)
+                if update:
+                    update(1, stage="free run")
+        hybrid = fit_rollout(fitting, identified, setup=setup or RolloutSetup())
+        if update:
+            update(1, stage="hybrid fit")
+    ratios = np.asarray(numpy_s) / np.asarray(jax_s)
+    return {"free_run": {"numpy_s": numpy_s, "jax_s": jax_s, "speedup": float(np.median(ratios)),
+                         "speedup_range": [float(ratios.min()), float(ratios.max())],
+                         "samples": len(test.time), "flight": "data_119.csv"},
+            "fit": {"hybrid_s": hybrid.fit_seconds, "identification_s": identification_s,
+                    "iterations": hybrid.iterations, "flights": ["data_117.csv", "data_118.csv"],
+                    "goal_s": FIT_GOAL_S, "goal_met": hybrid.fit_seconds <= FIT_GOAL_S},
+            "reference": RGBlimpModel.__name__}
+
+
+def format_table(report: dict) -> str:
+    """The ``bench rgblimp`` report as a table."""
+    free, fit = report["free_run"], report["fit"]
+    return "\n".join([
+        f"RGBlimp free run of {free['flight']} ({free['samples']} samples), {len(free['jax_s'])} runs each",
+        f"  numpy step {np.median(free['numpy_s']) * 1e3:8.1f} ms   JAX step {np.median(free['jax_s']) * 1e3:8.1f} ms"
+        f"   speed-up {free['speedup']:.1f}x ({free['speedup_range'][0]:.1f}-{free['speedup_range'][1]:.1f})",
+        f"rollout-trained hybrid fit on {', '.join(fit['flights'])}: {fit['hybrid_s']:.1f} s "
+        f"({fit['iterations']} iterations; goal <= {fit['goal_s']:g} s: {'met' if fit['goal_met'] else 'MISSED'}); "
+        f"the identification it starts from {fit['identification_s']:.1f} s"])
+
+
+def summary_rows(report: dict) -> list[SummaryRow]:
+    free, fit = report["free_run"], report["fit"]
+    return [SummaryRow("rgblimp.free_run.jax_over_numpy", "RGBlimp free run, JAX step over numpy step",
+                       free["speedup"], "x", None,
+                       note=f"{free['speedup_range'][0]:.1f}-{free['speedup_range'][1]:.1f} over runs"),
+            SummaryRow("rgblimp.hybrid.fit_s", "RGBlimp rollout-trained hybrid, fit per configuration",
+                       fit["hybrid_s"], "s", FIT_GOAL_S, at_least=False,
+                       note=f"identification {fit['identification_s']:.1f} s")]

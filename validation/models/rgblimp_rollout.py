@@ -1,0 +1,684 @@
+"""The RGBlimp's hybrid model trained through its own free runs: identified physics plus a sparse-GP
+correction of the body accelerations, fitted by output error with exact gradients through RK4.
+
+Why: a residual model fitted to one-step or measured derivatives makes the RGBlimp's free runs
+worse (docs/rgblimp.md, "Identification and RKGP"): each flight shows a thin set of states, the
+derivatives are biased, and a free run leaves the set. ABNODE (Zhu, Cheng & Zhang, IEEE RA-L
+2024) trains its correction through whole free runs instead. This module does the same with a
+small, well-founded correction and exact gradients:
+
+- **The model.** The state derivative is the first-principle model's
+  (:mod:`validation.vehicles.rgblimp_equations`, with an identified thrust gain and a steady
+  wind, :class:`~validation.models.rgblimp_identification.RGBlimpModel`) plus a correction
+  ``a(z)`` of the six body accelerations (m/s^2, rad/s^2), added inside every RK4 stage. ``a``
+  is the mean of a Gaussian process with zero prior mean, in physical units, conditioned on
+  ``M`` inducing values (Titsias 2009; the "whitened" parametrisation of Hensman, Matthews &
+  Ghahramani 2015): ``a_o(z) = s_o k(z, Z) L^-T v_o`` with ``K(Z, Z) = L L^T`` a squared-
+  exponential kernel of unit variance with one length scale per input (ARD), ``s_o`` the output's
+  amplitude and ``v_o ~ N(0, I)`` a priori. Far from the inducing inputs ``k(z, Z) -> 0``, so the
+  model returns to the physics away from its data. The inducing inputs ``Z``, the values ``v``,
+  the length scales and the amplitudes are all fitted through the rollouts; optionally the
+  identified coefficients too (:data:`TUNED_COEFFICIENTS`, as ABNODE tunes its physics).
+- **Inputs of the correction** (:data:`FEATURE_NAMES`): the air-relative body velocity and the
+  rates, roll and pitch, both thrusts and the gondola's x position, each divided by a fixed
+  physical scale (:data:`FEATURE_SCALE`). The configuration inputs let one global model learn
+  from every configuration.
+- **The fit (output error, multiple shooting).** The fitting flights are cut into segments
+  (:func:`validation.models.rgblimp_identification.cut_segments`); each is free-run from its
+  recorded first state through the recorded inputs, one RK4 step per 1/60 s sample as the source
+  integrates; the loss is the mean over samples of the squared state errors, each state divided
+  by :data:`~validation.models.rgblimp_identification.STATE_SCALE` (yaw wrapped), plus the
+  prior's ``||v||^2`` times :attr:`RolloutSetup.prior_weight` over the number of residuals.
+  The gradient is exact: reverse-mode automatic differentiation through every RK4 stage of every
+  segment (JAX, ``jax.value_and_grad`` of a ``lax.scan`` over the steps, vectorised over the
+  segments with ``vmap``); scipy's L-BFGS-B minimises it (docs/rgblimp.md, "Rollout-trained
+  hybrid", says why JAX).
+
+Everything is in double precision. The physics written here in ``jax.numpy`` equals
+:func:`~validation.vehicles.rgblimp_equations.free_run` to rounding (tested at 1e-9 m over a
+whole flight).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time as clock
+from dataclasses import dataclass
+
+import numpy as np
+
+from validation.core.errors import BadInputError
+from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
+from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
+from validation.vehicles.rgblimp_equations import SAMPLE_TIME, ZERO_SPEED_GUARD, RGBlimpParameters
+
+#: What the correction sees, in order: air-relative body velocity, body rates, roll and pitch,
+#: both thrusts and the gondola's x position.
+FEATURE_NAMES = ("U", "V", "W", "P", "Q", "R", "phi", "theta", "thrust_left", "thrust_right", "gondola_x")
+#: Each feature is divided by this before the kernel, in its unit (m/s, rad/s, rad, N, m): about
+#: the spread a flight or the configurations show (docs/rgblimp.md), so that one length scale
+#: of 1 means about that much change; the fitted length scales adapt from there.
+FEATURE_SCALE = (0.1, 0.05, 0.05, 0.05, 0.05, 0.2, 0.05, 0.05, 0.005, 0.005, 0.01)
+#: Which state columns and input columns the features are taken from (:data:`FEATURE_NAMES`).
+_STATE_FEATURES = (6, 7, 8, 9, 10, 11, 3, 4)
+_INPUT_FEATURES = (0, 1, 2)
+#: Units of the six corrected accelerations.
+CORRECTION_UNITS = ("m/s^2",) * 3 + ("rad/s^2",) * 3
+#: Identified coefficients that :attr:`RolloutSetup.tune_physics` refines with the correction.
+TUNED_COEFFICIENTS = ("thrust_gain", "buoyancy_mass", "c_d0", "c_l0", "c_my0", "c_mx0", "wind_x", "wind_y")
+#: The random accelerations of :meth:`RolloutHybrid.band`: standard deviations (m/s^2 for the
+#: forces, rad/s^2 for the moments) and correlation time (s), calibrated on validation flights
+#: (docs/rgblimp.md, "Rollout-trained hybrid").
+DISTURBANCE_SD = (0.004, 0.004, 0.004, 0.008, 0.008, 0.008)
+DISTURBANCE_TIME = 5.0
+#: Disturbed free runs of :meth:`RolloutHybrid.band`.
+BAND_SAMPLES = 32
+#: The model file's ``format`` and ``version`` (:meth:`RolloutHybrid.as_dict`).
+MODEL_FORMAT = "flightgp.rgblimp_hybrid"
+MODEL_VERSION = 1
+#: Shapes of the correction's arrays (``M`` inducing inputs).
+_CORRECTION_SHAPES = {"inducing": ("M", len(FEATURE_NAMES)), "whitened": ("M", 6),
+                      "log_length_scale": (len(FEATURE_NAMES),), "log_amplitude": (6,)}
+#: Unit of each tuned coefficient's optimisation variable: about its standard error in the global
+#: identification (docs/rgblimp.md, "Results on the shared flights"), so that the variables are
+#: alike in scale for L-BFGS-B.
+COEFFICIENT_UNITS = {"thrust_gain": 0.02, "buoyancy_mass": 0.0005, "c_d0": 0.03, "c_l0": 0.05, "c_my0": 0.01,
+                     "c_mx0": 0.005, "wind_x": 0.005, "wind_y": 0.005}
+#: Jitter added to the diagonal of the unit-variance ``K(Z, Z)`` before its Cholesky factor.
+_JITTER = 1e-6
+#: Segment counts are padded to a multiple of this (:func:`_padded`).
+_SEGMENT_BATCH = 8
+
+
+@dataclass(frozen=True)
+class RolloutSetup:
+    """Settings of :func:`fit_rollout` (the defaults are those chosen on validation flights,
+    docs/rgblimp.md, "Rollout-trained hybrid").
+
+    Attributes
+    ----------
+    inducing_points : int
+        ``M``, the number of inducing inputs.
+    segment_duration : float
+        Length of the multiple-shooting segments, s.
+    max_segments : int
+        At most about this many segments (every flight keeps a share).
+    prior_weight : float
+        Weight of the GP prior's ``||v||^2`` against the mean squared scaled state error.
+    initial_amplitude : tuple of 6 float
+        Starting ``s_o``: m/s^2 for the three forces, rad/s^2 for the moments.
+    initial_length_scale : float
+        Starting length scale of every feature, in units of :data:`FEATURE_SCALE`.
+    tune_physics : bool
+        Refine :data:`TUNED_COEFFICIENTS` jointly with the correction.
+    max_iterations : int
+        L-BFGS-B iterations.
+    seed : int
+        Seeds the choice of the initial inducing inputs among the recorded states.
+    """
+
+    inducing_points: int = 24
+    segment_duration: float = 6.0
+    max_segments: int = 60
+    prior_weight: float = 1.0
+    initial_amplitude: tuple = (0.02, 0.02, 0.02, 0.05, 0.05, 0.05)
+    initial_length_scale: float = 3.0
+    tune_physics: bool = True
+    max_iterations: int = 200
+    seed: int = 0
+
+    def __post_init__(self):
+        checks = {"inducing_points": self.inducing_points >= 1, "segment_duration": self.segment_duration > 0,
+                  "max_segments": self.max_segments >= 1, "prior_weight": self.prior_weight >= 0,
+                  "initial_length_scale": self.initial_length_scale > 0,
+                  "initial_amplitude": len(self.initial_amplitude) == 6 and min(self.initial_amplitude) > 0,
+                  "max_iterations": self.max_iterations >= 1}
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise BadInputError(f"RolloutSetup: {', '.join(bad)} out of range ({self})")
+
+
+def _jax():
+    """``jax`` and ``jax.numpy`` in double precision (imported on first use: only this model needs
+    them)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    return jax, jnp
+
+
+# --------------------------------------------------------------------------------------------
+# The physics in jax.numpy: one state (12,), inputs (5,), the parameters as a dict of arrays.
+# --------------------------------------------------------------------------------------------
+
+def physics_parameters(model: RGBlimpModel) -> dict:
+    """``model``'s parameters as a dict of float64 arrays (every field of
+    :class:`RGBlimpParameters`, plus ``thrust_gain`` and ``wind`` (2,))."""
+    values = {f.name: np.asarray(getattr(model.params, f.name), dtype=float)
+              for f in dataclasses.fields(RGBlimpParameters)}
+    values["thrust_gain"] = np.asarray(model.thrust_gain, dtype=float)
+    values["wind"] = np.asarray(model.wind, dtype=float)
+    return values
+
+
+def model_from_parameters(values: dict) -> RGBlimpModel:
+    """Inverse of :func:`physics_parameters`."""
+    fields = {}
+    for f in dataclasses.fields(RGBlimpParameters):
+        value = np.asarray(values[f.name], dtype=float)
+        fields[f.name] = tuple(float(v) for v in value) if value.ndim else float(value)
+    return RGBlimpModel(RGBlimpParameters(**fields), float(values["thrust_gain"]),
+                        tuple(float(v) for v in np.asarray(values["wind"])))
+
+
+def _skew(jnp, a):
+    return jnp.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _inverse_mass_matrix(jnp, inputs, p):
+    """The inverse of the 6x6 mass matrix and the first mass moment ``l`` and inertia ``J``
+    (:func:`validation.vehicles.rgblimp_equations.mass_properties`)."""
+    gondola = inputs[2:5]
+    mass_moment = p["hull_mass"] * p["hull_cg"] + p["gondola_mass"] * gondola
+    gondola_skew = _skew(jnp, gondola)
+    inertia = jnp.diag(p["inertia"]) - p["gondola_mass"] * gondola_skew @ gondola_skew
+    eye = jnp.eye(3)
+    translational = (p["hull_mass"] + p["gondola_mass"]) * eye + jnp.diag(p["added_mass"])
+    moment_skew = _skew(jnp, mass_moment)
+    matrix = jnp.block([[translational, -moment_skew], [moment_skew, inertia + jnp.diag(p["added_inertia"])]])
+    return jnp.linalg.inv(matrix), mass_moment, inertia
+
+
+def _accelerations(jnp, state, inputs, p, masses):
+    """Body accelerations of the published equations
+    (:func:`validation.vehicles.rgblimp_equations.body_accelerations`)."""
+    inverse, mass_moment, inertia = masses
+    phi, theta = state[3], state[4]
+    velocity, rates = state[6:9], state[9:12]
+    thrust_left, thrust_right, gondola_z = inputs[0], inputs[1], inputs[4]
+    down = jnp.array([-jnp.sin(theta), jnp.cos(theta) * jnp.sin(phi), jnp.cos(theta) * jnp.cos(phi)])
+    speed_squared = jnp.sum(velocity**2)
+    speed = jnp.sqrt(speed_squared)
+    alpha = jnp.arctan2(velocity[2], velocity[0] + ZERO_SPEED_GUARD)
+    beta = jnp.arcsin(velocity[1] / (speed + ZERO_SPEED_GUARD))
+    qbar_area = 0.5 * p["air_density"] * speed_squared * p["reference_area"]
+    drag = qbar_area * (p["c_d0"] + p["c_d_alpha2"] * alpha**2 + p["c_d_beta2"] * beta**2)
+    side = qbar_area * (p["c_s0"] + p["c_s_alpha2"] * alpha**2 + p["c_s_beta"] * beta)
+    lift = qbar_area * (p["c_l0"] + p["c_l_alpha"] * alpha + p["c_l_beta2"] * beta**2)
+    aero_moment = qbar_area * jnp.array([p["c_mx0"] + p["c_mx_alpha"] * alpha + p["c_mx_beta"] * beta,
+                                         p["c_my0"] + p["c_my_alpha"] * alpha + p["c_my_beta4"] * beta**4,
+                                         p["c_mz0"] + p["c_mz_alpha"] * alpha + p["c_mz_beta"] * beta])
+    aero_moment = aero_moment + p["rate_damping"] * rates
+    ca, sa, cb, sb = jnp.cos(alpha), jnp.sin(alpha), jnp.cos(beta), jnp.sin(beta)
+    rotation = jnp.array([[ca * cb, -ca * sb, -sa], [sb, cb, 0.0], [sa * cb, -sa * sb, ca]])
+    total_mass = p["hull_mass"] + p["gondola_mass"]
+    thrust = thrust_left + thrust_right
+    velocity_cross_rates = jnp.cross(velocity, rates)
+    added_momentum = p["added_mass"] * velocity
+    force = (total_mass * velocity_cross_rates + jnp.cross(added_momentum, rates)
+             + jnp.cross(jnp.cross(rates, mass_moment), rates)
+             + (total_mass - p["buoyancy_mass"]) * p["gravity"] * down
+             + rotation @ jnp.array([-drag, side, -lift]) + jnp.array([thrust, 0.0, 0.0]))
+    moment = (jnp.cross(inertia @ rates, rates) + jnp.cross(added_momentum, velocity)
+              + jnp.cross(p["added_inertia"] * rates, rates) + jnp.cross(mass_moment, velocity_cross_rates)
+              + jnp.cross(mass_moment, p["gravity"] * down) + rotation @ aero_moment
+              + jnp.array([0.0, thrust * gondola_z, (thrust_left - thrust_right) * p["propeller_arm"]]))
+    return inverse @ jnp.concatenate([force, moment])
+
+
+def _kinematics(jnp, state):
+    """Earth position rates and Euler angle rates (ZYX; Fossen 2011, sec. 2.2.1)."""
+    phi, theta, psi = state[3], state[4], state[5]
+    sf, cf, st, ct, sp, cp = jnp.sin(phi), jnp.cos(phi), jnp.sin(theta), jnp.cos(theta), jnp.sin(psi), jnp.cos(psi)
+    rotation = jnp.array([[cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st],
+                          [sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf],
+                          [-st, ct * sf, ct * cf]])
+    p, q, r = state[9], state[10], state[11]
+    tt = st / ct
+    angle_rates = jnp.array([p + sf * tt * q + cf * tt * r, cf * q - sf * r, (sf * q + cf * r) / ct])
+    return rotation @ state[6:9], angle_rates, rotation
+
+
+# --------------------------------------------------------------------------------------------
+# The correction: a sparse GP's posterior mean with whitened inducing values.
+# --------------------------------------------------------------------------------------------
+
+def features(jnp, state, inputs):
+    """The correction's inputs (:data:`FEATURE_NAMES`) of one air-frame state and its inputs,
+    divided by :data:`FEATURE_SCALE`: shape (11,)."""
+    raw = jnp.concatenate([state[jnp.array(_STATE_FEATURES)], inputs[jnp.array(_INPUT_FEATURES)]])
+    return raw / jnp.asarray(FEATURE_SCALE)
+
+
+def correction_weights(jnp, theta):
+    """``L^-T v`` (M, 6) of the correction's parameters ``theta`` (one Cholesky factor per
+    parameter vector, shared by every step of a rollout)."""
+    scaled = theta["inducing"] / jnp.exp(theta["log_length_scale"])
+    squared = jnp.sum((scaled[:, None, :] - scaled[None, :, :]) ** 2, axis=-1)
+    gram = jnp.exp(-0.5 * squared) + _JITTER * jnp.eye(scaled.shape[0])
+    factor = jnp.linalg.cholesky(gram)
+    import jax.scipy.linalg as jsl
+
+    return jsl.solve_triangular(factor.T, theta["whitened"], lower=False)
+
+
+def correction(jnp, z, theta, weights):
+    """``a(z)`` (6,): ``s_o k(z, Z) L^-T v_o`` at scaled features ``z`` (11,)."""
+    length = jnp.exp(theta["log_length_scale"])
+    squared = jnp.sum(((z - theta["inducing"]) / length) ** 2, axis=-1)
+    return jnp.exp(theta["log_amplitude"]) * (jnp.exp(-0.5 * squared) @ weights)
+
+
+# --------------------------------------------------------------------------------------------
+# Rollouts
+# --------------------------------------------------------------------------------------------
+
+def _rollout_function(jax, jnp):
+    """``rollout(p, theta, start, inputs, disturbance) -> states (L, 12)``: the hybrid model's
+    free run from ``start`` (12,) through ``inputs`` (L, 5), states at samples 1 .. L, in the
+    earth frame (the wind handled as in :func:`validation.vehicles.rgblimp_equations.free_run`,
+    yaw carried continuously). ``theta`` None runs the physics alone; ``disturbance`` (L, 6),
+    or None, is added to the body accelerations over each step (:meth:`RolloutHybrid.sample`)."""
+    h = SAMPLE_TIME
+
+    def rollout(p, theta, start, inputs, disturbance=None):
+        wind = jnp.concatenate([p["wind"], jnp.zeros(1)])
+        weights = None if theta is None else correction_weights(jnp, theta)
+
+        def to_air(state, sign):
+            _, _, rotation = _kinematics(jnp, state)
+            return state.at[6:9].add(sign * rotation.T @ wind)
+
+        def derivative(state, commands, masses, extra):
+            position_rate, angle_rates, _ = _kinematics(jnp, state)
+            accelerations = _accelerations(jnp, state, commands, p, masses)
+            if theta is not None:
+                accelerations = accelerations + correction(jnp, features(jnp, state, commands), theta, weights)
+            if extra is not None:
+                accelerations = accelerations + extra
+            return jnp.concatenate([position_rate, angle_rates, accelerations])
+
+        def step(state, sample):
+            commands, extra = sample if disturbance is not None else (sample, None)
+            commands = commands.at[:2].multiply(p["thrust_gain"])
+            masses = _inverse_mass_matrix(jnp, commands, p)
+            k1 = derivative(state, commands, masses, extra)
+            k2 = derivative(state + 0.5 * h * k1, commands, masses, extra)
+            k3 = derivative(state + 0.5 * h * k2, commands, masses, extra)
+            k4 = derivative(state + h * k3, commands, masses, extra)
+            moved = state + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            return moved, moved
+
+        samples = inputs if disturbance is None else (inputs, disturbance)
+        _, path = jax.lax.scan(step, to_air(start, -1.0), samples)
+        drift = h * jnp.arange(1, inputs.shape[0] + 1)[:, None] * wind
+        path = path.at[:, :3].add(drift)
+        return jax.vmap(lambda s: to_air(s, 1.0))(path)
+
+    return rollout
+
+
+_COMPILED = {}
+
+
+def _compiled():
+    """The jitted rollout, batched rollout and loss, built once per process."""
+    if not _COMPILED:
+        jax, jnp = _jax()
+        rollout = _rollout_function(jax, jnp)
+        batched = jax.vmap(rollout, in_axes=(None, None, 0, 0))
+        scale = jnp.asarray(STATE_SCALE)
+
+        by_segment = jax.vmap(rollout, in_axes=(0, None, 0, 0))
+
+        def loss(p, theta, group_of_segment, starts, inputs, targets, mask, prior_weight):
+            """Mean squared scaled state error of the segments' free runs plus the prior; ``p``
+            holds each group's parameters stacked (G, ...), ``group_of_segment`` (S,) picks them."""
+            path = by_segment(jax.tree_util.tree_map(lambda a: a[group_of_segment], p), theta, starts, inputs)
+            error = path - targets
+            error = error.at[..., 5].set((error[..., 5] + jnp.pi) % (2 * jnp.pi) - jnp.pi)
+            squared = jnp.sum((error / scale) ** 2, axis=-1) * mask
+            count = jnp.sum(mask) * error.shape[-1]
+            prior = 0.0 if theta is None else jnp.sum(theta["whitened"] ** 2)
+            return jnp.sum(squared) / count + prior_weight * prior / count
+
+        disturbed = jax.vmap(rollout, in_axes=(None, None, None, None, 0))
+        _COMPILED.update(jax=jax, jnp=jnp, rollout=jax.jit(rollout), batched=jax.jit(batched),
+                         disturbed=jax.jit(disturbed),
+                         loss=jax.jit(loss), value_and_grad=jax.jit(jax.value_and_grad(loss, argnums=(0, 1))))
+    return _COMPILED
+
+
+# --------------------------------------------------------------------------------------------
+# The model and its fit
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RolloutHybrid:
+    """The identified physics plus the fitted correction (module docstring).
+
+    Attributes
+    ----------
+    physics : RGBlimpModel
+        The physics, with its coefficients as refined by the fit.
+    correction : dict
+        ``inducing`` (M, 11) scaled features, ``whitened`` (M, 6), ``log_length_scale`` (11,),
+        ``log_amplitude`` (6,): float64 arrays.
+    setup : RolloutSetup
+    fit_seconds : float
+    iterations : int
+    loss : float
+        Final value of the fit's loss.
+    disturbance_sd : tuple of 6 float
+        Standard deviation of the random accelerations of :meth:`band`, m/s^2 and rad/s^2.
+    disturbance_time : float
+        Their correlation time, s.
+    """
+
+    physics: RGBlimpModel
+    correction: dict
+    setup: RolloutSetup
+    fit_seconds: float = float("nan")
+    iterations: int = 0
+    loss: float = float("nan")
+    disturbance_sd: tuple = DISTURBANCE_SD
+    disturbance_time: float = DISTURBANCE_TIME
+
+    def simulate(self, initial_state, inputs) -> np.ndarray:
+        """Free run from ``initial_state`` (12,) through ``inputs`` (n, 5), each held over one
+        sample: states (n, 12), row 0 the start, yaw carried continuously."""
+        compiled = _compiled()
+        jnp = compiled["jnp"]
+        initial_state = np.asarray(initial_state, dtype=float)
+        inputs = np.asarray(inputs, dtype=float)
+        path = compiled["rollout"](_as_jax(jnp, physics_parameters(self.physics)),
+                                   _as_jax(jnp, self.correction), jnp.asarray(initial_state),
+                                   jnp.asarray(inputs[:-1]))
+        return np.concatenate([initial_state[None], np.asarray(path)], axis=0)
+
+    def band(self, initial_state, inputs, *, n_samples: int = BAND_SAMPLES, seed: int = 0):
+        """The free run (:meth:`simulate`) and the spread of runs disturbed by a random
+        acceleration, for a 95 % band.
+
+        The disturbance is a first-order Gauss-Markov process (Gelb 1974, sec. 3.8) on each body
+        acceleration, standard deviation :attr:`disturbance_sd` and correlation time
+        :attr:`disturbance_time`, started at its stationary distribution: the model error of a
+        free run is correlated over seconds, not white. Its size is calibrated on validation
+        flights (docs/rgblimp.md, "Rollout-trained hybrid").
+
+        Parameters
+        ----------
+        initial_state : ndarray, shape (12,)
+        inputs : ndarray, shape (n, 5)
+        n_samples : int
+            Disturbed runs.
+        seed : int
+
+        Returns
+        -------
+        mean : ndarray, shape (n, 12)
+            The undisturbed free run.
+        position_sd : ndarray, shape (n, 3)
+            Standard deviation of the disturbed runs' positions, m.
+        """
+        compiled = _compiled()
+        jnp = compiled["jnp"]
+        inputs = np.asarray(inputs, dtype=float)
+        mean = self.simulate(initial_state, inputs)
+        steps = len(inputs) - 1
+        rng = np.random.default_rng(seed)
+        decay = np.exp(-SAMPLE_TIME / self.disturbance_time)
+        noise = rng.standard_normal((n_samples, max(steps, 1), 6))
+        disturbance = np.empty_like(noise)
+        disturbance[:, 0] = noise[:, 0]
+        for k in range(1, noise.shape[1]):
+            disturbance[:, k] = decay * disturbance[:, k - 1] + np.sqrt(1 - decay**2) * noise[:, k]
+        disturbance *= np.asarray(self.disturbance_sd)
+        paths = compiled["disturbed"](_as_jax(jnp, physics_parameters(self.physics)),
+                                      _as_jax(jnp, self.correction),
+                                      jnp.asarray(np.asarray(initial_state, dtype=float)),
+                                      jnp.asarray(inputs[:-1]), jnp.asarray(disturbance[:, :steps]))
+        spread = np.std(np.asarray(paths)[..., :3], axis=0, ddof=1)
+        return mean, np.concatenate([np.zeros((1, 3)), spread], axis=0)
+
+    def as_dict(self) -> dict:
+        """The model as plain JSON data (:data:`MODEL_FORMAT`; read back by :meth:`from_dict`)."""
+        return {"format": MODEL_FORMAT, "version": MODEL_VERSION,
+                "feature_names": list(FEATURE_NAMES), "feature_scale": list(FEATURE_SCALE),
+                "correction_units": list(CORRECTION_UNITS),
+                "physics": {"params": parameters_as_dict(self.physics.params),
+                            "thrust_gain": float(self.physics.thrust_gain),
+                            "wind": [float(v) for v in self.physics.wind]},
+                "correction": {name: np.asarray(value).tolist() for name, value in self.correction.items()},
+                "setup": dataclasses.asdict(self.setup),
+                "disturbance": {"sd": list(self.disturbance_sd), "correlation_time_s": self.disturbance_time},
+                "fit": {"seconds": self.fit_seconds, "iterations": self.iterations, "loss": self.loss}}
+
+    @classmethod
+    def from_dict(cls, data) -> RolloutHybrid:
+        """Inverse of :meth:`as_dict`.
+
+        Raises
+        ------
+        BadInputError
+            Not such a model, another version, or arrays of the wrong shapes or not finite.
+        """
+        if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT:
+            raise BadInputError(f"not a flightgp RGBlimp hybrid model (format {MODEL_FORMAT!r} expected)")
+        if data.get("version") != MODEL_VERSION or list(data.get("feature_names", [])) != list(FEATURE_NAMES):
+            raise BadInputError(f"RGBlimp hybrid model of version {data.get('version')!r}; this flightgp reads "
+                                f"version {MODEL_VERSION} with the features {', '.join(FEATURE_NAMES)}")
+        try:
+            physics = data["physics"]
+            model = RGBlimpModel(parameters_from_dict(physics["params"]), float(physics["thrust_gain"]),
+                                 tuple(float(v) for v in physics["wind"]))
+            correction = {name: np.asarray(data["correction"][name], dtype=float) for name in _CORRECTION_SHAPES}
+            setup = RolloutSetup(**{k: tuple(v) if isinstance(v, list) else v for k, v in data["setup"].items()})
+            disturbance = data["disturbance"]
+            disturbance_sd = tuple(float(v) for v in disturbance["sd"])
+            disturbance_time = float(disturbance["correlation_time_s"])
+        except (KeyError, TypeError, ValueError) as error:
+            raise BadInputError(f"RGBlimp hybrid model: {error}") from None
+        m = len(correction["whitened"])
+        for name, shape in _CORRECTION_SHAPES.items():
+            expected = tuple(m if d == "M" else d for d in shape)
+            if correction[name].shape != expected or not np.all(np.isfinite(correction[name])):
+                raise BadInputError(f"RGBlimp hybrid model: correction {name} must be finite of shape {expected}, "
+                                    f"got {correction[name].shape}")
+        if len(disturbance_sd) != 6 or min(disturbance_sd) < 0 or not disturbance_time > 0:
+            raise BadInputError("RGBlimp hybrid model: the disturbance needs 6 standard deviations >= 0 and a "
+                                "positive correlation time")
+        fit = data.get("fit", {})
+        return cls(model, correction, setup, fit_seconds=float(fit.get("seconds", float("nan"))),
+                   iterations=int(fit.get("iterations", 0)), loss=float(fit.get("loss", float("nan"))),
+                   disturbance_sd=disturbance_sd, disturbance_time=disturbance_time)
+
+    def correction_at(self, states, inputs) -> np.ndarray:
+        """The correction ``a`` (..., 6) at earth-frame ``states`` (..., 12) and ``inputs``
+        (..., 5) (the wind taken off the velocity first), in :data:`CORRECTION_UNITS`."""
+        compiled = _compiled()
+        jax, jnp = compiled["jax"], compiled["jnp"]
+        theta = _as_jax(jnp, self.correction)
+        weights = correction_weights(jnp, theta)
+        wind = jnp.concatenate([jnp.asarray(self.physics.wind), jnp.zeros(1)])
+
+        def one(state, commands):
+            _, _, rotation = _kinematics(jnp, state)
+            air = state.at[6:9].add(-rotation.T @ wind)
+            return correction(jnp, features(jnp, air, commands), theta, weights)
+
+        states = np.asarray(states, dtype=float)
+        inputs = np.asarray(inputs, dtype=float)
+        flat_states = states.reshape(-1, 12)
+        flat_inputs = np.broadcast_to(inputs, states.shape[:-1] + (5,)).reshape(-1, 5)
+        out = jax.vmap(one)(jnp.asarray(flat_states), jnp.asarray(flat_inputs))
+        return np.asarray(out).reshape(states.shape[:-1] + (6,))
+
+
+def _as_jax(jnp, tree):
+    """A dict of arrays as JAX arrays (None stays None: the physics alone)."""
+    return None if tree is None else {name: jnp.asarray(value) for name, value in tree.items()}
+
+
+def initial_correction(flights, setup: RolloutSetup) -> dict:
+    """The correction before the fit: zero values (the physics alone) at ``M`` inducing inputs
+    drawn (seeded) from the fitting flights' recorded states, length scales and amplitudes at
+    their starting values."""
+    jax, jnp = _jax()
+    states = np.concatenate([f.recording.outputs for f in flights])
+    inputs = np.concatenate([f.recording.inputs for f in flights])
+    rng = np.random.default_rng(setup.seed)
+    rows = rng.choice(len(states), size=min(setup.inducing_points, len(states)), replace=False)
+    inducing = np.asarray(jax.vmap(lambda s, u: features(jnp, s, u))(jnp.asarray(states[rows]),
+                                                                       jnp.asarray(inputs[rows])))
+    return {"inducing": inducing, "whitened": np.zeros((len(rows), 6)),
+            "log_length_scale": np.full(len(FEATURE_NAMES), np.log(setup.initial_length_scale)),
+            "log_amplitude": np.log(np.asarray(setup.initial_amplitude, dtype=float))}
+
+
+def fit_rollout(flights, physics: RGBlimpModel, *, setup: RolloutSetup = RolloutSetup(),
+                progress=None) -> RolloutHybrid:
+    """Fit the correction (and, with ``setup.tune_physics``, the coefficients
+    :data:`TUNED_COEFFICIENTS`) through multiple-shooting free runs of ``flights``.
+
+    Parameters
+    ----------
+    flights : sequence of RGBlimpFlight
+        The fitting flights (:func:`validation.vehicles.rgblimp_data.read_rgblimp_flight`).
+    physics : RGBlimpModel
+        The starting physics (the identified model).
+    setup : RolloutSetup
+    progress : callable, optional
+        Called as ``progress(iteration, loss)`` after each L-BFGS-B iteration.
+
+    Returns
+    -------
+    RolloutHybrid
+
+    Raises
+    ------
+    BadInputError
+        No flights, or a flight with non-finite states or inputs.
+    """
+    return fit_rollout_global([(flights, physics)], setup=setup, progress=progress)[0]
+
+
+def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress=None) -> list[RolloutHybrid]:
+    """One correction shared by several groups of flights (configurations), each group with its own
+    physics; with ``setup.tune_physics`` each group's :data:`TUNED_COEFFICIENTS` are refined too.
+
+    The correction sees the configuration (both thrusts, the gondola's x position) among its
+    inputs (:data:`FEATURE_NAMES`), so one global correction learns from every configuration.
+
+    Parameters
+    ----------
+    groups : sequence of (flights, RGBlimpModel)
+        Each configuration's fitting flights and its starting (identified) physics.
+    setup : RolloutSetup
+        ``max_segments`` applies per group.
+    progress : callable, optional
+        ``progress(iteration, loss)`` after each L-BFGS-B iteration.
+
+    Returns
+    -------
+    list of RolloutHybrid
+        One per group, in order: the group's physics and the shared correction.
+
+    Raises
+    ------
+    BadInputError
+        No groups, a group without flights, or a flight with non-finite states or inputs.
+    """
+    from scipy.optimize import minimize
+
+    if not groups:
+        raise BadInputError("no flights to fit the rollout-trained hybrid on")
+    for flights, _ in groups:
+        if not flights:
+            raise BadInputError("no flights to fit the rollout-trained hybrid on")
+        for flight in flights:
+            if not (np.all(np.isfinite(flight.recording.outputs)) and np.all(np.isfinite(flight.recording.inputs))):
+                raise BadInputError(f"flight {flight.number}: non-finite states or inputs; the hybrid fits finite "
+                                    "recordings only")
+    began = clock.perf_counter()
+    compiled = _compiled()
+    jnp = compiled["jnp"]
+    cut = [cut_segments(flights, duration=setup.segment_duration, max_segments=setup.max_segments)
+           for flights, _ in groups]
+    segments = Segments(*(np.concatenate([getattr(c, f.name) for c in cut]) for f in dataclasses.fields(Segments)))
+    data = tuple(jnp.asarray(part) for part in _padded(segments))
+    groups_of_segments = np.concatenate([np.full(len(c.starts), g) for g, c in enumerate(cut)])
+    group_of_segment = jnp.asarray(np.concatenate([groups_of_segments, np.zeros(len(data[0]) - len(
+        groups_of_segments), dtype=int)]))
+    starting = [physics_parameters(physics) for _, physics in groups]
+    p0 = {name: np.stack([values[name] for values in starting]) for name in starting[0]}
+    theta0 = initial_correction([f for flights, _ in groups for f in flights], setup)
+    tuned = TUNED_COEFFICIENTS if setup.tune_physics else ()
+    n_groups, n_tuned = len(groups), len(tuned)
+    # Optimisation variables: each group's coefficients relative to their starting values in
+    # units of COEFFICIENT_UNITS, then the correction's arrays.
+    units = np.array([COEFFICIENT_UNITS[name] for name in tuned])
+    shapes = {name: theta0[name].shape for name in theta0}
+    sizes = [n_groups * n_tuned] + [int(np.prod(shape)) for shape in shapes.values()]
+    x0 = np.concatenate([np.zeros(n_groups * n_tuned)] + [theta0[name].ravel() for name in shapes])
+
+    def unpack(x):
+        pieces = np.split(np.asarray(x, dtype=float), np.cumsum(sizes)[:-1])
+        shifts = pieces[0].reshape(n_groups, n_tuned) * units
+        p = {name: np.array(value) for name, value in p0.items()}
+        for column, name in enumerate(tuned):
+            field = _field(name)
+            if p[field].ndim == 1:
+                p[field] = p[field] + shifts[:, column]
+            else:
+                p[field][:, _index(name)] += shifts[:, column]
+        theta = {name: piece.reshape(shapes[name]) for name, piece in zip(shapes, pieces[1:])}
+        return p, theta
+
+    def objective(x):
+        p, theta = unpack(x)
+        value, (gp, gtheta) = compiled["value_and_grad"](_as_jax(jnp, p), _as_jax(jnp, theta), group_of_segment,
+                                                         *data, setup.prior_weight)
+        value = float(value)
+        if not np.isfinite(value):
+            return 1e10, np.zeros_like(x)
+        columns = [np.asarray(gp[_field(n)]) if np.ndim(p0[_field(n)]) == 1 else
+                   np.asarray(gp[_field(n)])[:, _index(n)] for n in tuned]
+        coefficient_gradient = (np.stack(columns, axis=1) * units).ravel() if tuned else np.zeros(0)
+        return value, np.concatenate([coefficient_gradient] + [np.asarray(gtheta[n]).ravel() for n in shapes])
+
+    iteration = [0]
+
+    def callback(intermediate):
+        iteration[0] += 1
+        if progress is not None:
+            progress(iteration[0], float(intermediate.fun))
+
+    result = minimize(objective, x0, jac=True, method="L-BFGS-B", callback=callback,
+                      options={"maxiter": setup.max_iterations})
+    p, theta = unpack(result.x)
+    seconds = clock.perf_counter() - began
+    return [RolloutHybrid(model_from_parameters({name: value[g] for name, value in p.items()}), theta, setup,
+                          fit_seconds=seconds, iterations=int(result.nit), loss=float(result.fun))
+            for g in range(n_groups)]
+
+
+def _padded(segments) -> tuple:
+    """The segments' starts, inputs, targets and mask (as floats), their count padded with
+    masked copies of the first segment up to a multiple of :data:`_SEGMENT_BATCH`, so that fits
+    on different flights reuse one compiled loss."""
+    count = len(segments.starts)
+    extra = -count % _SEGMENT_BATCH
+    rows = np.concatenate([np.arange(count), np.zeros(extra, dtype=int)])
+    mask = segments.mask[rows].astype(float)
+    mask[count:] = 0.0
+    return segments.starts[rows], segments.inputs[rows], segments.targets[rows], mask
+
+
+def _field(name: str) -> str:
+    return "wind" if name.startswith("wind_") else name
+
+
+def _index(name: str) -> int:
+    return {"wind_x": 0, "wind_y": 1}.get(name, 0)
