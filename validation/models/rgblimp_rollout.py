@@ -117,13 +117,13 @@ class RolloutSetup:
     """
 
     inducing_points: int = 24
-    segment_duration: float = 6.0
-    max_segments: int = 60
-    prior_weight: float = 1.0
+    segment_duration: float = 20.0
+    max_segments: int = 24
+    prior_weight: float = 10.0
     initial_amplitude: tuple = (0.02, 0.02, 0.02, 0.05, 0.05, 0.05)
     initial_length_scale: float = 3.0
     tune_physics: bool = True
-    max_iterations: int = 200
+    max_iterations: int = 60
     seed: int = 0
 
     def __post_init__(self):

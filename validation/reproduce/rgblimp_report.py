@@ -8,7 +8,7 @@ from matplotlib.figure import Figure
 
 #: The models, in the order of every table (``sindyc``: the peer of
 #: :mod:`validation.models.rgblimp_sindyc`).
-MODELS = ("physics", "identified", "rkgp", "rkgp_global", "sindyc", "hybrid")
+MODELS = ("physics", "identified", "rkgp", "rkgp_global", "sindyc", "hybrid", "hybrid_global")
 #: The models with a propagated uncertainty band.
 BAND_MODELS = ("rkgp", "rkgp_global")
 #: Normal quantile of a two-sided 95 % band.
@@ -17,7 +17,7 @@ BAND_QUANTILE = 1.959963984540054
 #: Colour and line style of each model in every figure.
 STYLES = {"physics": ("tab:red", "--"), "identified": ("tab:orange", "-."), "rkgp": ("tab:blue", "-"),
           "rkgp_global": ("tab:green", ":"), "sindyc": ("tab:purple", (0, (3, 1, 1, 1))),
-          "hybrid": ("tab:cyan", "-")}
+          "hybrid": ("tab:cyan", "-"), "hybrid_global": ("tab:olive", "-")}
 _POSITION_NAMES = ("x", "y", "z")
 
 
