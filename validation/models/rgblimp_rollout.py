@@ -68,8 +68,8 @@ TUNED_COEFFICIENTS = ("thrust_gain", "buoyancy_mass", "c_d0", "c_l0", "c_my0", "
 #: The random accelerations of :meth:`RolloutHybrid.band`: standard deviations (m/s^2 for the
 #: forces, rad/s^2 for the moments) and correlation time (s), calibrated on validation flights
 #: (docs/rgblimp.md, "Rollout-trained hybrid").
-DISTURBANCE_SD = (0.004, 0.004, 0.004, 0.008, 0.008, 0.008)
-DISTURBANCE_TIME = 5.0
+DISTURBANCE_SD = (0.048, 0.048, 0.048, 0.096, 0.096, 0.096)
+DISTURBANCE_TIME = 20.0
 #: Disturbed free runs of :meth:`RolloutHybrid.band`.
 BAND_SAMPLES = 32
 #: The model file's ``format`` and ``version`` (:meth:`RolloutHybrid.as_dict`).
@@ -419,8 +419,9 @@ class RolloutHybrid:
         -------
         mean : ndarray, shape (n, 12)
             The undisturbed free run.
-        position_sd : ndarray, shape (n, 3)
-            Standard deviation of the disturbed runs' positions, m.
+        sd : ndarray, shape (n, 12)
+            Standard deviation of the disturbed runs' states (m, rad, m/s, rad/s; yaw carried
+            continuously).
         """
         compiled = _compiled()
         jnp = compiled["jnp"]
@@ -439,8 +440,8 @@ class RolloutHybrid:
                                       _as_jax(jnp, self.correction),
                                       jnp.asarray(np.asarray(initial_state, dtype=float)),
                                       jnp.asarray(inputs[:-1]), jnp.asarray(disturbance[:, :steps]))
-        spread = np.std(np.asarray(paths)[..., :3], axis=0, ddof=1)
-        return mean, np.concatenate([np.zeros((1, 3)), spread], axis=0)
+        spread = np.std(np.asarray(paths), axis=0, ddof=1)
+        return mean, np.concatenate([np.zeros((1, 12)), spread], axis=0)
 
     def as_dict(self) -> dict:
         """The model as plain JSON data (:data:`MODEL_FORMAT`; read back by :meth:`from_dict`)."""
@@ -650,10 +651,10 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
 
     iteration = [0]
 
-    def callback(intermediate):
+    def callback(intermediate_result):  # scipy passes the OptimizeResult to a parameter of this name
         iteration[0] += 1
         if progress is not None:
-            progress(iteration[0], float(intermediate.fun))
+            progress(iteration[0], float(intermediate_result.fun))
 
     result = minimize(objective, x0, jac=True, method="L-BFGS-B", callback=callback,
                       options={"maxiter": setup.max_iterations})

@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 #: :mod:`validation.models.rgblimp_sindyc`).
 MODELS = ("physics", "identified", "rkgp", "rkgp_global", "sindyc", "hybrid", "hybrid_global")
 #: The models with a propagated uncertainty band.
-BAND_MODELS = ("rkgp", "rkgp_global")
+BAND_MODELS = ("rkgp", "rkgp_global", "hybrid", "hybrid_global")
 #: Normal quantile of a two-sided 95 % band.
 BAND_QUANTILE = 1.959963984540054
 
@@ -18,7 +18,8 @@ BAND_QUANTILE = 1.959963984540054
 STYLES = {"physics": ("tab:red", "--"), "identified": ("tab:orange", "-."), "rkgp": ("tab:blue", "-"),
           "rkgp_global": ("tab:green", ":"), "sindyc": ("tab:purple", (0, (3, 1, 1, 1))),
           "hybrid": ("tab:cyan", "-"), "hybrid_global": ("tab:olive", "-")}
-_POSITION_NAMES = ("x", "y", "z")
+#: The states drawn against time in a flight figure: column, name, unit.
+_TIME_PANELS = ((0, "x", "m"), (1, "y", "m"), (2, "z", "m"), (3, "roll phi", "rad"), (4, "pitch theta", "rad"))
 
 
 def figures(results: dict, runs, *, count: int) -> dict:
@@ -57,10 +58,10 @@ def scores_figure(results: dict) -> Figure:
 
 def flight_figure(run) -> Figure:
     """One test flight: the 3-D track of the recording and of every model's free run, and the
-    positions against time with the RKGPs' 95 % bands."""
-    figure = Figure(figsize=(15, 8), layout="constrained")
+    positions, roll and pitch against time with the band models' 95 % bands."""
+    figure = Figure(figsize=(15, 11), layout="constrained")
     FigureCanvasAgg(figure)
-    grid = figure.add_gridspec(3, 2, width_ratios=(1.1, 1.0))
+    grid = figure.add_gridspec(len(_TIME_PANELS), 2, width_ratios=(1.1, 1.0))
     track = figure.add_subplot(grid[:, 0], projection="3d")
     recorded = run.recorded
     # z is down (docs/conventions.md, "Units and axes"): draw height -z upwards.
@@ -74,23 +75,24 @@ def flight_figure(run) -> Figure:
     track.set_ylabel("y [m]")
     track.set_zlabel("height -z [m]")
     track.legend(fontsize="small", loc="upper left")
-    for row, name in enumerate(_POSITION_NAMES):
+    for row, (column, name, unit) in enumerate(_TIME_PANELS):
         axis = figure.add_subplot(grid[row, 1])
-        axis.plot(run.time, recorded[:, row], color="k", lw=1.5, label="recorded")
+        axis.plot(run.time, recorded[:, column], color="k", lw=1.5, label="recorded")
         for model in MODELS:
             colour, style = STYLES[model]
-            axis.plot(run.time, run.predicted[model][:, row], color=colour, ls=style, lw=1, label=model)
+            axis.plot(run.time, run.predicted[model][:, column], color=colour, ls=style, lw=1, label=model)
             if model in BAND_MODELS:
-                half = BAND_QUANTILE * run.position_sd[model][:, row]
-                axis.fill_between(run.time, run.predicted[model][:, row] - half,
-                                  run.predicted[model][:, row] + half, color=colour, alpha=0.15, lw=0)
-        axis.set_ylabel(f"{name} [m]")
+                half = BAND_QUANTILE * run.sd[model][:, column]
+                axis.fill_between(run.time, run.predicted[model][:, column] - half,
+                                  run.predicted[model][:, column] + half, color=colour, alpha=0.15, lw=0)
+        axis.set_ylabel(f"{name} [{unit}]")
         axis.grid(True, alpha=0.3)
     axis.set_xlabel("time [s]")
     figure.axes[1].legend(fontsize="small", ncol=3)
     fit = ", ".join(f"data_{n}" for n in run.split.fit)
     figure.suptitle(f"RGBlimp configuration {run.split.configuration} ({run.split.kind}): test flight "
-                    f"data_{run.split.test}, fitted on {fit}; bands: 95 % of the propagated RKGP covariance")
+                    f"data_{run.split.test}, fitted on {fit}; bands: 95 % of the RKGPs' propagated covariance "
+                    "and of the hybrids' disturbed runs")
     return figure
 
 

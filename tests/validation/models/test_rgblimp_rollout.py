@@ -20,7 +20,7 @@ from validation.vehicles.rgblimp_equations import RGBlimpParameters, body_accele
 
 #: A small, fast setup: 2 s segments, 8 inducing inputs.
 QUICK = rollout.RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=8, max_iterations=40,
-                             tune_physics=False)
+                             prior_weight=1.0, tune_physics=False)
 
 
 def test_jax_physics_equals_the_numpy_free_run_with_wind_and_thrust_gain():
@@ -94,7 +94,10 @@ def concealed():
     one 6 s flight of the concealed one."""
     truth = RGBlimpModel(dataclasses.replace(RGBlimpParameters(), c_my0=0.0868))
     flight = synthetic_flight(truth, samples=361)
-    hybrid = rollout.fit_rollout([flight], RGBlimpModel(), setup=QUICK)
+    calls = []
+    hybrid = rollout.fit_rollout([flight], RGBlimpModel(), setup=QUICK,
+                                 progress=lambda iteration, loss: calls.append((iteration, loss)))
+    assert [i for i, _ in calls] == list(range(1, hybrid.iterations + 1)) and calls[-1][1] == hybrid.loss
     return truth, flight, hybrid
 
 
@@ -144,3 +147,19 @@ def test_a_flight_with_a_nan_state_is_refused_with_one_line():
         rollout.fit_rollout([flight], RGBlimpModel(), setup=QUICK)
     with pytest.raises(BadInputError, match="no flights"):
         rollout.fit_rollout([], RGBlimpModel(), setup=QUICK)
+
+
+@pytest.mark.slow
+def test_band_is_the_spread_of_disturbed_runs_about_the_free_run(concealed):
+    _, flight, hybrid = concealed
+    inputs = flight.recording.inputs[:241]
+    still = dataclasses.replace(hybrid, disturbance_sd=(0.0,) * 6)
+    mean, sd = still.band(START, inputs, n_samples=4)
+    assert np.array_equal(mean, hybrid.simulate(START, inputs)) and np.all(sd == 0)
+    mean, sd = hybrid.band(START, inputs, n_samples=16, seed=3)
+    assert np.array_equal(mean, hybrid.simulate(START, inputs)) and np.all(sd[0] == 0)
+    # A random acceleration of sd a held for the correlation time moves the position by about
+    # a t^2 / 2: the spread grows with time, and an acceleration of twice the size doubles it.
+    assert np.all(sd[-1, :3] > 5 * sd[60, :3])
+    doubled = dataclasses.replace(hybrid, disturbance_sd=tuple(2 * np.asarray(hybrid.disturbance_sd)))
+    np.testing.assert_allclose(doubled.band(START, inputs, n_samples=16, seed=3)[1][-1, :3], 2 * sd[-1, :3], rtol=0.05)
