@@ -111,16 +111,6 @@ def run(args: argparse.Namespace) -> int:
         print(format_settings(results))
         print(f"written {args.out}/settings.json")
         return 0
-    if args.paper == "rgblimp-hybrid-settings":
-        from validation.core.files import write_json
-        from validation.reproduce.rgblimp_settings import format_hybrid_settings, study_hybrid_settings
-
-        results = study_hybrid_settings(args.data, configurations=args.configurations,
-                                        seed=0 if args.seed is None else args.seed, progress=True)
-        write_json(args.out / "hybrid_settings.json", results)
-        print(format_hybrid_settings(results))
-        print(f"written {args.out}/hybrid_settings.json")
-        return 0
     if args.seeds is not None or args.quick:
         raise BadInputError("--seeds and --quick apply to reproduce blimp only")
     from validation.reproduce.bo105 import format_results, reproduce_bo105

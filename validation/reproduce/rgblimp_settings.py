@@ -167,7 +167,7 @@ HYBRID_CANDIDATES = {
 
 
 def study_hybrid_settings(data_dir, *, configurations=None, candidates=None, seed: int = 0,
-                          progress: bool = False) -> dict:
+                          setup=DEFAULT_SETUP, progress: bool = False) -> dict:
     """Score each candidate setup of the rollout-trained hybrid on the validation flights.
 
     The splits are :func:`validation_splits`' (fit on ``4j+1``, validate on ``4j+2``); the
@@ -184,6 +184,8 @@ def study_hybrid_settings(data_dir, *, configurations=None, candidates=None, see
         :data:`HYBRID_CANDIDATES`.
     seed : int
         Ignored by the identification; the hybrid's own seed is the candidate's.
+    setup : RGBlimpSetup
+        The identification's settings (default the reproduction's).
     progress : bool
 
     Returns
@@ -201,7 +203,6 @@ def study_hybrid_settings(data_dir, *, configurations=None, candidates=None, see
     flights = {n: read_rgblimp_flight(Path(data_dir) / f"data_{n}.csv")
                for s in splits for n in (*s.fit, s.test)}
     fitting = [flights[n] for s in splits for n in s.fit]
-    setup = DEFAULT_SETUP
     global_model = fit_global(fitting, setup, seed=seed, with_rkgp=False)[0].model
     identified, baseline = {}, {}
     for split in splits:

@@ -12,8 +12,16 @@ import pytest
 
 from validation.cli import main
 from validation.core.errors import BadInputError
+from validation.models.rgblimp_rollout import RolloutSetup
 from validation.reproduce import rgblimp_settings
-from validation.reproduce.rgblimp_settings import SCORED, format_settings, study_settings, validation_splits
+from validation.reproduce.rgblimp_settings import (
+    SCORED,
+    format_hybrid_settings,
+    format_settings,
+    study_hybrid_settings,
+    study_settings,
+    validation_splits,
+)
 from validation.vehicles.rgblimp_data import EXCERPT_FOLDER
 
 from .test_rgblimp import QUICK, _folder
@@ -54,10 +62,34 @@ def test_a_short_study_scores_each_candidate_without_reading_a_test_flight(tmp_p
     json.dumps(results)
 
 
-def test_the_command_needs_data_and_writes_nothing_on_a_bad_folder(tmp_path):
+@pytest.mark.slow
+def test_a_short_hybrid_study_scores_each_candidate_without_reading_a_test_flight(tmp_path, monkeypatch):
+    data = _folder(tmp_path / "data", [])
+    for number in (121, 122, 123):
+        (data / f"data_{number}.csv").symlink_to(EXCERPT_FOLDER / f"data_{number}.csv")
+    read = []
+    original = rgblimp_settings.read_rgblimp_flight
+    monkeypatch.setattr(rgblimp_settings, "read_rgblimp_flight", lambda path: read.append(path.name) or original(path))
+    tiny = RolloutSetup(inducing_points=4, segment_duration=3.0, max_segments=4, max_iterations=2)
+    candidates = {"tiny": tiny, "tiny untuned": replace(tiny, tune_physics=False)}
+    results = study_hybrid_settings(data, candidates=candidates, setup=QUICK)
+    assert sorted(read) == ["data_121.csv", "data_122.csv"]
+    for entry in results["candidates"].values():
+        (configuration,) = entry["configurations"]
+        assert entry["mean_score"] == configuration["score"]
+        assert entry["hybrid_beats_identified"] == int(configuration["score"]["hybrid"]
+                                                       < configuration["score"]["identified"])
+    first, second = results["candidates"].values()
+    assert first["mean_score"]["identified"] == second["mean_score"]["identified"]  # shared
+    assert "tiny untuned" in format_hybrid_settings(results)
+    json.dumps(results)
+
+
+@pytest.mark.parametrize("paper", ["rgblimp-settings", "rgblimp-hybrid-settings"])
+def test_the_command_needs_data_and_writes_nothing_on_a_bad_folder(tmp_path, paper):
     folder = _folder(tmp_path / "data", [1, 2])
     errors = io.StringIO()
     with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
-        code = main(["reproduce", "rgblimp-settings", "--data", str(folder), "--out", str(tmp_path / "out")])
+        code = main(["reproduce", paper, "--data", str(folder), "--out", str(tmp_path / "out")])
     assert code == 2 and errors.getvalue().count("\n") == 1 and "three flights" in errors.getvalue()
-    assert not (tmp_path / "out" / "settings.json").exists()
+    assert not any((tmp_path / "out").glob("*settings.json"))
