@@ -35,8 +35,8 @@ small, well-founded correction and exact gradients:
   hybrid", says why JAX).
 
 Everything is in double precision. The physics written here in ``jax.numpy`` equals
-:func:`~validation.vehicles.rgblimp_equations.free_run` to rounding (tested at 1e-9 m over a
-whole flight).
+:func:`~validation.vehicles.rgblimp_equations.free_run` to rounding (6e-14 over the 3801 samples
+of ``data_1.csv``; tested at 1e-9 over 10 s with wind and a thrust gain).
 """
 from __future__ import annotations
 
@@ -258,9 +258,9 @@ def correction_weights(jnp, theta):
     squared = jnp.sum((scaled[:, None, :] - scaled[None, :, :]) ** 2, axis=-1)
     gram = jnp.exp(-0.5 * squared) + _JITTER * jnp.eye(scaled.shape[0])
     factor = jnp.linalg.cholesky(gram)
-    import jax.scipy.linalg as jsl
+    from jax.scipy.linalg import solve_triangular
 
-    return jsl.solve_triangular(factor.T, theta["whitened"], lower=False)
+    return solve_triangular(factor.T, theta["whitened"], lower=False)
 
 
 def correction(jnp, z, theta, weights):

@@ -85,6 +85,11 @@ def flight_figure(run) -> Figure:
                 half = BAND_QUANTILE * run.sd[model][:, column]
                 axis.fill_between(run.time, run.predicted[model][:, column] - half,
                                   run.predicted[model][:, column] + half, color=colour, alpha=0.15, lw=0)
+        # The recording's range with a margin as wide again: a band that grows past it (the
+        # RKGPs' do) is cut rather than flattening the recording.
+        low, high = recorded[:, column].min(), recorded[:, column].max()
+        margin = max(high - low, 0.05 if unit == "rad" else 0.5)
+        axis.set_ylim(low - margin, high + margin)
         axis.set_ylabel(f"{name} [{unit}]")
         axis.grid(True, alpha=0.3)
     axis.set_xlabel("time [s]")
