@@ -7,7 +7,7 @@ models by a free run of the whole fourth flight of each configuration from its f
 state, after fitting on the first three (docs/rgblimp.md, "The recordings"). flightgp does the
 same with the flights at hand: for each configuration ``j`` with at least two flights in the
 folder, fit on all but the highest-numbered one and test on that one (on a folder without the
-fourth flights ``4j+4``: fit on ``4j+1``, ``4j+2``, test on ``4j+3``). Five models:
+fourth flights ``4j+4``: fit on ``4j+1``, ``4j+2``, test on ``4j+3``). Seven models:
 
 - ``physics``: the published model (:class:`~validation.vehicles.rgblimp_equations.RGBlimpParameters`
   defaults), one RK4 step per 1/60 s sample, as the source integrates it;
@@ -22,16 +22,23 @@ fourth flights ``4j+4``: fit on ``4j+1``, ``4j+2``, test on ``4j+3``). Five mode
   configuration present at once, tested on each configuration's test flight;
 - ``sindyc``: the peer, the published model plus a sparse polynomial of its residual
   accelerations fitted with PySINDy on the configuration's fitting flights
-  (:mod:`validation.models.rgblimp_sindyc`), as the source compares with SINDYc.
+  (:mod:`validation.models.rgblimp_sindyc`), as the source compares with SINDYc;
+- ``hybrid``: the identified model plus a sparse-GP correction of the body accelerations, trained
+  with eight of its coefficients through multiple-shooting free runs of the configuration's
+  fitting flights (:func:`~validation.models.rgblimp_rollout.fit_rollout`);
+- ``hybrid_global``: one correction shared by every configuration, each configuration's
+  coefficients refined with it (:func:`~validation.models.rgblimp_rollout.fit_rollout_global`).
 
+``results.json``'s ``default_model`` names the model flightgp recommends (:data:`DEFAULT_MODEL`).
 Each entry also holds each model's fitting and free-run wall times.
 
 Scores (:func:`flight_metrics`): the source's (:func:`source_score`), the position RMSE, the
-final-position error, the wrapped-yaw RMSE and, for the RKGPs, the coverage of the 95 % position
-band. :mod:`validation.reproduce.rgblimp_report` writes the report and the figures. Each
+final-position error, the wrapped-yaw RMSE and, for the RKGPs and the hybrids, the coverage of
+the 95 % position band. :mod:`validation.reproduce.rgblimp_report` writes the report and the figures. Each
 configuration's RKGP is also written as a model file (:func:`rkgp_model_path`, with its physics
 described by :class:`~validation.models.rgblimp_greybox.RGBlimpStepDescription`), from which
-``flightgp build-fmu`` builds the RGBlimp RKGP FMU (docs/fmus.md, "RGBlimp RKGP").
+``flightgp build-fmu`` builds the RGBlimp RKGP FMU (docs/fmus.md, "RGBlimp RKGP"); each hybrid
+as JSON (:func:`hybrid_model_path`).
 """
 from __future__ import annotations
 
@@ -352,7 +359,7 @@ def free_runs(recorded, inputs, models: dict) -> tuple[dict, dict, dict]:
 
 def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpSetup = DEFAULT_SETUP,
                       seed: int = 0, progress: bool = True) -> dict:
-    """Fit and test the five models on every configuration; write ``results.json``,
+    """Fit and test the seven models on every configuration; write ``results.json``,
     ``report.md``, the figures and each configuration's RKGP model file (:func:`rkgp_model_path`)
     to ``out_dir``.
 
