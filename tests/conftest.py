@@ -3,12 +3,21 @@ trained on them, its model file and rate-predictor FMU, and the Bo105 reference 
 scope: each is made once per test process, and only by a process that runs a test using it."""
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from fmu_src import build_bo105_reference_fmu, build_rate_predictor_fmu
 from validation.models.narx import save_trained, train_narx
 from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
+
+# JAX's persistent compilation cache (the RGBlimp hybrid's rollouts, validation/models/
+# rgblimp_rollout.py): both test workers, and tests that compile the same rollout shapes, load a
+# compiled loss from it instead of compiling it again (10 s each). JAX reads the variable when
+# imported, after this; an entry is keyed on the computation, so a changed model compiles anew.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / "build" / "jax-cache"))
 
 
 @pytest.fixture(scope="session")

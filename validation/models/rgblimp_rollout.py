@@ -323,13 +323,13 @@ _COMPILED = {}
 
 
 def _compiled():
-    """The jitted rollout, batched rollout and loss, built once per process."""
+    """``jax``, ``jnp`` and the jitted functions, built once per process: ``rollout`` (one free
+    run), ``disturbed`` (free runs of one start under several disturbances) and
+    ``value_and_grad`` (the fit's loss and its gradient in the physics and the correction)."""
     if not _COMPILED:
         jax, jnp = _jax()
         rollout = _rollout_function(jax, jnp)
-        batched = jax.vmap(rollout, in_axes=(None, None, 0, 0))
         scale = jnp.asarray(STATE_SCALE)
-
         by_segment = jax.vmap(rollout, in_axes=(0, None, 0, 0))
 
         def loss(p, theta, group_of_segment, starts, inputs, targets, mask, prior_weight):
@@ -344,9 +344,8 @@ def _compiled():
             return jnp.sum(squared) / count + prior_weight * prior / count
 
         disturbed = jax.vmap(rollout, in_axes=(None, None, None, None, 0))
-        _COMPILED.update(jax=jax, jnp=jnp, rollout=jax.jit(rollout), batched=jax.jit(batched),
-                         disturbed=jax.jit(disturbed),
-                         loss=jax.jit(loss), value_and_grad=jax.jit(jax.value_and_grad(loss, argnums=(0, 1))))
+        _COMPILED.update(jax=jax, jnp=jnp, rollout=jax.jit(rollout), disturbed=jax.jit(disturbed),
+                         value_and_grad=jax.jit(jax.value_and_grad(loss, argnums=(0, 1))))
     return _COMPILED
 
 
@@ -418,7 +417,7 @@ class RolloutHybrid:
         Returns
         -------
         mean : ndarray, shape (n, 12)
-            The undisturbed free run.
+            The undisturbed free run (:meth:`simulate`, to rounding).
         sd : ndarray, shape (n, 12)
             Standard deviation of the disturbed runs' states (m, rad, m/s, rad/s; yaw carried
             continuously).
@@ -426,7 +425,7 @@ class RolloutHybrid:
         compiled = _compiled()
         jnp = compiled["jnp"]
         inputs = np.asarray(inputs, dtype=float)
-        mean = self.simulate(initial_state, inputs)
+        initial_state = np.asarray(initial_state, dtype=float)
         steps = len(inputs) - 1
         rng = np.random.default_rng(seed)
         decay = np.exp(-SAMPLE_TIME / self.disturbance_time)
@@ -436,11 +435,13 @@ class RolloutHybrid:
         for k in range(1, noise.shape[1]):
             disturbance[:, k] = decay * disturbance[:, k - 1] + np.sqrt(1 - decay**2) * noise[:, k]
         disturbance *= np.asarray(self.disturbance_sd)
-        paths = compiled["disturbed"](_as_jax(jnp, physics_parameters(self.physics)),
-                                      _as_jax(jnp, self.correction),
-                                      jnp.asarray(np.asarray(initial_state, dtype=float)),
-                                      jnp.asarray(inputs[:-1]), jnp.asarray(disturbance[:, :steps]))
-        spread = np.std(np.asarray(paths), axis=0, ddof=1)
+        # The undisturbed run rides along as a first, zero disturbance: one compiled function.
+        disturbance = np.concatenate([np.zeros((1,) + disturbance.shape[1:]), disturbance])
+        paths = np.asarray(compiled["disturbed"](_as_jax(jnp, physics_parameters(self.physics)),
+                                                 _as_jax(jnp, self.correction), jnp.asarray(initial_state),
+                                                 jnp.asarray(inputs[:-1]), jnp.asarray(disturbance[:, :steps])))
+        mean = np.concatenate([initial_state[None], paths[0]])
+        spread = np.std(paths[1:], axis=0, ddof=1)
         return mean, np.concatenate([np.zeros((1, 12)), spread], axis=0)
 
     def as_dict(self) -> dict:

@@ -10,8 +10,8 @@ def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
     # Two timed runs and a 2-iteration fit: the report's rows and their arithmetic are what is
     # checked here, not the speed.
     monkeypatch.setattr(rgblimp, "FREE_RUN_REPEATS", 2)
-    report = rgblimp.run(progress=False, setup=RolloutSetup(inducing_points=4, segment_duration=2.0,
-                                                            max_segments=4, max_iterations=2))
+    report = rgblimp.run(progress=False, setup=RolloutSetup(inducing_points=8, segment_duration=2.0,
+                                                            max_segments=8, max_iterations=2))
     free, fit = report["free_run"], report["fit"]
     assert len(free["numpy_s"]) == len(free["jax_s"]) == 2
     ratios = sorted(n / j for n, j in zip(free["numpy_s"], free["jax_s"]))

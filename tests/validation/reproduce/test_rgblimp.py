@@ -153,7 +153,7 @@ def test_options_of_other_papers_are_refused(tmp_path):
 #: Short fits: 3 s segments, 60 GP points; the schema and the bookkeeping, not the numbers.
 QUICK = RGBlimpSetup(segment_duration=3.0, max_segments=8, global_max_segments=12, max_iterations=8,
                      training_points=60, global_training_points=80,
-                     rollout=RolloutSetup(inducing_points=8, segment_duration=3.0, max_segments=8, max_iterations=3))
+                     rollout=RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=4, max_iterations=3))
 
 
 @pytest.fixture(scope="module")
