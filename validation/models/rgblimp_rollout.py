@@ -85,8 +85,10 @@ COEFFICIENT_UNITS = {"thrust_gain": 0.02, "buoyancy_mass": 0.0005, "c_d0": 0.03,
                      "c_mx0": 0.005, "wind_x": 0.005, "wind_y": 0.005}
 #: Jitter added to the diagonal of the unit-variance ``K(Z, Z)`` before its Cholesky factor.
 _JITTER = 1e-6
-#: Segment counts are padded to a multiple of this (:func:`_padded`).
+#: Segment counts are padded to a multiple of this (:func:`_padded`), group counts of
+#: :func:`fit_rollout_global` to a multiple of ``_GROUP_BATCH``.
 _SEGMENT_BATCH = 8
+_GROUP_BATCH = 4
 
 
 @dataclass(frozen=True)
@@ -614,6 +616,9 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
     group_of_segment = jnp.asarray(np.concatenate([groups_of_segments, np.zeros(len(data[0]) - len(
         groups_of_segments), dtype=int)]))
     starting = [physics_parameters(physics) for _, physics in groups]
+    # Padded with copies of the first group (no segment uses them) to a multiple of
+    # _GROUP_BATCH, so that fits of one and of a few configurations share a compiled loss.
+    starting += [starting[0]] * (-len(starting) % _GROUP_BATCH)
     p0 = {name: np.stack([values[name] for values in starting]) for name in starting[0]}
     theta0 = initial_correction([f for flights, _ in groups for f in flights], setup)
     tuned = TUNED_COEFFICIENTS if setup.tune_physics else ()
@@ -632,9 +637,9 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
         for column, name in enumerate(tuned):
             field = _field(name)
             if p[field].ndim == 1:
-                p[field] = p[field] + shifts[:, column]
+                p[field][:n_groups] += shifts[:, column]
             else:
-                p[field][:, _index(name)] += shifts[:, column]
+                p[field][:n_groups, _index(name)] += shifts[:, column]
         theta = {name: piece.reshape(shapes[name]) for name, piece in zip(shapes, pieces[1:])}
         return p, theta
 
@@ -645,8 +650,8 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
         value = float(value)
         if not np.isfinite(value):
             return 1e10, np.zeros_like(x)
-        columns = [np.asarray(gp[_field(n)]) if np.ndim(p0[_field(n)]) == 1 else
-                   np.asarray(gp[_field(n)])[:, _index(n)] for n in tuned]
+        columns = [np.asarray(gp[_field(n)])[:n_groups] if np.ndim(p0[_field(n)]) == 1 else
+                   np.asarray(gp[_field(n)])[:n_groups, _index(n)] for n in tuned]
         coefficient_gradient = (np.stack(columns, axis=1) * units).ravel() if tuned else np.zeros(0)
         return value, np.concatenate([coefficient_gradient] + [np.asarray(gtheta[n]).ravel() for n in shapes])
 

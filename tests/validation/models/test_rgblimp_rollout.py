@@ -42,7 +42,9 @@ def _loss_and_gradient(x_physics, theta, segments):
     groups = jnp.zeros(len(data[0]), dtype=int)
 
     def evaluate(physics, correction):
-        p = {name: jnp.asarray(value)[None] for name, value in physics.items()}
+        # As the fit passes them: groups padded to the batch (the fit's compiled shape).
+        p = {name: jnp.repeat(jnp.asarray(value)[None], rollout._GROUP_BATCH, axis=0)  # noqa: SLF001
+             for name, value in physics.items()}
         th = {name: jnp.asarray(value) for name, value in correction.items()}
         return compiled["value_and_grad"](p, th, groups, *data, 0.7)
 
