@@ -133,25 +133,19 @@ def _run_rgblimp(args: argparse.Namespace) -> int:
                             "and data_info/")
     if args.seeds is not None or args.quick or args.paper_only:
         raise BadInputError(f"--seeds, --quick and --paper-only do not apply to reproduce {args.paper}")
-    if args.paper == "rgblimp-settings":
+    if args.paper in ("rgblimp-settings", "rgblimp-hybrid-settings"):
         from validation.core.files import write_json
-        from validation.reproduce.rgblimp_settings import format_settings, study_settings
+        from validation.reproduce import rgblimp_settings
 
-        results = study_settings(args.data, configurations=args.configurations,
-                                 seed=0 if args.seed is None else args.seed, progress=True)
-        write_json(args.out / "settings.json", results)
-        print(format_settings(results))
-        print(f"written {args.out}/settings.json")
-        return 0
-    if args.paper == "rgblimp-hybrid-settings":
-        from validation.core.files import write_json
-        from validation.reproduce.rgblimp_settings import format_hybrid_settings, study_hybrid_settings
-
-        results = study_hybrid_settings(args.data, configurations=args.configurations,
-                                        seed=0 if args.seed is None else args.seed, progress=True)
-        write_json(args.out / "hybrid_settings.json", results)
-        print(format_hybrid_settings(results))
-        print(f"written {args.out}/hybrid_settings.json")
+        hybrid = args.paper == "rgblimp-hybrid-settings"
+        study = rgblimp_settings.study_hybrid_settings if hybrid else rgblimp_settings.study_settings
+        describe = rgblimp_settings.format_hybrid_settings if hybrid else rgblimp_settings.format_settings
+        name = "hybrid_settings.json" if hybrid else "settings.json"
+        results = study(args.data, configurations=args.configurations, seed=0 if args.seed is None else args.seed,
+                        progress=True)
+        write_json(args.out / name, results)
+        print(describe(results))
+        print(f"written {args.out}/{name}")
         return 0
     if args.paper == "rgblimp-diagnose":
         from validation.reproduce.rgblimp_diagnose import DEFAULT_CONFIGURATIONS, reproduce_rgblimp_diagnose
