@@ -281,7 +281,7 @@ def _rollout_function(jax, jnp):
     free run from ``start`` (12,) through ``inputs`` (L, 5), states at samples 1 .. L, in the
     earth frame (the wind handled as in :func:`validation.vehicles.rgblimp_equations.free_run`,
     yaw carried continuously). ``theta`` None runs the physics alone; ``disturbance`` (L, 6),
-    or None, is added to the body accelerations over each step (:meth:`RolloutHybrid.sample`)."""
+    or None, is added to the body accelerations over each step (:meth:`RolloutHybrid.band`)."""
     h = SAMPLE_TIME
 
     def rollout(p, theta, start, inputs, disturbance=None):
@@ -529,13 +529,12 @@ def initial_correction(flights, setup: RolloutSetup) -> dict:
     """The correction before the fit: zero values (the physics alone) at ``M`` inducing inputs
     drawn (seeded) from the fitting flights' recorded states, length scales and amplitudes at
     their starting values."""
-    jax, jnp = _jax()
     states = np.concatenate([f.recording.outputs for f in flights])
     inputs = np.concatenate([f.recording.inputs for f in flights])
     rng = np.random.default_rng(setup.seed)
     rows = rng.choice(len(states), size=min(setup.inducing_points, len(states)), replace=False)
-    inducing = np.asarray(jax.vmap(lambda s, u: features(jnp, s, u))(jnp.asarray(states[rows]),
-                                                                       jnp.asarray(inputs[rows])))
+    inducing = np.concatenate([states[rows][:, _STATE_FEATURES], inputs[rows][:, _INPUT_FEATURES]], axis=1)
+    inducing = inducing / np.asarray(FEATURE_SCALE)  # what features() computes
     return {"inducing": inducing, "whitened": np.zeros((len(rows), 6)),
             "log_length_scale": np.full(len(FEATURE_NAMES), np.log(setup.initial_length_scale)),
             "log_amplitude": np.log(np.asarray(setup.initial_amplitude, dtype=float))}

@@ -113,10 +113,10 @@ DEFAULT_MODEL = "identified"
 #: this share of the test flights, a mean score at most this fraction of the identified model's,
 #: and a mean position RMSE at most this.
 GOAL_HYBRID_BEATS_IDENTIFIED_SHARE = 30 / 35
-#: The rollout-trained hybrids the goals above apply to.
-HYBRID_MODELS = ("hybrid", "hybrid_global")
 GOAL_HYBRID_SCORE_FRACTION = 0.5
 GOAL_HYBRID_POSITION_RMSE_M = 0.25
+#: The rollout-trained hybrids the goals above apply to.
+HYBRID_MODELS = ("hybrid", "hybrid_global")
 #: The folder of OUT that holds each configuration's RKGP model file (:func:`rkgp_model_path`).
 MODELS_FOLDER = "models"
 
@@ -493,31 +493,6 @@ def identify_configuration(fitting, initial: RGBlimpModel, *, setup: RGBlimpSetu
     return identify_parameters(
         fitting, names=setup.identified_parameters, initial=initial, segment_duration=setup.segment_duration,
         max_segments=setup.max_segments, max_iterations=setup.max_iterations)
-
-
-def fit_configuration(fitting, initial: RGBlimpModel, *, setup: RGBlimpSetup, seed: int, seconds=None):
-    """One configuration's models: its coefficients identified on its fitting flights starting
-    from ``initial`` (the global model), and the RKGP on the identified model.
-
-    Parameters
-    ----------
-    seconds : dict, optional
-        Receives the wall times, s: ``identified`` (the identification) and ``rkgp`` (the
-        identification plus the GPs' fit).
-
-    Returns
-    -------
-    identified : IdentificationResult
-    rkgp : GreyBoxGP
-    """
-    began = clock.perf_counter()
-    identified = identify_configuration(fitting, initial, setup=setup)
-    identified_seconds = clock.perf_counter() - began
-    rkgp = fit_rkgp(fitting, identified.model, n_points=setup.training_points,
-                    min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
-    if seconds is not None:
-        seconds.update(identified=identified_seconds, rkgp=clock.perf_counter() - began)
-    return identified, rkgp
 
 
 def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlimpModel, global_rkgp, *,

@@ -7,7 +7,7 @@ present it fits on the lowest-numbered one and validates on the next (on a folde
 ``4j+1 .. 4j+3``: fit on ``4j+1``, validate on ``4j+2``), with the reproduction's
 own procedure (a global identification on the fitting flights of every configuration,
 :func:`validation.reproduce.rgblimp.fit_global`, then per configuration the identified model
-started from it and its RKGP, as :func:`validation.reproduce.rgblimp.fit_configuration`; free runs
+started from it (:func:`validation.reproduce.rgblimp.identify_configuration`) and its RKGP; free runs
 of the whole validation flight, the RKGP's mean only). Candidates that share the identification
 settings share the identified models. Each candidate changes
 one setting of the chosen one (:data:`validation.reproduce.rgblimp.DEFAULT_SETUP`); the table is
@@ -25,8 +25,15 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.progress import progress_bar
 from validation.models.rgblimp_greybox import continuous_states, fit_rkgp, physics_step
-from validation.models.rgblimp_identification import IDENTIFIED_PARAMETERS, RGBlimpModel, identify_parameters
-from validation.reproduce.rgblimp import DEFAULT_SETUP, Split, fit_global, flight_metrics, read_score_ranges
+from validation.models.rgblimp_identification import IDENTIFIED_PARAMETERS, RGBlimpModel
+from validation.reproduce.rgblimp import (
+    DEFAULT_SETUP,
+    Split,
+    fit_global,
+    flight_metrics,
+    identify_configuration,
+    read_score_ranges,
+)
 from validation.vehicles.rgblimp_data import flights_by_configuration, read_rgblimp_flight
 
 #: The chosen settings and their one-setting variants: name -> RGBlimpSetup.
@@ -111,10 +118,7 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
                     physics_[split] = flight_metrics(RGBlimpModel().simulate(test.outputs[0], test.inputs),
                                                      test.outputs, ranges[split.kind])
                 if (key, split) not in identified_:  # nor, within a key, the identified model's
-                    model = identify_parameters(
-                        fitting_flights, names=setup.identified_parameters, initial=globals_[key].model,
-                        segment_duration=setup.segment_duration, max_segments=setup.max_segments,
-                        max_iterations=setup.max_iterations).model
+                    model = identify_configuration(fitting_flights, globals_[key].model, setup=setup).model
                     identified_[key, split] = model, flight_metrics(
                         model.simulate(test.outputs[0], test.inputs), test.outputs, ranges[split.kind])
                 model, identified_metrics = identified_[key, split]
@@ -124,16 +128,29 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
                 metrics = {"physics": physics_[split], "identified": identified_metrics,
                            "rkgp": flight_metrics(rkgp.rollout(start, test.inputs[:-1], physics_step(model)),
                                                   test.outputs, ranges[split.kind])}
-                per_configuration.append({"index": split.configuration,
-                                          **{key_: {m: metrics[m][key_] for m in SCORED}
-                                             for key_ in ("score", "position_rmse_m")}})
+                per_configuration.append(_scored(split, metrics, SCORED))
                 if update:
                     update(1, candidate=name)
-            scored[name] = {
-                "setup": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(setup).items()},
-                **{f"mean_{k}": {m: float(np.mean([e[k][m] for e in per_configuration])) for m in SCORED}
-                   for k in ("score", "position_rmse_m")},
-                "configurations": per_configuration, "seconds": clock.perf_counter() - began}
+            scored[name] = {**_candidate(setup, per_configuration, SCORED), "seconds": clock.perf_counter() - began}
+    return _study(splits, scored)
+
+
+def _scored(split: Split, metrics: dict, models) -> dict:
+    """One configuration's row of a study: its ``score`` and ``position_rmse_m`` per model."""
+    return {"index": split.configuration,
+            **{key: {m: metrics[m][key] for m in models} for key in ("score", "position_rmse_m")}}
+
+
+def _candidate(setup, per_configuration: list, models) -> dict:
+    """One candidate of a study: its setup (a dataclass), the means over configurations and the rows."""
+    return {"setup": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(setup).items()},
+            **{f"mean_{k}": {m: float(np.mean([e[k][m] for e in per_configuration])) for m in models}
+               for k in ("score", "position_rmse_m")},
+            "configurations": per_configuration}
+
+
+def _study(splits, scored: dict) -> dict:
+    """A study's results: the splits, what the means are over, and each candidate."""
     return {"splits": [{"index": s.configuration, "fit": [f"data_{n}.csv" for n in s.fit],
                         "validation": f"data_{s.test}.csv"} for s in splits],
             "metric": "mean over configurations of a free run of the whole validation flight from its first "
@@ -207,10 +224,7 @@ def study_hybrid_settings(data_dir, *, configurations=None, candidates=None, see
     identified, baseline = {}, {}
     for split in splits:
         test = flights[split.test].recording
-        model = identify_parameters(
-            [flights[n] for n in split.fit], names=setup.identified_parameters, initial=global_model,
-            segment_duration=setup.segment_duration, max_segments=setup.max_segments,
-            max_iterations=setup.max_iterations).model
+        model = identify_configuration([flights[n] for n in split.fit], global_model, setup=setup).model
         identified[split] = model
         baseline[split] = {name: flight_metrics(m.simulate(test.outputs[0], test.inputs), test.outputs,
                                                 ranges[split.kind])
@@ -227,23 +241,14 @@ def study_hybrid_settings(data_dir, *, configurations=None, candidates=None, see
                 seconds.append(hybrid.fit_seconds)
                 metrics = {**baseline[split], "hybrid": flight_metrics(
                     hybrid.simulate(test.outputs[0], test.inputs), test.outputs, ranges[split.kind])}
-                per_configuration.append({"index": split.configuration,
-                                          **{key: {m: metrics[m][key] for m in models}
-                                             for key in ("score", "position_rmse_m")}})
+                per_configuration.append(_scored(split, metrics, models))
                 if update:
                     update(1, candidate=name)
-            scored[name] = {
-                "setup": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(rollout_setup).items()},
-                **{f"mean_{k}": {m: float(np.mean([e[k][m] for e in per_configuration])) for m in models}
-                   for k in ("score", "position_rmse_m")},
-                "hybrid_beats_identified": int(sum(e["score"]["hybrid"] < e["score"]["identified"]
-                                                   for e in per_configuration)),
-                "configurations": per_configuration, "mean_fit_seconds": float(np.mean(seconds))}
-    return {"splits": [{"index": s.configuration, "fit": [f"data_{n}.csv" for n in s.fit],
-                        "validation": f"data_{s.test}.csv"} for s in splits],
-            "metric": "mean over configurations of a free run of the whole validation flight from its first "
-                      "recorded state: the source's score and the position RMSE (m)",
-            "candidates": scored}
+            scored[name] = {**_candidate(rollout_setup, per_configuration, models),
+                            "hybrid_beats_identified": int(sum(e["score"]["hybrid"] < e["score"]["identified"]
+                                                               for e in per_configuration)),
+                            "mean_fit_seconds": float(np.mean(seconds))}
+    return _study(splits, scored)
 
 
 def format_hybrid_settings(results: dict) -> str:
