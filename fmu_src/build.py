@@ -12,6 +12,8 @@ from fmu_src.bo105_reference.build import build_bo105_reference_fmu
 from fmu_src.jsbsim_aircraft.build import build_jsbsim_fmu
 from fmu_src.rate_predictor.build import build_rate_predictor_fmu
 from fmu_src.rate_predictor.native import build_native_rate_predictor_fmu
+from fmu_src.rgblimp_hybrid.build import build_rgblimp_hybrid_fmu
+from fmu_src.rgblimp_hybrid.native import build_native_rgblimp_hybrid_fmu
 from fmu_src.rgblimp_rkgp.build import build_rgblimp_rkgp_fmu
 from fmu_src.rgblimp_rkgp.native import build_native_rgblimp_rkgp_fmu
 from gp_model import read_header
@@ -29,10 +31,11 @@ GREYBOX_FMUS = {
 
 
 def build_model_fmu(model_path, out_dir, *, name: str | None = None, native: bool = False) -> Path:
-    """The FMU of a trained model file, by its type: a ``GreyBoxGP`` gives the grey-box FMU of
-    the physics it describes (:data:`GREYBOX_FMUS`: ``blimp_rk4`` the blimp RKGP, ``rgblimp_rk4``
-    the RGBlimp RKGP), anything else the GP-NARX rate predictor (which says when the file is not a
-    GP-NARX model).
+    """The FMU of a trained model file, by its type: a ``.json`` file the RGBlimp hybrid's
+    (:func:`build_rgblimp_hybrid_fmu`, which says when it is not such a model); a ``GreyBoxGP``
+    the grey-box FMU of the physics it describes (:data:`GREYBOX_FMUS`: ``blimp_rk4`` the blimp
+    RKGP, ``rgblimp_rk4`` the RGBlimp RKGP); anything else the GP-NARX rate predictor (which says
+    when the file is not a GP-NARX model).
 
     Parameters
     ----------
@@ -56,6 +59,9 @@ def build_model_fmu(model_path, out_dir, *, name: str | None = None, native: boo
     gp_model.ModelFileError
         Missing or unreadable model file.
     """
+    if Path(model_path).suffix.lower() == ".json":
+        build = build_native_rgblimp_hybrid_fmu if native else build_rgblimp_hybrid_fmu
+        return build(model_path, out_dir, name=name)
     header = read_header(model_path)
     if header.get("type") == "GreyBoxGP":
         physics = header.get("physics")

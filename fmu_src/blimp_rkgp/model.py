@@ -182,6 +182,10 @@ class RKGPModel:
         """The lagged commands at the start: 0 (fans at rest), shape (n_lags,)."""
         return np.zeros(self.n_lags)
 
+    def start_covariance(self) -> np.ndarray:
+        """The start is known: covariance zero."""
+        return self.propagation.known_start()
+
     def advance_lags(self, lags: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
         """The lagged commands (n_lags,) ``dt`` s on under ``commands`` (3,) held: ``a z + (1 - a) u``,
         ``a = exp(-dt / T)`` (module docstring)."""

@@ -128,6 +128,11 @@ void greybox_step(const GreyBox *greybox, GreyBoxPhysics physics, const void *co
         }
         for (int i = 0; i < n; i++) J[i * n + j] = (plus[i] - minus[i]) / (2 * step);
     }
+    covariance_update(n, J, covariance, var, JP, next_covariance);
+}
+
+void covariance_update(int n, const double *J, const double *covariance, const double *var, double *JP,
+                       double *next_covariance) {
     for (int i = 0; i < n; i++) /* J P */
         for (int c = 0; c < n; c++) {
             double sum = 0.0;

@@ -85,6 +85,11 @@ void greybox_step(const GreyBox *greybox, GreyBoxPhysics physics, const void *co
                   const int *gp_input_of_state, double step, const double *state, const double *covariance,
                   const double *x, double *next, double *next_covariance);
 
+/* next_covariance = (J P) J^T + diag(var) (n x n, by rows; FirstOrderPropagation.advance), JP
+ * scratch (n x n). */
+void covariance_update(int n, const double *J, const double *covariance, const double *var, double *JP,
+                       double *next_covariance);
+
 /* NULL if next (n) and covariance (n x n) are finite; else a message for the refused step at time
  * t (malloc'd). */
 char *greybox_nonfinite(int n, const double *next, const double *covariance, double t);

@@ -149,6 +149,10 @@ class FirstOrderPropagation:
         self.offsets = self.step * np.concatenate([np.zeros((1, n_states)), np.eye(n_states), -np.eye(n_states)])
         freeze((self.offsets,))
 
+    def known_start(self) -> np.ndarray:
+        """The covariance of a known start: zero, (n, n)."""
+        return np.zeros((self.offsets.shape[1],) * 2)
+
     def points(self, state: np.ndarray) -> np.ndarray:
         """Where the one-step map is evaluated: ``state`` (n,) and its 2 n moved copies, (2n + 1, n)."""
         return state + self.offsets
@@ -177,7 +181,14 @@ class FirstOrderPropagation:
         return moved[0], jacobian @ covariance @ jacobian.T + np.diag(variance)
 
 
-def greybox_variables(*, inputs, states, start_default: str) -> tuple:
+#: What a grey-box FMU's state outputs and their standard deviations are, by default (RKGP).
+MEAN_PHRASE = "RK4 physics plus GP residual mean (mean rollout)"
+SD_PHRASE = ("propagated along the run from the known start (first order, GP noise included: "
+             "GreyBoxGP.propagate; 0 at the start)")
+
+
+def greybox_variables(*, inputs, states, start_default: str, mean_phrase: str = MEAN_PHRASE,
+                      sd_phrase: str = SD_PHRASE) -> tuple:
     """The variable table of a grey-box FMU.
 
     Parameters
@@ -188,6 +199,8 @@ def greybox_variables(*, inputs, states, start_default: str) -> tuple:
         The states, with the default start value.
     start_default : str
         What the default start state is, for the start parameters' descriptions.
+    mean_phrase, sd_phrase : str
+        What a state output is, and how its standard deviation is propagated.
 
     Returns
     -------
@@ -200,11 +213,10 @@ def greybox_variables(*, inputs, states, start_default: str) -> tuple:
                       f"{phrase}, held from this communication point to the next", 0.0, *limits(limit))
              for name, unit, limit, phrase in inputs]
     table += [Variable(name, "output", "continuous", "exact", unit,
-                       f"{phrase}: RK4 physics plus GP residual mean (mean rollout)", start)
+                       f"{phrase}: {mean_phrase}", start)
               for name, unit, _, phrase, start in states]
     table += [Variable(f"{name}_sd", "output", "continuous", "exact", unit,
-                       f"standard deviation of the {phrase}, propagated along the run from the known "
-                       "start (first order, GP noise included: GreyBoxGP.propagate; 0 at the start)", 0.0)
+                       f"standard deviation of the {phrase}, {sd_phrase}", 0.0)
               for name, unit, _, phrase, _ in states]
     table += [Variable(f"{name}_start", "parameter", "fixed", "exact", unit,
                        f"{phrase} at the start time (default: {start_default})", start, *limits(limit))
@@ -224,11 +236,15 @@ class GreyBoxSlave(FlightgpSlave):
     MODEL : type
         The model, with ``load(path)`` (the FMU's model file, read-only), ``start_hidden()`` (the
         hidden state beyond mean and covariance at the start, an ndarray, e.g. lagged commands),
+        ``start_covariance()`` (the covariance at the start, n x n or larger when the model
+        propagates states beyond the outputs first; zero for a known start),
         ``step(state, covariance, hidden, inputs, h) -> (state, covariance, hidden, x)`` (x: the
         GP input at the state), ``envelope`` (:class:`fmu_src.fmi.runtime.Envelope` of the GP
         inputs) and ``describe()``.
     MODEL_PHRASE : str
         What the model is, for the log.
+    ENVELOPE_CONSEQUENCE : str
+        What happens outside the training envelope, for the warning.
 
     The mean state, its covariance (n x n), the hidden state and whether the GP input is outside
     the training envelope make up the FMU state. Envelope: when a GP input leaves the training
@@ -240,6 +256,7 @@ class GreyBoxSlave(FlightgpSlave):
     INPUT_NAMES: tuple = ()
     MODEL = None
     MODEL_PHRASE = "grey-box model"
+    ENVELOPE_CONSEQUENCE = "its standard deviations grow"
     STATE_ATTRIBUTES = ("_state", "_covariance", "_hidden", "_outside_envelope")
     CONSTANT_ATTRIBUTES = ("_model",)
 
@@ -247,9 +264,8 @@ class GreyBoxSlave(FlightgpSlave):
         self._model = self.shared_model(self.MODEL.load, self.model_file(), self.MODEL_PHRASE)
 
     def start_model(self) -> None:
-        n = len(self.STATE_NAMES)
         self._state = np.array([self.values[f"{name}_start"] for name in self.STATE_NAMES])
-        self._covariance = np.zeros((n, n))  # the start is known
+        self._covariance = self._model.start_covariance()
         self._hidden = self._model.start_hidden()
         self._outside_envelope = False
         self._set_outputs(self._state, self._covariance)
@@ -260,7 +276,7 @@ class GreyBoxSlave(FlightgpSlave):
         if not (np.isfinite(state).all() and np.isfinite(covariance).all()):
             raise FloatingPointError(f"non-finite state {state.tolist()} or covariance at t = {t + h:.16g} s")
         outside = self.report_envelope(self._model.envelope.outside(x), self._outside_envelope, t + h,
-                                       "its standard deviations grow")
+                                       self.ENVELOPE_CONSEQUENCE)
         # Commit only after everything that can fail (a refused step leaves the state as it was).
         self._state, self._covariance, self._hidden, self._outside_envelope = state, covariance, hidden, outside
         self._set_outputs(state, covariance)

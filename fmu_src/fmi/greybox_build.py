@@ -150,6 +150,21 @@ def greybox_doubles(gps: ResidualGPs) -> np.ndarray:
     return np.concatenate([np.ravel(np.asarray(c, dtype="<f8")) for c in chunks])
 
 
+def value_reference_lines(*, variables: tuple, state_names, input_names, slave: str) -> list:
+    """The lines of ``model_config.h`` naming a grey-box FMU's sizes and value references:
+    ``N_STATES``, ``N_INPUTS``, ``INPUT_VR``, ``STATE_VR``, ``SD_VR`` and ``START_VR``
+    (arguments as :func:`greybox_config_lines`)."""
+    reference = {v.name: vr for vr, v in enumerate(variables)}
+    return [
+        f"#define N_STATES {len(state_names)}",
+        f"#define N_INPUTS {len(input_names)}",
+        f"/* Value references ({slave}): inputs, states, their sds, their start parameters */",
+        c_array("unsigned", "INPUT_VR", [reference[n] for n in input_names]).rstrip(),
+        c_array("unsigned", "STATE_VR", [reference[n] for n in state_names]).rstrip(),
+        c_array("unsigned", "SD_VR", [reference[f"{n}_sd"] for n in state_names]).rstrip(),
+        c_array("unsigned", "START_VR", [reference[f"{n}_start"] for n in state_names]).rstrip()]
+
+
 def greybox_config_lines(*, variables: tuple, state_names, input_names, state_columns, gps: ResidualGPs,
                          propagation_step: float, envelope, slave: str) -> list:
     """The lines of ``model_config.h`` every native grey-box FMU has: its states and inputs, their
@@ -172,17 +187,10 @@ def greybox_config_lines(*, variables: tuple, state_names, input_names, state_co
     slave : str
         The module of the FMU's slave, for comments.
     """
-    reference = {v.name: vr for vr, v in enumerate(variables)}
     state_columns = [int(c) for c in state_columns]
     parts = gps.parts
     return [
-        f"#define N_STATES {len(state_names)}",
-        f"#define N_INPUTS {len(input_names)}",
-        f"/* Value references ({slave}): inputs, states, their sds, their start parameters */",
-        c_array("unsigned", "INPUT_VR", [reference[n] for n in input_names]).rstrip(),
-        c_array("unsigned", "STATE_VR", [reference[n] for n in state_names]).rstrip(),
-        c_array("unsigned", "SD_VR", [reference[f"{n}_sd"] for n in state_names]).rstrip(),
-        c_array("unsigned", "START_VR", [reference[f"{n}_start"] for n in state_names]).rstrip(),
+        *value_reference_lines(variables=variables, state_names=state_names, input_names=input_names, slave=slave),
         "/* Central-difference step of the covariance propagation, state units (GreyBoxGP.propagate) */",
         f"#define PROPAGATION_STEP {c_number(propagation_step)}", "",
         "/* GP: inputs [states[STATE_COLUMNS], ...]; parts (one shared, or one per state);",

@@ -61,10 +61,21 @@ PLATFORM_FOLDER = "linux64"
 _KINDS = {"Real": "KIND_REAL", "Boolean": "KIND_BOOLEAN"}
 
 
-def compiled_sources(model_source: Path) -> tuple[Path, ...]:
-    """The C files compiled into a native FMU of the model whose C is ``model_source``, in the
-    order its ``modelDescription.xml`` lists them."""
-    return FMI_SOURCE, GP_SOURCE, GREYBOX_SOURCE, model_source
+def _model_files(model_source) -> tuple[Path, ...]:
+    return (model_source,) if isinstance(model_source, Path) else tuple(model_source)
+
+
+def compiled_sources(model_source) -> tuple[Path, ...]:
+    """The C files compiled into a native FMU of the model whose C is ``model_source`` (one C file,
+    or a tuple of the model's files: its C files and its own headers), in the order its
+    ``modelDescription.xml`` lists them."""
+    return FMI_SOURCE, GP_SOURCE, GREYBOX_SOURCE, *(f for f in _model_files(model_source) if f.suffix == ".c")
+
+
+def model_headers(model_source) -> tuple[Path, ...]:
+    """The model's own headers among ``model_source`` (:func:`compiled_sources`), shipped with
+    the layer's."""
+    return tuple(f for f in _model_files(model_source) if f.suffix == ".h")
 
 
 def check_platform() -> None:
@@ -76,7 +87,7 @@ def check_platform() -> None:
                             "on the FMU's sources on the target")
 
 
-def package_native_fmu(target: Path, *, slave_class, model_source: Path, config, data: bytes,
+def package_native_fmu(target: Path, *, slave_class, model_source, config, data: bytes,
                        extra_flags=()) -> Path:
     """Compile and package one native FMU (what every native builder ends with).
 
@@ -87,9 +98,9 @@ def package_native_fmu(target: Path, *, slave_class, model_source: Path, config,
     slave_class : type
         The pythonfmu slave class of the same FMU (variable table, description, step), whose
         ``modelDescription.xml`` the native FMU declares.
-    model_source : Path
-        The model's C file, compiled with :data:`FMI_SOURCE`, :data:`GP_SOURCE` and
-        :data:`GREYBOX_SOURCE`.
+    model_source : Path or tuple of Path
+        The model's C file (or its C files and headers), compiled with :data:`FMI_SOURCE`,
+        :data:`GP_SOURCE` and :data:`GREYBOX_SOURCE` (:func:`compiled_sources`).
     config : callable
         ``config(guid) -> str``: the FMU's ``model_config.h`` (:func:`config_header`).
     data : bytes
@@ -104,7 +115,7 @@ def package_native_fmu(target: Path, *, slave_class, model_source: Path, config,
     """
     c_files = compiled_sources(model_source)
     xml, guid = _model_description(slave_class, [path.name for path in c_files])
-    sources = {path.name: path.read_bytes() for path in (*c_files, *LAYER_HEADERS)}
+    sources = {path.name: path.read_bytes() for path in (*c_files, *LAYER_HEADERS, *model_headers(model_source))}
     sources[CONFIG_HEADER] = config(guid).encode()
     binary = compile_shared_library(sources, target.stem, extra_flags=extra_flags)
     buffer = io.BytesIO()

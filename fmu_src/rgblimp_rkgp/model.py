@@ -133,6 +133,10 @@ class RGBlimpRKGPModel:
         """No hidden state beyond the mean and its covariance: shape (0,)."""
         return np.zeros(0)
 
+    def start_covariance(self) -> np.ndarray:
+        """The start is known: covariance zero."""
+        return self.propagation.known_start()
+
     def physics(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """The identified model's step of ``states`` (r, 12) under ``inputs`` (5,) held, yaw carried
         continuously (:func:`validation.models.rgblimp_greybox.physics_step`), shape (r, 12)."""

@@ -35,11 +35,13 @@ from validation.vehicles.rgblimp_equations import (
     RGBlimpParameters,
 )
 
-#: The model's C file, compiled with the FMI layer.
-MODEL_SOURCE = Path(__file__).with_name("rgblimp_model.c")
+#: The RGBlimp's physics in C, shared by the native RGBlimp FMUs (RKGP and hybrid).
+PHYSICS_SOURCES = (Path(__file__).with_name("rgblimp_physics.c"), Path(__file__).with_name("rgblimp_physics.h"))
+#: The model's C files, compiled with the FMI layer.
+MODEL_SOURCE = (Path(__file__).with_name("rgblimp_model.c"), *PHYSICS_SOURCES)
 
 _DATA_MAGIC = b"FGPRGBL1"
-#: The RGBlimpParameters fields ``rgblimp_model.c`` reads (C macros in capitals): a parameter it
+#: The RGBlimpParameters fields ``rgblimp_physics.c`` reads (C macros in capitals): a parameter it
 #: did not read would be left out of the native FMU's physics, so the build refuses to run then.
 C_PARAMETERS = ("air_density", "gravity", "buoyancy_mass", "hull_mass", "gondola_mass", "hull_cg", "propeller_arm",
                 "reference_area", "inertia", "rate_damping", "c_d0", "c_d_alpha2", "c_d_beta2", "c_s0", "c_s_alpha2",
@@ -75,13 +77,9 @@ def build_native_rgblimp_rkgp_fmu(model_path, out_dir, *, name: str | None = Non
         x86-64.
     RuntimeError
         gcc failed to compile the generated sources, or the RGBlimp's parameters are not those
-        ``rgblimp_model.c`` reads (:data:`C_PARAMETERS`; bugs: the message says which).
+        ``rgblimp_physics.c`` reads (:data:`C_PARAMETERS`; bugs: the message says which).
     """
-    check_platform()
-    fields = tuple(field.name for field in dataclasses.fields(RGBlimpParameters))
-    if set(fields) != set(C_PARAMETERS):
-        raise RuntimeError(f"rgblimp_model.c reads the RGBlimp parameters {sorted(C_PARAMETERS)}, the equations have "
-                           f"{sorted(fields)}: port the change to the C file and C_PARAMETERS")
+    check_physics_parameters()
     parts = rgblimp_rkgp_parts(model_path, out_dir, name=name)
     model = RGBlimpRKGPModel(parts.arrays)  # checks the arrays' shapes, as the pythonfmu FMU does at load
     slave_class = native_slave_class(parts, slave_class=RGBlimpRKGP)
@@ -91,9 +89,35 @@ def build_native_rgblimp_rkgp_fmu(model_path, out_dir, *, name: str | None = Non
         data=greybox_data(_DATA_MAGIC, model.gps))
 
 
+def check_physics_parameters() -> None:
+    """Raise BadInputError off Linux x86-64 (:func:`fmu_src.fmi.native.check_platform`), and
+    RuntimeError (a bug) if the equations' parameters are not those ``rgblimp_physics.c`` reads."""
+    check_platform()
+    fields = tuple(field.name for field in dataclasses.fields(RGBlimpParameters))
+    if set(fields) != set(C_PARAMETERS):
+        raise RuntimeError(f"rgblimp_physics.c reads the RGBlimp parameters {sorted(C_PARAMETERS)}, the equations "
+                           f"have {sorted(fields)}: port the change to the C file and C_PARAMETERS")
+
+
+def physics_config_lines(params, *, thrust_gain: float, wind) -> list:
+    """The lines of ``model_config.h`` that ``rgblimp_physics.c`` reads: the RK4 sample, the
+    airspeed guard, pi, every parameter (:data:`C_PARAMETERS`), the thrust factor and the wind."""
+    return [
+        "/* Physics (validation/vehicles/rgblimp_equations.py, validation/models/rgblimp_identification.py;",
+        "   SI units): the RK4 sample, s, the airspeed guard, m/s, pi, the RGBlimpParameters fields, the",
+        "   thrust factor and the wind along earth x and y, m/s (rgblimp_physics.h) */",
+        f"#define SAMPLE_TIME {c_number(SAMPLE_TIME)}",
+        f"#define ZERO_SPEED_GUARD {c_number(ZERO_SPEED_GUARD)}",
+        f"#define PI {c_number(math.pi)}",
+        *(c_array("double", field.upper(), value, c_number).rstrip() if isinstance(value, tuple)
+          else f"#define {field.upper()} {c_number(value)}"
+          for field in C_PARAMETERS for value in [getattr(params, field)]),
+        f"#define THRUST_GAIN {c_number(thrust_gain)}",
+        c_array("double", "WIND", wind, c_number).rstrip()]
+
+
 def _rgblimp_config(guid: str, name: str, variables: tuple, model: RGBlimpRKGPModel) -> str:
     """``model_config.h``: identity, variable table, step, physics and GP structure."""
-    parameters = [(field, getattr(model.params, field)) for field in C_PARAMETERS]
     return config_header(name, guid, generator="fmu_src/rgblimp_rkgp/native.py", body=[
         "/* Communication step: one RK4 sample of the source's integrator, s (fmu_src/rgblimp_rkgp/slave.py) */",
         f"#define STEP_SIZE {c_number(RGBlimpRKGP.STEP_SIZE)}", "",
@@ -104,13 +128,4 @@ def _rgblimp_config(guid: str, name: str, variables: tuple, model: RGBlimpRKGPMo
                               slave="fmu_src/rgblimp_rkgp/slave.py"), "",
         "/* Hidden state: the 12 states, their covariance, the envelope flag (rgblimp_model.c) */",
         "#define MODEL_STATE_SIZE (N_STATES + N_STATES * N_STATES + 1)", "",
-        "/* Physics (validation/vehicles/rgblimp_equations.py, validation/models/rgblimp_identification.py;",
-        "   SI units): the RK4 sample, s, the airspeed guard, m/s, pi, the RGBlimpParameters fields, the",
-        "   thrust factor and the wind along earth x and y, m/s */",
-        f"#define SAMPLE_TIME {c_number(SAMPLE_TIME)}",
-        f"#define ZERO_SPEED_GUARD {c_number(ZERO_SPEED_GUARD)}",
-        f"#define PI {c_number(math.pi)}",
-        *(c_array("double", field.upper(), value, c_number).rstrip() if isinstance(value, tuple)
-          else f"#define {field.upper()} {c_number(value)}" for field, value in parameters),
-        f"#define THRUST_GAIN {c_number(model.thrust_gain)}",
-        c_array("double", "WIND", model.wind, c_number).rstrip()])
+        *physics_config_lines(model.params, thrust_gain=model.thrust_gain, wind=model.wind)])

@@ -1,38 +1,25 @@
-/* RGBlimp RKGP for a native FMU: the identified RGBlimp model (Zhu, Cheng & Zhang, IEEE RA-L 2024,
- * arXiv 2404.18580, with flightgp's re-fitted coefficients, thrust factor and steady wind) stepped
- * by one classical RK4 step per 1/60 s sample, plus the mean of GPs on its one-step residual, and
- * the state covariance propagated along the run. The same formulas, in the same order, as the
- * pythonfmu RGBlimp RKGP FMU: validation/vehicles/rgblimp_equations.py (body_accelerations,
- * aerodynamic_force_and_moment, rgblimp_dynamics, rk4_step, wrap_heading and advance: the rigid
- * body with the movable gondola mass about the centre of buoyancy, gravity, buoyancy, the
- * aerodynamic polynomials in angle of attack and sideslip, rate damping, the propeller thrusts, an
- * optional added mass, and the steady wind by a change to the air mass's frame; the equations and
- * their sources are there), validation/models/rgblimp_step.py (carry_yaw: yaw carried
- * continuously), fmu_src/rgblimp_rkgp/model.py (RGBlimpRKGPModel.physics, gp_inputs and step) and
- * fmu_src/rgblimp_rkgp/slave.py (RGBlimpRKGP), whose module docstrings define the timing, the GP
- * inputs, the standard deviations and the envelope. The residual GPs and the covariance
- * propagation are the FMI layer's greybox.c (greybox.h says how).
+/* RGBlimp RKGP for a native FMU: the identified RGBlimp model stepped by one classical RK4 step per
+ * 1/60 s sample (rgblimp_physics.c, which rgblimp_physics.h describes), plus the mean of GPs on its
+ * one-step residual, and the state covariance propagated along the run. The same formulas, in the
+ * same order, as the pythonfmu RGBlimp RKGP FMU: fmu_src/rgblimp_rkgp/model.py
+ * (RGBlimpRKGPModel.physics, gp_inputs and step) and fmu_src/rgblimp_rkgp/slave.py (RGBlimpRKGP),
+ * whose module docstrings define the timing, the GP inputs, the standard deviations and the
+ * envelope. The residual GPs and the covariance propagation are the FMI layer's greybox.c
+ * (greybox.h says how).
  *
- * Model constants. The physics (every RGBlimpParameters field under its name in capitals, the
- * thrust factor THRUST_GAIN and WIND, m/s along earth x and y), the propagation step, the GP
- * structure, value references and training envelope are compiled in from model_config.h; the GP
- * arrays are read at fmi2Instantiate from resources/DATA_FILE, written by
- * fmu_src/rgblimp_rkgp/native.py: 8 bytes "FGPRGBL1", the number of doubles that follow (uint64,
- * little-endian, as the doubles), the GP parts as greybox.h lays them out. Each instance reads its
- * own copy (no memory shared between instances).
+ * Model constants. The physics (rgblimp_physics.h), the propagation step, the GP structure, value
+ * references and training envelope are compiled in from model_config.h; the GP arrays are read at
+ * fmi2Instantiate from resources/DATA_FILE, written by fmu_src/rgblimp_rkgp/native.py: 8 bytes
+ * "FGPRGBL1", the number of doubles that follow (uint64, little-endian, as the doubles), the GP
+ * parts as greybox.h lays them out. Each instance reads its own copy (no memory shared between
+ * instances).
  *
  * GP input x = [s[STATE_COLUMNS], thrust_left, thrust_right, gondola_x, gondola_y, gondola_z]
  * (RGBlimpRKGPModel.gp_inputs; the inputs as set, before the thrust factor).
  *
- * Propagation (GreyBoxGP.propagate; greybox.h, "Step"): g(s) = f(s, u) + E[residual | s, u]; the
- * dynamics do not read the position, and the wind's frame change moves it by the same w h for
- * every start, so rgblimp_step advances the moved copies of x, y, z by the centre's increments in
- * the same order (the same doubles as a full step).
- *
- * The 6 x 6 system of the accelerations is solved by Gaussian elimination with partial pivoting
- * (the Python step multiplies by numpy.linalg.inv of the matrix, LAPACK's LU with partial
- * pivoting: the same factorisation, its operations in another order, so results agree to
- * rounding).
+ * Propagation (GreyBoxGP.propagate; greybox.h, "Step"): g(s) = f(s, u) + E[residual | s, u];
+ * rgblimp_step advances the moved copies of x, y, z by the centre's increments in the same order
+ * (the same doubles as a full step).
  *
  * Hidden state (MODEL_STATE_SIZE doubles, saved with the FMU state): the 12 states, their
  * covariance P (12 x 12, by rows), then 1.0 while a GP input is outside the training envelope (a
@@ -47,6 +34,7 @@
 #include "greybox.h"
 #include "model.h"
 #include "model_config.h"
+#include "rgblimp_physics.h"
 
 #define DATA_MAGIC "FGPRGBL1"
 /* Indices in the hidden state */
@@ -54,7 +42,6 @@
 #define OUTSIDE_ENVELOPE (COVARIANCE + N_STATES * N_STATES)
 /* The states the dynamics do not read: the position x, y, z (greybox.h) */
 #define N_UNREAD 3
-#define YAW 5
 
 struct Model {
     double *data;
@@ -82,226 +69,6 @@ Model *model_load(const char *resources_dir, char **error) {
     return model;
 }
 
-static void cross(const double a[3], const double b[3], double out[3]) {
-    out[0] = a[1] * b[2] - a[2] * b[1];
-    out[1] = a[2] * b[0] - a[0] * b[2];
-    out[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-/* Body-to-earth rotation of the ZYX Euler angles, by rows (validation/vehicles/blimp_equations.py,
- * rotation_body_to_earth). */
-static void rotation_body_to_earth(const double angles[3], double rotation[9]) {
-    const double sf = sin(angles[0]), cf = cos(angles[0]);
-    const double st = sin(angles[1]), ct = cos(angles[1]);
-    const double sp = sin(angles[2]), cp = cos(angles[2]);
-    rotation[0] = cp * ct, rotation[1] = -sp * cf + cp * st * sf, rotation[2] = sp * sf + cp * cf * st;
-    rotation[3] = sp * ct, rotation[4] = cp * cf + sf * st * sp, rotation[5] = -cp * sf + st * sp * cf;
-    rotation[6] = -st, rotation[7] = ct * sf, rotation[8] = ct * cf;
-}
-
-/* Aerodynamic force, N, and moment with the rate damping, N m, in body axes
- * (rgblimp_equations.py, wind_angles, rotation_wind_to_body, aerodynamic_force_and_moment). */
-static void aerodynamics(const double v[3], const double w[3], double force[3], double moment[3]) {
-    const double squares = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-    const double alpha = atan2(v[2], v[0] + ZERO_SPEED_GUARD);
-    const double beta = asin(v[1] / (sqrt(squares) + ZERO_SPEED_GUARD));
-    const double qbar_area = 0.5 * AIR_DENSITY * squares * REFERENCE_AREA;
-    const double alpha2 = alpha * alpha, beta2 = beta * beta;
-    const double drag = qbar_area * (C_D0 + C_D_ALPHA2 * alpha2 + C_D_BETA2 * beta2);
-    const double side = qbar_area * (C_S0 + C_S_ALPHA2 * alpha2 + C_S_BETA * beta);
-    const double lift = qbar_area * (C_L0 + C_L_ALPHA * alpha + C_L_BETA2 * beta2);
-    const double coefficients[3] = {C_MX0 + C_MX_ALPHA * alpha + C_MX_BETA * beta,
-                                    C_MY0 + C_MY_ALPHA * alpha + C_MY_BETA4 * pow(beta, 4.0),
-                                    C_MZ0 + C_MZ_ALPHA * alpha + C_MZ_BETA * beta};
-    double wind_moment[3];
-    for (int i = 0; i < 3; i++) wind_moment[i] = qbar_area * coefficients[i] + RATE_DAMPING[i] * w[i];
-    /* wind to body axes: the first column is the unit airspeed direction */
-    const double ca = cos(alpha), sa = sin(alpha), cb = cos(beta), sb = sin(beta);
-    const double rotation[9] = {ca * cb, -ca * sb, -sa, sb, cb, 0.0, sa * cb, -sa * sb, ca};
-    const double wind_force[3] = {-drag, side, -lift};
-    for (int i = 0; i < 3; i++) {
-        const double *row = rotation + 3 * i;
-        force[i] = row[0] * wind_force[0] + row[1] * wind_force[1] + row[2] * wind_force[2];
-        moment[i] = row[0] * wind_moment[0] + row[1] * wind_moment[1] + row[2] * wind_moment[2];
-    }
-}
-
-/* Solve A x = b for A (6 x 6, by rows; overwritten) by Gaussian elimination with partial pivoting;
- * b becomes x. */
-static void solve6(double A[36], double b[6]) {
-    for (int k = 0; k < 6; k++) {
-        int pivot = k;
-        for (int i = k + 1; i < 6; i++)
-            if (fabs(A[6 * i + k]) > fabs(A[6 * pivot + k])) pivot = i;
-        if (pivot != k) {
-            for (int j = 0; j < 6; j++) {
-                const double t = A[6 * k + j];
-                A[6 * k + j] = A[6 * pivot + j], A[6 * pivot + j] = t;
-            }
-            const double t = b[k];
-            b[k] = b[pivot], b[pivot] = t;
-        }
-        for (int i = k + 1; i < 6; i++) {
-            const double factor = A[6 * i + k] / A[6 * k + k];
-            for (int j = k + 1; j < 6; j++) A[6 * i + j] -= factor * A[6 * k + j];
-            b[i] -= factor * b[k];
-        }
-    }
-    for (int k = 5; k >= 0; k--) {
-        double sum = b[k];
-        for (int j = k + 1; j < 6; j++) sum -= A[6 * k + j] * b[j];
-        b[k] = sum / A[6 * k + k];
-    }
-}
-
-/* U_dot, V_dot, W_dot, P_dot, Q_dot, R_dot (rgblimp_equations.py, body_accelerations; inputs with
- * the thrust factor applied). */
-static void body_accelerations(const double s[N_STATES], const double u[N_INPUTS], double out[6]) {
-    const double *angles = s + 3, *v = s + 6, *w = s + 9, *gondola = u + 2;
-    const double thrust_left = u[0], thrust_right = u[1];
-    const double total_mass = HULL_MASS + GONDOLA_MASS;
-    double l[3], skew[9], inertia[9];
-    for (int i = 0; i < 3; i++) l[i] = HULL_MASS * HULL_CG[i] + GONDOLA_MASS * gondola[i];
-    const double gondola_skew[9] = {0.0, -gondola[2], gondola[1], gondola[2], 0.0, -gondola[0],
-                                    -gondola[1], gondola[0], 0.0};
-    for (int i = 0; i < 9; i++) skew[i] = GONDOLA_MASS * gondola_skew[i];
-    for (int i = 0; i < 3; i++) /* diag(I) - (m_b S(r_b)) S(r_b) */
-        for (int j = 0; j < 3; j++) {
-            double sum = 0.0;
-            for (int k = 0; k < 3; k++) sum += skew[3 * i + k] * gondola_skew[3 * k + j];
-            inertia[3 * i + j] = (i == j ? INERTIA[i] : 0.0) - sum;
-        }
-    const double down[3] = {-sin(angles[1]), cos(angles[1]) * sin(angles[0]), cos(angles[1]) * cos(angles[0])};
-    double aero_force[3], aero_moment[3];
-    aerodynamics(v, w, aero_force, aero_moment);
-    const double thrust = thrust_left + thrust_right;
-    const double thrust_moment[3] = {0.0, thrust * gondola[2], (thrust_left - thrust_right) * PROPELLER_ARM};
-
-    double v_x_w[3], added_momentum[3], added_x_w[3], w_x_l[3], w_x_l_x_w[3];
-    double inertia_w[3], inertia_w_x_w[3], added_x_v[3], added_angular[3], added_angular_x_w[3];
-    double l_x_v_x_w[3], g_down[3], l_x_g_down[3], rhs[6], matrix[36];
-    cross(v, w, v_x_w);
-    for (int i = 0; i < 3; i++) added_momentum[i] = ADDED_MASS[i] * v[i];
-    cross(added_momentum, w, added_x_w);
-    cross(w, l, w_x_l);
-    cross(w_x_l, w, w_x_l_x_w);
-    for (int i = 0; i < 3; i++)
-        inertia_w[i] = inertia[3 * i] * w[0] + inertia[3 * i + 1] * w[1] + inertia[3 * i + 2] * w[2];
-    cross(inertia_w, w, inertia_w_x_w);
-    cross(added_momentum, v, added_x_v);
-    for (int i = 0; i < 3; i++) added_angular[i] = ADDED_INERTIA[i] * w[i];
-    cross(added_angular, w, added_angular_x_w);
-    cross(l, v_x_w, l_x_v_x_w);
-    for (int i = 0; i < 3; i++) g_down[i] = GRAVITY * down[i];
-    cross(l, g_down, l_x_g_down);
-    for (int i = 0; i < 3; i++) {
-        rhs[i] = total_mass * v_x_w[i] + added_x_w[i] + w_x_l_x_w[i]
-                 + (total_mass - BUOYANCY_MASS) * GRAVITY * down[i] + aero_force[i] + (i == 0 ? thrust : 0.0);
-        rhs[3 + i] = inertia_w_x_w[i] + added_x_v[i] + added_angular_x_w[i] + l_x_v_x_w[i] + l_x_g_down[i]
-                     + aero_moment[i] + thrust_moment[i];
-    }
-    /* [[(m_t + A_v) I, -S(l)], [S(l), J + A_w]] */
-    const double l_skew[9] = {0.0, -l[2], l[1], l[2], 0.0, -l[0], -l[1], l[0], 0.0};
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) {
-            matrix[6 * i + j] = i == j ? total_mass + ADDED_MASS[i] : 0.0;
-            matrix[6 * i + 3 + j] = -l_skew[3 * i + j];
-            matrix[6 * (3 + i) + j] = l_skew[3 * i + j];
-            matrix[6 * (3 + i) + 3 + j] = inertia[3 * i + j] + (i == j ? ADDED_INERTIA[i] : 0.0);
-        }
-    solve6(matrix, rhs);
-    memcpy(out, rhs, sizeof rhs);
-}
-
-/* d state / dt (rgblimp_equations.py, rgblimp_dynamics): position rates in earth axes, Euler
- * angle rates (blimp_equations.py, euler_rates) and the body accelerations. */
-static void dynamics(const double s[N_STATES], const double u[N_INPUTS], double out[N_STATES]) {
-    const double *angles = s + 3, *v = s + 6;
-    double rotation[9];
-    rotation_body_to_earth(angles, rotation);
-    for (int i = 0; i < 3; i++) out[i] = rotation[3 * i] * v[0] + rotation[3 * i + 1] * v[1] + rotation[3 * i + 2] * v[2];
-    const double sf = sin(angles[0]), cf = cos(angles[0]), ct = cos(angles[1]), tt = tan(angles[1]);
-    const double p = s[9], q = s[10], r = s[11];
-    out[3] = p + sf * tt * q + cf * tt * r;
-    out[4] = cf * q - sf * r;
-    out[5] = (sf * q + cf * r) / ct;
-    body_accelerations(s, u, out + 6);
-}
-
-/* s with sign R(Theta)^T [WIND, 0] added to the body velocity (rgblimp_equations.py,
- * _with_velocity_offset). */
-static void add_wind_velocity(double s[N_STATES], double sign) {
-    double rotation[9];
-    rotation_body_to_earth(s + 3, rotation);
-    const double wind[3] = {WIND[0], WIND[1], 0.0};
-    for (int i = 0; i < 3; i++) {
-        const double offset = rotation[i] * wind[0] + rotation[3 + i] * wind[1] + rotation[6 + i] * wind[2];
-        s[6 + i] = s[6 + i] + sign * offset;
-    }
-}
-
-/* a mod b with the sign of b, as Python's and numpy's % (numpy.remainder) compute it. */
-static double remainder_floor(double a, double b) {
-    double mod = fmod(a, b);
-    if (mod != 0.0) {
-        if ((b < 0.0) != (mod < 0.0)) mod += b;
-    } else {
-        mod = copysign(0.0, b);
-    }
-    return mod;
-}
-
-/* The inputs the physics sees over a step: thrusts times THRUST_GAIN (rgblimp_equations.py,
- * scaled_thrust). */
-typedef struct {
-    double inputs[N_INPUTS];
-} Held;
-
-/* One sample of the identified model (rgblimp_equations.py, advance: the RK4 step, wrap_heading,
- * in the air mass's frame when there is wind) with yaw carried continuously (rgblimp_step.py,
- * carry_yaw). If unread is not NULL, unread[c] and unread[N_UNREAD + c] (c = x, y, z) are advanced
- * by the same increments as next[c] (greybox.h, GreyBoxPhysics). */
-static void rgblimp_step(const void *context, const double *start, double *next, double *unread) {
-    const double *u = ((const Held *)context)->inputs;
-    const int windy = WIND[0] != 0.0 || WIND[1] != 0.0;
-    const double h = SAMPLE_TIME;
-    double s[N_STATES], k1[N_STATES], k2[N_STATES], k3[N_STATES], k4[N_STATES], probe[N_STATES];
-    memcpy(s, start, sizeof s);
-    if (windy) add_wind_velocity(s, -1.0);
-    dynamics(s, u, k1);
-    for (int i = 0; i < N_STATES; i++) probe[i] = s[i] + 0.5 * h * k1[i];
-    dynamics(probe, u, k2);
-    for (int i = 0; i < N_STATES; i++) probe[i] = s[i] + 0.5 * h * k2[i];
-    dynamics(probe, u, k3);
-    for (int i = 0; i < N_STATES; i++) probe[i] = s[i] + h * k3[i];
-    dynamics(probe, u, k4);
-    for (int i = 0; i < N_STATES; i++) {
-        const double increment = h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
-        if (unread != NULL && i < N_UNREAD) {
-            unread[i] = unread[i] + increment;
-            unread[N_UNREAD + i] = unread[N_UNREAD + i] + increment;
-        }
-        next[i] = s[i] + increment;
-    }
-    /* wrap_heading: psi moved by one turn into [-pi, pi] */
-    if (next[YAW] > PI) next[YAW] = next[YAW] - 2 * PI;
-    else if (next[YAW] < -PI) next[YAW] = next[YAW] + 2 * PI;
-    if (windy) {
-        const double wind[3] = {WIND[0], WIND[1], 0.0};
-        for (int c = 0; c < 3; c++) {
-            next[c] = next[c] + SAMPLE_TIME * wind[c];
-            if (unread != NULL) {
-                unread[c] = unread[c] + SAMPLE_TIME * wind[c];
-                unread[N_UNREAD + c] = unread[N_UNREAD + c] + SAMPLE_TIME * wind[c];
-            }
-        }
-        add_wind_velocity(next, 1.0);
-    }
-    /* carry_yaw: the current yaw plus the wrapped yaw change */
-    const double change = next[YAW] - start[YAW];
-    next[YAW] = start[YAW] + remainder_floor(change + PI, 2 * PI) - PI;
-}
-
 /* The GP input [s[STATE_COLUMNS], inputs] (RGBlimpRKGPModel.gp_inputs). */
 static void gp_input(const double s[N_STATES], const double inputs[N_INPUTS], double x[N_GP_INPUTS]) {
     for (int c = 0; c < N_STATE_COLUMNS; c++) x[c] = s[STATE_COLUMNS[c]];
@@ -318,9 +85,9 @@ void model_start(Model *model, double *values, double *state) {
 
 char *model_advance(Model *model, const Slave *slave, double *values, double *state, double t, double h) {
     double inputs[N_INPUTS], x[N_GP_INPUTS], next[N_STATES], covariance[N_STATES * N_STATES];
-    Held held;
+    RGBlimpHeld held;
     for (int c = 0; c < N_INPUTS; c++) inputs[c] = values[INPUT_VR[c]];
-    for (int c = 0; c < N_INPUTS; c++) held.inputs[c] = c < 2 ? inputs[c] * THRUST_GAIN : inputs[c];
+    rgblimp_hold(&held, inputs, NULL, NULL);
     /* s(t + h) = f(s(t), u(t)) + E[residual] and P(t + h) (RGBlimpRKGPModel.step); h = SAMPLE_TIME */
     gp_input(state, inputs, x);
     greybox_step(&model->greybox, rgblimp_step, &held, N_UNREAD, GP_INPUT_OF_STATE, PROPAGATION_STEP, state,

@@ -43,7 +43,14 @@ from fmpy.fmi2 import (
 from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
-from fmu_src.fmi.native import CONFIG_HEADER, LAYER_HEADERS, PLATFORM_FOLDER, compile_shared_library, compiled_sources
+from fmu_src.fmi.native import (
+    CONFIG_HEADER,
+    LAYER_HEADERS,
+    PLATFORM_FOLDER,
+    compile_shared_library,
+    compiled_sources,
+    model_headers,
+)
 from validation.cosim.hosts import simulate_in_c_host, simulate_in_libcosim
 
 #: fmi2Fatal, which no flightgp FMU may ever return.
@@ -523,7 +530,8 @@ class NativeFmuContract(FmuContract):
         assert native.buildConfigurations[0].sourceFileSets[0].sourceFiles == c_sources
         with zipfile.ZipFile(case.path) as archive:
             shipped = {n.split("/", 1)[1] for n in archive.namelist() if n.startswith("sources/")}
-        assert shipped == {*c_sources, *(path.name for path in LAYER_HEADERS), CONFIG_HEADER}
+        assert shipped == {*c_sources, *(path.name for path in (*LAYER_HEADERS, *model_headers(case.model_source))),
+                           CONFIG_HEADER}
 
     def test_runs_in_a_plain_c_host_without_python(self, case, host):
         """validation/cosim/native_host.c: dlopen, fmi2Instantiate, the case's parameters and start values

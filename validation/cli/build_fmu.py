@@ -27,22 +27,25 @@ def register(subparsers) -> None:
                     "of `flightgp reproduce blimp`: fan commands in) or rgblimp_rk4 (the RGBlimp, e.g. "
                     "OUT/models/rgblimp_rkgp_J.npz of `flightgp reproduce rgblimp`: propeller thrusts and "
                     "gondola position in, steps of 1/60 s); the 12 states and their standard deviations "
-                    "propagated along the run out, RK4 physics plus GP residual inside. With --native, any "
+                    "propagated along the run out, RK4 physics plus GP residual inside; or, from an RGBlimp "
+                    "hybrid's JSON model file (OUT/models/rgblimp_hybrid_J.json of `flightgp reproduce rgblimp`), "
+                    "the hybrid FMU: the identified physics plus the rollout-trained correction, its free run "
+                    "and the first-order spread of its band out. With --native, any "
                     "of these model FMUs is native C instead (same interface and outputs, compiled with the "
                     "system gcc, no Python at run time). With --reference: a physics reference, "
                     "bo105-<V>kt (Padfield's linear Bo105, V in 0, 20, ..., 140), blimp (the blimp ODE, every "
                     "physical parameter an FMU parameter) or jsbsim:<aircraft> "
                     "(a JSBSim aircraft, e.g. jsbsim:c172x or jsbsim:ah1s; the host needs the jsbsim "
                     "Python package).")
-    parser.add_argument("model", type=Path, nargs="?", metavar="MODEL_FILE", help="trained model (.npz)")
+    parser.add_argument("model", type=Path, nargs="?", metavar="MODEL_FILE",
+                        help="trained model (.npz, or an RGBlimp hybrid's .json)")
     parser.add_argument("--reference", metavar="NAME",
                         help="build a reference FMU instead: bo105-<V>kt, blimp or jsbsim:<aircraft>")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for the FMU")
     parser.add_argument("--native", action="store_true",
-                        help="build MODEL_FILE's FMU (the GP-NARX rate predictor, the blimp RKGP or the "
-                             "RGBlimp RKGP) as a native FMU: C compiled with the system gcc, no Python at run "
-                             "time (fmu_src/rate_predictor/native.py, fmu_src/blimp_rkgp/native.py, "
-                             "fmu_src/rgblimp_rkgp/native.py)")
+                        help="build MODEL_FILE's FMU (the GP-NARX rate predictor, the blimp RKGP, the "
+                             "RGBlimp RKGP or the RGBlimp hybrid) as a native FMU: C compiled with the system gcc, "
+                             "no Python at run time")
     parser.add_argument("--name", help="FMU name and model identifier (letters, digits, underscores; "
                                        "default: the model file's name, bo105_<V>kt_reference, "
                                        "blimp_reference or jsbsim_<aircraft>)")

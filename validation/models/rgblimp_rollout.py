@@ -47,20 +47,26 @@ from dataclasses import dataclass
 import numpy as np
 
 from validation.core.errors import BadInputError
+from validation.models.rgblimp_hybrid_step import (
+    FEATURE_NAMES,
+    FEATURE_SCALE,
+    INPUT_FEATURES,
+    STATE_FEATURES,
+    Correction,
+    air_features,
+)
 from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
 from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, ZERO_SPEED_GUARD, RGBlimpParameters
 
 #: What the correction sees, in order: air-relative body velocity, body rates, roll and pitch,
-#: both thrusts and the gondola's x position.
-FEATURE_NAMES = ("U", "V", "W", "P", "Q", "R", "phi", "theta", "thrust_left", "thrust_right", "gondola_x")
-#: Each feature is divided by this before the kernel, in its unit (m/s, rad/s, rad, N, m): about
-#: the spread a flight or the configurations show (docs/rgblimp.md), so that one length scale
-#: of 1 means about that much change; the fitted length scales adapt from there.
-FEATURE_SCALE = (0.1, 0.05, 0.05, 0.05, 0.05, 0.2, 0.05, 0.05, 0.005, 0.005, 0.01)
-#: Which state columns and input columns the features are taken from (:data:`FEATURE_NAMES`).
-_STATE_FEATURES = (6, 7, 8, 9, 10, 11, 3, 4)
-_INPUT_FEATURES = (0, 1, 2)
+#: both thrusts and the gondola's x position
+#: (:data:`~validation.models.rgblimp_hybrid_step.FEATURE_NAMES`). Each feature is divided by
+#: :data:`~validation.models.rgblimp_hybrid_step.FEATURE_SCALE` before the kernel, in its unit
+#: (m/s, rad/s, rad, N, m): about the spread a flight or the configurations show
+#: (docs/rgblimp.md), so that one length scale of 1 means about that much change; the fitted
+#: length scales adapt from there.
+_STATE_FEATURES, _INPUT_FEATURES = STATE_FEATURES, INPUT_FEATURES
 #: Units of the six corrected accelerations.
 CORRECTION_UNITS = ("m/s^2",) * 3 + ("rad/s^2",) * 3
 #: Identified coefficients that :attr:`RolloutSetup.tune_physics` refines with the correction.
@@ -375,6 +381,9 @@ class RolloutHybrid:
         Standard deviation of the random accelerations of :meth:`band`, m/s^2 and rad/s^2.
     disturbance_time : float
         Their correlation time, s.
+    envelope : (low, high) of tuples of 11 float, or None
+        The range of each feature (:data:`FEATURE_NAMES`, physical units) over the samples the
+        correction was fitted on; away from them it fades to the physics. None if unknown.
     """
 
     physics: RGBlimpModel
@@ -385,6 +394,7 @@ class RolloutHybrid:
     loss: float = float("nan")
     disturbance_sd: tuple = DISTURBANCE_SD
     disturbance_time: float = DISTURBANCE_TIME
+    envelope: tuple | None = None
 
     def simulate(self, initial_state, inputs) -> np.ndarray:
         """Free run from ``initial_state`` (12,) through ``inputs`` (n, 5), each held over one
@@ -457,6 +467,8 @@ class RolloutHybrid:
                 "correction": {name: np.asarray(value).tolist() for name, value in self.correction.items()},
                 "setup": dataclasses.asdict(self.setup),
                 "disturbance": {"sd": list(self.disturbance_sd), "correlation_time_s": self.disturbance_time},
+                "envelope": None if self.envelope is None else {"low": list(self.envelope[0]),
+                                                                "high": list(self.envelope[1])},
                 "fit": {"seconds": self.fit_seconds, "iterations": self.iterations, "loss": self.loss}}
 
     @classmethod
@@ -482,6 +494,9 @@ class RolloutHybrid:
             disturbance = data["disturbance"]
             disturbance_sd = tuple(float(v) for v in disturbance["sd"])
             disturbance_time = float(disturbance["correlation_time_s"])
+            envelope = data.get("envelope")
+            if envelope is not None:
+                envelope = tuple(tuple(float(v) for v in envelope[side]) for side in ("low", "high"))
         except (KeyError, TypeError, ValueError) as error:
             raise BadInputError(f"RGBlimp hybrid model: {error}") from None
         m = len(correction["whitened"])
@@ -490,17 +505,30 @@ class RolloutHybrid:
             if correction[name].shape != expected or not np.all(np.isfinite(correction[name])):
                 raise BadInputError(f"RGBlimp hybrid model: correction {name} must be finite of shape {expected}, "
                                     f"got {correction[name].shape}")
+        if envelope is not None and not (len(envelope[0]) == len(envelope[1]) == len(FEATURE_NAMES)
+                                         and np.all(np.isfinite(envelope))):
+            raise BadInputError(f"RGBlimp hybrid model: the envelope needs {len(FEATURE_NAMES)} finite lows and highs")
         if len(disturbance_sd) != 6 or min(disturbance_sd) < 0 or not disturbance_time > 0:
             raise BadInputError("RGBlimp hybrid model: the disturbance needs 6 standard deviations >= 0 and a "
                                 "positive correlation time")
         fit = data.get("fit", {})
         return cls(model, correction, setup, fit_seconds=float(fit.get("seconds", float("nan"))),
                    iterations=int(fit.get("iterations", 0)), loss=float(fit.get("loss", float("nan"))),
-                   disturbance_sd=disturbance_sd, disturbance_time=disturbance_time)
+                   disturbance_sd=disturbance_sd, disturbance_time=disturbance_time, envelope=envelope)
+
+    def numpy_correction(self) -> Correction:
+        """The correction in the form of :mod:`validation.models.rgblimp_hybrid_step` (the
+        weights ``L^-T v`` computed by the fit's own function), for a numpy or C step."""
+        jnp = _compiled()["jnp"]
+        weights = correction_weights(jnp, _as_jax(jnp, self.correction))
+        return Correction(inducing=np.array(self.correction["inducing"], dtype=float), weights=np.asarray(weights),
+                          length_scale=np.exp(self.correction["log_length_scale"]),
+                          amplitude=np.exp(self.correction["log_amplitude"]))
 
     def correction_at(self, states, inputs) -> np.ndarray:
         """The correction ``a`` (..., 6) at earth-frame ``states`` (..., 12) and ``inputs``
-        (..., 5) (the wind taken off the velocity first), in :data:`CORRECTION_UNITS`."""
+        (..., 5) as recorded (the wind taken off the velocity and the thrust gain applied first,
+        as in a free run), in :data:`CORRECTION_UNITS`."""
         compiled = _compiled()
         jax, jnp = compiled["jax"], compiled["jnp"]
         theta = _as_jax(jnp, self.correction)
@@ -510,6 +538,7 @@ class RolloutHybrid:
         def one(state, commands):
             _, _, rotation = _kinematics(jnp, state)
             air = state.at[6:9].add(-rotation.T @ wind)
+            commands = commands.at[:2].multiply(self.physics.thrust_gain)
             return correction(jnp, features(jnp, air, commands), theta, weights)
 
         states = np.asarray(states, dtype=float)
@@ -567,9 +596,12 @@ def fit_rollout(flights, physics: RGBlimpModel, *, setup: RolloutSetup = Rollout
     return fit_rollout_global([(flights, physics)], setup=setup, progress=progress)[0]
 
 
-def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress=None) -> list[RolloutHybrid]:
+def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), shared_physics: bool = False,
+                       progress=None) -> list[RolloutHybrid]:
     """One correction shared by several groups of flights (configurations), each group with its own
-    physics; with ``setup.tune_physics`` each group's :data:`TUNED_COEFFICIENTS` are refined too.
+    physics; with ``setup.tune_physics`` each group's :data:`TUNED_COEFFICIENTS` are refined too
+    (with ``shared_physics``, one set of refinements for every group: one model of the vehicle,
+    which can be run on a configuration it never saw).
 
     The correction sees the configuration (both thrusts, the gondola's x position) among its
     inputs (:data:`FEATURE_NAMES`), so one global correction learns from every configuration.
@@ -580,6 +612,9 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
         Each configuration's fitting flights and its starting (identified) physics.
     setup : RolloutSetup
         ``max_segments`` applies per group.
+    shared_physics : bool
+        Refine the coefficients by the same amounts in every group (the groups should then start
+        from one physics, e.g. one identified on all their flights).
     progress : callable, optional
         ``progress(iteration, loss)`` after each L-BFGS-B iteration.
 
@@ -622,16 +657,17 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
     theta0 = initial_correction([f for flights, _ in groups for f in flights], setup)
     tuned = TUNED_COEFFICIENTS if setup.tune_physics else ()
     n_groups, n_tuned = len(groups), len(tuned)
-    # Optimisation variables: each group's coefficients relative to their starting values in
-    # units of COEFFICIENT_UNITS, then the correction's arrays.
+    n_shifted = 1 if shared_physics else n_groups  # sets of coefficient refinements
+    # Optimisation variables: the coefficients (each group's, or one set for all) relative to
+    # their starting values in units of COEFFICIENT_UNITS, then the correction's arrays.
     units = np.array([COEFFICIENT_UNITS[name] for name in tuned])
     shapes = {name: theta0[name].shape for name in theta0}
-    sizes = [n_groups * n_tuned] + [int(np.prod(shape)) for shape in shapes.values()]
-    x0 = np.concatenate([np.zeros(n_groups * n_tuned)] + [theta0[name].ravel() for name in shapes])
+    sizes = [n_shifted * n_tuned] + [int(np.prod(shape)) for shape in shapes.values()]
+    x0 = np.concatenate([np.zeros(n_shifted * n_tuned)] + [theta0[name].ravel() for name in shapes])
 
     def unpack(x):
         pieces = np.split(np.asarray(x, dtype=float), np.cumsum(sizes)[:-1])
-        shifts = pieces[0].reshape(n_groups, n_tuned) * units
+        shifts = pieces[0].reshape(n_shifted, n_tuned) * units
         p = {name: np.array(value) for name, value in p0.items()}
         for column, name in enumerate(tuned):
             field = _field(name)
@@ -651,8 +687,10 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
             return 1e10, np.zeros_like(x)
         columns = [np.asarray(gp[_field(n)])[:n_groups] if np.ndim(p0[_field(n)]) == 1 else
                    np.asarray(gp[_field(n)])[:n_groups, _index(n)] for n in tuned]
-        coefficient_gradient = (np.stack(columns, axis=1) * units).ravel() if tuned else np.zeros(0)
-        return value, np.concatenate([coefficient_gradient] + [np.asarray(gtheta[n]).ravel() for n in shapes])
+        coefficient_gradient = np.stack(columns, axis=1) * units if tuned else np.zeros((n_groups, 0))
+        if shared_physics:
+            coefficient_gradient = coefficient_gradient.sum(axis=0)
+        return value, np.concatenate([coefficient_gradient.ravel()] + [np.asarray(gtheta[n]).ravel() for n in shapes])
 
     iteration = [0]
 
@@ -665,9 +703,13 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), progress
                       options={"maxiter": setup.max_iterations})
     p, theta = unpack(result.x)
     seconds = clock.perf_counter() - began
-    return [RolloutHybrid(model_from_parameters({name: value[g] for name, value in p.items()}), theta, setup,
-                          fit_seconds=seconds, iterations=int(result.nit), loss=float(result.fun))
-            for g in range(n_groups)]
+    physics = [model_from_parameters({name: value[g] for name, value in p.items()}) for g in range(n_groups)]
+    seen = np.concatenate([air_features(f.recording.outputs, f.recording.inputs, thrust_gain=model.thrust_gain,
+                                        wind=model.wind) for (flights, _), model in zip(groups, physics)
+                           for f in flights])
+    envelope = (tuple(seen.min(axis=0).tolist()), tuple(seen.max(axis=0).tolist()))
+    return [RolloutHybrid(model, theta, setup, fit_seconds=seconds, iterations=int(result.nit),
+                          loss=float(result.fun), envelope=envelope) for model in physics]
 
 
 def _padded(segments) -> tuple:

@@ -383,7 +383,8 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params, *, masses=
     return np.einsum("...ij,...j->...i", inverse, right_side)
 
 
-def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params, *, masses=None) -> np.ndarray:
+def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params, *, masses=None,
+                     extra_acceleration=None) -> np.ndarray:
     """Time derivative of the RGBlimp state (the module docstring's equations).
 
     Parameters
@@ -396,6 +397,9 @@ def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params, *, masses=No
     params : RGBlimpParameters
     masses : tuple, optional
         :func:`mass_properties` of ``inputs`` and ``params``, when the caller has them.
+    extra_acceleration : callable, optional
+        ``extra_acceleration(state, inputs) -> (..., 6)``, added to the body accelerations (m/s^2,
+        rad/s^2): a learned correction (:mod:`validation.models.rgblimp_hybrid_step`).
 
     Returns
     -------
@@ -405,8 +409,10 @@ def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params, *, masses=No
     state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
     angles, velocity = state[..., 3:6], state[..., 6:9]
     position_dot = np.einsum("...ij,...j->...i", rotation_body_to_earth(angles), velocity)
-    return np.concatenate([position_dot, euler_rates(angles, state[..., 9:12]),
-                           body_accelerations(state, inputs, params, masses=masses)], axis=-1)
+    accelerations = body_accelerations(state, inputs, params, masses=masses)
+    if extra_acceleration is not None:
+        accelerations = accelerations + extra_acceleration(state, inputs)
+    return np.concatenate([position_dot, euler_rates(angles, state[..., 9:12]), accelerations], axis=-1)
 
 
 def wrap_heading(state: np.ndarray) -> np.ndarray:
@@ -417,7 +423,7 @@ def wrap_heading(state: np.ndarray) -> np.ndarray:
     return np.concatenate([state[..., :5], wrapped[..., None], state[..., 6:]], axis=-1)
 
 
-def rk4_step(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
+def rk4_step(state: np.ndarray, inputs: np.ndarray, params, *, extra_acceleration=None) -> np.ndarray:
     """The RGBlimp one sample (:data:`SAMPLE_TIME`, 1/60 s) later, inputs held, as the source
     integrates: one classical RK4 step of :func:`rgblimp_dynamics`, then :func:`wrap_heading`.
 
@@ -427,6 +433,8 @@ def rk4_step(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
     inputs : ndarray, shape (..., 5)
         Held over the step; leading axes broadcast against those of ``state``.
     params : RGBlimpParameters
+    extra_acceleration : callable, optional
+        Added to the body accelerations in every stage (:func:`rgblimp_dynamics`).
 
     Returns
     -------
@@ -434,10 +442,11 @@ def rk4_step(state: np.ndarray, inputs: np.ndarray, params) -> np.ndarray:
     """
     state, inputs = _broadcast(np.asarray(state, dtype=float), np.asarray(inputs, dtype=float))
     masses = mass_properties(inputs, params)  # the inputs are held: one for the four stages
-    return wrap_heading(rk4(lambda s: rgblimp_dynamics(s, inputs, params, masses=masses), state, SAMPLE_TIME))
+    return wrap_heading(rk4(lambda s: rgblimp_dynamics(s, inputs, params, masses=masses,
+                                                       extra_acceleration=extra_acceleration), state, SAMPLE_TIME))
 
 
-def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
+def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0), extra_acceleration=None) -> np.ndarray:
     """The source's RK4 step over one sample with a thrust factor and a steady horizontal wind.
 
     A uniform, steady wind ``w`` (earth axes) moves the air mass at constant velocity, and the
@@ -459,6 +468,9 @@ def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.n
     wind : (2,) sequence or ndarray, shape (..., 2)
         The air's velocity along the earth (motion-capture) x and y axes, m/s; leading axes
         broadcast against the states'.
+    extra_acceleration : callable, optional
+        Added to the body accelerations in every RK4 stage, called with the state in the air
+        mass's frame and the inputs with the thrust factor applied (:func:`rgblimp_dynamics`).
 
     Returns
     -------
@@ -468,10 +480,10 @@ def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.n
     inputs = scaled_thrust(inputs, thrust_gain)
     wind = np.asarray(wind, dtype=float)
     if not np.any(wind):
-        return rk4_step(states, inputs, params)
+        return rk4_step(states, inputs, params, extra_acceleration=extra_acceleration)
     wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
     in_air = _with_velocity_offset(states, wind, -1.0)
-    moved = rk4_step(in_air, inputs, params)
+    moved = rk4_step(in_air, inputs, params, extra_acceleration=extra_acceleration)
     position = moved[..., :3] + SAMPLE_TIME * wind
     return _with_velocity_offset(np.concatenate([position, moved[..., 3:]], axis=-1), wind, 1.0)
 

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from fmu_src import build_native_rgblimp_rkgp_fmu
-from fmu_src.rgblimp_rkgp.native import C_PARAMETERS, MODEL_SOURCE
+from fmu_src.rgblimp_rkgp.native import C_PARAMETERS, MODEL_SOURCE, PHYSICS_SOURCES
 from gp_model import save_model
 from tests.fmu_src.contract import NativeFmuContract, run_in_fmpy
 from tests.fmu_src.rgblimp_rkgp.contract import (
@@ -92,10 +92,10 @@ def test_a_model_without_wind_and_with_added_mass_equals_the_python_free_run(rgb
 
 
 def test_the_c_file_reads_every_parameter_of_the_equations():
-    """rgblimp_model.c uses every RGBlimpParameters field (its macro in capitals), so no parameter
-    of the equations is left out of the native FMU's physics (the build refuses to run when the
-    fields and C_PARAMETERS differ)."""
+    """rgblimp_physics.c (the physics of both native RGBlimp FMUs) uses every RGBlimpParameters
+    field (its macro in capitals), so no parameter of the equations is left out of the native
+    FMUs' physics (the build refuses to run when the fields and C_PARAMETERS differ)."""
     fields = [field.name for field in dataclasses.fields(RGBlimpParameters)]
     assert sorted(fields) == sorted(C_PARAMETERS)
-    source = MODEL_SOURCE.read_text(encoding="utf-8")
+    source = PHYSICS_SOURCES[0].read_text(encoding="utf-8")
     assert [f for f in fields if not re.search(rf"\b{f.upper()}\b", source)] == []
