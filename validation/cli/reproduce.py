@@ -10,7 +10,7 @@ from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder
 
 PAPERS = ("bo105", "blimp", "blimp-settings", "rgblimp", "rgblimp-settings", "rgblimp-hybrid-settings",
-          "rgblimp-diagnose")
+          "rgblimp-unseen", "rgblimp-diagnose")
 
 
 def seed_list(text: str) -> tuple[int, ...]:
@@ -47,6 +47,9 @@ def register(subparsers) -> None:
                     "configuration's lowest-numbered flight, validate on the next; the test flight unread); "
                     "writes settings.json. rgblimp-hybrid-settings: the same study for the rollout-trained "
                     "hybrid's settings; writes hybrid_settings.json. "
+                    "rgblimp-unseen: configurations never flown: the configurations dealt into --folds folds, "
+                    "vehicle models (identified physics, rollout-trained hybrid) fitted without each fold and "
+                    "free-run on its test flights; writes results.json and report.md. "
                     "rgblimp-diagnose: flightgp diagnose --reference rgblimp on the "
                     "flights of several configurations (default 0 6 12 18 24 27 30 33) but the highest-numbered, "
                     "its findings replicated on two folds (each configuration's first and second flight), "
@@ -69,6 +72,9 @@ def register(subparsers) -> None:
     parser.add_argument("--configurations", type=int, nargs="+", default=None, metavar="J",
                         help="rgblimp: only these configurations j (flights 4j+1..4j+4; default every one "
                              "with two flights present)")
+    parser.add_argument("--folds", type=int, default=None, metavar="K",
+                        help="rgblimp-unseen: folds of configurations (default 5; as many as configurations: "
+                             "leave-one-configuration-out)")
     parser.set_defaults(func=run)
 
 
@@ -77,7 +83,9 @@ def run(args: argparse.Namespace) -> int:
     if args.paper != "blimp" and (args.scheduler is not None or args.cluster_workers is not None):
         raise BadInputError("--scheduler and --cluster-workers apply to reproduce blimp only (its seeds run "
                             "side by side)")
-    if args.paper in ("rgblimp", "rgblimp-settings", "rgblimp-hybrid-settings", "rgblimp-diagnose"):
+    if args.folds is not None and args.paper != "rgblimp-unseen":
+        raise BadInputError("--folds applies to reproduce rgblimp-unseen only")
+    if args.paper in ("rgblimp", "rgblimp-settings", "rgblimp-hybrid-settings", "rgblimp-unseen", "rgblimp-diagnose"):
         return _run_rgblimp(args)
     if args.data is not None or args.configurations is not None:
         raise BadInputError("--data and --configurations apply to reproduce rgblimp only")
@@ -146,6 +154,16 @@ def _run_rgblimp(args: argparse.Namespace) -> int:
         write_json(args.out / name, results)
         print(describe(results))
         print(f"written {args.out}/{name}")
+        return 0
+    if args.paper == "rgblimp-unseen":
+        from validation.reproduce.rgblimp_unseen import DEFAULT_FOLDS, format_unseen, study_unseen
+
+        if args.seed is not None:
+            raise BadInputError("reproduce rgblimp-unseen has fixed seeds (the hybrid's setup)")
+        results = study_unseen(args.data, args.out, folds=args.folds or DEFAULT_FOLDS,
+                               configurations=args.configurations)
+        print(format_unseen(results), end="")
+        print(f"written {args.out}/report.md and results.json")
         return 0
     if args.paper == "rgblimp-diagnose":
         from validation.reproduce.rgblimp_diagnose import DEFAULT_CONFIGURATIONS, reproduce_rgblimp_diagnose
