@@ -7,6 +7,10 @@ Both on the excerpt shipped with the package (configuration 29: fit on ``data_11
 - the free run of the physics through the JAX step (:mod:`validation.models.rgblimp_rollout`,
   compiled once, then timed) against :meth:`validation.models.rgblimp_identification.RGBlimpModel.simulate`
   (numpy), as a ratio, over several runs;
+- diagnose's replay of many hypotheses over several flights
+  (:meth:`validation.vehicles.rgblimp_effects.RGBlimpEffects.simulate_recordings`: 24 effect
+  lists over the three flights of configuration 29, as one batch) on the compiled free run against
+  the numpy step, as a ratio, over several runs;
 - the hybrid's fit with the default setup (:func:`validation.models.rgblimp_rollout.fit_rollout`,
   compilation included, as a user meets it) against the goal of :data:`FIT_GOAL_S` per
   configuration, beside the identification the hybrid starts from (the peer).
@@ -24,6 +28,8 @@ from validation.core.progress import progress_bar
 FIT_GOAL_S = 60.0
 #: Timed runs of each free run.
 FREE_RUN_REPEATS = 5
+#: Timed runs of each replay, and its batch of effect lists (a diagnosis' screening batch).
+REPLAY_REPEATS, REPLAY_MEMBERS = 3, 24
 
 
 def run(*, progress: bool = True, setup=None) -> dict:
@@ -36,7 +42,8 @@ def run(*, progress: bool = True, setup=None) -> dict:
     -------
     dict
         ``free_run``: ``numpy_s`` and ``jax_s`` (lists over runs), ``speedup`` (median ratio),
-        ``samples``; ``fit``: ``hybrid_s``, ``identification_s``, ``iterations``, ``goal_s``,
+        ``samples``; ``replay``: the same for diagnose's batched replay, with ``members`` and
+        ``flights``; ``fit``: ``hybrid_s``, ``identification_s``, ``iterations``, ``goal_s``,
         ``goal_met``.
     """
     from validation.models.rgblimp_identification import identify_parameters
@@ -45,7 +52,8 @@ def run(*, progress: bool = True, setup=None) -> dict:
 
     fitting = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv") for n in (117, 118)]
     test = read_rgblimp_flight(EXCERPT_FOLDER / "data_119.csv").recording
-    with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 2, unit="run") as update:
+    with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 2 * REPLAY_REPEATS + 2,
+                      unit="run") as update:
         began = clock.perf_counter()
         identified = identify_parameters(fitting).model
         identification_s = clock.perf_counter() - began
@@ -61,25 +69,60 @@ def run(*, progress: bool = True, setup=None) -> dict:
                 times.append(clock.perf_counter() - began)
                 if update:
                     update(1, stage="free run")
+        replay = _time_replays([f.recording for f in fitting] + [test], update)
         hybrid = fit_rollout(fitting, identified, setup=setup or RolloutSetup())
         if update:
             update(1, stage="hybrid fit")
-    ratios = np.asarray(numpy_s) / np.asarray(jax_s)
-    return {"free_run": {"numpy_s": numpy_s, "jax_s": jax_s, "speedup": float(np.median(ratios)),
-                         "speedup_range": [float(ratios.min()), float(ratios.max())],
-                         "samples": len(test.time), "flight": "data_119.csv"},
+    return {"free_run": {**_ratio(numpy_s, jax_s), "samples": len(test.time), "flight": "data_119.csv"},
+            "replay": {**_ratio(replay["numpy_s"], replay["jax_s"]), "members": REPLAY_MEMBERS,
+                       "flights": ["data_117.csv", "data_118.csv", "data_119.csv"]},
             "fit": {"hybrid_s": hybrid.fit_seconds, "identification_s": identification_s,
                     "iterations": hybrid.iterations, "flights": ["data_117.csv", "data_118.csv"],
                     "goal_s": FIT_GOAL_S, "goal_met": hybrid.fit_seconds <= FIT_GOAL_S}}
 
 
+def _ratio(numpy_s, jax_s) -> dict:
+    ratios = np.asarray(numpy_s) / np.asarray(jax_s)
+    return {"numpy_s": numpy_s, "jax_s": jax_s, "speedup": float(np.median(ratios)),
+            "speedup_range": [float(ratios.min()), float(ratios.max())]}
+
+
+def _time_replays(recordings, update) -> dict:
+    """Diagnose's batched replay of :data:`REPLAY_MEMBERS` effect lists (each a thrust factor and a
+    drag coefficient) over ``recordings``, compiled (once compiled) and numpy, alternating."""
+    from validation.vehicles.rgblimp import RGBlimpReference
+    from validation.vehicles.rgblimp_effects import RGBlimpEffects
+
+    reference = RGBlimpReference()
+    effect_lists = [[{"term": "thrust_gain", "value": 0.8 + 0.01 * b}, {"term": "c_d0", "value": 0.2 + 0.005 * b}]
+                    for b in range(REPLAY_MEMBERS)]
+    compiled, numpy_step = RGBlimpEffects(reference), RGBlimpEffects(reference, compiled=False)
+    args = (effect_lists, [r.time for r in recordings], [r.inputs for r in recordings],
+            [compiled.start_state(r) for r in recordings])
+    compiled.simulate_recordings(*args)  # compile once
+    times = {"numpy_s": [], "jax_s": []}
+    for _ in range(REPLAY_REPEATS):
+        for key, model in (("numpy_s", numpy_step), ("jax_s", compiled)):
+            began = clock.perf_counter()
+            model.simulate_recordings(*args)
+            times[key].append(clock.perf_counter() - began)
+            if update:
+                update(1, stage="replay")
+    return times
+
+
 def format_table(report: dict) -> str:
     """The ``bench rgblimp`` report as a table."""
-    free, fit = report["free_run"], report["fit"]
+    free, replay, fit = report["free_run"], report["replay"], report["fit"]
     return "\n".join([
         f"RGBlimp free run of {free['flight']} ({free['samples']} samples), {len(free['jax_s'])} runs each",
         f"  numpy step {np.median(free['numpy_s']) * 1e3:8.1f} ms   JAX step {np.median(free['jax_s']) * 1e3:8.1f} ms"
         f"   speed-up {free['speedup']:.1f}x ({free['speedup_range'][0]:.1f}-{free['speedup_range'][1]:.1f})",
+        f"diagnose's replay of {replay['members']} effect lists over {', '.join(replay['flights'])}, "
+        f"{len(replay['jax_s'])} runs each",
+        f"  numpy step {np.median(replay['numpy_s']) * 1e3:8.1f} ms   "
+        f"compiled {np.median(replay['jax_s']) * 1e3:8.1f} ms"
+        f"   speed-up {replay['speedup']:.1f}x ({replay['speedup_range'][0]:.1f}-{replay['speedup_range'][1]:.1f})",
         f"rollout-trained hybrid fit on {', '.join(fit['flights'])}: {fit['hybrid_s']:.1f} s "
         f"({fit['iterations']} iterations; goal <= {fit['goal_s']:g} s: {'met' if fit['goal_met'] else 'MISSED'}); "
         f"the identification it starts from {fit['identification_s']:.1f} s"])
@@ -90,6 +133,11 @@ def summary_rows(report: dict) -> list[SummaryRow]:
     return [SummaryRow("rgblimp.free_run.jax_over_numpy", "RGBlimp free run, JAX step over numpy step",
                        free["speedup"], "x", None,
                        note=f"{free['speedup_range'][0]:.1f}-{free['speedup_range'][1]:.1f} over runs"),
+            SummaryRow("rgblimp.diagnose_replay.compiled_over_numpy",
+                       "RGBlimp diagnose replay (24 hypotheses, 3 flights), compiled over numpy step",
+                       report["replay"]["speedup"], "x", None,
+                       note=f"{report['replay']['speedup_range'][0]:.1f}-{report['replay']['speedup_range'][1]:.1f} "
+                            "over runs"),
             SummaryRow("rgblimp.hybrid.fit_s", "RGBlimp rollout-trained hybrid, fit per configuration",
                        fit["hybrid_s"], "s", FIT_GOAL_S, at_least=False,
                        note=f"identification {fit['identification_s']:.1f} s")]

@@ -34,7 +34,8 @@ small, well-founded correction and exact gradients:
   segments with ``vmap``); scipy's L-BFGS-B minimises it (docs/rgblimp.md, "Rollout-trained
   hybrid", says why JAX).
 
-Everything is in double precision. The physics written here in ``jax.numpy`` equals
+Everything is in double precision. The physics in ``jax.numpy``
+(:mod:`validation.vehicles.rgblimp_jax`) equals
 :func:`~validation.vehicles.rgblimp_equations.free_run` to rounding (6e-14 over the 3801 samples
 of ``data_1.csv``; tested at 1e-9 over 10 s with wind and a thrust gain).
 """
@@ -57,7 +58,8 @@ from validation.models.rgblimp_hybrid_step import (
 )
 from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
 from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
-from validation.vehicles.rgblimp_equations import SAMPLE_TIME, ZERO_SPEED_GUARD, RGBlimpParameters
+from validation.vehicles.rgblimp_equations import SAMPLE_TIME, RGBlimpParameters
+from validation.vehicles.rgblimp_jax import jax_modules, kinematics, parameter_arrays, rollout_function
 
 #: What the correction sees, in order: air-relative body velocity, body rates, roll and pitch,
 #: both thrusts and the gondola's x position
@@ -145,29 +147,15 @@ class RolloutSetup:
             raise BadInputError(f"RolloutSetup: {', '.join(bad)} out of range ({self})")
 
 
-def _jax():
-    """``jax`` and ``jax.numpy`` in double precision (imported on first use: only this model needs
-    them)."""
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-    import jax.numpy as jnp
-
-    return jax, jnp
-
-
 # --------------------------------------------------------------------------------------------
-# The physics in jax.numpy: one state (12,), inputs (5,), the parameters as a dict of arrays.
+# The physics's parameters (the equations in jax.numpy: validation.vehicles.rgblimp_jax).
 # --------------------------------------------------------------------------------------------
 
 def physics_parameters(model: RGBlimpModel) -> dict:
-    """``model``'s parameters as a dict of float64 arrays (every field of
+    """``model``'s parameters as a dict of float64 arrays
+    (:func:`validation.vehicles.rgblimp_jax.parameter_arrays`: every field of
     :class:`RGBlimpParameters`, plus ``thrust_gain`` and ``wind`` (2,))."""
-    values = {f.name: np.asarray(getattr(model.params, f.name), dtype=float)
-              for f in dataclasses.fields(RGBlimpParameters)}
-    values["thrust_gain"] = np.asarray(model.thrust_gain, dtype=float)
-    values["wind"] = np.asarray(model.wind, dtype=float)
-    return values
+    return parameter_arrays(model.params, thrust_gain=model.thrust_gain, wind=model.wind)
 
 
 def model_from_parameters(values: dict) -> RGBlimpModel:
@@ -178,74 +166,6 @@ def model_from_parameters(values: dict) -> RGBlimpModel:
         fields[f.name] = tuple(float(v) for v in value) if value.ndim else float(value)
     return RGBlimpModel(RGBlimpParameters(**fields), float(values["thrust_gain"]),
                         tuple(float(v) for v in np.asarray(values["wind"])))
-
-
-def _skew(jnp, a):
-    return jnp.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-
-
-def _inverse_mass_matrix(jnp, inputs, p):
-    """The inverse of the 6x6 mass matrix and the first mass moment ``l`` and inertia ``J``
-    (:func:`validation.vehicles.rgblimp_equations.mass_properties`)."""
-    gondola = inputs[2:5]
-    mass_moment = p["hull_mass"] * p["hull_cg"] + p["gondola_mass"] * gondola
-    gondola_skew = _skew(jnp, gondola)
-    inertia = jnp.diag(p["inertia"]) - p["gondola_mass"] * gondola_skew @ gondola_skew
-    eye = jnp.eye(3)
-    translational = (p["hull_mass"] + p["gondola_mass"]) * eye + jnp.diag(p["added_mass"])
-    moment_skew = _skew(jnp, mass_moment)
-    matrix = jnp.block([[translational, -moment_skew], [moment_skew, inertia + jnp.diag(p["added_inertia"])]])
-    return jnp.linalg.inv(matrix), mass_moment, inertia
-
-
-def _accelerations(jnp, state, inputs, p, masses):
-    """Body accelerations of the published equations
-    (:func:`validation.vehicles.rgblimp_equations.body_accelerations`)."""
-    inverse, mass_moment, inertia = masses
-    phi, theta = state[3], state[4]
-    velocity, rates = state[6:9], state[9:12]
-    thrust_left, thrust_right, gondola_z = inputs[0], inputs[1], inputs[4]
-    down = jnp.array([-jnp.sin(theta), jnp.cos(theta) * jnp.sin(phi), jnp.cos(theta) * jnp.cos(phi)])
-    speed_squared = jnp.sum(velocity**2)
-    speed = jnp.sqrt(speed_squared)
-    alpha = jnp.arctan2(velocity[2], velocity[0] + ZERO_SPEED_GUARD)
-    beta = jnp.arcsin(velocity[1] / (speed + ZERO_SPEED_GUARD))
-    qbar_area = 0.5 * p["air_density"] * speed_squared * p["reference_area"]
-    drag = qbar_area * (p["c_d0"] + p["c_d_alpha2"] * alpha**2 + p["c_d_beta2"] * beta**2)
-    side = qbar_area * (p["c_s0"] + p["c_s_alpha2"] * alpha**2 + p["c_s_beta"] * beta)
-    lift = qbar_area * (p["c_l0"] + p["c_l_alpha"] * alpha + p["c_l_beta2"] * beta**2)
-    aero_moment = qbar_area * jnp.array([p["c_mx0"] + p["c_mx_alpha"] * alpha + p["c_mx_beta"] * beta,
-                                         p["c_my0"] + p["c_my_alpha"] * alpha + p["c_my_beta4"] * beta**4,
-                                         p["c_mz0"] + p["c_mz_alpha"] * alpha + p["c_mz_beta"] * beta])
-    aero_moment = aero_moment + p["rate_damping"] * rates
-    ca, sa, cb, sb = jnp.cos(alpha), jnp.sin(alpha), jnp.cos(beta), jnp.sin(beta)
-    rotation = jnp.array([[ca * cb, -ca * sb, -sa], [sb, cb, 0.0], [sa * cb, -sa * sb, ca]])
-    total_mass = p["hull_mass"] + p["gondola_mass"]
-    thrust = thrust_left + thrust_right
-    velocity_cross_rates = jnp.cross(velocity, rates)
-    added_momentum = p["added_mass"] * velocity
-    force = (total_mass * velocity_cross_rates + jnp.cross(added_momentum, rates)
-             + jnp.cross(jnp.cross(rates, mass_moment), rates)
-             + (total_mass - p["buoyancy_mass"]) * p["gravity"] * down
-             + rotation @ jnp.array([-drag, side, -lift]) + jnp.array([thrust, 0.0, 0.0]))
-    moment = (jnp.cross(inertia @ rates, rates) + jnp.cross(added_momentum, velocity)
-              + jnp.cross(p["added_inertia"] * rates, rates) + jnp.cross(mass_moment, velocity_cross_rates)
-              + jnp.cross(mass_moment, p["gravity"] * down) + rotation @ aero_moment
-              + jnp.array([0.0, thrust * gondola_z, (thrust_left - thrust_right) * p["propeller_arm"]]))
-    return inverse @ jnp.concatenate([force, moment])
-
-
-def _kinematics(jnp, state):
-    """Earth position rates and Euler angle rates (ZYX; Fossen 2011, sec. 2.2.1)."""
-    phi, theta, psi = state[3], state[4], state[5]
-    sf, cf, st, ct, sp, cp = jnp.sin(phi), jnp.cos(phi), jnp.sin(theta), jnp.cos(theta), jnp.sin(psi), jnp.cos(psi)
-    rotation = jnp.array([[cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st],
-                          [sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf],
-                          [-st, ct * sf, ct * cf]])
-    p, q, r = state[9], state[10], state[11]
-    tt = st / ct
-    angle_rates = jnp.array([p + sf * tt * q + cf * tt * r, cf * q - sf * r, (sf * q + cf * r) / ct])
-    return rotation @ state[6:9], angle_rates, rotation
 
 
 # --------------------------------------------------------------------------------------------
@@ -282,49 +202,13 @@ def correction(jnp, z, theta, weights):
 # Rollouts
 # --------------------------------------------------------------------------------------------
 
-def _rollout_function(jax, jnp):
-    """``rollout(p, theta, start, inputs, disturbance) -> states (L, 12)``: the hybrid model's
-    free run from ``start`` (12,) through ``inputs`` (L, 5), states at samples 1 .. L, in the
-    earth frame (the wind handled as in :func:`validation.vehicles.rgblimp_equations.free_run`,
-    yaw carried continuously). ``theta`` None runs the physics alone; ``disturbance`` (L, 6),
-    or None, is added to the body accelerations over each step (:meth:`RolloutHybrid.band`)."""
-    h = SAMPLE_TIME
-
-    def rollout(p, theta, start, inputs, disturbance=None):
-        wind = jnp.concatenate([p["wind"], jnp.zeros(1)])
-        weights = None if theta is None else correction_weights(jnp, theta)
-
-        def to_air(state, sign):
-            _, _, rotation = _kinematics(jnp, state)
-            return state.at[6:9].add(sign * rotation.T @ wind)
-
-        def derivative(state, commands, masses, extra):
-            position_rate, angle_rates, _ = _kinematics(jnp, state)
-            accelerations = _accelerations(jnp, state, commands, p, masses)
-            if theta is not None:
-                accelerations = accelerations + correction(jnp, features(jnp, state, commands), theta, weights)
-            if extra is not None:
-                accelerations = accelerations + extra
-            return jnp.concatenate([position_rate, angle_rates, accelerations])
-
-        def step(state, sample):
-            commands, extra = sample if disturbance is not None else (sample, None)
-            commands = commands.at[:2].multiply(p["thrust_gain"])
-            masses = _inverse_mass_matrix(jnp, commands, p)
-            k1 = derivative(state, commands, masses, extra)
-            k2 = derivative(state + 0.5 * h * k1, commands, masses, extra)
-            k3 = derivative(state + 0.5 * h * k2, commands, masses, extra)
-            k4 = derivative(state + h * k3, commands, masses, extra)
-            moved = state + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            return moved, moved
-
-        samples = inputs if disturbance is None else (inputs, disturbance)
-        _, path = jax.lax.scan(step, to_air(start, -1.0), samples)
-        drift = h * jnp.arange(1, inputs.shape[0] + 1)[:, None] * wind
-        path = path.at[:, :3].add(drift)
-        return jax.vmap(lambda s: to_air(s, 1.0))(path)
-
-    return rollout
+def _correction_of(theta):
+    """The correction's function ``a(state, commands)`` of the parameters ``theta`` (the weights
+    ``L^-T v`` computed once per rollout), for
+    :func:`validation.vehicles.rgblimp_jax.rollout_function`."""
+    _, jnp = jax_modules()
+    weights = correction_weights(jnp, theta)
+    return lambda state, commands: correction(jnp, features(jnp, state, commands), theta, weights)
 
 
 _COMPILED = {}
@@ -335,8 +219,8 @@ def _compiled():
     run), ``disturbed`` (free runs of one start under several disturbances) and
     ``value_and_grad`` (the fit's loss and its gradient in the physics and the correction)."""
     if not _COMPILED:
-        jax, jnp = _jax()
-        rollout = _rollout_function(jax, jnp)
+        jax, jnp = jax_modules()
+        rollout = rollout_function(jax, jnp, correction_of=_correction_of)
         scale = jnp.asarray(STATE_SCALE)
         by_segment = jax.vmap(rollout, in_axes=(0, None, 0, 0))
 
@@ -536,7 +420,7 @@ class RolloutHybrid:
         wind = jnp.concatenate([jnp.asarray(self.physics.wind), jnp.zeros(1)])
 
         def one(state, commands):
-            _, _, rotation = _kinematics(jnp, state)
+            _, _, rotation = kinematics(jnp, state)
             air = state.at[6:9].add(-rotation.T @ wind)
             commands = commands.at[:2].multiply(self.physics.thrust_gain)
             return correction(jnp, features(jnp, air, commands), theta, weights)

@@ -29,8 +29,9 @@ equations of :mod:`validation.vehicles.rgblimp_equations` (body axes, SI units) 
 Replays start at each recording's first recorded state (:meth:`RGBlimpEffects.start_state`),
 as the source's free runs do, and step one RK4 step per 1/60 s sample, the source's integrator;
 heading is carried continuously (diagnose compares it unwrapped). All members of a batch and all
-recordings of a diagnosis are integrated together, as one array of shape (B, S, 12): the model's
-cost is per-step overhead, so batching the S recordings divides it by S. A recording that ends
+recordings of a diagnosis are integrated together, as one array of shape (B, S, 12), by the
+compiled free run of :mod:`validation.vehicles.rgblimp_jax` (a numpy step pays its overhead per
+stage; ``compiled=False`` keeps that step, for the benchmark's ratio). A recording that ends
 early is padded with its last inputs, and the padding is dropped.
 
 Weights: the source's recordings are motion capture filtered so smoothly (noise estimates of
@@ -61,6 +62,7 @@ from validation.vehicles.rgblimp_equations import (
     RGBlimpParameters,
     free_run,
 )
+from validation.vehicles.rgblimp_jax import batched_free_runs
 
 #: Aerodynamic-coefficient terms: the coefficient fields of :class:`RGBlimpParameters`.
 AERODYNAMIC_TERMS = tuple(f.name for f in dataclasses.fields(RGBlimpParameters) if f.name.startswith("c_"))
@@ -248,6 +250,12 @@ class _MemberValues:
                 values[field] = array
         return SimpleNamespace(**values)
 
+    def arrays(self) -> dict:
+        """Every member's parameters for :func:`validation.vehicles.rgblimp_jax.batched_free_runs`:
+        the fields (B,) or (B, 3), the thrust factor 1 (applied to the inputs) and the wind (B, 2)."""
+        values = {name: array if array.shape[1] == 3 else array[:, 0] for name, array in self.fields.items()}
+        return {**values, "thrust_gain": np.ones(len(self.gain)), "wind": self.wind}
+
     def member_parameters(self, member: int) -> RGBlimpParameters:
         """Member ``member``'s parameters as an :class:`RGBlimpParameters`."""
         return RGBlimpParameters(**{name: (tuple(array[member]) if array.shape[1] == 3 else float(array[member, 0]))
@@ -262,6 +270,8 @@ class RGBlimpEffects:
     Parameters
     ----------
     reference : RGBlimpReference
+    compiled : bool
+        Replay with the compiled free run (the default) or the numpy step (module docstring).
 
     The attributes and methods are those of the protocol.
     """
@@ -276,8 +286,8 @@ class RGBlimpEffects:
     min_noise_sd = MIN_NOISE_SD
     residual_gp_states = RESIDUAL_GP_STATES
 
-    def __init__(self, reference: RGBlimpReference):
-        self.reference = reference
+    def __init__(self, reference: RGBlimpReference, *, compiled: bool = True):
+        self.reference, self.compiled = reference, compiled
         self.name, self.sample_time = reference.name, reference.sample_time
         self.input_names, self.state_names = reference.input_names, reference.state_names
 
@@ -352,10 +362,13 @@ class RGBlimpEffects:
         factors = members.gain[:, None] * (1.0 + np.outer(members.asymmetry, [1.0, -1.0]))  # (B, 2)
         batch_inputs = np.broadcast_to(padded, (len(effect_lists),) + padded.shape).copy()
         batch_inputs[..., :2] *= factors[:, None, None, :]
-        with np.errstate(over="ignore", invalid="ignore"):
-            path = free_run(first, batch_inputs, members.namespace(self.reference.params),
-                            wind=members.wind[:, None, :])
-            path[..., 5] = np.unwrap(path[..., 5], axis=-1)
+        if self.compiled:  # yaw carried continuously
+            path = batched_free_runs(members.arrays(), first, batch_inputs)
+        else:
+            with np.errstate(over="ignore", invalid="ignore"):
+                path = free_run(first, batch_inputs, members.namespace(self.reference.params),
+                                wind=members.wind[:, None, :])
+                path[..., 5] = np.unwrap(path[..., 5], axis=-1)
         return [path[:, s, :n] for s, n in enumerate(lengths)]
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""validation.bench.rgblimp: the RGBlimp JAX free run against numpy, and the hybrid's fit time."""
+"""validation.bench.rgblimp: the RGBlimp JAX free run and diagnose's compiled replay against numpy,
+and the hybrid's fit time."""
 import pytest
 
 from validation.bench import rgblimp
@@ -10,6 +11,7 @@ def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
     # Two timed runs and a 2-iteration fit: the report's rows and their arithmetic are what is
     # checked here, not the speed.
     monkeypatch.setattr(rgblimp, "FREE_RUN_REPEATS", 2)
+    monkeypatch.setattr(rgblimp, "REPLAY_REPEATS", 1)
     report = rgblimp.run(progress=False, setup=RolloutSetup(inducing_points=8, segment_duration=2.0,
                                                             max_segments=8, max_iterations=2))
     free, fit = report["free_run"], report["fit"]
@@ -21,4 +23,7 @@ def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
     rows = {row.id: row for row in rgblimp.summary_rows(report)}
     assert rows["rgblimp.hybrid.fit_s"].met == fit["goal_met"]
     assert rows["rgblimp.free_run.jax_over_numpy"].value == free["speedup"]
+    replay = report["replay"]
+    assert len(replay["jax_s"]) == 1 and replay["speedup"] == pytest.approx(replay["numpy_s"][0] / replay["jax_s"][0])
+    assert rows["rgblimp.diagnose_replay.compiled_over_numpy"].value == replay["speedup"]
     assert "speed-up" in rgblimp.format_table(report)

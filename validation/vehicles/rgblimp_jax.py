@@ -1,0 +1,207 @@
+"""The RGBlimp's equations in ``jax.numpy``, compiled: free runs batched over parameter sets and
+recordings, and the functions the rollout-trained hybrid differentiates
+(:mod:`validation.models.rgblimp_rollout`).
+
+The equations are those of :mod:`validation.vehicles.rgblimp_equations`, written again for one
+state (12,) and inputs (5,) with the parameters as a dict of arrays (:func:`parameter_arrays`),
+so that JAX can trace, batch (``vmap``), differentiate and compile them. Everything is in double
+precision; a free run here equals :func:`~validation.vehicles.rgblimp_equations.free_run` to
+rounding (tested to 1e-12 over whole flights, batched as diagnose replays them, and to 6e-14 over
+the 3801 samples of ``data_1.csv``).
+
+Why compiled: a numpy RK4 step over a batch pays Python's and numpy's overhead per stage (about
+0.6 ms for 100 parameter sets), so a replay of many hypotheses over many flights is dominated by
+it; a compiled ``lax.scan`` over the samples is not (``flightgp bench rgblimp``).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from validation.vehicles.rgblimp_equations import SAMPLE_TIME, ZERO_SPEED_GUARD, RGBlimpParameters
+
+#: Batches of runs are padded to a power of two (at least this) and their samples to a multiple of
+#: this, so that replays of similar sizes share one compiled function.
+_MIN_RUNS, _SAMPLE_BATCH = 8, 600
+
+_COMPILED = {}
+
+
+def jax_modules():
+    """``jax`` and ``jax.numpy`` in double precision (imported on first use: only the compiled
+    RGBlimp runs need them)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    return jax, jnp
+
+
+
+def parameter_arrays(params: RGBlimpParameters, *, thrust_gain: float = 1.0, wind=(0.0, 0.0)) -> dict:
+    """``params`` as a dict of float64 arrays (every field of :class:`RGBlimpParameters`), plus
+    ``thrust_gain`` and ``wind`` (2,)."""
+    values = {f.name: np.asarray(getattr(params, f.name), dtype=float) for f in dataclasses.fields(RGBlimpParameters)}
+    values["thrust_gain"] = np.asarray(thrust_gain, dtype=float)
+    values["wind"] = np.asarray(wind, dtype=float)
+    return values
+
+
+def _skew(jnp, a):
+    return jnp.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def inverse_mass_matrix(jnp, inputs, p):
+    """The inverse of the 6x6 mass matrix and the first mass moment ``l`` and inertia ``J``
+    (:func:`validation.vehicles.rgblimp_equations.mass_properties`)."""
+    gondola = inputs[2:5]
+    mass_moment = p["hull_mass"] * p["hull_cg"] + p["gondola_mass"] * gondola
+    gondola_skew = _skew(jnp, gondola)
+    inertia = jnp.diag(p["inertia"]) - p["gondola_mass"] * gondola_skew @ gondola_skew
+    eye = jnp.eye(3)
+    translational = (p["hull_mass"] + p["gondola_mass"]) * eye + jnp.diag(p["added_mass"])
+    moment_skew = _skew(jnp, mass_moment)
+    matrix = jnp.block([[translational, -moment_skew], [moment_skew, inertia + jnp.diag(p["added_inertia"])]])
+    return jnp.linalg.inv(matrix), mass_moment, inertia
+
+
+def accelerations(jnp, state, inputs, p, masses):
+    """Body accelerations of the published equations
+    (:func:`validation.vehicles.rgblimp_equations.body_accelerations`)."""
+    inverse, mass_moment, inertia = masses
+    phi, theta = state[3], state[4]
+    velocity, rates = state[6:9], state[9:12]
+    thrust_left, thrust_right, gondola_z = inputs[0], inputs[1], inputs[4]
+    down = jnp.array([-jnp.sin(theta), jnp.cos(theta) * jnp.sin(phi), jnp.cos(theta) * jnp.cos(phi)])
+    speed_squared = jnp.sum(velocity**2)
+    speed = jnp.sqrt(speed_squared)
+    alpha = jnp.arctan2(velocity[2], velocity[0] + ZERO_SPEED_GUARD)
+    beta = jnp.arcsin(velocity[1] / (speed + ZERO_SPEED_GUARD))
+    qbar_area = 0.5 * p["air_density"] * speed_squared * p["reference_area"]
+    drag = qbar_area * (p["c_d0"] + p["c_d_alpha2"] * alpha**2 + p["c_d_beta2"] * beta**2)
+    side = qbar_area * (p["c_s0"] + p["c_s_alpha2"] * alpha**2 + p["c_s_beta"] * beta)
+    lift = qbar_area * (p["c_l0"] + p["c_l_alpha"] * alpha + p["c_l_beta2"] * beta**2)
+    aero_moment = qbar_area * jnp.array([p["c_mx0"] + p["c_mx_alpha"] * alpha + p["c_mx_beta"] * beta,
+                                         p["c_my0"] + p["c_my_alpha"] * alpha + p["c_my_beta4"] * beta**4,
+                                         p["c_mz0"] + p["c_mz_alpha"] * alpha + p["c_mz_beta"] * beta])
+    aero_moment = aero_moment + p["rate_damping"] * rates
+    ca, sa, cb, sb = jnp.cos(alpha), jnp.sin(alpha), jnp.cos(beta), jnp.sin(beta)
+    rotation = jnp.array([[ca * cb, -ca * sb, -sa], [sb, cb, 0.0], [sa * cb, -sa * sb, ca]])
+    total_mass = p["hull_mass"] + p["gondola_mass"]
+    thrust = thrust_left + thrust_right
+    velocity_cross_rates = jnp.cross(velocity, rates)
+    added_momentum = p["added_mass"] * velocity
+    force = (total_mass * velocity_cross_rates + jnp.cross(added_momentum, rates)
+             + jnp.cross(jnp.cross(rates, mass_moment), rates)
+             + (total_mass - p["buoyancy_mass"]) * p["gravity"] * down
+             + rotation @ jnp.array([-drag, side, -lift]) + jnp.array([thrust, 0.0, 0.0]))
+    moment = (jnp.cross(inertia @ rates, rates) + jnp.cross(added_momentum, velocity)
+              + jnp.cross(p["added_inertia"] * rates, rates) + jnp.cross(mass_moment, velocity_cross_rates)
+              + jnp.cross(mass_moment, p["gravity"] * down) + rotation @ aero_moment
+              + jnp.array([0.0, thrust * gondola_z, (thrust_left - thrust_right) * p["propeller_arm"]]))
+    return inverse @ jnp.concatenate([force, moment])
+
+
+def kinematics(jnp, state):
+    """Earth position rates and Euler angle rates (ZYX; Fossen 2011, sec. 2.2.1)."""
+    phi, theta, psi = state[3], state[4], state[5]
+    sf, cf, st, ct, sp, cp = jnp.sin(phi), jnp.cos(phi), jnp.sin(theta), jnp.cos(theta), jnp.sin(psi), jnp.cos(psi)
+    rotation = jnp.array([[cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st],
+                          [sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf],
+                          [-st, ct * sf, ct * cf]])
+    p, q, r = state[9], state[10], state[11]
+    tt = st / ct
+    angle_rates = jnp.array([p + sf * tt * q + cf * tt * r, cf * q - sf * r, (sf * q + cf * r) / ct])
+    return rotation @ state[6:9], angle_rates, rotation
+
+
+def rollout_function(jax, jnp, correction_of=None):
+    """``rollout(p, theta, start, inputs, disturbance) -> states (L, 12)``: the free run from
+    ``start`` (12,) through ``inputs`` (L, 5), states at samples 1 .. L, in the earth frame (the
+    wind handled as in :func:`validation.vehicles.rgblimp_equations.free_run`, yaw carried
+    continuously), ``p`` the parameters (:func:`parameter_arrays`). ``correction_of(theta)``,
+    when given and ``theta`` is not None, returns a function ``a(state, commands)`` (6,) added to
+    the body accelerations in every stage (a learned correction,
+    :mod:`validation.models.rgblimp_rollout`); ``disturbance`` (L, 6), or None, is added over
+    each step."""
+    h = SAMPLE_TIME
+
+    def rollout(p, theta, start, inputs, disturbance=None):
+        wind = jnp.concatenate([p["wind"], jnp.zeros(1)])
+        extra_acceleration = None if theta is None or correction_of is None else correction_of(theta)
+
+        def to_air(state, sign):
+            _, _, rotation = kinematics(jnp, state)
+            return state.at[6:9].add(sign * rotation.T @ wind)
+
+        def derivative(state, commands, masses, extra):
+            position_rate, angle_rates, _ = kinematics(jnp, state)
+            body = accelerations(jnp, state, commands, p, masses)
+            if extra_acceleration is not None:
+                body = body + extra_acceleration(state, commands)
+            if extra is not None:
+                body = body + extra
+            return jnp.concatenate([position_rate, angle_rates, body])
+
+        def step(state, sample):
+            commands, extra = sample if disturbance is not None else (sample, None)
+            commands = commands.at[:2].multiply(p["thrust_gain"])
+            masses = inverse_mass_matrix(jnp, commands, p)
+            k1 = derivative(state, commands, masses, extra)
+            k2 = derivative(state + 0.5 * h * k1, commands, masses, extra)
+            k3 = derivative(state + 0.5 * h * k2, commands, masses, extra)
+            k4 = derivative(state + h * k3, commands, masses, extra)
+            moved = state + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            return moved, moved
+
+        samples = inputs if disturbance is None else (inputs, disturbance)
+        _, path = jax.lax.scan(step, to_air(start, -1.0), samples)
+        drift = h * jnp.arange(1, inputs.shape[0] + 1)[:, None] * wind
+        path = path.at[:, :3].add(drift)
+        return jax.vmap(lambda s: to_air(s, 1.0))(path)
+
+    return rollout
+
+
+
+def batched_free_runs(parameters: dict, starts, inputs) -> np.ndarray:
+    """Free runs of B parameter sets over S recordings, compiled (module docstring).
+
+    Parameters
+    ----------
+    parameters : dict
+        :func:`parameter_arrays` of each set stacked on a first axis of length B (``wind`` (B,
+        2), ``thrust_gain`` (B,), triples (B, 3), the other fields (B,)).
+    starts : ndarray, shape (B, S, 12)
+    inputs : ndarray, shape (B, S, L, 5)
+        ``inputs[..., k, :]`` held from sample k to k + 1 (the thrusts times ``thrust_gain``).
+
+    Returns
+    -------
+    ndarray, shape (B, S, L, 12)
+        Row 0 the start, yaw carried continuously; a run that diverges holds inf or NaN.
+    """
+    if "batched" not in _COMPILED:
+        jax, jnp = jax_modules()
+        rollout = rollout_function(jax, jnp)
+        _COMPILED["batched"] = (jnp, jax.jit(jax.vmap(lambda p, start, u: rollout(p, None, start, u))))
+    jnp, batched = _COMPILED["batched"]
+    starts, inputs = np.asarray(starts, dtype=float), np.asarray(inputs, dtype=float)
+    members, recordings, length = inputs.shape[:3]
+    # One run per member and recording, their count padded to a power of two with copies of the
+    # first and their samples with the last input held (a free run is causal); the padding is cut.
+    runs = members * recordings
+    padded_runs = max(_MIN_RUNS, 1 << (runs - 1).bit_length())
+    rows = np.concatenate([np.arange(runs), np.zeros(padded_runs - runs, dtype=int)])
+    member_of_run = rows // recordings
+    steps = length - 1
+    padded_steps = max(steps + (-steps % _SAMPLE_BATCH), _SAMPLE_BATCH)
+    flat_inputs = inputs.reshape(runs, length, 5)[rows, :max(steps, 1)]
+    held = np.concatenate([flat_inputs, np.repeat(flat_inputs[:, -1:], padded_steps - flat_inputs.shape[1], axis=1)],
+                          axis=1)
+    by_run = {name: jnp.asarray(np.asarray(value, dtype=float)[member_of_run]) for name, value in parameters.items()}
+    path = batched(by_run, jnp.asarray(starts.reshape(runs, 12)[rows]), jnp.asarray(held))
+    path = np.asarray(path)[:runs, :steps].reshape(members, recordings, steps, 12)
+    return np.concatenate([starts[:, :, None, :], path], axis=2)
