@@ -59,7 +59,7 @@ from validation.models.rgblimp_hybrid_step import (
 from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
 from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, RGBlimpParameters
-from validation.vehicles.rgblimp_jax import jax_modules, kinematics, parameter_arrays, rollout_function
+from validation.vehicles.rgblimp_jax import held_inputs, jax_modules, kinematics, parameter_arrays, rollout_function
 
 #: What the correction sees, in order: air-relative body velocity, body rates, roll and pitch,
 #: both thrusts and the gondola's x position
@@ -287,10 +287,11 @@ class RolloutHybrid:
         jnp = compiled["jnp"]
         initial_state = np.asarray(initial_state, dtype=float)
         inputs = np.asarray(inputs, dtype=float)
+        # Padded to a few lengths (held_inputs) so that flights share a compiled free run.
         path = compiled["rollout"](_as_jax(jnp, physics_parameters(self.physics)),
                                    _as_jax(jnp, self.correction), jnp.asarray(initial_state),
-                                   jnp.asarray(inputs[:-1]))
-        return np.concatenate([initial_state[None], np.asarray(path)], axis=0)
+                                   jnp.asarray(held_inputs(inputs)))
+        return np.concatenate([initial_state[None], np.asarray(path)[:len(inputs) - 1]], axis=0)
 
     def band(self, initial_state, inputs, *, n_samples: int = BAND_SAMPLES, seed: int = 0):
         """The free run (:meth:`simulate`) and the spread of runs disturbed by a random
@@ -323,10 +324,11 @@ class RolloutHybrid:
         inputs = np.asarray(inputs, dtype=float)
         initial_state = np.asarray(initial_state, dtype=float)
         steps = len(inputs) - 1
+        held = held_inputs(inputs)  # padded as in simulate
         rng = np.random.default_rng(seed)
         decay = np.exp(-SAMPLE_TIME / self.disturbance_time)
         noise = rng.standard_normal((n_samples, max(steps, 1), 6))
-        disturbance = np.empty_like(noise)
+        disturbance = np.zeros((n_samples, len(held), 6))  # zero over the padding
         disturbance[:, 0] = noise[:, 0]
         for k in range(1, noise.shape[1]):
             disturbance[:, k] = decay * disturbance[:, k - 1] + np.sqrt(1 - decay**2) * noise[:, k]
@@ -335,7 +337,7 @@ class RolloutHybrid:
         disturbance = np.concatenate([np.zeros((1,) + disturbance.shape[1:]), disturbance])
         paths = np.asarray(compiled["disturbed"](_as_jax(jnp, physics_parameters(self.physics)),
                                                  _as_jax(jnp, self.correction), jnp.asarray(initial_state),
-                                                 jnp.asarray(inputs[:-1]), jnp.asarray(disturbance[:, :steps])))
+                                                 jnp.asarray(held), jnp.asarray(disturbance)))[:, :steps]
         mean = np.concatenate([initial_state[None], paths[0]])
         spread = np.std(paths[1:], axis=0, ddof=1)
         return mean, np.concatenate([np.zeros((1, 12)), spread], axis=0)

@@ -166,6 +166,17 @@ def rollout_function(jax, jnp, correction_of=None):
 
 
 
+def held_inputs(inputs: np.ndarray) -> np.ndarray:
+    """The inputs (..., L, 5) of a free run of L - 1 steps, the step count padded to a multiple of
+    600 samples (at least 600) by holding the last input used: a free run is causal, so the
+    first L - 1 states of the padded run are those of the run, and runs of different lengths
+    share a compiled function. Shape (..., P, 5)."""
+    steps = max(inputs.shape[-2] - 1, 1)
+    used = inputs[..., :steps, :]
+    padded = max(steps + (-steps % _SAMPLE_BATCH), _SAMPLE_BATCH)
+    return np.concatenate([used, np.repeat(used[..., -1:, :], padded - steps, axis=-2)], axis=-2)
+
+
 def batched_free_runs(parameters: dict, starts, inputs) -> np.ndarray:
     """Free runs of B parameter sets over S recordings, compiled (module docstring).
 
@@ -197,10 +208,7 @@ def batched_free_runs(parameters: dict, starts, inputs) -> np.ndarray:
     rows = np.concatenate([np.arange(runs), np.zeros(padded_runs - runs, dtype=int)])
     member_of_run = rows // recordings
     steps = length - 1
-    padded_steps = max(steps + (-steps % _SAMPLE_BATCH), _SAMPLE_BATCH)
-    flat_inputs = inputs.reshape(runs, length, 5)[rows, :max(steps, 1)]
-    held = np.concatenate([flat_inputs, np.repeat(flat_inputs[:, -1:], padded_steps - flat_inputs.shape[1], axis=1)],
-                          axis=1)
+    held = held_inputs(inputs.reshape(runs, length, 5)[rows])
     by_run = {name: jnp.asarray(np.asarray(value, dtype=float)[member_of_run]) for name, value in parameters.items()}
     path = batched(by_run, jnp.asarray(starts.reshape(runs, 12)[rows]), jnp.asarray(held))
     path = np.asarray(path)[:runs, :steps].reshape(members, recordings, steps, 12)
