@@ -14,10 +14,13 @@ from validation.models.narx import save_trained, train_narx
 from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
 
 # JAX's persistent compilation cache (the RGBlimp hybrid's rollouts, validation/models/
-# rgblimp_rollout.py): both test workers, and tests that compile the same rollout shapes, load a
-# compiled loss from it instead of compiling it again (10 s each). JAX reads the variable when
-# imported, after this; an entry is keyed on the computation, so a changed model compiles anew.
+# rgblimp_rollout.py, and diagnose's compiled replays, validation/vehicles/rgblimp_jax.py): both
+# test workers, and tests that compile the same shapes, load a compiled function from it instead
+# of compiling it again (1-10 s each), however short its compile (JAX keeps only those over 1 s
+# by default). JAX reads the variables when imported, after this; an entry is keyed on the
+# computation, so a changed model compiles anew.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / "build" / "jax-cache"))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 
 @pytest.fixture(scope="session")

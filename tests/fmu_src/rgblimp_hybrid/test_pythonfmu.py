@@ -27,7 +27,9 @@ def case(rgblimp_hybrid_fmu, hybrid_trained, hybrid_reference):
 
 
 class TestRGBlimpHybridFmu(FmuContract, RGBlimpRkgpContract):
-    """The FMU contract and the RGBlimp FMUs' interface and step, on the pythonfmu hybrid."""
+    """The FMU contract and the RGBlimp FMUs' interface and step, on the pythonfmu hybrid (its
+    slave is the grey-box FMUs'; what the contract adds here is its 18-state covariance through
+    reset, state save and restore, and two instances)."""
 
 
 def test_both_fmus_equal_the_python_free_run(rgblimp_hybrid_fmu, native_rgblimp_hybrid_fmu, hybrid_trained,
