@@ -21,9 +21,10 @@ import numpy as np
 
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, ZERO_SPEED_GUARD, RGBlimpParameters
 
-#: Batches of runs are padded to a power of two (at least this) and their samples to a multiple of
-#: this, so that replays of similar sizes share one compiled function.
-_MIN_RUNS, _SAMPLE_BATCH = 8, 600
+#: Batches of runs are padded to a power of two (at least this), and their steps to the smallest
+#: power of two (at least the second) or multiple of the third that holds them, so that replays of
+#: similar sizes share one compiled function and short ones waste little.
+_MIN_RUNS, _MIN_STEPS, _SAMPLE_BATCH = 8, 32, 600
 
 _COMPILED = {}
 
@@ -167,13 +168,13 @@ def rollout_function(jax, jnp, correction_of=None):
 
 
 def held_inputs(inputs: np.ndarray) -> np.ndarray:
-    """The inputs (..., L, 5) of a free run of L - 1 steps, the step count padded to a multiple of
-    600 samples (at least 600) by holding the last input used: a free run is causal, so the
-    first L - 1 states of the padded run are those of the run, and runs of different lengths
-    share a compiled function. Shape (..., P, 5)."""
+    """The inputs (..., L, 5) of a free run of L - 1 steps, the step count padded (to the smaller
+    of the next power of two, at least 32, and the next multiple of 600) by holding the last
+    input used: a free run is causal, so the first L - 1 states of the padded run are those of
+    the run, and runs of different lengths share a compiled function. Shape (..., P, 5)."""
     steps = max(inputs.shape[-2] - 1, 1)
     used = inputs[..., :steps, :]
-    padded = max(steps + (-steps % _SAMPLE_BATCH), _SAMPLE_BATCH)
+    padded = min(max(_MIN_STEPS, 1 << (steps - 1).bit_length()), steps + (-steps % _SAMPLE_BATCH))
     return np.concatenate([used, np.repeat(used[..., -1:, :], padded - steps, axis=-2)], axis=-2)
 
 
