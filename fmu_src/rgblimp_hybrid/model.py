@@ -90,6 +90,9 @@ class RGBlimpHybridModel:
         ``a = exp(-h / T)`` of the random acceleration over one sample.
     disturbance_variance : ndarray, shape (6,)
         ``sd^2``.
+    process_noise : ndarray, shape (18,)
+        The diagonal ``Q`` added each step: 0 for the 12 states, ``(1 - a^2) sd^2`` for the
+        random accelerations.
     propagation : FirstOrderPropagation
         Of the 18 augmented states.
     envelope : fmu_src.fmi.runtime.Envelope
@@ -122,8 +125,8 @@ class RGBlimpHybridModel:
         self.disturbance_variance = values["disturbance_sd"] ** 2
         self.propagation = FirstOrderPropagation(N_STATES + N_DISTURBANCES, float(values["propagation_step"]))
         self.envelope = Envelope(values["envelope_low"], values["envelope_high"], FEATURE_NAMES)
-        self._process_noise = np.concatenate([np.zeros(N_STATES), (1 - self.decay**2) * self.disturbance_variance])
-        freeze((self.wind, self.disturbance_variance, self._process_noise, *vars(self.correction).values()))
+        self.process_noise = np.concatenate([np.zeros(N_STATES), (1 - self.decay**2) * self.disturbance_variance])
+        freeze((self.wind, self.disturbance_variance, self.process_noise, *vars(self.correction).values()))
 
     @classmethod
     def load(cls, path) -> RGBlimpHybridModel:
@@ -165,7 +168,7 @@ class RGBlimpHybridModel:
                                        wind=self.wind, correction=self.correction,
                                        disturbance=points[:, N_STATES:]),
                            self.decay * points[:, N_STATES:]])
-        augmented, covariance = self.propagation.advance(moved, covariance, self._process_noise)
+        augmented, covariance = self.propagation.advance(moved, covariance, self.process_noise)
         x = air_features(state, inputs, thrust_gain=self.thrust_gain, wind=self.wind)
         return augmented[:N_STATES], covariance, hidden, x
 

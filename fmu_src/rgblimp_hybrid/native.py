@@ -35,7 +35,7 @@ from fmu_src.rgblimp_hybrid.build import rgblimp_hybrid_parts
 from fmu_src.rgblimp_hybrid.model import N_DISTURBANCES, N_STATES, RGBlimpHybridModel
 from fmu_src.rgblimp_hybrid.slave import RGBlimpHybrid
 from fmu_src.rgblimp_rkgp.native import PHYSICS_SOURCES, check_physics_parameters, physics_config_lines
-from validation.models.rgblimp_hybrid_step import FEATURE_SCALE
+from validation.models.rgblimp_hybrid_step import FEATURE_SCALE, INPUT_FEATURES, STATE_FEATURES
 from validation.vehicles.rgblimp_equations import INPUT_NAMES, STATE_NAMES
 
 #: The model's C files, compiled with the FMI layer.
@@ -85,7 +85,6 @@ def build_native_rgblimp_hybrid_fmu(model_path, out_dir, *, name: str | None = N
 def _hybrid_config(guid: str, name: str, variables: tuple, model: RGBlimpHybridModel, n_doubles: int) -> str:
     """``model_config.h``: identity, variable table, step, physics, correction and propagation."""
     n_augmented = N_STATES + N_DISTURBANCES
-    process_noise = np.concatenate([np.zeros(N_STATES), (1 - model.decay**2) * model.disturbance_variance])
     return config_header(name, guid, generator="fmu_src/rgblimp_hybrid/native.py", body=[
         "/* Communication step: one RK4 sample of the source's integrator, s (fmu_src/rgblimp_hybrid/slave.py) */",
         f"#define STEP_SIZE {c_number(RGBlimpHybrid.STEP_SIZE)}", "",
@@ -96,6 +95,9 @@ def _hybrid_config(guid: str, name: str, variables: tuple, model: RGBlimpHybridM
         f"#define N_INDUCING {len(model.correction.inducing)}",
         f"#define N_FEATURES {len(FEATURE_SCALE)}",
         c_array("double", "FEATURE_SCALE", FEATURE_SCALE, c_number).rstrip(),
+        "/* The state and input columns of the features (validation/models/rgblimp_hybrid_step.py) */",
+        c_array("int", "STATE_FEATURES", STATE_FEATURES).rstrip(),
+        c_array("int", "INPUT_FEATURES", INPUT_FEATURES).rstrip(),
         *envelope_lines("FEATURE_NAMES", model.envelope), "",
         "/* Covariance propagation of the 12 states and the 6 random accelerations: central-difference",
         "   step, the accelerations' decay over one sample, their stationary variances and the process noise */",
@@ -103,7 +105,7 @@ def _hybrid_config(guid: str, name: str, variables: tuple, model: RGBlimpHybridM
         f"#define PROPAGATION_STEP {c_number(model.propagation.step)}",
         f"#define DECAY {c_number(model.decay)}",
         c_array("double", "DISTURBANCE_VARIANCE", model.disturbance_variance, c_number).rstrip(),
-        c_array("double", "PROCESS_NOISE", process_noise, c_number).rstrip(), "",
+        c_array("double", "PROCESS_NOISE", model.process_noise, c_number).rstrip(), "",
         "/* Hidden state: the 12 states, the augmented covariance, the envelope flag (rgblimp_hybrid_model.c) */",
         "#define MODEL_STATE_SIZE (N_STATES + N_AUGMENTED * N_AUGMENTED + 1)", "",
         f"/* The correction's arrays in resources/{DATA_FILE} (layout: rgblimp_hybrid_model.c) */",

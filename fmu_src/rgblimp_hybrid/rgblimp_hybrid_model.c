@@ -46,10 +46,6 @@
 #define N_UNREAD 3
 #define N_DISTURBANCES (N_AUGMENTED - N_STATES)
 
-/* The state and input columns of the features (rgblimp_hybrid_step.py, STATE_FEATURES, INPUT_FEATURES) */
-static const int STATE_FEATURES[] = {6, 7, 8, 9, 10, 11, 3, 4};
-static const int INPUT_FEATURES[] = {0, 1, 2};
-
 struct Model {
     double *data;
     const double *inducing, *weights, *length_scale, *amplitude;
@@ -89,10 +85,12 @@ Model *model_load(const char *resources_dir, char **error) {
     return model;
 }
 
-/* The features (physical units) of the state s and the inputs u (rgblimp_hybrid_step.py, features). */
+/* The features (physical units) of the state s and the inputs u (rgblimp_hybrid_step.py, features;
+ * the columns STATE_FEATURES, INPUT_FEATURES from model_config.h). */
 static void features(const double s[N_STATES], const double u[N_INPUTS], double z[N_FEATURES]) {
-    for (int c = 0; c < 8; c++) z[c] = s[STATE_FEATURES[c]];
-    for (int c = 0; c < 3; c++) z[8 + c] = u[INPUT_FEATURES[c]];
+    const int n_state = (int)(sizeof STATE_FEATURES / sizeof STATE_FEATURES[0]);
+    for (int c = 0; c < n_state; c++) z[c] = s[STATE_FEATURES[c]];
+    for (int c = n_state; c < N_FEATURES; c++) z[c] = u[INPUT_FEATURES[c - n_state]];
 }
 
 /* ExtraAcceleration: the correction (Correction.__call__) plus the random acceleration. */

@@ -57,7 +57,12 @@ class Correction:
         """``a`` (..., 6) at air-frame ``states`` (..., 12) and ``inputs`` (..., 5) with the
         thrust factor applied (as :func:`validation.vehicles.rgblimp_equations.rgblimp_dynamics`
         passes them)."""
-        z = features(states, inputs) / np.asarray(FEATURE_SCALE)
+        return self.at_features(features(states, inputs))
+
+    def at_features(self, values: np.ndarray) -> np.ndarray:
+        """``a`` (..., 6) at feature values (..., 11) in physical units (:func:`features`,
+        :func:`air_features`)."""
+        z = values / np.asarray(FEATURE_SCALE)
         squared = np.sum(((z[..., None, :] - self.inducing) / self.length_scale) ** 2, axis=-1)
         return self.amplitude * (np.exp(-0.5 * squared) @ self.weights)
 

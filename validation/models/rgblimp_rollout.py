@@ -56,10 +56,11 @@ from validation.models.rgblimp_hybrid_step import (
     Correction,
     air_features,
 )
+from validation.models.rgblimp_hybrid_step import features as feature_values
 from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
 from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, RGBlimpParameters
-from validation.vehicles.rgblimp_jax import held_inputs, jax_modules, kinematics, parameter_arrays, rollout_function
+from validation.vehicles.rgblimp_jax import held_inputs, jax_modules, parameter_arrays, rollout_function
 
 #: What the correction sees, in order: air-relative body velocity, body rates, roll and pitch,
 #: both thrusts and the gondola's x position
@@ -68,7 +69,6 @@ from validation.vehicles.rgblimp_jax import held_inputs, jax_modules, kinematics
 #: (m/s, rad/s, rad, N, m): about the spread a flight or the configurations show
 #: (docs/rgblimp.md), so that one length scale of 1 means about that much change; the fitted
 #: length scales adapt from there.
-_STATE_FEATURES, _INPUT_FEATURES = STATE_FEATURES, INPUT_FEATURES
 #: Units of the six corrected accelerations.
 CORRECTION_UNITS = ("m/s^2",) * 3 + ("rad/s^2",) * 3
 #: Identified coefficients that :attr:`RolloutSetup.tune_physics` refines with the correction.
@@ -175,7 +175,7 @@ def model_from_parameters(values: dict) -> RGBlimpModel:
 def features(jnp, state, inputs):
     """The correction's inputs (:data:`FEATURE_NAMES`) of one air-frame state and its inputs,
     divided by :data:`FEATURE_SCALE`: shape (11,)."""
-    raw = jnp.concatenate([state[jnp.array(_STATE_FEATURES)], inputs[jnp.array(_INPUT_FEATURES)]])
+    raw = jnp.concatenate([state[jnp.array(STATE_FEATURES)], inputs[jnp.array(INPUT_FEATURES)]])
     return raw / jnp.asarray(FEATURE_SCALE)
 
 
@@ -415,24 +415,8 @@ class RolloutHybrid:
         """The correction ``a`` (..., 6) at earth-frame ``states`` (..., 12) and ``inputs``
         (..., 5) as recorded (the wind taken off the velocity and the thrust gain applied first,
         as in a free run), in :data:`CORRECTION_UNITS`."""
-        compiled = _compiled()
-        jax, jnp = compiled["jax"], compiled["jnp"]
-        theta = _as_jax(jnp, self.correction)
-        weights = correction_weights(jnp, theta)
-        wind = jnp.concatenate([jnp.asarray(self.physics.wind), jnp.zeros(1)])
-
-        def one(state, commands):
-            _, _, rotation = kinematics(jnp, state)
-            air = state.at[6:9].add(-rotation.T @ wind)
-            commands = commands.at[:2].multiply(self.physics.thrust_gain)
-            return correction(jnp, features(jnp, air, commands), theta, weights)
-
-        states = np.asarray(states, dtype=float)
-        inputs = np.asarray(inputs, dtype=float)
-        flat_states = states.reshape(-1, 12)
-        flat_inputs = np.broadcast_to(inputs, states.shape[:-1] + (5,)).reshape(-1, 5)
-        out = jax.vmap(one)(jnp.asarray(flat_states), jnp.asarray(flat_inputs))
-        return np.asarray(out).reshape(states.shape[:-1] + (6,))
+        values = air_features(states, inputs, thrust_gain=self.physics.thrust_gain, wind=self.physics.wind)
+        return self.numpy_correction().at_features(values)
 
 
 def _as_jax(jnp, tree):
@@ -448,8 +432,7 @@ def initial_correction(flights, setup: RolloutSetup) -> dict:
     inputs = np.concatenate([f.recording.inputs for f in flights])
     rng = np.random.default_rng(setup.seed)
     rows = rng.choice(len(states), size=min(setup.inducing_points, len(states)), replace=False)
-    inducing = np.concatenate([states[rows][:, _STATE_FEATURES], inputs[rows][:, _INPUT_FEATURES]], axis=1)
-    inducing = inducing / np.asarray(FEATURE_SCALE)  # what features() computes
+    inducing = feature_values(states[rows], inputs[rows]) / np.asarray(FEATURE_SCALE)  # what features() computes
     return {"inducing": inducing, "whitened": np.zeros((len(rows), 6)),
             "log_length_scale": np.full(len(FEATURE_NAMES), np.log(setup.initial_length_scale)),
             "log_amplitude": np.log(np.asarray(setup.initial_amplitude, dtype=float))}

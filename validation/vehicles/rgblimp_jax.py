@@ -166,7 +166,6 @@ def rollout_function(jax, jnp, correction_of=None):
     return rollout
 
 
-
 def held_inputs(inputs: np.ndarray) -> np.ndarray:
     """The inputs (..., L, 5) of a free run of L - 1 steps, the step count padded (to the smaller
     of the next power of two, at least 32, and the next multiple of 600) by holding the last
