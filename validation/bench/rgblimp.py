@@ -11,6 +11,9 @@ Both on the excerpt shipped with the package (configuration 29: fit on ``data_11
   (:meth:`validation.vehicles.rgblimp_effects.RGBlimpEffects.simulate_recordings`: 24 effect
   lists over the three flights of configuration 29, as one batch) on the compiled free run against
   the numpy step, as a ratio, over several runs;
+- the same for the blimp reference's replays (:func:`validation.vehicles.blimp_effects.simulate_batch`:
+  24 effect lists over its 20 s identification manoeuvre), compiled
+  (:mod:`validation.vehicles.blimp_jax`) against the numpy step;
 - the hybrid's fit with the default setup (:func:`validation.models.rgblimp_rollout.fit_rollout`,
   compilation included, as a user meets it) against the goal of :data:`FIT_GOAL_S` per
   configuration, beside the identification the hybrid starts from (the peer).
@@ -43,7 +46,8 @@ def run(*, progress: bool = True, setup=None) -> dict:
     dict
         ``free_run``: ``numpy_s`` and ``jax_s`` (lists over runs), ``speedup`` (median ratio),
         ``samples``; ``replay``: the same for diagnose's batched replay, with ``members`` and
-        ``flights``; ``fit``: ``hybrid_s``, ``identification_s``, ``iterations``, ``goal_s``,
+        ``flights``; ``blimp_replay``: the same for the blimp's, with ``members``; ``fit``:
+        ``hybrid_s``, ``identification_s``, ``iterations``, ``goal_s``,
         ``goal_met``.
     """
     from validation.models.rgblimp_identification import identify_parameters
@@ -52,7 +56,7 @@ def run(*, progress: bool = True, setup=None) -> dict:
 
     fitting = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv") for n in (117, 118)]
     test = read_rgblimp_flight(EXCERPT_FOLDER / "data_119.csv").recording
-    with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 2 * REPLAY_REPEATS + 2,
+    with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 4 * REPLAY_REPEATS + 2,
                       unit="run") as update:
         began = clock.perf_counter()
         identified = identify_parameters(fitting).model
@@ -70,12 +74,14 @@ def run(*, progress: bool = True, setup=None) -> dict:
                 if update:
                     update(1, stage="free run")
         replay = _time_replays([f.recording for f in fitting] + [test], update)
+        blimp_replay = _time_blimp_replays(update)
         hybrid = fit_rollout(fitting, identified, setup=setup or RolloutSetup())
         if update:
             update(1, stage="hybrid fit")
     return {"free_run": {**_ratio(numpy_s, jax_s), "samples": len(test.time), "flight": "data_119.csv"},
             "replay": {**_ratio(replay["numpy_s"], replay["jax_s"]), "members": REPLAY_MEMBERS,
                        "flights": ["data_117.csv", "data_118.csv", "data_119.csv"]},
+            "blimp_replay": {**_ratio(blimp_replay["numpy_s"], blimp_replay["jax_s"]), "members": REPLAY_MEMBERS},
             "fit": {"hybrid_s": hybrid.fit_seconds, "identification_s": identification_s,
                     "iterations": hybrid.iterations, "flights": ["data_117.csv", "data_118.csv"],
                     "goal_s": FIT_GOAL_S, "goal_met": hybrid.fit_seconds <= FIT_GOAL_S}}
@@ -99,12 +105,34 @@ def _time_replays(recordings, update) -> dict:
     compiled, numpy_step = RGBlimpEffects(reference), RGBlimpEffects(reference, compiled=False)
     args = (effect_lists, [r.time for r in recordings], [r.inputs for r in recordings],
             [compiled.start_state(r) for r in recordings])
-    compiled.simulate_recordings(*args)  # compile once
+    return _alternate(lambda: compiled.simulate_recordings(*args), lambda: numpy_step.simulate_recordings(*args),
+                      update)
+
+
+def _time_blimp_replays(update) -> dict:
+    """The blimp's (:mod:`validation.vehicles.blimp_effects`) replay of :data:`REPLAY_MEMBERS`
+    effect lists (a gondola-fan lag and a yaw damping each) over its identification manoeuvre
+    (20 s at 20 Hz), compiled (:mod:`validation.vehicles.blimp_jax`, once compiled) and numpy."""
+    from validation.vehicles.blimp import BlimpReference
+    from validation.vehicles.blimp_effects import identification_manoeuvre, simulate_batch
+
+    reference, (time, inputs) = BlimpReference(), identification_manoeuvre()
+    effect_lists = [[{"effect": "input_lag", "input": "u_gondola", "value": 0.1 + 0.01 * b},
+                     {"effect": "stability_derivative", "term": "N_R", "value": -0.01 - 0.001 * b}]
+                    for b in range(REPLAY_MEMBERS)]
+    return _alternate(lambda: simulate_batch(reference, effect_lists, time, inputs),
+                      lambda: simulate_batch(reference, effect_lists, time, inputs, compiled=False), update)
+
+
+def _alternate(compiled, numpy_step, update) -> dict:
+    """``numpy_s`` and ``jax_s``: :data:`REPLAY_REPEATS` timed calls of each, alternating, after
+    one call of ``compiled`` that compiles it."""
+    compiled()
     times = {"numpy_s": [], "jax_s": []}
     for _ in range(REPLAY_REPEATS):
-        for key, model in (("numpy_s", numpy_step), ("jax_s", compiled)):
+        for key, call in (("numpy_s", numpy_step), ("jax_s", compiled)):
             began = clock.perf_counter()
-            model.simulate_recordings(*args)
+            call()
             times[key].append(clock.perf_counter() - began)
             if update:
                 update(1, stage="replay")
@@ -123,6 +151,9 @@ def format_table(report: dict) -> str:
         f"  numpy step {np.median(replay['numpy_s']) * 1e3:8.1f} ms   "
         f"compiled {np.median(replay['jax_s']) * 1e3:8.1f} ms"
         f"   speed-up {replay['speedup']:.1f}x ({replay['speedup_range'][0]:.1f}-{replay['speedup_range'][1]:.1f})",
+        f"blimp replay of {report['blimp_replay']['members']} effect lists over its identification manoeuvre: "
+        f"numpy step {np.median(report['blimp_replay']['numpy_s']) * 1e3:.1f} ms, compiled "
+        f"{np.median(report['blimp_replay']['jax_s']) * 1e3:.1f} ms, speed-up {report['blimp_replay']['speedup']:.1f}x",
         f"rollout-trained hybrid fit on {', '.join(fit['flights'])}: {fit['hybrid_s']:.1f} s "
         f"({fit['iterations']} iterations; goal <= {fit['goal_s']:g} s: {'met' if fit['goal_met'] else 'MISSED'}); "
         f"the identification it starts from {fit['identification_s']:.1f} s"])
@@ -138,6 +169,11 @@ def summary_rows(report: dict) -> list[SummaryRow]:
                        report["replay"]["speedup"], "x", None,
                        note=f"{report['replay']['speedup_range'][0]:.1f}-{report['replay']['speedup_range'][1]:.1f} "
                             "over runs"),
+            SummaryRow("blimp.diagnose_replay.compiled_over_numpy",
+                       "blimp diagnose replay (24 hypotheses, 20 s), compiled over numpy step",
+                       report["blimp_replay"]["speedup"], "x", None,
+                       note=f"{report['blimp_replay']['speedup_range'][0]:.1f}-"
+                            f"{report['blimp_replay']['speedup_range'][1]:.1f} over runs"),
             SummaryRow("rgblimp.hybrid.fit_s", "RGBlimp rollout-trained hybrid, fit per configuration",
                        fit["hybrid_s"], "s", FIT_GOAL_S, at_least=False,
                        note=f"identification {fit['identification_s']:.1f} s")]

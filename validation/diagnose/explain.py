@@ -180,11 +180,14 @@ class Explanation:
         diagnosis.json's ``search``: ``hypotheses_tested``, ``null_rss``, ``final_rss``,
         ``n_residuals``, ``rejected`` (``effect``, target, ``value``, ``likelihood_ratio``,
         ``threshold``, or None).
+    model : FittedModel
+        The accepted effects' hypotheses at their joint values, in the order of ``effects``.
     """
 
     effects: list
     named: list
     search: dict
+    model: FittedModel
 
 
 def explain(data: PreparedData, location: Location, reference: EffectModel, *, progress=None) -> Explanation:
@@ -216,7 +219,7 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
     search = {"hypotheses_tested": selection.n_screened, "null_rss": selection.null_rss,
               "final_rss": fitted.rss, "n_residuals": data.n_residuals,
               "rejected": _describe_rejected(selection.rejected), "residual_search": selection.residual_search}
-    return Explanation(fitted.effects(), sorted(named, key=lambda n: -n.likelihood_ratio), search)
+    return Explanation(fitted.effects(), sorted(named, key=lambda n: -n.likelihood_ratio), search, fitted)
 
 
 def amplitude_check(data: FitData, reference: EffectModel, model: FittedModel, index: int, *, main_output: int,
@@ -227,8 +230,9 @@ def amplitude_check(data: FitData, reference: EffectModel, model: FittedModel, i
     output is beyond its median size (the larger excursions) and on the rest (the smaller). With a
     vehicle linear in that change both refits estimate the same value, so
     ``W = (v_large - v_small)^2 / (var_large + var_small)`` (Wald's form of Chow's test for one
-    coefficient, Chow, Econometrica 28(3), 1960; the variances from each refit's Wald
-    covariance) is chi-squared with one degree of freedom; an amplitude-dependent response, such
+    coefficient, Chow, Econometrica 28(3), 1960; the variances from each refit's classical Wald
+    covariance, which holds under the test's null hypothesis, a linear vehicle and white noise)
+    is chi-squared with one degree of freedom; an amplitude-dependent response, such
     as a damping that grows with the rate or a stiffness that hardens, wants different values.
 
     Parameters
@@ -275,7 +279,7 @@ def amplitude_check(data: FitData, reference: EffectModel, model: FittedModel, i
         return None
     h = model.hypotheses[index]
     difference = parts[1].values[index] - parts[0].values[index]
-    variance = parts[0].covariance[index, index] + parts[1].covariance[index, index]
+    variance = parts[0].white_covariance[index, index] + parts[1].white_covariance[index, index]
     wald = float(difference ** 2 / variance) if variance > 0 else 0.0
     return {"value_small": h.effect_value(parts[0].values[index]),
             "value_large": h.effect_value(parts[1].values[index]), "likelihood_ratio": wald,

@@ -16,7 +16,10 @@ batched replay.
 
 Intervals are 95 % Wald intervals from the Jacobian at the joint optimum,
 ``cov = s^2 (J^T J)^-1`` with ``s^2 = max(1, RSS / (N - p))`` so that a misfit beyond the noise
-widens them (Seber & Wild, *Nonlinear Regression*, 1989, sec. 2.2).
+widens them (Seber & Wild, *Nonlinear Regression*, 1989, sec. 2.2). That formula assumes white
+residuals; model error is correlated in time (a misfit lasts seconds), which makes it far too
+narrow, so each variance is widened to the heteroscedasticity- and autocorrelation-consistent
+(Newey-West) one where that is larger (:func:`_newey_west`).
 """
 from __future__ import annotations
 
@@ -87,6 +90,12 @@ class FitData:
         """Replayed outputs per recording, shape (n_r, n_out) each."""
         return [replay[0] for replay in self._simulate_many(reference, [effects], fitted_only=False)]
 
+    def simulate_many(self, reference: EffectModel, effect_lists) -> list:
+        """Per effect list, its replayed outputs per recording, shape (n_r, n_out) each, all in
+        one batch."""
+        per_recording = self._simulate_many(reference, effect_lists, fitted_only=False)
+        return [[replays[b] for replays in per_recording] for b in range(len(effect_lists))]
+
     def simulate_states(self, reference: EffectModel, effect_lists, *, fitted_only: bool = False) -> list:
         """Per recording (``None`` where ``fitted_only`` and nothing of it is fitted): the
         replayed states of each effect list, shape (B, n_r, n_states), all recordings in one
@@ -134,13 +143,18 @@ class FittedModel:
     rss : float
         Weighted residual sum of squares at ``values``.
     covariance : ndarray, shape (p, p)
-        Wald covariance (module docstring).
+        Wald covariance, widened where the residual is correlated in time (module docstring).
+    white_covariance : ndarray, shape (p, p)
+        The classical ``s^2 (J^T J)^-1``, right when the model with these values is the truth
+        and only white noise remains: the null hypothesis of a specification test
+        (:func:`validation.diagnose.explain.amplitude_check`).
     """
 
     hypotheses: list
     values: np.ndarray
     rss: float
     covariance: np.ndarray
+    white_covariance: np.ndarray
 
     def effects(self) -> list[dict]:
         """The fitted effect dicts."""
@@ -159,7 +173,7 @@ class FittedModel:
 def null_model(data: FitData, reference: EffectModel) -> FittedModel:
     """The reference without any effect, as a FittedModel (its RSS on ``data``)."""
     rss = float(np.sum(data.weighted_residuals(reference, []) ** 2))
-    return FittedModel([], np.zeros(0), rss, np.zeros((0, 0)))
+    return FittedModel([], np.zeros(0), rss, np.zeros((0, 0)), np.zeros((0, 0)))
 
 
 def fit_many(data: FitData, reference: EffectModel, problems: list) -> list[FittedModel]:
@@ -170,10 +184,56 @@ def fit_many(data: FitData, reference: EffectModel, problems: list) -> list[Fitt
     return [_fit(data, reference, hypotheses, start) for hypotheses, start in problems]
 
 
-def _covariance(jacobian: np.ndarray, rss: float) -> np.ndarray:
-    """Wald covariance ``s^2 (J^T J)^-1`` with ``s^2 = max(1, RSS / (N - p))`` (module docstring)."""
+def _covariances(jacobian: np.ndarray, residual: np.ndarray, data: FitData) -> tuple[np.ndarray, np.ndarray]:
+    """Wald covariances of the values at a fit's optimum (module docstring): the classical
+    ``s^2 (J^T J)^-1`` with each variance widened (never narrowed) to the Newey-West one
+    (:func:`_newey_west`), the correlations kept; and the classical one.  ``jacobian`` (N, p)
+    and ``residual`` (N,) are weighted, recording by recording, sample-major over
+    ``data.output_names``."""
     n, p = jacobian.shape
-    return max(1.0, rss / max(n - p, 1)) * np.linalg.pinv(jacobian.T @ jacobian)
+    rss = float(residual @ residual)
+    bread = np.linalg.pinv(jacobian.T @ jacobian)
+    classic = max(1.0, rss / max(n - p, 1)) * bread
+    if p == 0:
+        return classic, classic
+    blocks = [int(mask.sum()) for mask in data.fit_mask if mask.any()]
+    robust = bread @ _newey_west(jacobian, residual, blocks, len(data.output_names)) @ bread
+    variance = np.diag(classic)
+    ratio = np.where(variance > 0, np.diag(robust) / np.where(variance > 0, variance, 1.0), 1.0)
+    scale = np.sqrt(np.maximum(1.0, ratio))
+    return classic * np.outer(scale, scale), classic
+
+
+def _newey_west(jacobian: np.ndarray, residual: np.ndarray, blocks: list, n_outputs: int) -> np.ndarray:
+    """The long-run covariance ``S`` (p, p) of the score ``sum_t g_t``, ``g_t = J_t^T r_t`` per
+    sample ``t`` (the outputs of a sample together), with Bartlett weights ``1 - l / (L + 1)``
+    up to lag ``L`` within each recording (Newey & West, Econometrica 55(3), 1987), so that
+    ``(J^T J)^-1 S (J^T J)^-1`` holds when the model error is correlated in time. ``L`` is
+    Andrews' plug-in for an AR(1) score with the pooled lag-one autocorrelation ``rho`` of the
+    standardised scores, ``L = 1.1447 (4 rho^2 / ((1 - rho)^2 (1 + rho)^2) T)^(1/3)`` (Andrews,
+    Econometrica 59(3), 1991, sec. 6), ``T`` the longest recording's samples, at most ``T - 1``."""
+    p = jacobian.shape[1]
+    scores, first = [], 0
+    for length in blocks:
+        rows = slice(first, first + length * n_outputs)
+        scores.append(np.einsum("top,to->tp", jacobian[rows].reshape(length, n_outputs, p),
+                                residual[rows].reshape(length, n_outputs)))
+        first += length * n_outputs
+    spread = np.sqrt(np.mean(np.concatenate(scores) ** 2, axis=0))
+    spread = np.where(spread > 0, spread, 1.0)
+    lagged = sum(float(np.sum(g[1:] / spread * g[:-1] / spread)) for g in scores)
+    total = sum(float(np.sum((g / spread) ** 2)) for g in scores)
+    rho = min(max(lagged / total, 0.0), 0.999) if total > 0 else 0.0
+    longest = max(blocks)
+    alpha = 4 * rho**2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
+    bandwidth = min(int(1.1447 * (alpha * longest) ** (1 / 3)), longest - 1)
+    meat = np.zeros((p, p))
+    for g in scores:
+        meat += g.T @ g
+        for lag in range(1, min(bandwidth, len(g) - 1) + 1):
+            gamma = g[lag:].T @ g[:-lag]
+            meat += (1 - lag / (bandwidth + 1)) * (gamma + gamma.T)
+    return meat
 
 
 def _fit(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], start) -> FittedModel:
@@ -188,7 +248,7 @@ def _fit(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], st
     result = least_squares(residuals, start, bounds=(lower, upper), x_scale="jac", method="trf",
                            xtol=1e-10, ftol=1e-10, max_nfev=200 * len(hypotheses))
     rss = float(result.fun @ result.fun)
-    return FittedModel(list(hypotheses), result.x, rss, _covariance(result.jac, rss))
+    return FittedModel(list(hypotheses), result.x, rss, *_covariances(result.jac, result.fun, data))
 
 
 @dataclass
@@ -264,7 +324,7 @@ def _fit_batched(data: FitData, reference: EffectModel, problems: list) -> list[
         residuals = data.weighted_residuals_many(reference, members)
         for state, (first, steps) in zip(active, layout):
             state.update(residuals[first], residuals[first + 1:first + 1 + len(steps)], steps)
-    return [FittedModel(state.hypotheses, state.x, state.rss, _covariance(state.jacobian, state.rss))
+    return [FittedModel(state.hypotheses, state.x, state.rss, *_covariances(state.jacobian, state.residual, data))
             for state in states]
 
 

@@ -82,7 +82,7 @@ class Models:
     Attributes
     ----------
     corrected : EffectVehicle
-        The reference with the named effects.
+        The reference with the named effects it keeps.
     corrected_replay : list of ndarray, shape (n_r, n_out)
     gp_prediction : dict of str to list of ndarray, shape (n_r,)
         Per output the corrected model misfits beyond the noise: its residual GP's mean per
@@ -106,11 +106,14 @@ class Models:
 
 
 def build_models(data: PreparedData, location: Location, explanation: Explanation, reference: EffectModel, *,
-                 seed: int, progress=None) -> Models:
-    """The corrected model, the residual GPs where it misfits, and the absorption check
-    (module docstring); ``seed`` seeds the GPs' hyperparameter restarts."""
-    corrected_replay = data.simulate(reference, explanation.effects)
-    corrected_states, reference_states = zip(*data.simulate_states(reference, [explanation.effects, []]))
+                 effects: list, seed: int, progress=None) -> Models:
+    """The corrected model of ``effects`` (the named effects it keeps, in the explanation's
+    order, :mod:`validation.diagnose.carry_over`), the residual GPs where it misfits, and the
+    absorption check of every named effect (module docstring); ``seed`` seeds the GPs'
+    hyperparameter restarts."""
+    corrected_states, reference_states = zip(*data.simulate_states(reference, [effects, []]))
+    columns = [reference.state_names.index(name) for name in data.output_names]
+    corrected_replay = [states[:, columns] for states in corrected_states]
     corrected_gps = ResidualGPs(data, corrected_replay, corrected_states, reference, seed=seed)
     reference_gps = ResidualGPs(data, location.reference_replay, reference_states, reference, seed=seed)
     unexplained, gp_prediction = [], {}
@@ -130,7 +133,7 @@ def build_models(data: PreparedData, location: Location, explanation: Explanatio
         absorbs.append(_gp_absorbs(named, data, location, reference_gps))
         if progress:
             progress(1, fitted=f"gp-check:{named.target}")
-    return Models(EffectVehicle(reference, explanation.effects), corrected_replay, gp_prediction,
+    return Models(EffectVehicle(reference, effects), corrected_replay, gp_prediction,
                   unexplained, absorbs, reference_gps)
 
 

@@ -9,9 +9,13 @@ physics, model it, and prove the fit improves on data not used to fit it (docs/d
 2. :mod:`~validation.diagnose.locate`: where and at which frequencies the reference misfits
    (:class:`~validation.diagnose.locate.Location`);
 3. :mod:`~validation.diagnose.explain`: named effects fitted and accepted stepwise
-   (:class:`~validation.diagnose.explain.Explanation`);
-4. :mod:`~validation.diagnose.model`: the corrected model and residual GPs
-   (:class:`~validation.diagnose.model.Models`);
+   (:class:`~validation.diagnose.explain.Explanation`); :mod:`~validation.diagnose.scope`: each
+   shared by the diagnosed recordings or differing per recording
+   (:class:`~validation.diagnose.scope.Scope`); :mod:`~validation.diagnose.carry_over`: each
+   scored on the held-out recordings, alone and in the final model
+   (:class:`~validation.diagnose.carry_over.CarryOver`);
+4. :mod:`~validation.diagnose.model`: the corrected model of the shared effects that carry over,
+   and residual GPs (:class:`~validation.diagnose.model.Models`);
 5. :mod:`~validation.diagnose.prove`: the models scored and the explanation validated on the
    held-out samples (:class:`~validation.diagnose.prove.Proof`);
    with ``folds``, :mod:`~validation.diagnose.replicate`: the search repeated on folds of the
@@ -29,6 +33,7 @@ The reference takes effects through its :class:`validation.vehicles.effects.Effe
 """
 from __future__ import annotations
 
+from validation.diagnose.carry_over import carry_over
 from validation.diagnose.data import prepare
 from validation.diagnose.explain import explain
 from validation.diagnose.fidelity import scorecard
@@ -37,6 +42,7 @@ from validation.diagnose.model import build_models
 from validation.diagnose.prove import prove
 from validation.diagnose.replicate import fold_recordings, replicate
 from validation.diagnose.report import Diagnosis, assemble_diagnosis
+from validation.diagnose.scope import scope
 from validation.vehicles.effect_vehicle import effect_model
 
 
@@ -104,11 +110,14 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
         fold_recordings(data, folds)  # refuses impossible folds before the long stages
     location = locate(data, reference)
     explanation = explain(data, location, reference, progress=progress)
-    models = build_models(data, location, explanation, reference, seed=seed, progress=progress)
+    scopes = scope(data, explanation, reference, progress=progress)
+    carried = carry_over(data, location, explanation, reference, progress=progress)
+    models = build_models(data, location, explanation, reference, seed=seed, progress=progress,
+                          effects=carried.kept(explanation, offered=scopes.offered))
     proof = prove(data, location, explanation, models, reference, progress=progress)
     replication = (replicate(data, location, explanation, reference, folds=folds, progress=progress)
                    if folds is not None else None)
     held_out = [(u, m, data.input_names) for u, m in zip(data.inputs, data.holdout_mask) if m.any()]
     fidelity = scorecard(proof.traces, proof.fit, held_out, step=data.step, tolerances=tolerances)
-    return assemble_diagnosis(reference, data, location, explanation, models, proof, replication=replication,
-                              fidelity=fidelity)
+    return assemble_diagnosis(reference, data, location, explanation, models, proof, scopes=scopes,
+                              carried=carried, replication=replication, fidelity=fidelity)

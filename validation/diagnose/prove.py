@@ -4,18 +4,13 @@ Per output, RMSE and Theil's inequality coefficient (:mod:`validation.core.metri
 held-out samples for the reference, the corrected model and the corrected model + residual GP
 (diagnosis.json's ``fit``, docs/diagnose.md).
 
-Validation of the explanation:
-
-- each named effect is replayed alone on top of the reference; an effect that does not cut its
-  main output's held-out error does not carry over beyond the diagnosed data (a drift that
-  differs between flights, a stand-in for physics outside the named list). It is reported, not
-  removed, since the held-out data only score the models;
-- an output that the corrected model fits to the noise on the diagnosed data but not on the
-  held-out data gets an ``unexplained`` finding with ``"data": "holdout"``: the named effects
-  only mimic, on the diagnosed manoeuvre, physics outside the named list (e.g. an
-  amplitude-dependent gain fitted as a derivative change). An input that moves only in the
-  held-out data was never tested: a missing effect on it would look like physics outside the
-  named list, so this check is then skipped.
+Validation of the explanation (each named effect's own held-out check is
+:mod:`validation.diagnose.carry_over`'s): an output that the corrected model fits to the noise on
+the diagnosed data but not on the held-out data gets an ``unexplained`` finding with ``"data":
+"holdout"``: the named effects only mimic, on the diagnosed manoeuvre, physics outside the named
+list (e.g. an amplitude-dependent gain fitted as a derivative change). An input that moves only
+in the held-out data was never tested: a missing effect on it would look like physics outside
+the named list, so this check is then skipped.
 """
 from __future__ import annotations
 
@@ -25,7 +20,7 @@ import numpy as np
 
 from validation.core.metrics import rmse, theil_inequality
 from validation.diagnose.data import EXCITATION_THRESHOLD, PreparedData
-from validation.diagnose.explain import Explanation, NamedEffect
+from validation.diagnose.explain import Explanation
 from validation.diagnose.locate import Location
 from validation.diagnose.model import Models
 from validation.diagnose.noise import noise_excess
@@ -33,31 +28,6 @@ from validation.vehicles.effects import EffectModel, effect_unit
 
 #: The models scored, as the keys of diagnosis.json's ``fit`` name them.
 MODEL_KEYS = ("reference", "corrected", "corrected_gp")
-#: Relative change of held-out RMSE below which an effect counts as not exercised by the
-#: held-out data (0.1 %: far below any effect worth naming, far above rounding).
-UNEXERCISED = 1e-3
-
-
-@dataclass
-class HeldOutEffect:
-    """The held-out check of one named effect.
-
-    Attributes
-    ----------
-    rmse_effect_alone : float
-        Held-out RMSE of its main output with the reference plus this effect alone.
-    carries_over : bool or None
-        Whether that is below the reference's held-out RMSE; None when the two differ by at most
-        :data:`UNEXERCISED` (the held-out data do not exercise the effect).
-    rmse_reference_gp : float
-        Held-out RMSE of the reference plus a GP fitted to its residual, same output.
-    """
-
-    rmse_effect_alone: float
-    carries_over: bool | None
-    rmse_reference_gp: float
-
-
 @dataclass
 class Proof:
     """Result of :func:`prove`.
@@ -70,8 +40,9 @@ class Proof:
     traces : dict of str to dict
         Per output: ``time``, ``measured`` and one entry per model of :data:`MODEL_KEYS`
         (ndarrays over the held-out samples, recordings concatenated) for the plots.
-    effects : list of HeldOutEffect
-        Per named effect of the explanation, in its order.
+    rmse_reference_gp : list of float
+        Per named effect of the explanation, in its order: held-out RMSE of its main output
+        with the reference plus a GP fitted to the reference's residual, output units.
     unexplained : list of dict
         Findings ``{"effect": "unexplained", "output", "value", "unit", "noise_ratio", "data":
         "holdout", "fit_noise_ratio", "rmse_reference_gp"}``.
@@ -81,7 +52,7 @@ class Proof:
 
     fit: dict
     traces: dict
-    effects: list
+    rmse_reference_gp: list
     unexplained: list
     untestable: list
 
@@ -100,8 +71,7 @@ def prove(data: PreparedData, location: Location, explanation: Explanation, mode
             reference_gp_rmse[output] = rmse(traces[data.output_names[output]]["measured"], held)
         return reference_gp_rmse[output]
 
-    effects = [_held_out_effect(named, data, traces, rmse_reference_gp(named.main_output))
-               for named in explanation.named]
+    per_effect = [rmse_reference_gp(named.main_output) for named in explanation.named]
     held_only = [n for j, n in enumerate(data.input_names) if n not in data.excited and any(
         np.ptp(u[m, j]) > EXCITATION_THRESHOLD for u, m in zip(data.inputs, data.holdout_mask) if m.any())]
     untestable = [f"{n}: moves only in the held-out data, so the held-out check of the explanation "
@@ -123,7 +93,7 @@ def prove(data: PreparedData, location: Location, explanation: Explanation, mode
                             "rmse_reference_gp": rmse_reference_gp(i)})
         if progress:
             progress(1, fitted=f"gp:{name}")
-    return Proof(fit, traces, effects, unexplained, untestable)
+    return Proof(fit, traces, per_effect, unexplained, untestable)
 
 
 def _scores(data: PreparedData, location: Location, models: Models) -> tuple[dict, dict]:
@@ -150,14 +120,3 @@ def _scores(data: PreparedData, location: Location, models: Models) -> tuple[dic
             fit[f"theil_{key}"][name] = theil_inequality(trace["measured"], trace[key])
     return fit, traces
 
-
-def _held_out_effect(named: NamedEffect, data: PreparedData, traces: dict, rmse_reference_gp: float) -> HeldOutEffect:
-    """The held-out check of ``named`` (module docstring)."""
-    main = named.main_output
-    trace = traces[data.output_names[main]]
-    held_alone = np.concatenate([a[m, main] for a, m in zip(named.alone, data.holdout_mask) if m.any()])
-    alone = rmse(trace["measured"], held_alone)
-    held_reference = rmse(trace["measured"], trace["reference"])
-    change = alone - held_reference
-    return HeldOutEffect(alone, None if abs(change) <= UNEXERCISED * held_reference else bool(change < 0),
-                         rmse_reference_gp)

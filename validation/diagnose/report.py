@@ -12,12 +12,14 @@ from matplotlib.figure import Figure
 from validation.core.files import check_output_folder, json_text, write_files_atomically
 from validation.core.plots import png_bytes
 from validation.core.recordings import column_phrase, column_unit
+from validation.diagnose.carry_over import CarryOver, HeldOutEffect
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation, NamedEffect
 from validation.diagnose.locate import Location
 from validation.diagnose.model import Models
-from validation.diagnose.prove import MODEL_KEYS, HeldOutEffect, Proof
+from validation.diagnose.prove import MODEL_KEYS, Proof
 from validation.diagnose.replicate import Replication
+from validation.diagnose.scope import Scope
 from validation.vehicles.effect_vehicle import EffectVehicle
 from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
@@ -58,7 +60,10 @@ class Diagnosis:
     findings : list of dict
         Ranked, most important first; empty when ``verdict == "consistent"``.
     corrected : EffectVehicle
-        The reference with the named effects (the model file :func:`write_diagnosis` saves).
+        The reference with the named effects that carry over and are shared (the model file
+        :func:`write_diagnosis` saves).
+    named_effects : list of dict
+        Every named effect, in the order found (those of ``corrected`` among them).
     holdout_traces : dict of str -> dict
         Per output: ``time``, ``measured``, ``reference``, ``corrected``, ``corrected_gp``
         (ndarrays over the held-out samples, recordings concatenated) for the plots.
@@ -73,6 +78,7 @@ class Diagnosis:
     untestable: list
     search: dict
     corrected: EffectVehicle
+    named_effects: list = field(default_factory=list)
     holdout_traces: dict = field(repr=False, default_factory=dict)
     replication: dict | None = None
     fidelity: dict | None = None
@@ -89,14 +95,18 @@ class Diagnosis:
 
 
 def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Location,
-                       explanation: Explanation, models: Models, proof: Proof, *,
-                       replication: Replication | None = None, fidelity: dict | None = None) -> Diagnosis:
+                       explanation: Explanation, models: Models, proof: Proof, *, scopes: Scope,
+                       carried: CarryOver, replication: Replication | None = None,
+                       fidelity: dict | None = None) -> Diagnosis:
     """The diagnosis of the stages' results (nothing is written: :func:`write_diagnosis` does
-    that): one finding per named effect (most important first, each with its ``replication``
-    when the search was replicated), then the ``unexplained`` ones of the model and the prove
-    stage, each with its :func:`statement`."""
-    findings = [_named_finding(named, data.output_names[named.main_output], held_out, absorbs)
-                for named, held_out, absorbs in zip(explanation.named, proof.effects, models.gp_absorbs)]
+    that): one finding per named effect (most important first, each with its scope, its
+    carry-over and its ``replication`` when the search was replicated), then the
+    ``unexplained`` ones of the model and the prove stage, each with its :func:`statement`."""
+    kept = models.corrected.effects
+    findings = [_named_finding(named, data.output_names[named.main_output], held_out, absorbs, gp_rmse,
+                               scope=scopes.of(named.effect), kept=named.effect in kept)
+                for named, held_out, absorbs, gp_rmse in zip(explanation.named, carried.effects, models.gp_absorbs,
+                                                             proof.rmse_reference_gp)]
     if replication is not None:
         for finding in findings:
             finding["replication"] = replication.of(finding)
@@ -107,21 +117,24 @@ def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Loc
                      verdict="missing_physics" if findings else "consistent", mismatch=location.mismatch,
                      findings=findings, fit=proof.fit, locate=location.summary,
                      untestable=data.untestable + proof.untestable, search=explanation.search,
-                     corrected=models.corrected, holdout_traces=proof.traces,
+                     corrected=models.corrected, named_effects=explanation.effects, holdout_traces=proof.traces,
                      replication=replication.summary() if replication is not None else None, fidelity=fidelity)
 
 
-def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float) -> dict:
+def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float,
+                   rmse_reference_gp: float, *, scope: dict | None, kept: bool) -> dict:
     """The diagnosis.json finding of a named effect (docs/diagnose.md, "findings"), keys in
-    contract order."""
+    contract order. Its confidence is capped by its predictive weight on the held-out data when
+    it does not carry over (:mod:`validation.diagnose.carry_over`)."""
     finding = {**named.effect, "unit": named.unit, "interval": named.interval}
     if named.model_value is not None:
         finding["model_value"] = named.model_value
-    finding.update({"confidence": named.confidence, "likelihood_ratio": named.likelihood_ratio,
+    confidence = (min(named.confidence, held_out.predictive_weight) if held_out.carries_over is False
+                  else named.confidence)
+    finding.update({"confidence": confidence, "likelihood_ratio": named.likelihood_ratio,
                     "p_value": named.p_value, "alternatives": named.alternatives, "main_output": main_output,
-                    "rmse_effect_alone": held_out.rmse_effect_alone, "carries_over": held_out.carries_over,
-                    "rmse_reference_gp": held_out.rmse_reference_gp, "gp_absorbs": gp_absorbs,
-                    "found_by": named.found_by})
+                    **held_out.as_finding(), "scope": scope, "in_corrected_model": kept,
+                    "rmse_reference_gp": rmse_reference_gp, "gp_absorbs": gp_absorbs, "found_by": named.found_by})
     if named.amplitude_check is not None:
         finding["amplitude_check"] = named.amplitude_check
     return finding
@@ -143,22 +156,43 @@ def _input_words(name: str) -> str:
 
 
 def _improvement(finding: dict, fit: dict) -> str:
-    """``" Adding it cuts held-out pitch rate RMSE from 0.031 to 0.006 rad/s."``"""
+    """``" It carries over: alone it cuts held-out pitch rate RMSE from 0.031 to 0.006 rad/s ..."``
+    (:mod:`validation.diagnose.carry_over`)."""
     name = finding.get("main_output")
     if name is None or name not in fit["rmse_reference"]:
         return ""
     before, after = fit["rmse_reference"][name], finding["rmse_effect_alone"]
-    words = column_phrase(name)
+    words, unit = column_phrase(name), column_unit(name)
+    alone = f"alone it takes the held-out {words} RMSE from {_number(before)} to {_number(after)} {unit}"
+    gain = finding["holdout_gain_in_model"]
+    in_model = (f"in the final model it removes {gain:.1%} of the held-out misfit" if gain > 0 else
+                f"in the final model it multiplies the held-out misfit by {1 - gain:.3g}")
     if finding.get("carries_over") is None:
         return (f" The held-out data do not exercise it (held-out {words} RMSE {_number(before)} "
-                f"{column_unit(name)} with or without it).")
+                f"{unit} with or without it), so it is not in the corrected model.")
     if finding["carries_over"]:
-        return (f" Adding it cuts held-out {words} RMSE from {_number(before)} to {_number(after)} "
-                f"{column_unit(name)}.")
-    return (f" But it does not carry over: on the held-out data it takes the {words} RMSE from "
-            f"{_number(before)} to {_number(after)} {column_unit(name)}, so it is specific to the "
+        return f" It carries over to the held-out flights: {alone}, and {in_model}."
+    return (f" But it fits only the flights it saw: {alone}, and {in_model}, so it is specific to the "
             "diagnosed data (e.g. a drift that differs between flights) or stands in for physics "
-            "outside the named list.")
+            "outside the named list; the corrected model leaves it out.")
+
+
+def _scope_words(finding: dict) -> str:
+    """Whether the diagnosed flights share it (:mod:`validation.diagnose.scope`); empty when one
+    diagnosed recording cannot tell."""
+    scope = finding.get("scope")
+    if scope is None:
+        return ""
+    values = ", ".join(_number(v) for v in scope["values"])
+    if scope["kind"] == "shared":
+        return f" Every diagnosed flight shares it ({values} {finding['unit']} flight by flight)."
+    spread = f"{_number(scope['spread'])} {finding['unit']}"
+    if scope["kind"] == "varies":
+        return (f" It differs between the diagnosed flights ({values}; spread {spread}) around a shared "
+                f"{_number(scope['mean'])}: a property of the vehicle that varies from flight to flight.")
+    return (f" It differs per flight ({values} {finding['unit']}; spread {spread}) with no shared part beyond "
+            "that spread: a difference between flights (e.g. buoyancy, launch or battery), not a property of the "
+            "vehicle, so the corrected model leaves it out.")
 
 
 def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
@@ -248,7 +282,7 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         text += (f" Next best: {alternative['effect'].replace('_', ' ')} on {target} "
                  f"({_number(alternative['value'])}), which the data disfavour {alternative['evidence_ratio']:.3g}:1.")
         text += _amplitude_advice(finding, alternative)
-    return text + _improvement(finding, fit) + _replication_words(finding)
+    return text + _scope_words(finding) + _improvement(finding, fit) + _replication_words(finding)
 
 
 #: Evidence ratio below which a dead band and a gain on the same input are stated as

@@ -72,6 +72,7 @@ from validation.vehicles.blimp import (
 )
 from validation.vehicles.blimp_equations import blimp_dynamics, mass_matrix, rk4
 from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_STD
+from validation.vehicles.blimp_jax import compiled_replay
 from validation.vehicles.effects import (
     Hypothesis,
     check_trim_start,
@@ -134,7 +135,7 @@ def model_value(reference: BlimpReference, term: str) -> float:
     raise KeyError(term)
 
 
-def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.ndarray:
+def simulate_batch(reference: BlimpReference, effect_lists, time, inputs, *, compiled: bool = True) -> np.ndarray:
     """Recorded outputs of the blimp with each list of effects, all integrated together.
 
     Parameters
@@ -146,6 +147,9 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
         Strictly increasing sample times, s; evenly spaced or not (one RK4 step per interval).
     inputs : ndarray, shape (n, 3)
         ``u_gondola, mu, u_tail``, zero-order hold (row k acts from ``time[k]`` to ``time[k+1]``).
+    compiled : bool
+        Integrate with the compiled step of :mod:`validation.vehicles.blimp_jax` (the default)
+        or the numpy step (equal to rounding; the benchmark's peer).
 
     Returns
     -------
@@ -158,9 +162,14 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs) -> np.
     params = reference.params
     held = _held_inputs(effect_lists, time, inputs)
     changes = _TermChanges.of(reference, effect_lists)
-    _, inverse = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
-                              params.cg_position)
+    matrix, inverse = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
+                                  params.cg_position)
 
+    if compiled:
+        changed = {name: getattr(changes, name) for name in (
+            "gain_positive", "gain_negative", "extra_damping", "extra_drag", "constant", "extra_down")}
+        states = compiled_replay(params, matrix, inverse, changed, hanging_state(params), held, steps)
+        return states + changes.bias[:, None, :]
     states = np.empty((len(effect_lists), len(time), 12))
     state = np.repeat(hanging_state(params)[None], len(effect_lists), axis=0)
     states[:, 0] = state

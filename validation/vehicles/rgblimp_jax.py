@@ -166,6 +166,13 @@ def rollout_function(jax, jnp, correction_of=None):
     return rollout
 
 
+def padded_steps(steps: int) -> int:
+    """The step count a compiled run of ``steps`` steps is padded to: the smaller of the next
+    power of two (at least 32) and the next multiple of 600, so that runs of similar lengths share
+    one compiled function and short ones waste little."""
+    return min(max(_MIN_STEPS, 1 << (steps - 1).bit_length()), steps + (-steps % _SAMPLE_BATCH))
+
+
 def held_inputs(inputs: np.ndarray) -> np.ndarray:
     """The inputs (..., L, 5) of a free run of L - 1 steps, the step count padded (to the smaller
     of the next power of two, at least 32, and the next multiple of 600) by holding the last
@@ -173,7 +180,7 @@ def held_inputs(inputs: np.ndarray) -> np.ndarray:
     the run, and runs of different lengths share a compiled function. Shape (..., P, 5)."""
     steps = max(inputs.shape[-2] - 1, 1)
     used = inputs[..., :steps, :]
-    padded = min(max(_MIN_STEPS, 1 << (steps - 1).bit_length()), steps + (-steps % _SAMPLE_BATCH))
+    padded = padded_steps(steps)
     return np.concatenate([used, np.repeat(used[..., -1:, :], padded - steps, axis=-2)], axis=-2)
 
 

@@ -26,4 +26,7 @@ def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
     replay = report["replay"]
     assert len(replay["jax_s"]) == 1 and replay["speedup"] == pytest.approx(replay["numpy_s"][0] / replay["jax_s"][0])
     assert rows["rgblimp.diagnose_replay.compiled_over_numpy"].value == replay["speedup"]
+    blimp = report["blimp_replay"]
+    assert len(blimp["jax_s"]) == 1 and blimp["speedup"] == pytest.approx(blimp["numpy_s"][0] / blimp["jax_s"][0])
+    assert rows["blimp.diagnose_replay.compiled_over_numpy"].value == blimp["speedup"]
     assert "speed-up" in rgblimp.format_table(report)

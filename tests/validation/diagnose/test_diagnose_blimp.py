@@ -64,6 +64,28 @@ def test_term_effects_equal_the_changed_parameter(manoeuvre, effect, changes):
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
 
 
+def test_compiled_replay_equals_the_numpy_step_for_every_effect_kind(manoeuvre):
+    """validation.vehicles.blimp_jax against the numpy RK4 step, members changing every term and
+    input effect, on jittered frame times (rounding only)."""
+    time, inputs = manoeuvre
+    time = _jittered(time, seed=5)
+    lists = [[], [{"effect": "input_lag", "input": "u_gondola", "value": 0.3},
+                  {"effect": "time_delay", "input": "u_tail", "value": 0.13}],
+             [{"effect": "control_derivative", "term": "gondola_thrust_forward", "value": 0.05},
+              {"effect": "stability_derivative", "term": "N_R", "value": -0.03},
+              {"effect": "quadratic_drag", "term": "X_UU", "value": -0.2}],
+             [{"effect": "force_offset", "term": "Z_0", "value": 0.004},
+              {"effect": "force_offset", "term": "N_0", "value": 0.001},
+              {"effect": "sensor_bias", "output": "Q", "value": 0.01}],
+             [{"effect": "dead_band", "input": "u_gondola", "value": 0.2},
+              {"effect": "rate_limit", "input": "u_tail", "value": 2.0},
+              {"effect": "control_derivative", "term": "tail_thrust_negative", "value": 0.02}]]
+    compiled = simulate_batch(REFERENCE, lists, time, inputs)
+    numpy_step = simulate_batch(REFERENCE, lists, time, inputs, compiled=False)
+    assert np.abs(numpy_step[1:] - numpy_step[0]).max() > 1e-2  # every member changes the flight
+    np.testing.assert_allclose(compiled, numpy_step, rtol=0, atol=1e-12)
+
+
 def test_whole_sample_delay_equals_shifted_input_and_small_lags_vanish(manoeuvre):
     time, inputs = manoeuvre
     shifted = inputs.copy()

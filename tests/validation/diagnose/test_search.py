@@ -156,9 +156,9 @@ def test_a_step_is_accepted_only_past_both_thresholds_and_lists_its_close_compet
 
     def fitted(name, rss):
         return FittedModel([Hypothesis("time_delay", name, 0.0, 0.0, 1.0, 0.01)], np.array([0.05]), rss,
-                           np.eye(1))
+                           np.eye(1), np.eye(1))
 
-    model = FittedModel([], np.zeros(0), 1100.0, np.zeros((0, 0)))
+    model = FittedModel([], np.zeros(0), 1100.0, np.zeros((0, 0)), np.zeros((0, 0)))
     best, step, rejected = weigh_step(Data, model, [fitted("a", 1010.0), fitted("b", 1012.0), fitted("c", 1090.0)],
                                       n_tested=10)
     assert rejected is None and best.hypotheses[0].target == "a" and step["lr"] == pytest.approx(90.0)

@@ -1,6 +1,7 @@
 """``flightgp reproduce rgblimp-diagnose`` (validation/reproduce/rgblimp_diagnose.py) end to end on
-the first second of the excerpt's flights (configurations 29 and 30): the bookkeeping, the
-replication and the scores, checked against independent free runs; not the numbers."""
+the first second of the excerpt's flights (configurations 29 and 30): the bookkeeping (diagnosed,
+validation and test flights), the findings' scope and the test scores, checked against independent
+free runs; not the numbers."""
 import json
 
 import numpy as np
@@ -10,12 +11,13 @@ from validation.cli import main
 from validation.reproduce.rgblimp import flight_metrics, read_score_ranges
 from validation.reproduce.rgblimp_diagnose import SCORED, reproduce_rgblimp_diagnose
 from validation.vehicles.effect_vehicle import EffectVehicle
+from validation.vehicles.effects import TARGET_KEYS
 from validation.vehicles.rgblimp import RGBlimpReference
 from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 
-#: Rows of each truncated flight (0.67 s at 60 Hz; the header besides): four diagnosed flights
+#: Rows of each truncated flight (1.05 s at 60 Hz; the header besides): two diagnosed flights
 #: give the 2 s a diagnosis needs.
-ROWS = 40
+ROWS = 64
 
 
 @pytest.fixture(scope="module")
@@ -35,35 +37,42 @@ def run(tmp_path_factory):
 def test_results_diagnosis_and_report_are_written(run):
     data, out, results = run
     assert json.loads((out / "results.json").read_text()) == json.loads(json.dumps(results))
-    assert [c["diagnosed"] for c in results["configurations"]] == [["data_117.csv", "data_118.csv"],
-                                                                     ["data_121.csv", "data_122.csv"]]
+    assert [(c["diagnosed"], c["validation"], c["test"]) for c in results["configurations"]] == [
+        ("data_117.csv", "data_118.csv", "data_119.csv"), ("data_121.csv", "data_122.csv", "data_123.csv")]
     diagnosis = json.loads((out / "diagnosis" / "diagnosis.json").read_text())
-    assert [fold["recordings"] for fold in diagnosis["replication"]["folds"]] == [
-        ["data_117.csv", "data_121.csv"], ["data_118.csv", "data_122.csv"]]  # first and second repeats
+    assert "data_118.csv" in diagnosis["fit"]["holdout"] and "data_119.csv" not in json.dumps(diagnosis)
+    corrected = EffectVehicle.load(out / "diagnosis" / "corrected_model.json")
     for finding in (f for f in results["findings"] if f["effect"] != "unexplained"):
-        assert finding["replication"]["folds"] == 2 and len(finding["replication"]["values"]) == 2
-        assert ("Replicated" in finding["statement"]) == finding["replication"]["replicated"]
+        assert len(finding["scope"]["values"]) == 2  # one value per diagnosed flight
+        assert finding["in_corrected_model"] == any(e["effect"] == finding["effect"] and e["value"] == finding["value"]
+                                                    for e in corrected.effects)
     assert (out / "report.md").read_text().startswith("# RGBlimp diagnosis on real flights")
 
 
 @pytest.mark.slow
-def test_held_out_scores_are_the_free_runs_of_the_published_and_corrected_models(run):
+def test_test_scores_are_the_free_runs_of_the_published_named_and_corrected_models(run):
     data, out, results = run
     corrected = EffectVehicle.load(out / "diagnosis" / "corrected_model.json")
+    named = EffectVehicle("rgblimp", [{key: f[key] for key in ("effect", TARGET_KEYS[f["effect"]], "value")}
+                                      for f in results["findings"] if f["effect"] != "unexplained"])
     ranges = read_score_ranges(data)
     for flight in results["flights"]:
         recording = read_rgblimp_flight(data / flight["test"]).recording
         kind = "straight" if flight["configuration"] >= 30 else "spiral"
         physics = RGBlimpReference().simulate_states(recording.time, recording.inputs,
                                                      initial_state=recording.outputs[0])
-        for name, states in (("physics", physics), ("corrected", corrected.replay_states(recording))):
+        for name, states in (("physics", physics), ("all_named", named.replay_states(recording)),
+                             ("corrected", corrected.replay_states(recording))):
             expected = flight_metrics(states, recording.outputs, ranges[kind])
             assert flight["score"][name] == pytest.approx(expected["score"], rel=1e-12)
             assert flight["position_rmse_m"][name] == pytest.approx(expected["position_rmse_m"], rel=1e-12)
     summary = results["summary"]
     for name in SCORED:
         assert summary["mean_score"][name] == pytest.approx(np.mean([f["score"][name] for f in results["flights"]]))
-    assert results["goal"]["met"] == (summary["score_ratio_physics_to_corrected"] >= 2.0)
+    factor = sum(1.5 * f["score"]["corrected"] <= f["score"]["physics"] for f in results["flights"])
+    assert summary["corrected_factor_flights"] == factor
+    assert results["goal"]["met"] == (factor >= 6 and summary["mean_position_rmse_m"]["corrected"]
+                                      < summary["mean_position_rmse_m"]["physics"])
 
 
 def test_too_few_configurations_and_bad_folders_exit_2(tmp_path, capsys):
@@ -74,3 +83,8 @@ def test_too_few_configurations_and_bad_folders_exit_2(tmp_path, capsys):
                  "--configurations", "29"])
     err = capsys.readouterr().err
     assert code == 2 and "configuration 29 has 1 flight" in err and err.count("\n") == 1
+    (data / "data_118.csv").write_text("")
+    code = main(["reproduce", "rgblimp-diagnose", "--data", str(data), "--out", str(tmp_path / "out"),
+                 "--configurations", "29"])
+    err = capsys.readouterr().err
+    assert code == 2 and "fewer than three flights" in err and err.count("\n") == 1

@@ -247,6 +247,7 @@ def test_a_reciprocal_hypothesis_reports_the_rate_and_its_interval_in_order():
 
     h = Hypothesis("rate_limit", "theta_1s", 1e-4, 1e-4, 100.0, 0.5, reciprocal=True)
     assert h.as_effect(0.25) == {"effect": "rate_limit", "input": "theta_1s", "value": 4.0}
-    fitted = FittedModel([h], np.array([0.25]), 1.0, np.array([[(0.05 / 1.959963984540054) ** 2]]))
+    variance = np.array([[(0.05 / 1.959963984540054) ** 2]])
+    fitted = FittedModel([h], np.array([0.25]), 1.0, variance, variance)
     low, high = fitted.interval(0)
     assert low == pytest.approx(1 / 0.3) and high == pytest.approx(1 / 0.2)

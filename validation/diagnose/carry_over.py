@@ -1,0 +1,140 @@
+"""Carry-over: whether each named effect improves the held-out recordings, alone and in the final
+model, and which effects the corrected model keeps.
+
+A finding fitted to the diagnosed recordings is a claim about the vehicle only if it also makes
+recordings it did not see better. Each named effect is scored on the held-out samples by the
+weighted held-out cost ``C = sum_outputs sum_samples ((measured - replay) / noise_sd)^2`` (the
+fit's misfit measure, :class:`validation.diagnose.fitting.FitData`) twice:
+
+- *alone*: the reference with this effect only, against the reference;
+- *in the model*: the final model (all named effects), against the final model without it.
+
+It *carries over* when both lower ``C``; it *fits only the recordings it saw* when either raises
+it; neither (``None``) when neither moves ``C`` by more than :data:`UNEXERCISED` of the
+reference's (the held-out data do not exercise it). With white Gaussian noise,
+``(C_without - C_with) / 2`` is the held-out log-likelihood gain of the effect, so
+``1 / (1 + exp(-(C_without - C_with) / 2))`` is its predictive Akaike weight on recordings it
+did not see (the weight of Burnham & Anderson, *Model Selection and Multimodel Inference*, 2nd
+ed., 2002, sec. 2.9, evaluated out of sample); a finding's confidence is capped by that weight,
+so a finding that does not carry over is never stated with confidence.
+
+The corrected model keeps the findings that carry over and hold for every diagnosed recording
+alike (:mod:`validation.diagnose.scope`), at their jointly fitted values. The held-out recordings
+then *select* the corrected model: they are its validation data, and its held-out scores are no
+longer an unbiased test. Keep recordings beyond the diagnosis for that (``flightgp reproduce
+rgblimp-diagnose`` tests on flights the diagnosis never sees).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from validation.core.metrics import rmse
+from validation.diagnose.data import PreparedData
+from validation.diagnose.explain import Explanation, NamedEffect
+from validation.diagnose.locate import Location
+from validation.vehicles.effects import EffectModel
+
+#: Relative change of the held-out cost below which an effect counts as not exercised by the
+#: held-out data (0.1 %: far below any effect worth naming, far above rounding).
+UNEXERCISED = 1e-3
+
+
+@dataclass
+class HeldOutEffect:
+    """The held-out check of one named effect (module docstring).
+
+    Attributes
+    ----------
+    rmse_effect_alone : float
+        Held-out RMSE of its main output with the reference plus this effect alone, output units.
+    gain_alone : float
+        Fraction of the reference's held-out cost the effect alone removes (negative: it adds).
+    gain_in_model : float
+        Fraction of the held-out cost of the final model without it that adding it removes.
+    carries_over : bool or None
+    predictive_weight : float
+        Its Akaike weight on the held-out data, 0 to 1 (0.5 when not exercised).
+    """
+
+    rmse_effect_alone: float
+    gain_alone: float
+    gain_in_model: float
+    carries_over: bool | None
+    predictive_weight: float
+
+    def as_finding(self) -> dict:
+        """The diagnosis.json keys of this check."""
+        return {"rmse_effect_alone": self.rmse_effect_alone, "holdout_gain_alone": self.gain_alone,
+                "holdout_gain_in_model": self.gain_in_model, "carries_over": self.carries_over,
+                "predictive_weight": self.predictive_weight}
+
+
+@dataclass
+class CarryOver:
+    """Result of :func:`carry_over`.
+
+    Attributes
+    ----------
+    effects : list of HeldOutEffect
+        Per named effect of the explanation, in the order of ``explanation.named``.
+    tested : bool
+        Whether any held-out sample exists (without, every effect is untested and kept).
+    """
+
+    effects: list
+    tested: bool
+
+    def kept(self, explanation: Explanation, *, offered) -> list:
+        """The effect dicts the corrected model keeps, in the order of ``explanation.effects``:
+        those that carry over (all when nothing is held out) and that ``offered(effect)``
+        allows (:meth:`validation.diagnose.scope.Scope.offered`)."""
+        carried = [named.effect for named, held in zip(explanation.named, self.effects)
+                   if held.carries_over or not self.tested]
+        return [e for e in explanation.effects if e in carried and offered(e)]
+
+def carry_over(data: PreparedData, location: Location, explanation: Explanation, reference: EffectModel, *,
+               progress=None) -> CarryOver:
+    """Score each named effect of ``explanation`` on the held-out samples (module docstring);
+    one batched replay of the final model without each effect. ``progress(n, **status)``,
+    optional, advances once."""
+    tested = any(mask.any() for mask in data.holdout_mask)
+    final = explanation.effects
+    without = [[e for e in final if e != named.effect] for named in explanation.named]
+    replays = data.simulate_many(reference, without + [final]) if tested and explanation.named else []
+    if progress and replays:
+        progress(1, fitted="carry-over")
+    cost_reference = _held_out_cost(data, location.reference_replay)
+    effects = []
+    for k, named in enumerate(explanation.named):
+        if not tested:
+            effects.append(HeldOutEffect(math.nan, 0.0, 0.0, None, 0.5))
+            continue
+        cost_alone = _held_out_cost(data, named.alone)
+        cost_without, cost_final = _held_out_cost(data, replays[k]), _held_out_cost(data, replays[-1])
+        effects.append(_weigh(named, data, cost_reference, cost_alone, cost_without, cost_final))
+    return CarryOver(effects, tested)
+
+
+def _weigh(named: NamedEffect, data: PreparedData, cost_reference: float, cost_alone: float,
+           cost_without: float, cost_final: float) -> HeldOutEffect:
+    """The :class:`HeldOutEffect` of ``named`` from the four held-out costs (module docstring)."""
+    main = named.main_output
+    held = [(m, a, mask) for m, a, mask in zip(data.measured, named.alone, data.holdout_mask) if mask.any()]
+    alone = rmse(np.concatenate([m[mask, main] for m, _, mask in held]),
+                 np.concatenate([a[mask, main] for _, a, mask in held]))
+    gain_alone, gain_in_model = cost_reference - cost_alone, cost_without - cost_final
+    floor = UNEXERCISED * cost_reference
+    if abs(gain_alone) <= floor and abs(gain_in_model) <= floor:
+        return HeldOutEffect(alone, 0.0, 0.0, None, 0.5)
+    weight = 1.0 / (1.0 + math.exp(min(-gain_in_model / 2.0, 700.0)))
+    return HeldOutEffect(alone, gain_alone / cost_reference, gain_in_model / max(cost_without, 1e-300),
+                         bool(gain_alone > 0 and gain_in_model > 0), weight)
+
+
+def _held_out_cost(data: PreparedData, replay: list) -> float:
+    """``C`` of ``replay`` (per recording, shape (n_r, n_out)) on the held-out samples (module docstring)."""
+    return float(sum(np.sum(data.weighted_output_residual(replay, i, data.holdout_mask) ** 2)
+                     for i in range(len(data.output_names))))
