@@ -50,10 +50,10 @@ def register(subparsers) -> None:
                     "rgblimp-unseen: configurations never flown: the configurations dealt into --folds folds, "
                     "vehicle models (identified physics, rollout-trained hybrid) fitted without each fold and "
                     "free-run on its test flights; writes results.json and report.md. "
-                    "rgblimp-diagnose: flightgp diagnose --reference rgblimp on the "
-                    "flights of several configurations (default 0 6 12 18 24 27 30 33) but the highest-numbered, "
-                    "its findings replicated on two folds (each configuration's first and second flight), "
-                    "and the corrected model free-run on the held-out flights and scored as the source scores; "
+                    "rgblimp-diagnose: flightgp diagnose --reference rgblimp on the first flight of each of "
+                    "several configurations (default 0 6 12 18 24 27 30 33), each configuration on its own "
+                    "(--pooled: all at once), validated on the second (what carries over enters the corrected "
+                    "model), and the corrected model free-run on the third and scored as the source scores; "
                     "writes results.json, report.md and diagnosis/.")
     parser.add_argument("paper", choices=PAPERS)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
@@ -72,6 +72,10 @@ def register(subparsers) -> None:
     parser.add_argument("--configurations", type=int, nargs="+", default=None, metavar="J",
                         help="rgblimp: only these configurations j (flights 4j+1..4j+4; default every one "
                              "with two flights present)")
+    parser.add_argument("--pooled", action="store_true",
+                        help="rgblimp-diagnose: one diagnosis of every configuration at once (default: one each)")
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help="rgblimp-diagnose: configurations diagnosed side by side (default: the cores)")
     parser.add_argument("--folds", type=int, default=None, metavar="K",
                         help="rgblimp-unseen: folds of configurations (default 5; as many as configurations: "
                              "leave-one-configuration-out)")
@@ -85,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
                             "side by side)")
     if args.folds is not None and args.paper != "rgblimp-unseen":
         raise BadInputError("--folds applies to reproduce rgblimp-unseen only")
+    if (args.pooled or args.workers is not None) and args.paper != "rgblimp-diagnose":
+        raise BadInputError("--pooled and --workers apply to reproduce rgblimp-diagnose only")
+    if args.workers is not None and args.workers < 1:
+        raise BadInputError(f"--workers must be 1 or more, got {args.workers}")
     if args.paper in ("rgblimp", "rgblimp-settings", "rgblimp-hybrid-settings", "rgblimp-unseen", "rgblimp-diagnose"):
         return _run_rgblimp(args)
     if args.data is not None or args.configurations is not None:
@@ -171,7 +179,8 @@ def _run_rgblimp(args: argparse.Namespace) -> int:
 
         results = reproduce_rgblimp_diagnose(args.data, args.out,
                                              configurations=args.configurations or DEFAULT_CONFIGURATIONS,
-                                             seed=0 if args.seed is None else args.seed)
+                                             seed=0 if args.seed is None else args.seed, pooled=args.pooled,
+                                             workers=args.workers)
         print(format_diagnosis(results))
         print(f"written {args.out}/report.md, results.json and diagnosis/")
         return 0

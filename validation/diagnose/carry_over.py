@@ -9,20 +9,26 @@ fit's misfit measure, :class:`validation.diagnose.fitting.FitData`) twice:
 - *alone*: the reference with this effect only, against the reference;
 - *in the model*: the final model (all named effects), against the final model without it.
 
-It *carries over* when both lower ``C``; it *fits only the recordings it saw* when either raises
-it; neither (``None``) when neither moves ``C`` by more than :data:`UNEXERCISED` of the
-reference's (the held-out data do not exercise it). With white Gaussian noise,
+It *carries over* when the final model without it misfits the held-out recordings more; it
+*fits only the recordings it saw* when the final model is better without it; neither
+(``None``) when neither score moves ``C`` by more than :data:`UNEXERCISED` of the reference's
+(the held-out data do not exercise it). The alone score is reported beside it: effects that
+work together (a centre of gravity and a pitch stability that trade off) may each make the
+flights worse alone and better together. With white Gaussian noise,
 ``(C_without - C_with) / 2`` is the held-out log-likelihood gain of the effect, so
 ``1 / (1 + exp(-(C_without - C_with) / 2))`` is its predictive Akaike weight on recordings it
 did not see (the weight of Burnham & Anderson, *Model Selection and Multimodel Inference*, 2nd
-ed., 2002, sec. 2.9, evaluated out of sample); a finding's confidence is capped by that weight,
-so a finding that does not carry over is never stated with confidence.
+ed., 2002, sec. 2.9, evaluated out of sample); a finding's confidence is capped by that weight
+when it does not carry over, so such a finding is never stated with confidence.
 
-The corrected model keeps the findings that carry over and hold for every diagnosed recording
-alike (:mod:`validation.diagnose.scope`), at their jointly fitted values. The held-out recordings
-then *select* the corrected model: they are its validation data, and its held-out scores are no
-longer an unbiased test. Keep recordings beyond the diagnosis for that (``flightgp reproduce
-rgblimp-diagnose`` tests on flights the diagnosis never sees).
+The corrected model starts from the findings that carry over and hold for the vehicle
+(:mod:`validation.diagnose.scope`, ``offered``) and removes, one at a time, the finding without
+which the held-out cost falls most, until every finding it keeps lowers the held-out cost of the
+kept model (backward elimination on validation data, Hastie, Tibshirani & Friedman, *Elements
+of Statistical Learning*, 2nd ed., 2009, sec. 3.3.2 and 7.2), at their jointly fitted values.
+The held-out recordings then *select* the corrected model: they are its validation data, and its
+held-out scores are no longer an unbiased test. Keep recordings beyond the diagnosis for that
+(``flightgp reproduce rgblimp-diagnose`` tests on flights the diagnosis never sees).
 """
 from __future__ import annotations
 
@@ -35,7 +41,7 @@ from validation.core.metrics import rmse
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation, NamedEffect
 from validation.diagnose.locate import Location
-from validation.vehicles.effects import EffectModel
+from validation.vehicles.effects import TARGET_KEYS, EffectModel
 
 #: Relative change of the held-out cost below which an effect counts as not exercised by the
 #: held-out data (0.1 %: far below any effect worth naming, far above rounding).
@@ -72,6 +78,13 @@ class HeldOutEffect:
                 "predictive_weight": self.predictive_weight}
 
 
+#: Why a named effect is not in the corrected model (diagnosis.json's ``left_out``).
+LEFT_OUT = {"per_recording": "it differs per flight",
+            "fits_only_what_it_saw": "it fits only the flights it saw",
+            "not_exercised": "the held-out data do not exercise it",
+            "eliminated": "the corrected model's other findings do better on the held-out flights without it"}
+
+
 @dataclass
 class CarryOver:
     """Result of :func:`carry_over`.
@@ -80,42 +93,63 @@ class CarryOver:
     ----------
     effects : list of HeldOutEffect
         Per named effect of the explanation, in the order of ``explanation.named``.
-    tested : bool
-        Whether any held-out sample exists (without, every effect is untested and kept).
+    kept : list of dict
+        The effect dicts of the corrected model, in the order of ``explanation.effects``.
+    left_out : list of str or None
+        Per named effect, in the order of ``explanation.named``: None when kept, else the key of
+        :data:`LEFT_OUT` that says why.
     """
 
     effects: list
-    tested: bool
+    kept: list
+    left_out: list
 
-    def kept(self, explanation: Explanation, *, offered) -> list:
-        """The effect dicts the corrected model keeps, in the order of ``explanation.effects``:
-        those that carry over (all when nothing is held out) and that ``offered(effect)``
-        allows (:meth:`validation.diagnose.scope.Scope.offered`)."""
-        carried = [named.effect for named, held in zip(explanation.named, self.effects)
-                   if held.carries_over or not self.tested]
-        return [e for e in explanation.effects if e in carried and offered(e)]
 
 def carry_over(data: PreparedData, location: Location, explanation: Explanation, reference: EffectModel, *,
-               progress=None) -> CarryOver:
-    """Score each named effect of ``explanation`` on the held-out samples (module docstring);
-    one batched replay of the final model without each effect. ``progress(n, **status)``,
-    optional, advances once."""
+               offered, progress=None) -> CarryOver:
+    """Score each named effect of ``explanation`` on the held-out samples and choose the corrected
+    model (module docstring); ``offered(effect)`` says whether an effect may correct the
+    vehicle's model (:meth:`validation.diagnose.scope.Scope.offered`). Without held-out samples
+    every offered effect is kept. ``progress(n, **status)``, optional, advances once per batched
+    replay."""
     tested = any(mask.any() for mask in data.holdout_mask)
+    named = explanation.named
+    if not tested:
+        kept = [e for e in explanation.effects if offered(e)]
+        return CarryOver([HeldOutEffect(math.nan, 0.0, 0.0, None, 0.5) for _ in named], kept,
+                         [None if n.effect in kept else "per_recording" for n in named])
     final = explanation.effects
-    without = [[e for e in final if e != named.effect] for named in explanation.named]
-    replays = data.simulate_many(reference, without + [final]) if tested and explanation.named else []
-    if progress and replays:
+    replays = data.simulate_many(reference, [[e for e in final if e != n.effect] for n in named] + [final])
+    if progress:
         progress(1, fitted="carry-over")
     cost_reference = _held_out_cost(data, location.reference_replay)
-    effects = []
-    for k, named in enumerate(explanation.named):
-        if not tested:
-            effects.append(HeldOutEffect(math.nan, 0.0, 0.0, None, 0.5))
-            continue
-        cost_alone = _held_out_cost(data, named.alone)
-        cost_without, cost_final = _held_out_cost(data, replays[k]), _held_out_cost(data, replays[-1])
-        effects.append(_weigh(named, data, cost_reference, cost_alone, cost_without, cost_final))
-    return CarryOver(effects, tested)
+    cost_final = _held_out_cost(data, replays[-1])
+    effects = [_weigh(n, data, cost_reference, _held_out_cost(data, n.alone), _held_out_cost(data, replay),
+                      cost_final) for n, replay in zip(named, replays)]
+    reasons = {}
+    for n, held in zip(named, effects):
+        if not offered(n.effect):
+            reasons[_key(n.effect)] = "per_recording"
+        elif held.carries_over is None:
+            reasons[_key(n.effect)] = "not_exercised"
+        elif not held.carries_over:
+            reasons[_key(n.effect)] = "fits_only_what_it_saw"
+    kept = [e for e in final if _key(e) not in reasons]
+    while kept:  # backward elimination on the held-out cost
+        costs = [_held_out_cost(data, replay) for replay in
+                 data.simulate_many(reference, [kept] + [[e for e in kept if e != drop] for drop in kept])]
+        if progress:
+            progress(1, fitted="carry-over")
+        best = int(np.argmin(costs[1:]))
+        if costs[1 + best] >= costs[0]:
+            break
+        reasons[_key(kept[best])] = "eliminated"
+        kept = kept[:best] + kept[best + 1:]
+    return CarryOver(effects, kept, [reasons.get(_key(n.effect)) for n in named])
+
+
+def _key(effect: dict) -> tuple:
+    return effect["effect"], effect[TARGET_KEYS[effect["effect"]]]
 
 
 def _weigh(named: NamedEffect, data: PreparedData, cost_reference: float, cost_alone: float,
@@ -131,7 +165,7 @@ def _weigh(named: NamedEffect, data: PreparedData, cost_reference: float, cost_a
         return HeldOutEffect(alone, 0.0, 0.0, None, 0.5)
     weight = 1.0 / (1.0 + math.exp(min(-gain_in_model / 2.0, 700.0)))
     return HeldOutEffect(alone, gain_alone / cost_reference, gain_in_model / max(cost_without, 1e-300),
-                         bool(gain_alone > 0 and gain_in_model > 0), weight)
+                         bool(gain_in_model > 0), weight)
 
 
 def _held_out_cost(data: PreparedData, replay: list) -> float:

@@ -111,9 +111,9 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     location = locate(data, reference)
     explanation = explain(data, location, reference, progress=progress)
     scopes = scope(data, explanation, reference, progress=progress)
-    carried = carry_over(data, location, explanation, reference, progress=progress)
+    carried = carry_over(data, location, explanation, reference, offered=scopes.offered, progress=progress)
     models = build_models(data, location, explanation, reference, seed=seed, progress=progress,
-                          effects=carried.kept(explanation, offered=scopes.offered))
+                          effects=carried.kept)
     proof = prove(data, location, explanation, models, reference, progress=progress)
     replication = (replicate(data, location, explanation, reference, folds=folds, progress=progress)
                    if folds is not None else None)

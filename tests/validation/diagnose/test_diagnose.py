@@ -72,7 +72,8 @@ def _finding(effect, **extra):
     """A named finding of ``effect`` with a +/-10 % interval, for the statement tests."""
     interval = sorted([0.9 * effect["value"], 1.1 * effect["value"]])
     return {**effect, "unit": "s", "interval": interval, "alternatives": [], "main_output": "q",
-            "rmse_effect_alone": 0.003, "holdout_gain_in_model": 0.4, "carries_over": True, **extra}
+            "rmse_effect_alone": 0.003, "holdout_gain_in_model": 0.4, "carries_over": True,
+            "left_out": None, **extra}
 
 
 def test_statements_use_the_column_phrases_and_the_reference_term_words():
@@ -84,8 +85,9 @@ def test_statements_use_the_column_phrases_and_the_reference_term_words():
     delay = _finding({"effect": "time_delay", "input": "theta_1s", "value": 0.08})
     assert statement(delay, fit, bo105) == (
         "The pitch rate response lags the model by 0.08 s (0.072 to 0.088): a transport delay on theta_1s, the "
-        "longitudinal cyclic pitch. It carries over to the held-out flights: alone it takes the held-out pitch rate "
-        "RMSE from 0.02 to 0.003 rad/s, and in the final model it removes 40.0% of the held-out misfit.")
+        "longitudinal cyclic pitch. It carries over to the held-out flights: in the final model it removes 40.0% "
+        "of the held-out misfit; alone it takes the held-out pitch rate RMSE from 0.02 to 0.003 rad/s. The "
+        "corrected model holds it.")
     lag = _finding({"effect": "input_lag", "input": "new_input", "value": 0.1}, main_output="new_output")
     assert statement(lag, fit, bo105) == ("The new_output response is smoothed by a first-order lag of 0.1 s "
                                           "(0.09 to 0.11) on new_input: unmodelled actuator or rotor dynamics.")
@@ -195,6 +197,7 @@ def test_an_effect_that_does_not_carry_over_to_the_held_out_flight_is_flagged_an
     assert finding["rmse_effect_alone"] > result["fit"]["rmse_reference"]["q"]
     assert finding["holdout_gain_alone"] < 0 and finding["holdout_gain_in_model"] < 0
     assert finding["confidence"] < 0.5 and finding["in_corrected_model"] is False
+    assert finding["left_out"] == "fits_only_what_it_saw"
     assert "fits only the flights it saw" in finding["statement"] and "carries over" not in finding["statement"]
     assert not any(e["effect"] == "sensor_bias" for e in diagnosis.corrected.effects)
     assert result["fit"]["rmse_corrected"]["q"] <= result["fit"]["rmse_reference"]["q"] * 1.01

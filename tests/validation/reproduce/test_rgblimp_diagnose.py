@@ -1,7 +1,7 @@
 """``flightgp reproduce rgblimp-diagnose`` (validation/reproduce/rgblimp_diagnose.py) end to end on
-the first second of the excerpt's flights (configurations 29 and 30): the bookkeeping (diagnosed,
-validation and test flights), the findings' scope and the test scores, checked against independent
-free runs; not the numbers."""
+the first two seconds of the excerpt's flights (configurations 29 and 30, each diagnosed on its own
+in two worker processes): the bookkeeping (diagnosed, validation and test flights), the corrected
+models and the test scores, checked against independent free runs; not the numbers."""
 import json
 
 import numpy as np
@@ -15,9 +15,8 @@ from validation.vehicles.effects import TARGET_KEYS
 from validation.vehicles.rgblimp import RGBlimpReference
 from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 
-#: Rows of each truncated flight (1.05 s at 60 Hz; the header besides): two diagnosed flights
-#: give the 2 s a diagnosis needs.
-ROWS = 64
+#: Rows of each truncated flight (2.07 s at 60 Hz; the header besides): the 2 s a diagnosis needs.
+ROWS = 125
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +29,7 @@ def run(tmp_path_factory):
     for path in (EXCERPT_FOLDER / "data_info").iterdir():
         (data / "data_info" / path.name).write_bytes(path.read_bytes())
     out = tmp_path_factory.mktemp("rgblimp_diagnose_out")
-    return data, out, reproduce_rgblimp_diagnose(data, out, configurations=(29, 30), progress=False)
+    return data, out, reproduce_rgblimp_diagnose(data, out, configurations=(29, 30), workers=2, progress=False)
 
 
 @pytest.mark.slow
@@ -39,28 +38,35 @@ def test_results_diagnosis_and_report_are_written(run):
     assert json.loads((out / "results.json").read_text()) == json.loads(json.dumps(results))
     assert [(c["diagnosed"], c["validation"], c["test"]) for c in results["configurations"]] == [
         ("data_117.csv", "data_118.csv", "data_119.csv"), ("data_121.csv", "data_122.csv", "data_123.csv")]
-    diagnosis = json.loads((out / "diagnosis" / "diagnosis.json").read_text())
-    assert "data_118.csv" in diagnosis["fit"]["holdout"] and "data_119.csv" not in json.dumps(diagnosis)
-    corrected = EffectVehicle.load(out / "diagnosis" / "corrected_model.json")
-    for finding in (f for f in results["findings"] if f["effect"] != "unexplained"):
-        assert len(finding["scope"]["values"]) == 2  # one value per diagnosed flight
-        assert finding["in_corrected_model"] == any(e["effect"] == finding["effect"] and e["value"] == finding["value"]
-                                                    for e in corrected.effects)
+    assert [(d["configurations"], d["folder"]) for d in results["diagnoses"]] == [
+        ([29], "diagnosis/configuration_29"), ([30], "diagnosis/configuration_30")]
+    for configuration, validation, test in ((29, "data_118.csv", "data_119.csv"), (30, "data_122.csv", "data_123.csv")):
+        folder = out / "diagnosis" / f"configuration_{configuration}"
+        diagnosis = json.loads((folder / "diagnosis.json").read_text())
+        assert validation in diagnosis["fit"]["holdout"] and test not in json.dumps(diagnosis)
+        corrected = EffectVehicle.load(folder / "corrected_model.json")
+        for finding in (f for f in diagnosis["findings"] if f["effect"] != "unexplained"):
+            assert finding["in_corrected_model"] == any(
+                e["effect"] == finding["effect"] and e["value"] == finding["value"] for e in corrected.effects)
     assert (out / "report.md").read_text().startswith("# RGBlimp diagnosis on real flights")
 
 
 @pytest.mark.slow
 def test_test_scores_are_the_free_runs_of_the_published_named_and_corrected_models(run):
     data, out, results = run
-    corrected = EffectVehicle.load(out / "diagnosis" / "corrected_model.json")
-    named = EffectVehicle("rgblimp", [{key: f[key] for key in ("effect", TARGET_KEYS[f["effect"]], "value")}
-                                      for f in results["findings"] if f["effect"] != "unexplained"])
+    models = {}
+    for diagnosis in results["diagnoses"]:
+        named = [{key: f[key] for key in ("effect", TARGET_KEYS[f["effect"]], "value")}
+                 for f in diagnosis["findings"] if f["effect"] != "unexplained"]
+        models[diagnosis["configurations"][0]] = (
+            EffectVehicle("rgblimp", named), EffectVehicle.load(out / diagnosis["folder"] / "corrected_model.json"))
     ranges = read_score_ranges(data)
     for flight in results["flights"]:
         recording = read_rgblimp_flight(data / flight["test"]).recording
         kind = "straight" if flight["configuration"] >= 30 else "spiral"
         physics = RGBlimpReference().simulate_states(recording.time, recording.inputs,
                                                      initial_state=recording.outputs[0])
+        named, corrected = models[flight["configuration"]]
         for name, states in (("physics", physics), ("all_named", named.replay_states(recording)),
                              ("corrected", corrected.replay_states(recording))):
             expected = flight_metrics(states, recording.outputs, ranges[kind])
