@@ -22,6 +22,14 @@ from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_321
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / "build" / "jax-cache"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # One BLAS thread per test worker: the workers already fill the cores, and OpenBLAS threads
+    # of two workers spin against each other (a residual GP's Cholesky factorisation took 5 ms
+    # instead of 0.8 ms under that contention). Results do not depend on the thread count.
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+
 
 @pytest.fixture(scope="session")
 def bo105_speed_kt():
