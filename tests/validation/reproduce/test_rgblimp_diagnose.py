@@ -1,6 +1,6 @@
 """``flightgp reproduce rgblimp-diagnose`` (validation/reproduce/rgblimp_diagnose.py) end to end on
-the first two seconds of the excerpt's flights (configurations 29 and 30, each diagnosed on its own
-in two worker processes): the bookkeeping (diagnosed, validation and test flights), the corrected
+the first two seconds of the excerpt's flights (configurations 29 and 30, each diagnosed on its own,
+in this process): the bookkeeping (diagnosed, validation and test flights), the corrected
 models and the test scores, checked against independent free runs; not the numbers."""
 import json
 
@@ -29,7 +29,7 @@ def run(tmp_path_factory):
     for path in (EXCERPT_FOLDER / "data_info").iterdir():
         (data / "data_info" / path.name).write_bytes(path.read_bytes())
     out = tmp_path_factory.mktemp("rgblimp_diagnose_out")
-    return data, out, reproduce_rgblimp_diagnose(data, out, configurations=(29, 30), workers=2, progress=False)
+    return data, out, reproduce_rgblimp_diagnose(data, out, configurations=(29, 30), workers=1, progress=False)
 
 
 @pytest.mark.slow
