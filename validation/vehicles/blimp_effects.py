@@ -52,6 +52,9 @@ uses substeps of at most 0.01 s; at 20 Hz the two agree to far below the sensor 
 vectorised :func:`~validation.vehicles.blimp_equations.blimp_dynamics` call per RK4 stage
 (:func:`~validation.vehicles.blimp_equations.rk4`), and all lags of a batch
 are propagated together, which is what makes output-error fitting of many hypotheses affordable.
+By default the integration runs compiled (:mod:`validation.vehicles.blimp_jax`, the same
+equations in ``jax.numpy``, equal to rounding; 7.9x the numpy step on 24 hypotheses over 20 s,
+``flightgp bench rgblimp``).
 """
 from __future__ import annotations
 
