@@ -41,7 +41,7 @@ from validation.core.metrics import rmse
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation, NamedEffect
 from validation.diagnose.locate import Location
-from validation.vehicles.effects import TARGET_KEYS, EffectModel
+from validation.vehicles.effects import EffectModel, effect_key
 
 #: Relative change of the held-out cost below which an effect counts as not exercised by the
 #: held-out data (0.1 %: far below any effect worth naming, far above rounding).
@@ -109,16 +109,10 @@ def carry_over(data: PreparedData, location: Location, explanation: Explanation,
                offered, progress=None) -> CarryOver:
     """Score each named effect of ``explanation`` on the held-out samples and choose the corrected
     model (module docstring); ``offered(effect)`` says whether an effect may correct the
-    vehicle's model (:meth:`validation.diagnose.scope.Scope.offered`). Without held-out samples
-    every offered effect is kept. ``progress(n, **status)``, optional, advances once per batched
-    replay."""
-    tested = any(mask.any() for mask in data.holdout_mask)
-    named = explanation.named
-    if not tested:
-        kept = [e for e in explanation.effects if offered(e)]
-        return CarryOver([HeldOutEffect(math.nan, 0.0, 0.0, None, 0.5) for _ in named], kept,
-                         [None if n.effect in kept else "per_recording" for n in named])
-    final = explanation.effects
+    vehicle's model (:meth:`validation.diagnose.scope.Scope.offered`). ``data`` always holds
+    held-out samples (:func:`validation.diagnose.data.prepare`). ``progress(n, **status)``,
+    optional, advances once per batched replay."""
+    named, final = explanation.named, explanation.effects
     replays = data.simulate_many(reference, [[e for e in final if e != n.effect] for n in named] + [final])
     if progress:
         progress(1, fitted="carry-over")
@@ -129,27 +123,26 @@ def carry_over(data: PreparedData, location: Location, explanation: Explanation,
     reasons = {}
     for n, held in zip(named, effects):
         if not offered(n.effect):
-            reasons[_key(n.effect)] = "per_recording"
+            reasons[effect_key(n.effect)] = "per_recording"
         elif held.carries_over is None:
-            reasons[_key(n.effect)] = "not_exercised"
+            reasons[effect_key(n.effect)] = "not_exercised"
         elif not held.carries_over:
-            reasons[_key(n.effect)] = "fits_only_what_it_saw"
-    kept = [e for e in final if _key(e) not in reasons]
+            reasons[effect_key(n.effect)] = "fits_only_what_it_saw"
+    kept = [e for e in final if effect_key(e) not in reasons]
+    current = cost_final if kept == final else None
     while kept:  # backward elimination on the held-out cost
-        costs = [_held_out_cost(data, replay) for replay in
-                 data.simulate_many(reference, [kept] + [[e for e in kept if e != drop] for drop in kept])]
+        trials = ([] if current is not None else [kept]) + [[e for e in kept if e != drop] for drop in kept]
+        costs = [_held_out_cost(data, replay) for replay in data.simulate_many(reference, trials)]
         if progress:
             progress(1, fitted="carry-over")
-        best = int(np.argmin(costs[1:]))
-        if costs[1 + best] >= costs[0]:
+        if current is None:
+            current, costs = costs[0], costs[1:]
+        best = int(np.argmin(costs))
+        if costs[best] >= current:
             break
-        reasons[_key(kept[best])] = "eliminated"
-        kept = kept[:best] + kept[best + 1:]
-    return CarryOver(effects, kept, [reasons.get(_key(n.effect)) for n in named])
-
-
-def _key(effect: dict) -> tuple:
-    return effect["effect"], effect[TARGET_KEYS[effect["effect"]]]
+        reasons[effect_key(kept[best])] = "eliminated"
+        kept, current = kept[:best] + kept[best + 1:], costs[best]
+    return CarryOver(effects, kept, [reasons.get(effect_key(n.effect)) for n in named])
 
 
 def _weigh(named: NamedEffect, data: PreparedData, cost_reference: float, cost_alone: float,

@@ -23,6 +23,7 @@ narrow, so each variance is widened to the heteroscedasticity- and autocorrelati
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -89,6 +90,11 @@ class FitData:
     def simulate(self, reference: EffectModel, effects: list[dict]) -> list:
         """Replayed outputs per recording, shape (n_r, n_out) each."""
         return [replay[0] for replay in self._simulate_many(reference, [effects], fitted_only=False)]
+
+    def fitting_only(self, recordings) -> FitData:
+        """These data with only the fitted samples of ``recordings`` (indices) left fitted."""
+        return dataclasses.replace(self, fit_mask=[mask if i in recordings else np.zeros_like(mask)
+                                                   for i, mask in enumerate(self.fit_mask)])
 
     def simulate_many(self, reference: EffectModel, effect_lists) -> list:
         """Per effect list, its replayed outputs per recording, shape (n_r, n_out) each, all in

@@ -15,7 +15,6 @@ moves between subsets of the data, which is the honest spread when the intervals
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +23,7 @@ from validation.core.errors import BadInputError
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation, explain
 from validation.diagnose.locate import Location
-from validation.vehicles.effects import TARGET_KEYS, EffectModel
+from validation.vehicles.effects import EffectModel, effect_key
 
 
 @dataclass
@@ -52,7 +51,7 @@ class Replication:
         ``values`` (per fold, None where not named) and ``replicated`` (every fold named it and
         moved it the same way from the model's value, ``finding["model_value"]``, 0 for delays,
         lags and biases, as the full diagnosis did)."""
-        key = (finding["effect"], finding[TARGET_KEYS[finding["effect"]]])
+        key = effect_key(finding)
         values = self.named_in.get(key, [None] * len(self.folds))
         named = sum(value is not None for value in values)
         null = finding.get("model_value") or 0.0
@@ -80,13 +79,11 @@ def replicate(data: PreparedData, location: Location, explanation: Explanation, 
     each fold names, with its value there."""
     results = []
     for members in fold_recordings(data, folds):
-        fold_mask = [mask if i in members else np.zeros_like(mask) for i, mask in enumerate(data.fit_mask)]
-        fold_data = dataclasses.replace(data, fit_mask=fold_mask)
-        fold = explain(fold_data, location, reference, progress=progress)
+        fold = explain(data.fitting_only(members), location, reference, progress=progress)
         results.append({"recordings": [data.recording_names[i] for i in members], "effects": fold.effects})
     named_in = {}
     for effect in explanation.effects:
-        key = (effect["effect"], effect[TARGET_KEYS[effect["effect"]]])
-        named_in[key] = [next((e["value"] for e in fold["effects"]
-                               if (e["effect"], e[TARGET_KEYS[e["effect"]]]) == key), None) for fold in results]
+        key = effect_key(effect)
+        named_in[key] = [next((e["value"] for e in fold["effects"] if effect_key(e) == key), None)
+                         for fold in results]
     return Replication(results, named_in)

@@ -30,7 +30,6 @@ Only ``"shared"`` and ``"varies"`` findings are offered as corrections of the ve
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -40,7 +39,7 @@ from scipy import stats
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation
 from validation.diagnose.fitting import fit_many
-from validation.vehicles.effects import TARGET_KEYS, EffectModel
+from validation.vehicles.effects import EffectModel, effect_key
 
 #: Level of the heterogeneity test: recordings count as differing only on strong evidence.
 HETEROGENEITY_ALPHA = 0.01
@@ -72,7 +71,7 @@ class Scope:
 
     def of(self, effect: dict) -> dict | None:
         """The ``scope`` of ``effect``; None when it cannot be told."""
-        return self.per_effect.get((effect["effect"], effect[TARGET_KEYS[effect["effect"]]]))
+        return self.per_effect.get(effect_key(effect))
 
     def offered(self, effect: dict) -> bool:
         """Whether ``effect`` may correct the vehicle's model (module docstring)."""
@@ -91,20 +90,17 @@ def scope(data: PreparedData, explanation: Explanation, reference: EffectModel, 
         return Scope(names, {})
     refits = []
     for i in fitted:
-        alone = [mask if k == i else np.zeros_like(mask) for k, mask in enumerate(data.fit_mask)]
-        refits.append(fit_many(dataclasses.replace(data, fit_mask=alone), reference,
-                               [(model.hypotheses, model.values)])[0])
+        refits.append(fit_many(data.fitting_only([i]), reference, [(model.hypotheses, model.values)])[0])
         if progress:
             progress(1, fitted=f"scope:{data.recording_names[i]}")
     per_effect = {}
     for j, h in enumerate(model.hypotheses):
         values = np.array([r.values[j] for r in refits])
         variances = np.array([r.covariance[j, j] for r in refits])
-        per_effect[h.key] = {**_random_effects(values, variances, h.null),
-                             "values": [h.effect_value(v) for v in values]}
-        found = per_effect[h.key]
-        found["mean"] = h.effect_value(found["mean"])
-        found["spread"] = abs(h.effect_value(h.null + found["spread"]) - h.effect_value(h.null))
+        found = _random_effects(values, variances, h.null)
+        per_effect[h.key] = {**found, "values": [h.effect_value(v) for v in values],
+                             "mean": h.effect_value(found["mean"]),
+                             "spread": abs(h.effect_value(h.null + found["spread"]) - h.effect_value(h.null))}
     return Scope(names, per_effect)
 
 

@@ -107,9 +107,11 @@ def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONF
     with progress_bar("diagnose rgblimp", enabled=progress, total=None if pooled else len(jobs),
                       unit="fit" if pooled else "configuration") as update:
         if pooled or workers == 1:
-            outcomes = [_diagnose(*job, progress=update if pooled else None) for job in jobs]
-            if update and not pooled:
-                update(len(jobs))
+            outcomes = []
+            for job in jobs:
+                outcomes.append(_diagnose(*job, progress=update if pooled else None))
+                if update and not pooled:
+                    update(1)
         else:
             with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
                 outcomes = []

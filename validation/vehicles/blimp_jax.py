@@ -17,12 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from validation.vehicles.blimp_equations import STANDARD_GRAVITY
-from validation.vehicles.rgblimp_jax import jax_modules, padded_steps
-
-#: Batches are padded to a power of two members (at least this), so that replays of similar
-#: sizes share one compiled function.
-_MIN_MEMBERS = 8
+from validation.vehicles.blimp_equations import STANDARD_GRAVITY, mass_matrix
+from validation.vehicles.rgblimp_jax import jax_modules, padded_rows, padded_steps
 
 _COMPILED = {}
 
@@ -91,15 +87,12 @@ def _replay_function(jax, jnp):
     return jax.jit(replay)
 
 
-def compiled_replay(params, matrix: np.ndarray, inverse: np.ndarray, changes: dict, start: np.ndarray,
-                    held: np.ndarray, steps: np.ndarray) -> np.ndarray:
+def compiled_replay(params, changes: dict, start: np.ndarray, held: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """Replays of B members, compiled (module docstring).
 
     Parameters
     ----------
     params : BlimpParameters
-    matrix, inverse : ndarray, shape (6, 6)
-        The system inertia matrix and its inverse.
     changes : dict of str to ndarray
         The term changes per member: ``gain_positive``, ``gain_negative``, ``extra_damping``,
         ``extra_drag`` (B, 3), ``constant`` (B, 6), ``extra_down`` (B,).
@@ -119,8 +112,9 @@ def compiled_replay(params, matrix: np.ndarray, inverse: np.ndarray, changes: di
         _COMPILED["replay"] = (jnp, _replay_function(jax, jnp))
     jnp, replay = _COMPILED["replay"]
     members, n_steps = held.shape[:2]
-    padded_members = max(_MIN_MEMBERS, 1 << (members - 1).bit_length())
-    rows = np.concatenate([np.arange(members), np.zeros(padded_members - members, dtype=int)])
+    rows = padded_rows(members)
+    matrix, inverse = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
+                                  params.cg_position)
     # Steps padded with the last input held over the last interval's length (a replay is causal;
     # the padding is cut), so that recordings of similar lengths share one compiled function.
     length = padded_steps(n_steps)
@@ -132,7 +126,7 @@ def compiled_replay(params, matrix: np.ndarray, inverse: np.ndarray, changes: di
         "rotational_damping", "cg_position")}
     p["matrix"] = jnp.asarray(matrix)
     path = replay(p, {name: jnp.asarray(value[rows]) for name, value in changes.items()}, jnp.asarray(inverse),
-                  jnp.asarray(np.repeat(start[None], padded_members, axis=0)),
+                  jnp.asarray(np.repeat(start[None], len(rows), axis=0)),
                   jnp.asarray(np.swapaxes(held, 0, 1)), jnp.asarray(steps))
     path = np.swapaxes(np.asarray(path)[:n_steps, :members], 0, 1)
     return np.concatenate([np.repeat(start[None, None], members, axis=0), path], axis=1)

@@ -102,6 +102,12 @@ class Hypothesis:
         return self.effect, self.target
 
 
+def effect_key(effect: dict) -> tuple[str, str]:
+    """``(effect, target)`` of an effect dict: what identifies it, as :attr:`Hypothesis.key` does
+    a hypothesis."""
+    return effect["effect"], effect[TARGET_KEYS[effect["effect"]]]
+
+
 class EffectModel(Protocol):
     """How a reference model takes named effects: everything ``flightgp diagnose``, its
     concealed-effect bench and :class:`~validation.vehicles.effect_vehicle.EffectVehicle` need to

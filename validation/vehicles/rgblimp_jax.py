@@ -166,6 +166,14 @@ def rollout_function(jax, jnp, correction_of=None):
     return rollout
 
 
+def padded_rows(runs: int) -> np.ndarray:
+    """Row indices that pad a batch of ``runs`` runs to the next power of two (at least 8) with
+    copies of the first, so that batches of similar sizes share one compiled function; cut the
+    result back to ``runs`` rows."""
+    padded = max(_MIN_RUNS, 1 << (runs - 1).bit_length())
+    return np.concatenate([np.arange(runs), np.zeros(padded - runs, dtype=int)])
+
+
 def padded_steps(steps: int) -> int:
     """The step count a compiled run of ``steps`` steps is padded to: the smaller of the next
     power of two (at least 32) and the next multiple of 600, so that runs of similar lengths share
@@ -211,8 +219,7 @@ def batched_free_runs(parameters: dict, starts, inputs) -> np.ndarray:
     # One run per member and recording, their count padded to a power of two with copies of the
     # first and their samples with the last input held (a free run is causal); the padding is cut.
     runs = members * recordings
-    padded_runs = max(_MIN_RUNS, 1 << (runs - 1).bit_length())
-    rows = np.concatenate([np.arange(runs), np.zeros(padded_runs - runs, dtype=int)])
+    rows = padded_rows(runs)
     member_of_run = rows // recordings
     steps = length - 1
     held = held_inputs(inputs.reshape(runs, length, 5)[rows])
