@@ -29,6 +29,10 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1)
+    # The same for XLA's compiled runs, whose Eigen pool would otherwise take every core in each
+    # worker (set before JAX is imported, which reads it then).
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false "
+                               "intra_op_parallelism_threads=1").strip()
 
 
 @pytest.fixture(scope="session")
