@@ -27,6 +27,7 @@ from fmu_src.fmi.native import c_array, c_number, check_platform, config_header,
 from fmu_src.rgblimp_rkgp.build import rgblimp_rkgp_parts
 from fmu_src.rgblimp_rkgp.model import RGBlimpRKGPModel
 from fmu_src.rgblimp_rkgp.slave import RGBlimpRKGP
+from validation.core.errors import BadInputError
 from validation.vehicles.rgblimp_equations import (
     INPUT_NAMES,
     SAMPLE_TIME,
@@ -46,7 +47,13 @@ _DATA_MAGIC = b"FGPRGBL1"
 C_PARAMETERS = ("air_density", "gravity", "buoyancy_mass", "hull_mass", "gondola_mass", "hull_cg", "propeller_arm",
                 "reference_area", "inertia", "rate_damping", "c_d0", "c_d_alpha2", "c_d_beta2", "c_s0", "c_s_alpha2",
                 "c_s_beta", "c_l0", "c_l_alpha", "c_l_beta2", "c_mx0", "c_mx_alpha", "c_mx_beta", "c_my0",
-                "c_my_alpha", "c_my_beta4", "c_mz0", "c_mz_alpha", "c_mz_beta", "added_mass", "added_inertia")
+                "c_my_alpha", "c_my_beta4", "c_mz0", "c_mz_alpha", "c_mz_beta", "c_s_beta_abs", "c_l_alpha_abs",
+                "c_my_alpha_abs", "c_mz_beta_abs", "added_mass", "added_inertia", "thrust_speed_loss",
+                "thrust_line_y")
+#: The RGBlimpParameters fields ``rgblimp_physics.c`` does not implement, which a native FMU's
+#: model must leave at zero: the draught field that varies with position (the native covariance
+#: step takes the dynamics not to read the position, ``rgblimp_physics.h``).
+ZERO_IN_C = ("draught_gradient_x", "draught_gradient_y")
 
 
 def build_native_rgblimp_rkgp_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
@@ -94,14 +101,26 @@ def check_physics_parameters() -> None:
     RuntimeError (a bug) if the equations' parameters are not those ``rgblimp_physics.c`` reads."""
     check_platform()
     fields = tuple(field.name for field in dataclasses.fields(RGBlimpParameters))
-    if set(fields) != set(C_PARAMETERS):
-        raise RuntimeError(f"rgblimp_physics.c reads the RGBlimp parameters {sorted(C_PARAMETERS)}, the equations "
-                           f"have {sorted(fields)}: port the change to the C file and C_PARAMETERS")
+    if set(fields) != set(C_PARAMETERS) | set(ZERO_IN_C):
+        raise RuntimeError(f"rgblimp_physics.c reads the RGBlimp parameters {sorted(C_PARAMETERS)} and leaves out "
+                           f"{sorted(ZERO_IN_C)}, the equations have {sorted(fields)}: port the change to the C file "
+                           "and C_PARAMETERS")
 
 
 def physics_config_lines(params, *, thrust_gain: float, wind) -> list:
     """The lines of ``model_config.h`` that ``rgblimp_physics.c`` reads: the RK4 sample, the
-    airspeed guard, pi, every parameter (:data:`C_PARAMETERS`), the thrust factor and the wind."""
+    airspeed guard, pi, every parameter (:data:`C_PARAMETERS`), the thrust factor and the wind.
+
+    Raises
+    ------
+    validation.core.errors.BadInputError
+        A parameter of :data:`ZERO_IN_C` is not zero: the native FMU would leave it out.
+    """
+    unsupported = [field for field in ZERO_IN_C if any(getattr(params, field))]
+    if unsupported:
+        raise BadInputError(f"the model has a draught field that varies across the room ({', '.join(unsupported)}), "
+                            "which the native FMU does not compute; build the pythonfmu FMU instead (without "
+                            "--native)")
     return [
         "/* Physics (validation/vehicles/rgblimp_equations.py, validation/models/rgblimp_identification.py;",
         "   SI units): the RK4 sample, s, the airspeed guard, m/s, pi, the RGBlimpParameters fields, the",

@@ -33,12 +33,14 @@ static void aerodynamics(const double v[3], const double w[3], double force[3], 
     const double beta = asin(v[1] / (sqrt(squares) + ZERO_SPEED_GUARD));
     const double qbar_area = 0.5 * AIR_DENSITY * squares * REFERENCE_AREA;
     const double alpha2 = alpha * alpha, beta2 = beta * beta;
+    const double alpha_cross = alpha * fabs(alpha), beta_cross = beta * fabs(beta);
     const double drag = qbar_area * (C_D0 + C_D_ALPHA2 * alpha2 + C_D_BETA2 * beta2);
-    const double side = qbar_area * (C_S0 + C_S_ALPHA2 * alpha2 + C_S_BETA * beta);
-    const double lift = qbar_area * (C_L0 + C_L_ALPHA * alpha + C_L_BETA2 * beta2);
-    const double coefficients[3] = {C_MX0 + C_MX_ALPHA * alpha + C_MX_BETA * beta,
-                                    C_MY0 + C_MY_ALPHA * alpha + C_MY_BETA4 * pow(beta, 4.0),
-                                    C_MZ0 + C_MZ_ALPHA * alpha + C_MZ_BETA * beta};
+    const double side = qbar_area * (C_S0 + C_S_ALPHA2 * alpha2 + C_S_BETA * beta + C_S_BETA_ABS * beta_cross);
+    const double lift = qbar_area * (C_L0 + C_L_ALPHA * alpha + C_L_BETA2 * beta2 + C_L_ALPHA_ABS * alpha_cross);
+    const double coefficients[3] = {
+        C_MX0 + C_MX_ALPHA * alpha + C_MX_BETA * beta,
+        C_MY0 + C_MY_ALPHA * alpha + C_MY_BETA4 * pow(beta, 4.0) + C_MY_ALPHA_ABS * alpha_cross,
+        C_MZ0 + C_MZ_ALPHA * alpha + C_MZ_BETA * beta + C_MZ_BETA_ABS * beta_cross};
     double wind_moment[3];
     for (int i = 0; i < 3; i++) wind_moment[i] = qbar_area * coefficients[i] + RATE_DAMPING[i] * w[i];
     /* wind to body axes: the first column is the unit airspeed direction */
@@ -84,7 +86,9 @@ static void solve6(double A[36], double b[6]) {
  * the thrust factor applied). */
 static void body_accelerations(const double s[N_STATES], const double u[N_INPUTS], double out[6]) {
     const double *angles = s + 3, *v = s + 6, *w = s + 9, *gondola = u + 2;
-    const double thrust_left = u[0], thrust_right = u[1];
+    /* thrust falling with airspeed (the draught field is not in the native FMUs: rgblimp_physics.h) */
+    const double thrust_factor = 1.0 - THRUST_SPEED_LOSS * v[0];
+    const double thrust_left = u[0] * thrust_factor, thrust_right = u[1] * thrust_factor;
     const double total_mass = HULL_MASS + GONDOLA_MASS;
     double l[3], skew[9], inertia[9];
     for (int i = 0; i < 3; i++) l[i] = HULL_MASS * HULL_CG[i] + GONDOLA_MASS * gondola[i];
@@ -101,7 +105,8 @@ static void body_accelerations(const double s[N_STATES], const double u[N_INPUTS
     double aero_force[3], aero_moment[3];
     aerodynamics(v, w, aero_force, aero_moment);
     const double thrust = thrust_left + thrust_right;
-    const double thrust_moment[3] = {0.0, thrust * gondola[2], (thrust_left - thrust_right) * PROPELLER_ARM};
+    const double thrust_moment[3] = {0.0, thrust * gondola[2],
+                                     (thrust_left - thrust_right) * PROPELLER_ARM - THRUST_LINE_Y * thrust};
 
     double v_x_w[3], added_momentum[3], added_x_w[3], w_x_l[3], w_x_l_x_w[3];
     double inertia_w[3], inertia_w_x_w[3], added_x_v[3], added_angular[3], added_angular_x_w[3];

@@ -6,9 +6,12 @@
  * validation/vehicles/rgblimp_equations.py (body_accelerations, aerodynamic_force_and_moment,
  * rgblimp_dynamics with its extra_acceleration, rk4_step, wrap_heading and advance: the rigid body
  * with the movable gondola mass about the centre of buoyancy, gravity, buoyancy, the aerodynamic
- * polynomials in angle of attack and sideslip, rate damping, the propeller thrusts, an optional
- * added mass, and the steady wind by a change to the air mass's frame; the equations and their
- * sources are there) and validation/models/rgblimp_step.py (carry_yaw: yaw carried continuously).
+ * polynomials in angle of attack and sideslip with the optional cross-flow terms, rate damping, the
+ * propeller thrusts with the optional loss with airspeed and thrust-line offset, an optional added
+ * mass, and the steady wind by a change to the air mass's frame; the equations and their sources
+ * are there; not the draught field that varies with position, whose parameters the builders
+ * refuse unless zero, since the covariance step here relies on the dynamics not reading the
+ * position) and validation/models/rgblimp_step.py (carry_yaw: yaw carried continuously).
  *
  * The model constants (every RGBlimpParameters field under its name in capitals, THRUST_GAIN, WIND,
  * SAMPLE_TIME, ZERO_SPEED_GUARD, PI, N_STATES = 12, N_INPUTS = 5) come from the FMU's model_config.h.

@@ -35,7 +35,8 @@ _NONLINEAR_WHY = {
 #: The term effect kinds of the contract (:data:`validation.vehicles.effects.TARGET_KEYS`) in words,
 #: where the name with spaces would not do.
 _KIND_WORDS = {"quadratic_drag": "quadratic drag derivative", "cg_offset": "centre-of-gravity position",
-               "added_mass": "added-mass term", "fmu_parameter": "parameter"}
+               "added_mass": "added-mass term", "fmu_parameter": "parameter", "draught_field": "draught-field term",
+               "gondola_offset": "gondola position offset"}
 _MODEL_LABELS = {"reference": "reference", "corrected": "corrected", "corrected_gp": "corrected + GP"}
 #: Share of a named effect's signal that a GP on the uncorrected residual must reproduce for the
 #: report to warn that a residual GP alone would hide the effect (half: it would carry more of

@@ -39,18 +39,31 @@ def parameters_as_dict(params: RGBlimpParameters) -> dict:
             for field in dataclasses.fields(RGBlimpParameters) for value in [getattr(params, field.name)]}
 
 
+#: The :class:`RGBlimpParameters` fields a model file may lack: the terms added after the first
+#: model files were written (cross-flow coefficients, thrust loss with airspeed, thrust line,
+#: draught field), all zero in those files' models.
+LATER_FIELDS = ("c_s_beta_abs", "c_l_alpha_abs", "c_my_alpha_abs", "c_mz_beta_abs", "thrust_speed_loss",
+                "thrust_line_y", "draught_gradient_x", "draught_gradient_y")
+
+
 def parameters_from_dict(values) -> RGBlimpParameters:
     """Inverse of :func:`parameters_as_dict` (the same doubles).
+
+    Model files written before the fields of :data:`LATER_FIELDS` existed lack them; they take
+    their defaults (zero: the terms those files' models did not have).
 
     Raises
     ------
     ValueError
-        ``values`` is not a dict naming exactly the fields of :class:`RGBlimpParameters` with
-        finite numbers (triples where the field has one); the message says which.
+        ``values`` is not a dict naming exactly the fields of :class:`RGBlimpParameters` (those
+        of :data:`LATER_FIELDS` optional) with finite numbers (triples where the field has one);
+        the message says which.
     """
     names = [field.name for field in dataclasses.fields(RGBlimpParameters)]
     if not isinstance(values, dict):
         raise ValueError(f"the RGBlimp parameters must be a JSON object of {len(names)} fields, got {values!r}")
+    defaults = RGBlimpParameters()
+    values = {**{name: getattr(defaults, name) for name in LATER_FIELDS}, **values}
     missing, unknown = sorted(set(names) - set(values)), sorted(set(values) - set(names))
     if missing or unknown:
         raise ValueError(f"the RGBlimp parameters lack {missing} and hold unknown {unknown}; expected exactly "

@@ -42,7 +42,8 @@ from validation.core.recordings import column_unit
 TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative": "term",
                "stability_derivative": "term", "sensor_bias": "output", "quadratic_drag": "term",
                "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
-               "added_mass": "term", "steady_wind": "term", "input_gain": "input", "output_scale": "output",
+               "added_mass": "term", "steady_wind": "term", "draught_field": "term", "gondola_offset": "term",
+               "input_gain": "input", "output_scale": "output",
                "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term",
                "saturation": "input", "rate_limit": "input", "search_term": "term",
                "nonlinear_stiffness": "term"}

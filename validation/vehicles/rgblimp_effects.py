@@ -13,8 +13,11 @@ equations of :mod:`validation.vehicles.rgblimp_equations` (body axes, SI units) 
 - ``stability_derivative``, terms ``L_P``, ``M_Q``, ``N_R``: the linear rate damping
   ``dL/dP`` etc., N m s/rad (the source's ``K1, K2, K3``);
 - ``control_derivative``, terms ``thrust_gain`` (a factor on both recorded thrusts, 1 in the
-  model) and ``thrust_asymmetry`` (``a``: the left thrust is ``(1 + a)`` and the right
-  ``(1 - a)`` times the recorded one, 0 in the model);
+  model), ``thrust_asymmetry`` (``a``: the left thrust is ``(1 + a)`` and the right
+  ``(1 - a)`` times the recorded one, 0 in the model), ``thrust_speed_loss`` (``k_T``, s/m:
+  each thrust times ``1 - k_T U_a``, the propellers' loss with airspeed, 0 in the model, not
+  negative) and ``thrust_line_y`` (m: the thrust line right of the centreline, which yaws the
+  hull by ``-y_T`` times the total thrust, 0 in the model);
 - ``force_offset``, term ``Z_0``: the net downward force, weight minus buoyancy, N, acting at
   the centre of buoyancy (set through the buoyancy);
 - ``cg_offset``, terms ``x_G``, ``y_G``, ``z_G``: the hull's centre of gravity relative to the
@@ -24,7 +27,19 @@ equations of :mod:`validation.vehicles.rgblimp_equations` (body axes, SI units) 
   equations, :mod:`validation.vehicles.rgblimp_equations`), 0 in the model, never negative;
 - ``steady_wind``, terms ``wind_x``, ``wind_y``: a steady horizontal air motion in the room, m/s
   along the motion capture's x and y axes (:func:`~validation.vehicles.rgblimp_equations.advance`),
-  0 in the model.
+  0 in the model;
+- ``draught_field``, terms ``wind_x_dx``, ``wind_y_dx``, ``wind_z_dx``, ``wind_x_dy``,
+  ``wind_y_dy``, ``wind_z_dy``: a draught that varies across the room, the change of each air
+  velocity component (m/s, earth axes, z down) per metre along the room's x or y, 1/s (the
+  fields ``draught_gradient_x``, ``draught_gradient_y``), 0 in the model;
+- ``gondola_offset``, terms ``gondola_dx``, ``gondola_dy``, ``gondola_dz``: the gondola's position
+  from its recorded one, m, body axes (a mounting or calibration offset), added to the inputs, 0
+  in the model.
+
+The cross-flow coefficients (``c_s_beta_abs``, ``c_l_alpha_abs``, ``c_my_alpha_abs``,
+``c_mz_beta_abs``), the thrust loss, the thrust line and the draught field are the terms a
+small airship's model may lack beyond the source's;
+:mod:`validation.vehicles.rgblimp_equations` gives their equations and the literature.
 
 Replays start at each recording's first recorded state (:meth:`RGBlimpEffects.start_state`),
 as the source's free runs do, and step one RK4 step per 1/60 s sample, the source's integrator;
@@ -68,8 +83,10 @@ from validation.vehicles.rgblimp_jax import batched_free_runs
 AERODYNAMIC_TERMS = tuple(f.name for f in dataclasses.fields(RGBlimpParameters) if f.name.startswith("c_"))
 #: Rate-damping terms -> body axis of ``rate_damping``.
 STABILITY_TERMS = {"L_P": 0, "M_Q": 1, "N_R": 2}
-#: Thrust terms and their model values (a factor and an asymmetry).
+#: Thrust terms applied to the inputs, and their model values (a factor and an asymmetry).
 CONTROL_TERMS = {"thrust_gain": 1.0, "thrust_asymmetry": 0.0}
+#: Thrust terms that are fields of :class:`RGBlimpParameters` -> (field, component).
+THRUST_FIELD_TERMS = {"thrust_speed_loss": ("thrust_speed_loss", 0), "thrust_line_y": ("thrust_line_y", 0)}
 #: Centre-of-gravity terms -> body axis of ``hull_cg``.
 CG_TERMS = {"x_G": 0, "y_G": 1, "z_G": 2}
 #: Added-mass terms -> (field of :class:`RGBlimpParameters`, body axis).
@@ -78,9 +95,17 @@ ADDED_MASS_TERMS = {"X_Udot": ("added_mass", 0), "Y_Vdot": ("added_mass", 1), "Z
                     "N_Rdot": ("added_inertia", 2)}
 #: Wind terms -> earth axis.
 WIND_TERMS = {"wind_x": 0, "wind_y": 1}
+#: Draught-field terms -> (field, earth component of the air velocity).
+DRAUGHT_TERMS = {f"wind_{axis}_d{along}": (f"draught_gradient_{along}", component)
+                 for along in ("x", "y") for component, axis in enumerate(("x", "y", "z"))}
+#: Gondola-offset terms -> body axis (added to the recorded gondola position).
+GONDOLA_TERMS = {"gondola_dx": 0, "gondola_dy": 1, "gondola_dz": 2}
+#: Terms that set one component of a field of :class:`RGBlimpParameters` (0 for a scalar field).
+_FIELD_TERMS = {**ADDED_MASS_TERMS, **THRUST_FIELD_TERMS, **DRAUGHT_TERMS}
 TERMS = {"aerodynamic_coefficient": AERODYNAMIC_TERMS, "stability_derivative": tuple(STABILITY_TERMS),
-         "control_derivative": tuple(CONTROL_TERMS), "force_offset": ("Z_0",), "cg_offset": tuple(CG_TERMS),
-         "added_mass": tuple(ADDED_MASS_TERMS), "steady_wind": tuple(WIND_TERMS)}
+         "control_derivative": (*CONTROL_TERMS, *THRUST_FIELD_TERMS), "force_offset": ("Z_0",),
+         "cg_offset": tuple(CG_TERMS), "added_mass": tuple(ADDED_MASS_TERMS), "steady_wind": tuple(WIND_TERMS),
+         "draught_field": tuple(DRAUGHT_TERMS), "gondola_offset": tuple(GONDOLA_TERMS)}
 
 _AERODYNAMIC_WORDS = {
     "c_d0": "drag coefficient at zero angle of attack and sideslip",
@@ -101,6 +126,10 @@ _AERODYNAMIC_WORDS = {
     "c_mz0": "yawing-moment coefficient at zero angle of attack and sideslip",
     "c_mz_alpha": "yawing moment per radian of angle of attack",
     "c_mz_beta": "yawing moment per radian of sideslip, the weathercock stability",
+    "c_s_beta_abs": "side force with the sideslip times its size, the hull's cross-flow drag in sideslip",
+    "c_l_alpha_abs": "lift with the angle of attack times its size, the hull's cross-flow drag in pitch",
+    "c_my_alpha_abs": "pitching moment with the angle of attack times its size, the hull's cross-flow moment",
+    "c_mz_beta_abs": "yawing moment with the sideslip times its size, the hull's cross-flow moment in sideslip",
 }
 #: Every term in words, for the statements of a diagnosis.
 TERM_DESCRIPTIONS = {
@@ -115,13 +144,22 @@ TERM_DESCRIPTIONS = {
     "X_Udot": "added mass in surge", "Y_Vdot": "added mass in sway", "Z_Wdot": "added mass in heave",
     "K_Pdot": "added inertia in roll", "M_Qdot": "added inertia in pitch", "N_Rdot": "added inertia in yaw",
     "wind_x": "steady wind along the room's x axis", "wind_y": "steady wind along the room's y axis",
+    "thrust_speed_loss": "thrust lost per m/s of airspeed, the propellers' advance-ratio loss",
+    "thrust_line_y": "thrust line right of the centreline, a yawing moment that grows with the thrust",
+    **{term: f"draught across the room: change of the air's {term[5]} velocity per metre along the room's "
+             f"{term[-1]} axis" for term in DRAUGHT_TERMS},
+    "gondola_dx": "gondola ahead of its recorded position", "gondola_dy": "gondola right of its recorded position",
+    "gondola_dz": "gondola below its recorded position",
 }
 
 
 def _aerodynamic_unit(term: str) -> str:
     """``"1"`` or ``"m"`` (moment coefficients carry the reference length), per rad^k of the
-    angle the coefficient multiplies (``c_l_alpha``: 1/rad, ``c_my_beta4``: m/rad^4)."""
+    angle the coefficient multiplies (``c_l_alpha``: 1/rad, ``c_my_beta4``: m/rad^4, the
+    cross-flow ``c_mz_beta_abs``: m/rad^2)."""
     base = "m" if term.startswith("c_m") else "1"
+    if term.endswith("_abs"):  # angle times its size
+        return f"{base}/rad^2"
     power = term.rsplit("_", 1)[-1].lstrip("alphbet")
     if term.endswith("0"):
         return base
@@ -132,7 +170,9 @@ def _aerodynamic_unit(term: str) -> str:
 TERM_UNITS = {**{term: _aerodynamic_unit(term) for term in AERODYNAMIC_TERMS},
               **dict.fromkeys(STABILITY_TERMS, "N m s/rad"), **dict.fromkeys(CONTROL_TERMS, "1"),
               "Z_0": "N", **dict.fromkeys(CG_TERMS, "m"), "X_Udot": "kg", "Y_Vdot": "kg", "Z_Wdot": "kg",
-              "K_Pdot": "kg m^2", "M_Qdot": "kg m^2", "N_Rdot": "kg m^2", **dict.fromkeys(WIND_TERMS, "m/s")}
+              "K_Pdot": "kg m^2", "M_Qdot": "kg m^2", "N_Rdot": "kg m^2", **dict.fromkeys(WIND_TERMS, "m/s"),
+              "thrust_speed_loss": "s/m", "thrust_line_y": "m", **dict.fromkeys(DRAUGHT_TERMS, "1/s"),
+              **dict.fromkeys(GONDOLA_TERMS, "m")}
 
 #: Floor under the noise that weighs each state's residuals (module docstring), state units.
 MIN_NOISE_SD = {**dict.fromkeys(("x", "y", "z"), 0.05), **dict.fromkeys(("phi", "theta", "psi"), 0.02),
@@ -145,11 +185,13 @@ RESIDUAL_GP_STATES = ("phi", "theta", "U", "V", "W", "P", "Q", "R")
 #: largest noise estimate of the excerpt's positions (6e-5 m, data_117.csv), rounded up.
 SENSOR_NOISE_STD = dict.fromkeys(STATE_NAMES, 1e-4)
 #: Screening steps of terms whose model value is zero or tiny, in their units: 1 mN of net
-#: force, 2 mm of CG, 0.01 kg (7 % of the displaced air) of added mass, 0.001 kg m^2 (about a
-#: tenth of the smallest moment of inertia) of added inertia, 1 cm/s of wind, 2 % of thrust
-#: asymmetry, 0.001 of a coefficient.
+#: force, 2 mm of CG, thrust line or gondola position, 0.01 kg (7 % of the displaced air) of added
+#: mass, 0.001 kg m^2 (about a tenth of the smallest moment of inertia) of added inertia, 1 cm/s
+#: of wind or of wind per metre, 2 % of thrust asymmetry, 0.05 s/m of thrust loss (2.5 % of the
+#: thrust at the flights' 0.5 m/s), 0.001 of a coefficient.
 _ABSOLUTE_STEPS = {"Z_0": 1e-3, "cg_offset": 2e-3, "added_mass": 0.01, "added_inertia": 1e-3, "steady_wind": 0.01,
-                   "thrust_asymmetry": 0.02, "coefficient": 1e-3}
+                   "thrust_asymmetry": 0.02, "coefficient": 1e-3, "thrust_speed_loss": 0.05, "thrust_line_y": 2e-3,
+                   "draught_field": 0.01, "gondola_offset": 2e-3}
 #: Relative screening step of terms with a model value (5 %, as for the blimp's).
 _RELATIVE_STEP = 0.05
 #: Largest thrust asymmetry: the weaker propeller keeps a tenth of its thrust.
@@ -168,10 +210,10 @@ def model_value(params: RGBlimpParameters, term: str) -> float:
         return (params.hull_mass + params.gondola_mass - params.buoyancy_mass) * params.gravity
     if term in CG_TERMS:
         return float(params.hull_cg[CG_TERMS[term]])
-    if term in ADDED_MASS_TERMS:
-        field, axis = ADDED_MASS_TERMS[term]
-        return float(getattr(params, field)[axis])
-    if term in WIND_TERMS:
+    if term in _FIELD_TERMS:
+        field, axis = _FIELD_TERMS[term]
+        return float(np.atleast_1d(getattr(params, field))[axis])
+    if term in WIND_TERMS or term in GONDOLA_TERMS:
         return 0.0
     raise KeyError(term)
 
@@ -205,6 +247,7 @@ class _MemberValues:
         self.fields = {f.name: np.tile(np.asarray(getattr(params, f.name), dtype=float), (n, 1))
                        for f in dataclasses.fields(RGBlimpParameters)}
         self.gain, self.asymmetry, self.wind = np.ones(n), np.zeros(n), np.zeros((n, 2))
+        self.gondola_offset = np.zeros((n, 3))
         self.changed = set()
         for member, effects in enumerate(effect_lists):
             for effect in effects:
@@ -221,8 +264,11 @@ class _MemberValues:
                 - value / self.fields["gravity"][member, 0]
         elif term in CG_TERMS:
             field, axis = "hull_cg", CG_TERMS[term]
-        elif term in ADDED_MASS_TERMS:
-            field, axis = ADDED_MASS_TERMS[term]
+        elif term in _FIELD_TERMS:
+            field, axis = _FIELD_TERMS[term]
+        elif term in GONDOLA_TERMS:
+            self.gondola_offset[member, GONDOLA_TERMS[term]] = value
+            return
         elif term == "thrust_gain":
             self.gain[member] = value
             return
@@ -304,9 +350,11 @@ class RGBlimpEffects:
 
     def term_value_problem(self, term: str, value: float) -> str | None:
         """The thrust gain must be positive, an asymmetry below :data:`_MAX_ASYMMETRY` in size,
-        an added mass or inertia not negative."""
+        an added mass or inertia or a thrust loss with airspeed not negative."""
         if term == "thrust_gain" and not value > 0:
             return f"the thrust gain must be positive, got {value}"
+        if term == "thrust_speed_loss" and value < 0:
+            return f"a propeller's thrust falls with airspeed: the thrust loss cannot be negative, got {value} s/m"
         if term == "thrust_asymmetry" and not abs(value) <= _MAX_ASYMMETRY:
             return f"the thrust asymmetry must lie within +-{_MAX_ASYMMETRY}, got {value}"
         if term in ADDED_MASS_TERMS and value < 0:
@@ -330,7 +378,11 @@ class RGBlimpEffects:
                     lower, step = 0.0, _RELATIVE_STEP
                 elif term == "thrust_asymmetry":
                     lower, upper, step = -_MAX_ASYMMETRY, _MAX_ASYMMETRY, _ABSOLUTE_STEPS["thrust_asymmetry"]
-                elif kind in ("force_offset", "cg_offset", "steady_wind"):
+                elif term == "thrust_speed_loss":
+                    lower, step = 0.0, _ABSOLUTE_STEPS[term]
+                elif term == "thrust_line_y":
+                    step = _ABSOLUTE_STEPS[term]
+                elif kind in ("force_offset", "cg_offset", "steady_wind", "draught_field", "gondola_offset"):
                     step = _ABSOLUTE_STEPS["Z_0" if kind == "force_offset" else kind]
                 else:
                     step = max(_RELATIVE_STEP * abs(value), _ABSOLUTE_STEPS["coefficient"])
@@ -355,13 +407,14 @@ class RGBlimpEffects:
         longest = max(lengths)
         padded = np.stack([np.vstack([u, np.repeat(u[-1:], longest - len(u), axis=0)]) for u in inputs])
         members = _MemberValues(self.reference.params, effect_lists)
-        first = np.stack([np.tile(start, (len(effect_lists), 1)) if start is not None else
-                          np.stack([resting_state(u[0, 2:5], members.member_parameters(b))
-                                    for b in range(len(effect_lists))])
-                          for start, u in zip(starts, inputs)], axis=1)  # (B, S, 12)
         factors = members.gain[:, None] * (1.0 + np.outer(members.asymmetry, [1.0, -1.0]))  # (B, 2)
-        batch_inputs = np.broadcast_to(padded, (len(effect_lists),) + padded.shape).copy()
+        batch_inputs = np.broadcast_to(padded, (len(effect_lists),) + padded.shape).copy()  # (B, S, L, 5)
         batch_inputs[..., :2] *= factors[:, None, None, :]
+        batch_inputs[..., 2:5] += members.gondola_offset[:, None, None, :]
+        first = np.stack([np.tile(start, (len(effect_lists), 1)) if start is not None else
+                          np.stack([resting_state(batch_inputs[b, s, 0, 2:5], members.member_parameters(b))
+                                    for b in range(len(effect_lists))])
+                          for s, start in enumerate(starts)], axis=1)  # (B, S, 12)
         if self.compiled:  # yaw carried continuously
             path = batched_free_runs(members.arrays(), first, batch_inputs)
         else:

@@ -60,6 +60,36 @@ and Motion Control*, 2011, sec. 6.3.1) add ``A_v`` and ``A_w`` to the diagonal b
 mass matrix and the terms ``(A_v v) x omega`` to ``f`` and ``(A_v v) x v + (A_w omega) x omega``
 to ``tau`` (the second is the Munk moment, which turns an elongated hull broadside to the flow).
 :class:`RGBlimpParameters` has none by default, which leaves the source's equations as they are.
+
+Terms a real small airship may need and the source's model lacks (flightgp's diagnosis tests them,
+:mod:`validation.vehicles.rgblimp_effects`; every one is zero by default, which leaves the
+source's equations as they are):
+
+- **Thrust that falls with airspeed.** A fixed-pitch propeller at fixed speed loses thrust as its
+  advance ratio ``J = V / (n D)`` grows, nearly linearly over the range a slow vehicle flies in
+  (``C_T(J)`` of small propellers: Brandt & Selig, "Propeller performance data at low Reynolds
+  numbers", AIAA 2011-1255; McCormick, *Aerodynamics, Aeronautics, and Flight Mechanics*, 2nd
+  ed., 1995, ch. 6). Each thrust is the recorded one times ``1 - k_T U_a`` (``k_T``,
+  ``thrust_speed_loss``, s/m; ``U_a`` the airspeed along body x): one ``k_T`` for both
+  propellers and every thrust setting, a first-order model of the curves.
+- **A thrust line off the centreline** (``thrust_line_y``, ``y_T``, m, positive right): the
+  total thrust yaws the hull by ``-y_T (F_l + F_r)``, a yaw moment that grows with the thrust
+  rather than with the thrust difference.
+- **Cross-flow forces on the hull** (Allen & Perkins, NACA Report 1048, 1951; Jorgensen, NASA TR
+  R-474, 1977): beyond the linear (potential-flow) terms, a slender body's normal force and
+  moment grow with the square of the flow angle, ``sin(a) |sin(a)|``: ``c_s_beta_abs beta
+  |beta|`` in side force, ``c_mz_beta_abs beta |beta|`` in yawing moment, ``c_l_alpha_abs alpha
+  |alpha|`` in lift and ``c_my_alpha_abs alpha |alpha|`` in pitching moment (per rad^2; the
+  moments in m as the source's).
+- **A draught that varies across the room**: the air's velocity ``w(p) = G_x x + G_y y`` (earth
+  axes, m/s; ``G_x``, ``G_y`` the fields ``draught_gradient_x``, ``draught_gradient_y``, 1/s,
+  each the rate of change of the three wind components along the room's x and y) enters the
+  aerodynamics, which see the air-relative velocity ``v - R(Theta)^T w(p)`` (the forces,
+  moments, thrust loss and wind angles above). The field is linear about the motion capture's
+  origin, so a uniform part is the steady wind of :func:`advance`; with one, the field is
+  evaluated in the frame of the air mass that wind carries along (a pattern advected with the
+  mean flow: Taylor's frozen-field hypothesis, Taylor, Proc. R. Soc. A 164, 1938). The
+  added-mass terms keep the body velocity (the field's gradient is small on the hull's length).
 """
 from __future__ import annotations
 
@@ -152,11 +182,23 @@ class RGBlimpParameters:
     c_mz0, c_mz_alpha, c_mz_beta : float
         Yawing moment ``qbar A (c_mz0 + c_mz_alpha alpha + c_mz_beta beta)``, m
         [``Cmz0, Cmza, Cmzb``].
+    c_s_beta_abs, c_l_alpha_abs, c_my_alpha_abs, c_mz_beta_abs : float
+        Cross-flow terms ``beta |beta|`` in side force and yawing moment, ``alpha |alpha|`` in
+        lift and pitching moment, per rad^2 (module docstring; not in the source: 0).
     added_mass : (3,) tuple
         Added masses along body x, y, z, kg (module docstring; not in the source: 0).
     added_inertia : (3,) tuple
         Added moments of inertia about body x, y, z, kg m^2 (module docstring; not in the
         source: 0).
+    thrust_speed_loss : float
+        ``k_T``: each thrust is the recorded one times ``1 - k_T U_a``, s/m (module docstring;
+        not in the source: 0).
+    thrust_line_y : float
+        Lateral offset of the thrust line, m, positive right: a yawing moment ``-y_T (F_l +
+        F_r)`` (module docstring; not in the source: 0).
+    draught_gradient_x, draught_gradient_y : (3,) tuple
+        The room's air velocity per metre along earth x and along earth y, 1/s: the draught
+        ``w(p) = G_x x + G_y y`` (module docstring; not in the source: 0).
     """
 
     air_density: float = 1.2187
@@ -187,8 +229,16 @@ class RGBlimpParameters:
     c_mz0: float = 0.0006
     c_mz_alpha: float = -0.0012
     c_mz_beta: float = -0.0936
+    c_s_beta_abs: float = 0.0
+    c_l_alpha_abs: float = 0.0
+    c_my_alpha_abs: float = 0.0
+    c_mz_beta_abs: float = 0.0
     added_mass: tuple[float, float, float] = (0.0, 0.0, 0.0)
     added_inertia: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thrust_speed_loss: float = 0.0
+    thrust_line_y: float = 0.0
+    draught_gradient_x: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    draught_gradient_y: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -259,15 +309,16 @@ def rotation_wind_to_body(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
 def aerodynamic_force_and_moment(velocity: np.ndarray, rates: np.ndarray, params) -> tuple[np.ndarray, np.ndarray]:
     """Aerodynamic force, N, and moment with the rate damping, N m, in body axes.
 
-    ``qbar A`` times the coefficient polynomials of :class:`RGBlimpParameters`, ``qbar =
-    rho |v|^2 / 2``; the force ``[-D, S, -L]`` and the moment ``M + K omega`` rotated from
-    wind to body axes by :func:`rotation_wind_to_body` (the source's ``Rbv @ [-D, S, -L]``
-    and ``Rbv @ (M + Damping)``).
+    ``qbar A`` times the coefficient polynomials of :class:`RGBlimpParameters` (with the
+    cross-flow terms of the module docstring), ``qbar = rho |v|^2 / 2``; the force ``[-D, S,
+    -L]`` and the moment ``M + K omega`` rotated from wind to body axes by
+    :func:`rotation_wind_to_body` (the source's ``Rbv @ [-D, S, -L]`` and ``Rbv @ (M +
+    Damping)``).
 
     Parameters
     ----------
     velocity, rates : ndarray, shape (..., 3)
-        Body velocity, m/s, and body rates, rad/s.
+        Body velocity relative to the air, m/s, and body rates, rad/s.
     params : RGBlimpParameters
 
     Returns
@@ -276,13 +327,16 @@ def aerodynamic_force_and_moment(velocity: np.ndarray, rates: np.ndarray, params
     """
     alpha, beta = wind_angles(velocity)
     qbar_area = 0.5 * params.air_density * np.sum(velocity**2, axis=-1) * params.reference_area
+    alpha_cross, beta_cross = alpha * np.abs(alpha), beta * np.abs(beta)
     drag = qbar_area * (params.c_d0 + params.c_d_alpha2 * alpha**2 + params.c_d_beta2 * beta**2)
-    side = qbar_area * (params.c_s0 + params.c_s_alpha2 * alpha**2 + params.c_s_beta * beta)
-    lift = qbar_area * (params.c_l0 + params.c_l_alpha * alpha + params.c_l_beta2 * beta**2)
+    side = qbar_area * (params.c_s0 + params.c_s_alpha2 * alpha**2 + params.c_s_beta * beta
+                        + params.c_s_beta_abs * beta_cross)
+    lift = qbar_area * (params.c_l0 + params.c_l_alpha * alpha + params.c_l_beta2 * beta**2
+                        + params.c_l_alpha_abs * alpha_cross)
     moment = qbar_area[..., None] * _stack_last(
         params.c_mx0 + params.c_mx_alpha * alpha + params.c_mx_beta * beta,
-        params.c_my0 + params.c_my_alpha * alpha + params.c_my_beta4 * beta**4,
-        params.c_mz0 + params.c_mz_alpha * alpha + params.c_mz_beta * beta)
+        params.c_my0 + params.c_my_alpha * alpha + params.c_my_beta4 * beta**4 + params.c_my_alpha_abs * alpha_cross,
+        params.c_mz0 + params.c_mz_alpha * alpha + params.c_mz_beta * beta + params.c_mz_beta_abs * beta_cross)
     moment = moment + np.asarray(params.rate_damping) * rates
     rotation = rotation_wind_to_body(alpha, beta)
     force = np.einsum("...ij,...j->...i", rotation, _stack_last(-drag, side, -lift))
@@ -360,7 +414,10 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params, *, masses=
     down = _stack_last(-np.sin(angles[..., 1]),
                        np.cos(angles[..., 1]) * np.sin(angles[..., 0]),
                        np.cos(angles[..., 1]) * np.cos(angles[..., 0]))
-    aero_force, aero_moment = aerodynamic_force_and_moment(velocity, rates, params)
+    air_velocity = velocity - draught_in_body(state, params)
+    aero_force, aero_moment = aerodynamic_force_and_moment(air_velocity, rates, params)
+    thrust_factor = 1.0 - params.thrust_speed_loss * air_velocity[..., 0]
+    thrust_left, thrust_right = thrust_left * thrust_factor, thrust_right * thrust_factor
     thrust = thrust_left + thrust_right
     zero = np.zeros_like(thrust)
 
@@ -378,9 +435,27 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params, *, masses=
               + _cross(mass_moment, velocity_cross_rates)
               + _cross(mass_moment, params.gravity * down)
               + aero_moment
-              + _stack_last(zero, thrust * gondola_z, (thrust_left - thrust_right) * params.propeller_arm))
+              + _stack_last(zero, thrust * gondola_z,
+                            (thrust_left - thrust_right) * params.propeller_arm - params.thrust_line_y * thrust))
     right_side = np.concatenate([force, moment], axis=-1)
     return np.einsum("...ij,...j->...i", inverse, right_side)
+
+
+def draught_in_body(state: np.ndarray, params) -> np.ndarray | float:
+    """The room's draught ``w(p) = G_x x + G_y y`` at the state's position, in body axes,
+    ``R(Theta)^T w(p)``, m/s, shape (..., 3); 0.0 without one (module docstring).
+
+    Parameters
+    ----------
+    state : ndarray, shape (..., 12)
+    params : RGBlimpParameters
+        ``draught_gradient_x`` and ``draught_gradient_y`` (3,) (or batched (..., 3)), 1/s.
+    """
+    gradient_x, gradient_y = np.asarray(params.draught_gradient_x), np.asarray(params.draught_gradient_y)
+    if not (np.any(gradient_x) or np.any(gradient_y)):
+        return 0.0
+    earth = state[..., 0:1] * gradient_x + state[..., 1:2] * gradient_y
+    return np.einsum("...ji,...j->...i", rotation_body_to_earth(state[..., 3:6]), earth)
 
 
 def rgblimp_dynamics(state: np.ndarray, inputs: np.ndarray, params, *, masses=None,

@@ -68,29 +68,38 @@ def inverse_mass_matrix(jnp, inputs, p):
     return jnp.linalg.inv(matrix), mass_moment, inertia
 
 
-def accelerations(jnp, state, inputs, p, masses):
-    """Body accelerations of the published equations
-    (:func:`validation.vehicles.rgblimp_equations.body_accelerations`)."""
+def accelerations(jnp, state, inputs, p, masses, body_to_earth):
+    """Body accelerations of the equations
+    (:func:`validation.vehicles.rgblimp_equations.body_accelerations`); ``body_to_earth`` the
+    state's rotation (3, 3) (:func:`kinematics` has it)."""
     inverse, mass_moment, inertia = masses
     phi, theta = state[3], state[4]
     velocity, rates = state[6:9], state[9:12]
-    thrust_left, thrust_right, gondola_z = inputs[0], inputs[1], inputs[4]
+    gondola_z = inputs[4]
     down = jnp.array([-jnp.sin(theta), jnp.cos(theta) * jnp.sin(phi), jnp.cos(theta) * jnp.cos(phi)])
-    speed_squared = jnp.sum(velocity**2)
+    draught = state[0] * p["draught_gradient_x"] + state[1] * p["draught_gradient_y"]
+    air_velocity = velocity - body_to_earth.T @ draught
+    speed_squared = jnp.sum(air_velocity**2)
     speed = jnp.sqrt(speed_squared)
-    alpha = jnp.arctan2(velocity[2], velocity[0] + ZERO_SPEED_GUARD)
-    beta = jnp.arcsin(velocity[1] / (speed + ZERO_SPEED_GUARD))
+    alpha = jnp.arctan2(air_velocity[2], air_velocity[0] + ZERO_SPEED_GUARD)
+    beta = jnp.arcsin(air_velocity[1] / (speed + ZERO_SPEED_GUARD))
+    alpha_cross, beta_cross = alpha * jnp.abs(alpha), beta * jnp.abs(beta)
     qbar_area = 0.5 * p["air_density"] * speed_squared * p["reference_area"]
     drag = qbar_area * (p["c_d0"] + p["c_d_alpha2"] * alpha**2 + p["c_d_beta2"] * beta**2)
-    side = qbar_area * (p["c_s0"] + p["c_s_alpha2"] * alpha**2 + p["c_s_beta"] * beta)
-    lift = qbar_area * (p["c_l0"] + p["c_l_alpha"] * alpha + p["c_l_beta2"] * beta**2)
-    aero_moment = qbar_area * jnp.array([p["c_mx0"] + p["c_mx_alpha"] * alpha + p["c_mx_beta"] * beta,
-                                         p["c_my0"] + p["c_my_alpha"] * alpha + p["c_my_beta4"] * beta**4,
-                                         p["c_mz0"] + p["c_mz_alpha"] * alpha + p["c_mz_beta"] * beta])
+    side = qbar_area * (p["c_s0"] + p["c_s_alpha2"] * alpha**2 + p["c_s_beta"] * beta
+                        + p["c_s_beta_abs"] * beta_cross)
+    lift = qbar_area * (p["c_l0"] + p["c_l_alpha"] * alpha + p["c_l_beta2"] * beta**2
+                        + p["c_l_alpha_abs"] * alpha_cross)
+    aero_moment = qbar_area * jnp.array([
+        p["c_mx0"] + p["c_mx_alpha"] * alpha + p["c_mx_beta"] * beta,
+        p["c_my0"] + p["c_my_alpha"] * alpha + p["c_my_beta4"] * beta**4 + p["c_my_alpha_abs"] * alpha_cross,
+        p["c_mz0"] + p["c_mz_alpha"] * alpha + p["c_mz_beta"] * beta + p["c_mz_beta_abs"] * beta_cross])
     aero_moment = aero_moment + p["rate_damping"] * rates
     ca, sa, cb, sb = jnp.cos(alpha), jnp.sin(alpha), jnp.cos(beta), jnp.sin(beta)
     rotation = jnp.array([[ca * cb, -ca * sb, -sa], [sb, cb, 0.0], [sa * cb, -sa * sb, ca]])
     total_mass = p["hull_mass"] + p["gondola_mass"]
+    thrust_factor = 1.0 - p["thrust_speed_loss"] * air_velocity[0]
+    thrust_left, thrust_right = inputs[0] * thrust_factor, inputs[1] * thrust_factor
     thrust = thrust_left + thrust_right
     velocity_cross_rates = jnp.cross(velocity, rates)
     added_momentum = p["added_mass"] * velocity
@@ -101,7 +110,8 @@ def accelerations(jnp, state, inputs, p, masses):
     moment = (jnp.cross(inertia @ rates, rates) + jnp.cross(added_momentum, velocity)
               + jnp.cross(p["added_inertia"] * rates, rates) + jnp.cross(mass_moment, velocity_cross_rates)
               + jnp.cross(mass_moment, p["gravity"] * down) + rotation @ aero_moment
-              + jnp.array([0.0, thrust * gondola_z, (thrust_left - thrust_right) * p["propeller_arm"]]))
+              + jnp.array([0.0, thrust * gondola_z,
+                           (thrust_left - thrust_right) * p["propeller_arm"] - p["thrust_line_y"] * thrust]))
     return inverse @ jnp.concatenate([force, moment])
 
 
@@ -138,8 +148,8 @@ def rollout_function(jax, jnp, correction_of=None):
             return state.at[6:9].add(sign * rotation.T @ wind)
 
         def derivative(state, commands, masses, extra):
-            position_rate, angle_rates, _ = kinematics(jnp, state)
-            body = accelerations(jnp, state, commands, p, masses)
+            position_rate, angle_rates, body_to_earth = kinematics(jnp, state)
+            body = accelerations(jnp, state, commands, p, masses, body_to_earth)
             if extra_acceleration is not None:
                 body = body + extra_acceleration(state, commands)
             if extra is not None:

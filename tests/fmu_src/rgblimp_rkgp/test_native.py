@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from fmu_src import build_native_rgblimp_rkgp_fmu
-from fmu_src.rgblimp_rkgp.native import C_PARAMETERS, MODEL_SOURCE, PHYSICS_SOURCES
+from fmu_src.rgblimp_rkgp.native import C_PARAMETERS, MODEL_SOURCE, PHYSICS_SOURCES, ZERO_IN_C, physics_config_lines
 from gp_model import save_model
 from tests.fmu_src.contract import NativeFmuContract, run_in_fmpy
 from tests.fmu_src.rgblimp_rkgp.contract import (
@@ -30,6 +30,7 @@ from tests.fmu_src.rgblimp_rkgp.contract import (
     rgblimp_rkgp_case,
     start_values,
 )
+from validation.core.errors import BadInputError
 from validation.cosim.hosts import simulate_in_c_host
 from validation.models.rgblimp_greybox import RGBlimpStepDescription, fit_rkgp
 from validation.models.rgblimp_identification import RGBlimpModel
@@ -76,11 +77,14 @@ def test_a_whole_flight_equals_the_python_free_run_in_fmpy_and_the_c_host(case, 
     assert np.all(expected[-1, 12:] > expected[60, 12:])  # propagated sds grow
 
 
-def test_a_model_without_wind_and_with_added_mass_equals_the_python_free_run(rgblimp_flights, tmp_path):
+def test_a_model_without_wind_and_with_the_optional_terms_equals_the_python_free_run(rgblimp_flights, tmp_path):
     """The other branches of the physics: no wind (no change of frame, as the source's step) and
-    an added mass and inertia (the optional terms of the equations), one GP per state on 30
-    transitions; 120 steps to 1e-9."""
-    params = dataclasses.replace(RGBlimpParameters(), added_mass=(0.02, 0.05, 0.08), added_inertia=(1e-3, 2e-3, 3e-3))
+    the optional terms of the equations (added mass and inertia, thrust loss with airspeed,
+    thrust line, cross-flow coefficients), one GP per state on 30 transitions; 120 steps to
+    1e-9. A draught field, which the C physics leaves out, is refused with one line."""
+    params = dataclasses.replace(RGBlimpParameters(), added_mass=(0.02, 0.05, 0.08), added_inertia=(1e-3, 2e-3, 3e-3),
+                                 thrust_speed_loss=0.3, thrust_line_y=0.01, c_s_beta_abs=0.5, c_l_alpha_abs=-0.4,
+                                 c_my_alpha_abs=0.05, c_mz_beta_abs=-0.1)
     description = RGBlimpStepDescription(RGBlimpModel(params))
     model = fit_rkgp([rgblimp_flights[118]], description.model, n_points=30)
     path = save_model(tmp_path / "still_air.npz", model, physics=description.as_dict())
@@ -89,13 +93,16 @@ def test_a_model_without_wind_and_with_added_mass_equals_the_python_free_run(rgb
     inputs, start = test.inputs[:121], test.outputs[0]
     expected = rgblimp_reference({"model": model, "description": description}, inputs, start)
     np.testing.assert_allclose(_run(fmu, inputs, start), expected, rtol=0, atol=1e-9)
+    with pytest.raises(BadInputError, match="draught field .* native FMU does not compute"):
+        physics_config_lines(dataclasses.replace(params, draught_gradient_y=(0.0, 0.01, 0.0)), thrust_gain=1.0,
+                             wind=(0.0, 0.0))
 
 
 def test_the_c_file_reads_every_parameter_of_the_equations():
     """rgblimp_physics.c (the physics of both native RGBlimp FMUs) uses every RGBlimpParameters
     field (its macro in capitals), so no parameter of the equations is left out of the native
     FMUs' physics (the build refuses to run when the fields and C_PARAMETERS differ)."""
-    fields = [field.name for field in dataclasses.fields(RGBlimpParameters)]
+    fields = [field.name for field in dataclasses.fields(RGBlimpParameters) if field.name not in ZERO_IN_C]
     assert sorted(fields) == sorted(C_PARAMETERS)
     source = PHYSICS_SOURCES[0].read_text(encoding="utf-8")
     assert [f for f in fields if not re.search(rf"\b{f.upper()}\b", source)] == []

@@ -79,9 +79,10 @@ def test_rollout_gradient_equals_central_differences():
             numeric = (loss(physics, plus) - loss(physics, minus)) / (2 * step)
             exact = float(np.asarray(gtheta[name])[index])
         assert exact != 0, name
-        # Truncation below 1e-6 relative; rounding of the two losses, eps |loss| / step, ten times.
+        # 1e-5 relative (the differences' truncation and the compiled loss's rounding, which
+        # differs between CPUs: 3e-6 measured on one) and eps |loss| / step ten times.
         rounding = 10 * np.finfo(float).eps * abs(loss_at_start) / step
-        assert abs(exact - numeric) <= 1e-6 * abs(exact) + rounding, (name, exact, numeric, rounding)
+        assert abs(exact - numeric) <= 1e-5 * abs(exact) + rounding, (name, exact, numeric, rounding)
 
 
 def test_correction_returns_to_zero_far_from_its_data():

@@ -14,6 +14,7 @@ import pytest
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.models.rgblimp_identification import RGBlimpModel
+from validation.vehicles.blimp_equations import rotation_body_to_earth
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 from validation.vehicles.rgblimp_effects import TERMS, RGBlimpEffects, model_value
@@ -103,21 +104,27 @@ def test_batched_replays_equal_one_per_recording_and_the_identified_models(fligh
 def test_the_compiled_replay_equals_the_numpy_step(flights):
     """The compiled free run (validation/vehicles/rgblimp_jax.py) that diagnose replays with equals
     the numpy step to 1e-12 in SI units (measured 2e-14), for members changing every kind of
-    term at once (thrust factor and asymmetry, wind, added mass, CG, buoyancy, coefficients) over
-    two recordings of different configurations; a member that diverges (a rate damping of the
-    wrong sign, 50 N m s) ends non-finite in both."""
+    term at once (thrust factor and asymmetry, wind, added mass, CG, buoyancy, coefficients; the
+    thrust loss with airspeed, thrust line, draught field, gondola offset and cross-flow terms)
+    over two recordings of different configurations; a member that diverges (a rate damping of
+    the wrong sign, 50 N m s) ends non-finite in both."""
     reference = effect_model("rgblimp", purpose="test").reference
     compiled, numpy_step = RGBlimpEffects(reference), RGBlimpEffects(reference, compiled=False)
     effect_lists = [[], [{"term": "thrust_gain", "value": 0.9}, {"term": "thrust_asymmetry", "value": 0.1},
                          {"term": "wind_y", "value": -0.04}, {"term": "X_Udot", "value": 0.05}],
                     [{"term": "x_G", "value": -0.04}, {"term": "Z_0", "value": 0.02}, {"term": "c_my0", "value": 0.05},
                      {"term": "N_R", "value": -0.02}],
+                    [{"term": "thrust_speed_loss", "value": 0.4}, {"term": "thrust_line_y", "value": 0.01},
+                     {"term": "wind_x_dy", "value": 0.05}, {"term": "wind_z_dx", "value": -0.03},
+                     {"term": "wind_y", "value": 0.03}, {"term": "gondola_dz", "value": 0.01},
+                     {"term": "c_mz_beta_abs", "value": -0.2}, {"term": "c_l_alpha_abs", "value": 0.5}],
                     [{"term": "M_Q", "value": 50.0}]]
     args = (effect_lists, [r.time for r in flights], [r.inputs for r in flights],
             [compiled.start_state(r) for r in flights])
     for fast, slow in zip(compiled.simulate_recordings(*args), numpy_step.simulate_recordings(*args)):
-        np.testing.assert_allclose(fast[:3], slow[:3], rtol=0, atol=1e-12)
-        assert not np.isfinite(fast[3, -1]).any() and not np.isfinite(slow[3, -1]).any()
+        np.testing.assert_allclose(fast[:4], slow[:4], rtol=0, atol=1e-12)
+        assert np.abs(fast[3] - fast[0]).max() > 0.01  # the new terms moved the flight
+        assert not np.isfinite(fast[4, -1]).any() and not np.isfinite(slow[4, -1]).any()
 
 
 def test_recordings_of_different_lengths_are_padded_and_cut(flights):
@@ -138,6 +145,9 @@ def test_recordings_of_different_lengths_are_padded_and_cut(flights):
     ("X_Udot", 0.05, lambda base, changed: abs(changed[30, 6] - changed[0, 6]) < abs(base[30, 6] - base[0, 6])),
     ("wind_y", 0.1, lambda base, changed: changed[-1, 1] > base[-1, 1] + 0.1),  # drifts east with the air
     ("thrust_asymmetry", 0.3, lambda base, changed: changed[-1, 11] > base[-1, 11]),  # left stronger: yaws right
+    ("thrust_speed_loss", 0.5, lambda base, changed: changed[30, 6] < base[30, 6]),  # less thrust once moving
+    ("thrust_line_y", 0.02, lambda base, changed: changed[-1, 11] < base[-1, 11]),  # line right: yaws left
+    ("gondola_dz", 0.05, lambda base, changed: changed[-1, 4] > base[-1, 4]),  # lower gondola: thrust pitches up more
 ])
 def test_each_term_moves_the_flight_as_its_physics_says(flights, term, value, check):
     model = effect_model("rgblimp", purpose="test")
@@ -146,6 +156,57 @@ def test_each_term_moves_the_flight_as_its_physics_says(flights, term, value, ch
     base, changed = model.simulate_many([[], [{"effect": kind, "term": term, "value": value}]], recording.time,
                                         recording.inputs, start=model.start_state(recording))
     assert check(base, changed)
+
+
+def _accelerations_at(params, *, position=(0.0, 0.0), velocity=(0.5, 0.0, 0.0), attitude=(0.1, -0.05, 0.7),
+                      thrusts=(0.03, 0.03)):
+    state = np.concatenate([[*position, -1.0], attitude, velocity, [0.0, 0.0, 0.0]])
+    return body_accelerations(state, np.concatenate([thrusts, NOMINAL_GONDOLA_POSITION]), params)
+
+
+def test_the_new_terms_act_as_their_equations_say():
+    """Each term beyond the source's equals a change the source's model can express at one state
+    (no rotation, no added mass): a draught at the blimp's position acts as the opposite body
+    velocity in the aerodynamics and thrust; a thrust loss as smaller thrusts; a thrust line as a
+    thrust difference of the same sum; a cross-flow coefficient as the linear one grown by its
+    value times the angle's size."""
+    base = RGBlimpParameters()
+    draught = dataclasses.replace(base, draught_gradient_x=(0.05, 0.0, 0.0), draught_gradient_y=(0.0, 0.02, -0.01))
+    position, wind = np.array([2.0, -3.0]), np.array([0.05 * 2.0, 0.02 * -3.0, -0.01 * -3.0])
+    rotation = rotation_body_to_earth(np.array([0.1, -0.05, 0.7]))
+    still_air = np.array([0.5, 0.0, 0.0]) - rotation.T @ wind
+    np.testing.assert_allclose(_accelerations_at(draught, position=position),
+                               _accelerations_at(base, velocity=still_air), rtol=0, atol=1e-14)
+
+    lossy = dataclasses.replace(base, thrust_speed_loss=0.4)  # at U = 0.5 m/s: 80 % of the thrust
+    np.testing.assert_allclose(_accelerations_at(lossy), _accelerations_at(base, thrusts=(0.024, 0.024)), atol=1e-14)
+
+    line = dataclasses.replace(base, thrust_line_y=0.03)  # -y T = (F_l - F_r) d with F_l + F_r = T
+    difference = -0.03 * 0.06 / base.propeller_arm
+    np.testing.assert_allclose(_accelerations_at(line),
+                               _accelerations_at(base, thrusts=(0.03 + difference / 2, 0.03 - difference / 2)),
+                               atol=1e-14)
+
+    sideslip = (0.4, -0.1, 0.05)
+    beta = np.arcsin(-0.1 / np.linalg.norm(sideslip))
+    cross = dataclasses.replace(base, c_mz_beta_abs=-0.3, c_s_beta_abs=0.7)
+    linear = dataclasses.replace(base, c_mz_beta=base.c_mz_beta - 0.3 * abs(beta),
+                                 c_s_beta=base.c_s_beta + 0.7 * abs(beta))
+    np.testing.assert_allclose(_accelerations_at(cross, velocity=sideslip),
+                               _accelerations_at(linear, velocity=sideslip), atol=1e-14)
+
+
+def test_new_terms_have_units_words_and_hypotheses():
+    """Every term has a unit and words; the thrust loss is bounded at 0 and refused negative."""
+    model = effect_model("rgblimp", purpose="test")
+    hypotheses = {h.target: h for h in model.term_hypotheses(())}
+    for term in ("thrust_speed_loss", "thrust_line_y", "wind_x_dx", "wind_z_dy", "gondola_dx", "c_my_alpha_abs"):
+        assert hypotheses[term].null == 0.0 and hypotheses[term].step > 0
+        assert model.term_unit(term) and model.term_description(term) != term
+    assert model.term_unit("c_my_alpha_abs") == "m/rad^2" and model.term_unit("wind_y_dx") == "1/s"
+    assert hypotheses["thrust_speed_loss"].lower == 0.0
+    with pytest.raises(BadInputError, match="thrust loss cannot be negative"):
+        EffectVehicle("rgblimp", [{"effect": "control_derivative", "term": "thrust_speed_loss", "value": -0.1}])
 
 
 def test_z_0_is_the_net_weight_and_sets_the_buoyancy():
