@@ -55,13 +55,15 @@ def run(args: argparse.Namespace) -> int:
     from validation.diagnose import diagnose, write_diagnosis
     from validation.diagnose.data import read_column_map
     from validation.diagnose.fidelity import read_tolerances
+    from validation.diagnose.pipeline import stage_count
 
     check_output_folder(args.out)
     tolerances = read_tolerances(args.tolerances) if args.tolerances is not None else None
     column_map = read_column_map(args.column_map) if args.column_map is not None else None
     if args.workers is not None and args.workers < 1:
         raise BadInputError(f"--workers must be at least 1, got {args.workers}")
-    with progress_bar("diagnose", enabled=not args.no_progress, unit="fit") as update:
+    with progress_bar("diagnose", enabled=not args.no_progress, total=stage_count(folds=args.folds),
+                      unit="stage") as update:
         diagnosis = diagnose(args.recordings, reference=args.reference, holdout=args.holdout,
                              seed=args.seed, folds=args.folds, column_map=column_map, workers=args.workers,
                              file_format=args.file_format, tolerances=tolerances, progress=update)

@@ -7,8 +7,9 @@ from contextlib import contextmanager
 
 @contextmanager
 def progress_bar(description: str, *, enabled: bool = True, total: int | None = None, unit: str = "step"):
-    """Yield ``update(n, **status)`` that advances a tqdm bar by ``n`` and shows ``status``;
-    yields None when ``enabled`` is False. The bar is closed (and erased) on exit."""
+    """Yield ``update(n, **status)`` that advances a tqdm bar by ``n`` and shows ``status`` (at
+    once when ``n`` is 0: a status within a step); yields None when ``enabled`` is False. The bar
+    is closed (and erased) on exit."""
     if not enabled:
         yield None
         return
@@ -19,7 +20,7 @@ def progress_bar(description: str, *, enabled: bool = True, total: int | None = 
     def update(n: int, **status) -> None:
         bar.update(n)
         if status:
-            bar.set_postfix(status, refresh=False)
+            bar.set_postfix(status, refresh=n == 0)
 
     try:
         yield update

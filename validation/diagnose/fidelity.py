@@ -21,7 +21,15 @@ qualification speaks in (diagnosis.json's ``fidelity``, docs/diagnose.md, "fidel
   where J <= 100 counts as an acceptable and J <= 50 as a nearly indistinguishable model).
   Responses are H1 estimates, cross over auto spectral density (Welch's method, 2 s Hann
   segments, half overlapping). None where no input moves in the held-out data or the coherence
-  never reaches 0.6.
+  never reaches 0.6;
+- **the RGBlimp's flight score** (``pose``, the RGBlimp reference only): the source's score
+  of a free run (:func:`validation.vehicles.rgblimp_data.source_score`; Zhu, Cheng & Zhang 2024)
+  and the RMS 3-D position error of each model over the held-out samples, the figures the
+  source and flightgp's reproductions report. The source normalises each pose column by its
+  range over every flight of the kind (its ``data_info`` files), which a user's own flights do
+  not come with; here the range is that of the held-out samples, so the scores rank the models
+  on these flights but are not the source's numbers (``flightgp reproduce rgblimp-diagnose``
+  scores with the source's ranges).
 """
 from __future__ import annotations
 
@@ -34,6 +42,8 @@ from scipy import signal
 
 from validation.core.errors import BadInputError
 from validation.core.recordings import column_unit
+from validation.diagnose.prove import MODEL_KEYS
+from validation.vehicles.rgblimp_data import source_score
 
 _KNOT = 1852.0 / 3600.0
 #: Where the default bands come from.
@@ -78,7 +88,12 @@ def read_tolerances(path) -> dict:
     return {name: (float(value), f"{path.name}") for name, value in content.items()}
 
 
-def scorecard(traces: dict, fit: dict, holdout_inputs: list, *, step: float, tolerances: dict | None = None) -> dict:
+#: The pose outputs the RGBlimp's flight score weighs, in its order.
+POSE_OUTPUTS = ("x", "y", "z", "phi", "theta", "psi")
+
+
+def scorecard(traces: dict, fit: dict, holdout_inputs: list, *, step: float, tolerances: dict | None = None,
+              pose_score: bool = False) -> dict:
     """diagnosis.json's ``fidelity`` (module docstring).
 
     Parameters
@@ -94,6 +109,8 @@ def scorecard(traces: dict, fit: dict, holdout_inputs: list, *, step: float, tol
     tolerances : dict, optional
         Output -> (half-width, source); default :data:`DEFAULT_TOLERANCES`; outputs a file does
         not name keep their default.
+    pose_score : bool
+        Add the RGBlimp's flight score (:func:`pose_scores`), where the traces hold the pose.
 
     Returns
     -------
@@ -102,7 +119,7 @@ def scorecard(traces: dict, fit: dict, holdout_inputs: list, *, step: float, tol
         ``tolerance_source`` and, per model (``reference``, ``corrected``, ``corrected_gp``),
         ``rmse``, ``theil``, ``max_error``, ``inside_share`` and ``passes`` (None without a
         band) and ``frequency_cost`` (None without a coherent input), plus the ``input`` the
-        frequency responses are taken from.
+        frequency responses are taken from; with ``pose_score``, ``pose`` (:func:`pose_scores`).
     """
     bands = {**DEFAULT_TOLERANCES, **(tolerances or {})}
     outputs = {}
@@ -111,15 +128,51 @@ def scorecard(traces: dict, fit: dict, holdout_inputs: list, *, step: float, tol
         entry = {"tolerance": band[0] if band else None, "tolerance_source": band[1] if band else None}
         input_name, responses = _frequency_costs(trace, holdout_inputs, step)
         entry["frequency_input"] = input_name
-        for key in ("reference", "corrected", "corrected_gp"):
+        for key in MODEL_KEYS:
             error = np.abs(trace[key] - trace["measured"])
             inside = float(np.mean(error <= band[0])) if band else None
             entry[key] = {"rmse": fit[f"rmse_{key}"][name], "theil": fit[f"theil_{key}"][name],
                           "max_error": float(np.max(error)), "inside_share": inside,
                           "passes": (inside == 1.0) if band else None, "frequency_cost": responses.get(key)}
         outputs[name] = entry
-    return {"tolerance_source": TOLERANCE_SOURCE if tolerances is None else "tolerance file and " + TOLERANCE_SOURCE,
+    card = {"tolerance_source": TOLERANCE_SOURCE if tolerances is None else "tolerance file and " + TOLERANCE_SOURCE,
             "outputs": outputs}
+    pose = pose_scores(traces) if pose_score else None
+    if pose is not None:
+        card["pose"] = pose
+    return card
+
+
+def pose_scores(traces: dict) -> dict | None:
+    """The RGBlimp's flight score of every model on the held-out samples (module docstring).
+
+    Parameters
+    ----------
+    traces : dict
+        As for :func:`scorecard`; the six :data:`POSE_OUTPUTS` in m and rad.
+
+    Returns
+    -------
+    dict or None
+        ``ranges`` (pose output -> its range over the held-out samples, m or rad),
+        ``ranges_from`` (in words) and per model (``reference``, ``corrected``,
+        ``corrected_gp``) ``score`` and ``position_rmse_m``; None where the traces lack a pose
+        output or one does not move.
+    """
+    if not all(name in traces for name in POSE_OUTPUTS):
+        return None
+    measured = np.column_stack([traces[name]["measured"] for name in POSE_OUTPUTS])
+    ranges = np.ptp(measured, axis=0)
+    if not np.all(ranges > 0):
+        return None
+    result = {"ranges": {name: float(r) for name, r in zip(POSE_OUTPUTS, ranges)},
+              "ranges_from": "the held-out samples (the source takes every flight of the kind)"}
+    for key in MODEL_KEYS:
+        predicted = np.column_stack([traces[name][key] for name in POSE_OUTPUTS])
+        distance = np.linalg.norm(predicted[:, :3] - measured[:, :3], axis=1)
+        result[key] = {"score": source_score(predicted, measured, ranges),
+                       "position_rmse_m": float(np.sqrt(np.mean(distance**2)))}
+    return result
 
 
 def _frequency_costs(trace: dict, holdout_inputs: list, step: float) -> tuple[str | None, dict]:

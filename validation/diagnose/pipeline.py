@@ -86,8 +86,10 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
         of their own (an FMU, :class:`validation.vehicles.fmu_reference.FMUReference`); default:
         the cores this process may use.
     progress : callable, optional
-        ``progress(n, **status)`` advanced once per simulation batch
-        (:func:`validation.core.progress.progress_bar` yields one).
+        ``progress(n, **status)`` (:func:`validation.core.progress.progress_bar` yields one):
+        advanced by one at the end of each of the :func:`stage_count` stages (``stage=`` the
+        stage's name), and called with 0 and the fit in hand (``fitted=``) in between, so a bar
+        with :func:`stage_count` as its total fills as the diagnosis goes.
 
     Returns
     -------
@@ -108,16 +110,44 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     data = prepare(recordings, reference, holdout=holdout, file_format=file_format, column_map=column_map)
     if folds is not None:
         fold_recordings(data, folds)  # refuses impossible folds before the long stages
+    fits, done = _stage_progress(progress)
     location = locate(data, reference)
-    explanation = explain(data, location, reference, progress=progress)
-    scopes = scope(data, explanation, reference, progress=progress)
-    carried = carry_over(data, location, explanation, reference, offered=scopes.offered, progress=progress)
-    models = build_models(data, location, explanation, reference, seed=seed, progress=progress,
-                          effects=carried.kept)
-    proof = prove(data, location, explanation, models, reference, progress=progress)
-    replication = (replicate(data, location, explanation, reference, folds=folds, progress=progress)
-                   if folds is not None else None)
+    done("locate")
+    explanation = explain(data, location, reference, progress=fits)
+    done("explain")
+    scopes = scope(data, explanation, reference, progress=fits)
+    done("scope")
+    carried = carry_over(data, location, explanation, reference, offered=scopes.offered, progress=fits)
+    done("carry_over")
+    models = build_models(data, location, explanation, reference, seed=seed, progress=fits, effects=carried.kept)
+    done("models")
+    proof = prove(data, location, explanation, models, reference, progress=fits)
+    done("prove")
+    replication = None
+    if folds is not None:
+        replication = replicate(data, location, explanation, reference, folds=folds, progress=fits)
+        done("replicate")
     held_out = [(u, m, data.input_names) for u, m in zip(data.inputs, data.holdout_mask) if m.any()]
-    fidelity = scorecard(proof.traces, proof.fit, held_out, step=data.step, tolerances=tolerances)
+    fidelity = scorecard(proof.traces, proof.fit, held_out, step=data.step, tolerances=tolerances,
+                         pose_score=reference.family == "rgblimp")
     return assemble_diagnosis(reference, data, location, explanation, models, proof, scopes=scopes,
                               carried=carried, replication=replication, fidelity=fidelity)
+
+
+#: The stages of :func:`diagnose`, in order (``replicate`` only with folds).
+STAGES = ("locate", "explain", "scope", "carry_over", "models", "prove", "replicate")
+
+
+def stage_count(*, folds: int | None = None) -> int:
+    """How many stages :func:`diagnose` runs, the total of its progress bar: :data:`STAGES`
+    without ``replicate`` unless ``folds`` is given."""
+    return len(STAGES) - (folds is None)
+
+
+def _stage_progress(progress):
+    """``(fits, done)``: ``fits(n, **status)`` shows a stage's fit without advancing, ``done(stage)``
+    advances by one stage; both do nothing without ``progress``."""
+    if progress is None:
+        return None, lambda stage: None
+    return (lambda n, **status: progress(0, **status)), (lambda stage: progress(1, stage=stage))
+

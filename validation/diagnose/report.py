@@ -414,6 +414,13 @@ def _fidelity_lines(fidelity: dict | None) -> list[str]:
         theil = " -> ".join(_number(m["theil"]) for m in models)
         source = entry["frequency_input"] or "-"
         lines.append(f"| {name} | {band} | {errors} | {inside} | {theil} | {cost} ({source}) |")
+    pose = fidelity.get("pose")
+    if pose:
+        scores = " -> ".join(f"{pose[key]['score']:.3g}" for key in MODEL_KEYS)
+        positions = " -> ".join(f"{pose[key]['position_rmse_m']:.3g}" for key in MODEL_KEYS)
+        lines += ["", f"**The RGBlimp's flight score** (the source's score, each pose column over its range in "
+                      f"{pose['ranges_from']}), reference -> corrected -> corrected + GP: {scores}; position RMSE "
+                      f"{positions} m."]
     return lines + [""]
 
 

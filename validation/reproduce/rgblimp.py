@@ -84,11 +84,12 @@ from validation.models.rgblimp_rollout import (
 from validation.models.rgblimp_sindyc import SINDYcResidual, fit_sindyc, require_pysindy
 from validation.reproduce import rgblimp_report
 from validation.reproduce.rgblimp_report import BAND_MODELS, BAND_QUANTILE, MODELS
-from validation.vehicles.rgblimp_data import flights_by_configuration, read_rgblimp_flight
+from validation.vehicles.rgblimp_data import (
+    flights_by_configuration,
+    read_rgblimp_flight,
+    source_score,
+)
 
-#: The source's state width: its score is a mean over 23 columns, 17 of them weighted zero
-#: (``F.mse_loss`` over the 23-wide state in ``methods/comp_NODE.py`` of ``zhu-yj/ABNODE``).
-SOURCE_STATE_WIDTH = 23
 #: Configurations 30 .. 34 are straight flights, the others spirals (docs/rgblimp.md).
 FIRST_STRAIGHT_CONFIGURATION = 30
 #: Rows of ``data_info/data_info_spiral.csv`` (mean, std, max, min) and
@@ -242,39 +243,6 @@ def read_score_ranges(data_dir, *, kinds=("spiral", "straight")) -> dict:
                                 f"the 6 pose columns, got {spread}")
         ranges[kind] = spread
     return ranges
-
-
-def source_score(predicted, recorded, ranges, *, wrap_yaw: bool = True) -> float:
-    """The source's score of a free run: ``sum_c mean_k ((y_hat - y)_kc / range_c)^2 / 23``.
-
-    Over the six columns ``x, y, z, phi, theta, psi``: the source multiplies state and
-    prediction by ``1 / range_c`` (zero for its other 17 columns) and takes ``F.mse_loss``, the
-    mean over samples and all 23 columns (:data:`SOURCE_STATE_WIDTH`) of the squared difference
-    (``methods/comp_NODE.py`` of ``zhu-yj/ABNODE``). The source does not wrap the yaw
-    difference (both yaws lie in [-pi, pi], so a run a little behind across the wrap counts
-    almost a full turn); with ``wrap_yaw`` (the default) it is wrapped, without it the predicted
-    yaw is first brought into [-pi, pi) as the source's integrator keeps it (a grey-box free run
-    carries yaw continuously).
-
-    Parameters
-    ----------
-    predicted, recorded : ndarray, shape (n, >= 6)
-        States in :data:`~validation.vehicles.rgblimp_equations.STATE_NAMES` order.
-    ranges : ndarray, shape (6,)
-        (max - min) of each column (:func:`read_score_ranges`).
-    wrap_yaw : bool
-
-    Returns
-    -------
-    float
-    """
-    predicted, recorded = np.asarray(predicted, dtype=float), np.asarray(recorded, dtype=float)
-    difference = predicted[:, :6] - recorded[:, :6]
-    if wrap_yaw:
-        difference[:, 5] = (difference[:, 5] + np.pi) % (2 * np.pi) - np.pi
-    else:
-        difference[:, 5] = (predicted[:, 5] + np.pi) % (2 * np.pi) - np.pi - recorded[:, 5]
-    return float(np.sum(np.mean((difference / np.asarray(ranges)) ** 2, axis=0)) / SOURCE_STATE_WIDTH)
 
 
 def flight_metrics(predicted, recorded, ranges, *, position_sd=None) -> dict:

@@ -33,6 +33,7 @@ from validation.core.errors import BadInputError
 from validation.core.files import json_text, write_files_atomically
 from validation.core.progress import progress_bar
 from validation.diagnose import diagnose, diagnosis_files
+from validation.diagnose.pipeline import stage_count
 from validation.reproduce.rgblimp import flight_metrics, read_score_ranges, split_flights
 from validation.vehicles.effect_vehicle import EffectVehicle
 from validation.vehicles.fmu_reference import available_cores
@@ -72,7 +73,7 @@ def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONF
         Processes that diagnose configurations side by side (default: the cores this process may
         use, at most the number of configurations; 1 runs them here).
     progress : bool
-        A progress bar over the configurations (over the diagnosis' fits when pooled).
+        A progress bar over the configurations (over the diagnosis' stages when pooled).
 
     Returns
     -------
@@ -104,8 +105,8 @@ def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONF
     jobs = [([data_dir / f"data_{s.fit[0]}.csv" for s in group], [data_dir / f"data_{s.fit[1]}.csv" for s in group],
              folder, seed) for group, folder in zip(groups, folders)]
     workers = min(workers or available_cores(), len(jobs))
-    with progress_bar("diagnose rgblimp", enabled=progress, total=None if pooled else len(jobs),
-                      unit="fit" if pooled else "configuration") as update:
+    with progress_bar("diagnose rgblimp", enabled=progress, total=stage_count() if pooled else len(jobs),
+                      unit="stage" if pooled else "configuration") as update:
         if pooled or workers == 1:
             outcomes = []
             for job in jobs:

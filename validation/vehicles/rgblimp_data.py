@@ -290,3 +290,41 @@ def _check_radians(path: Path, table: np.ndarray, line_numbers: list[int]) -> No
                 f"{path}, row {line_numbers[row]}, column {index + 1} ({source!r}): |{source}| = "
                 f"{abs(table[row, index]):g} exceeds the plausible {limit:.3g} for {name} in radians; "
                 "looks like degrees; the source's recordings and flightgp hold radians")
+
+
+#: The source's state width: its score is a mean over 23 columns, 17 of them weighted zero
+#: (``F.mse_loss`` over the 23-wide state in ``methods/comp_NODE.py`` of ``zhu-yj/ABNODE``).
+SOURCE_STATE_WIDTH = 23
+
+
+def source_score(predicted, recorded, ranges, *, wrap_yaw: bool = True) -> float:
+    """The source's score of a free run: ``sum_c mean_k ((y_hat - y)_kc / range_c)^2 / 23``.
+
+    Over the six columns ``x, y, z, phi, theta, psi``: the source multiplies state and
+    prediction by ``1 / range_c`` (zero for its other 17 columns) and takes ``F.mse_loss``, the
+    mean over samples and all 23 columns (:data:`SOURCE_STATE_WIDTH`) of the squared difference
+    (``methods/comp_NODE.py`` of ``zhu-yj/ABNODE``). The source does not wrap the yaw
+    difference (both yaws lie in [-pi, pi], so a run a little behind across the wrap counts
+    almost a full turn); with ``wrap_yaw`` (the default) it is wrapped, without it the predicted
+    yaw is first brought into [-pi, pi) as the source's integrator keeps it (a grey-box free run
+    carries yaw continuously).
+
+    Parameters
+    ----------
+    predicted, recorded : ndarray, shape (n, >= 6)
+        States in :data:`~validation.vehicles.rgblimp_equations.STATE_NAMES` order.
+    ranges : ndarray, shape (6,)
+        (max - min) of each column (:func:`read_score_ranges`).
+    wrap_yaw : bool
+
+    Returns
+    -------
+    float
+    """
+    predicted, recorded = np.asarray(predicted, dtype=float), np.asarray(recorded, dtype=float)
+    difference = predicted[:, :6] - recorded[:, :6]
+    if wrap_yaw:
+        difference[:, 5] = (difference[:, 5] + np.pi) % (2 * np.pi) - np.pi
+    else:
+        difference[:, 5] = (predicted[:, 5] + np.pi) % (2 * np.pi) - np.pi - recorded[:, 5]
+    return float(np.sum(np.mean((difference / np.asarray(ranges)) ** 2, axis=0)) / SOURCE_STATE_WIDTH)

@@ -11,6 +11,7 @@ from validation.core.errors import BadInputError
 from validation.core.recordings import Recording, write_recording
 from validation.diagnose import diagnose, write_diagnosis
 from validation.diagnose.noise import UNEXPLAINED_RATIO, estimate_noise_sd, noise_excess
+from validation.diagnose.pipeline import STAGES, stage_count
 from validation.diagnose.report import statement
 from validation.vehicles.bo105_effects import identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD, Bo105FlightTest
@@ -149,10 +150,15 @@ def test_concealed_effect_is_named_with_its_value(case):
     _check_named(diagnose([fit], reference="bo105-80kt", holdout=[held], seed=0).as_dict(), CASES[case])
 
 
-def test_no_effect_is_consistent():
+def test_no_effect_is_consistent_and_the_progress_counts_every_stage():
     fit, held = _concealed([])
-    result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
+    calls = []
+    result = diagnose([fit], reference="bo105-80kt", holdout=[held],
+                      progress=lambda n, **status: calls.append((n, status))).as_dict()
     assert result["verdict"] == "consistent" and result["findings"] == []
+    # A bar of stage_count() stages fills exactly, stage by stage; the fits show in between.
+    assert [status["stage"] for n, status in calls if n] == list(STAGES[:stage_count()])
+    assert sum(n for n, _ in calls) == stage_count() and any("fitted" in status for n, status in calls if not n)
     for name in result["fit"]["outputs"]:  # held-out error is the sensor noise (20 % margin)
         assert result["fit"]["rmse_reference"][name] < 1.2 * SENSOR_NOISE_STD[name]
 

@@ -55,6 +55,9 @@ def test_concealed_effects_on_real_starts_are_named_with_their_values():
         assert named[effect["term"]]["carries_over"]
     assert "buoyancy imbalance" in named["Z_0"]["statement"]
     assert result["fit"]["rmse_corrected"]["z"] < 0.01 * result["fit"]["rmse_reference"]["z"]
+    pose = result["fidelity"]["pose"]  # the source's score on the held-out flight
+    assert pose["corrected"]["score"] < 0.01 * pose["reference"]["score"]
+    assert pose["corrected"]["position_rmse_m"] < 0.1 * pose["reference"]["position_rmse_m"]
 
 
 def test_replication_names_a_concealed_effect_in_every_fold():

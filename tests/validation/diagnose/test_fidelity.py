@@ -5,6 +5,7 @@ bands; bad tolerance files exit 2."""
 import json
 import math
 
+import numpy as np
 import pytest
 
 from tests.validation.diagnose.test_diagnose import _concealed
@@ -12,7 +13,8 @@ from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.core.recordings import write_recording
 from validation.diagnose import diagnose
-from validation.diagnose.fidelity import DEFAULT_TOLERANCES, read_tolerances
+from validation.diagnose.fidelity import DEFAULT_TOLERANCES, POSE_OUTPUTS, pose_scores, read_tolerances
+from validation.vehicles.rgblimp_data import SOURCE_STATE_WIDTH
 
 
 @pytest.fixture(scope="module")
@@ -64,3 +66,20 @@ def test_bad_tolerance_files_are_refused(tmp_path, content, message):
         read_tolerances(path)
     with pytest.raises(BadInputError, match="no such tolerance file"):
         read_tolerances(tmp_path / "missing.json")
+
+
+def test_the_rgblimp_pose_score_is_the_sources_over_the_held_out_ranges():
+    """The flight score of each model: the source's score with each pose column's held-out range,
+    and the RMS 3-D position error; none without the six pose outputs."""
+    time = np.linspace(0.0, 1.0, 5)
+    measured = {name: np.linspace(0.0, width, 5) for name, width in zip(POSE_OUTPUTS, (2.0, 1.0, 0.5, 0.2, 0.1, 1.0))}
+    traces = {name: {"measured": values, "time": time, "reference": values + (0.1 if name == "x" else 0.0),
+                     "corrected": values, "corrected_gp": values + (0.05 if name == "theta" else 0.0)}
+              for name, values in measured.items()}
+    pose = pose_scores(traces)
+    assert pose["ranges"]["x"] == 2.0 and pose["ranges"]["theta"] == 0.1
+    assert math.isclose(pose["reference"]["score"], (0.1 / 2.0) ** 2 / SOURCE_STATE_WIDTH, rel_tol=1e-12)
+    assert math.isclose(pose["corrected_gp"]["score"], (0.05 / 0.1) ** 2 / SOURCE_STATE_WIDTH, rel_tol=1e-12)
+    assert pose["corrected"]["score"] == 0.0 and pose["corrected_gp"]["position_rmse_m"] == 0.0
+    assert math.isclose(pose["reference"]["position_rmse_m"], 0.1, rel_tol=1e-12)
+    assert pose_scores({name: traces[name] for name in POSE_OUTPUTS[:5]}) is None

@@ -24,17 +24,15 @@ from validation.models.rgblimp_greybox import RGBlimpStepDescription
 from validation.models.rgblimp_identification import RGBlimpModel
 from validation.models.rgblimp_rollout import RolloutHybrid, RolloutSetup
 from validation.reproduce.rgblimp import (
-    SOURCE_STATE_WIDTH,
     RGBlimpSetup,
     flight_metrics,
     read_score_ranges,
     reproduce_rgblimp,
     rkgp_model_path,
-    source_score,
     split_flights,
 )
 from validation.reproduce.rgblimp_report import BAND_MODELS, MODELS
-from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
+from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, SOURCE_STATE_WIDTH, read_rgblimp_flight, source_score
 
 RANGES = np.array([2.0, 4.0, 1.0, 0.25, 0.5, 2 * np.pi])
 
