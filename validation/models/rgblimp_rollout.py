@@ -59,8 +59,9 @@ from validation.models.rgblimp_hybrid_step import (
 from validation.models.rgblimp_hybrid_step import features as feature_values
 from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
 from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
+from validation.vehicles.compiled_runs import jax_modules
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, RGBlimpParameters
-from validation.vehicles.rgblimp_jax import held_inputs, jax_modules, parameter_arrays, rollout_function
+from validation.vehicles.rgblimp_jax import held_inputs, parameter_arrays, rollout_function
 
 #: What the correction sees, in order: air-relative body velocity, body rates, roll and pitch,
 #: both thrusts and the gondola's x position

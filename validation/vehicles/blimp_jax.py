@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from validation.vehicles.blimp_equations import STANDARD_GRAVITY, mass_matrix
-from validation.vehicles.rgblimp_jax import jax_modules, padded_rows, padded_steps
+from validation.vehicles.compiled_runs import jax_modules, padded_rows, padded_steps
 
 _COMPILED = {}
 
