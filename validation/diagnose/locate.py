@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal, stats
 
+from validation.core.errors import BadInputError
 from validation.diagnose.data import EVEN_TOLERANCE, EXCITATION_THRESHOLD, PreparedData, evenly_sampled
 from validation.diagnose.noise import LOCATE_ALPHA, NOISE_ESTIMATOR
 from validation.vehicles.effects import EffectModel
@@ -53,8 +54,20 @@ class Location:
 
 
 def locate(data: PreparedData, reference: EffectModel) -> Location:
-    """Replay ``reference`` without effects and locate its misfit (module docstring)."""
+    """Replay ``reference`` without effects and locate its misfit (module docstring).
+
+    Raises
+    ------
+    BadInputError
+        The reference's own replay of a recording is not finite (an FMU that could not run it,
+        or a model that diverges from the recorded start): no verdict can rest on it.
+    """
     replay = data.simulate(reference, [])
+    for name, states in zip(data.recording_names, replay):
+        if not np.all(np.isfinite(states)):
+            raise BadInputError(f"{reference.name} could not replay {name}: its outputs are not finite (NaN or "
+                                "inf), so there is no model to diagnose; check that the model runs this recording "
+                                "(--map for its columns, its start state, its platform)")
     residuals = [{n: m[:, i] - r[:, i] for i, n in enumerate(data.output_names)}
                  for m, r in zip(data.measured, replay)]
     mismatch = []

@@ -71,11 +71,11 @@ START_WINDOW = 0.5
 
 
 def _read_description(path: Path):
-    """fmpy's model description of ``path``, checked: FMI 2.0, co-simulation, Real inputs and
-    outputs; BadInputError in one line otherwise. The version is read from the description's
+    """fmpy's model description of ``path``, checked: FMI 2.0, co-simulation, a binary for this
+    platform, Real inputs and outputs; BadInputError in one line otherwise. The version is read from the description's
     root element before fmpy parses the rest, so that an FMU of another version is named as such
     whatever else its description holds."""
-    from fmpy import read_model_description  # fmpy loads only when an FMU reference is used
+    from fmpy import platform, read_model_description, supported_platforms  # loaded only for FMU references
 
     if not path.is_file():
         raise BadInputError(f"{path}: no such FMU")
@@ -90,6 +90,12 @@ def _read_description(path: Path):
         raise BadInputError(f"{path}: an FMI {version} FMU; diagnose takes FMI 2.0 co-simulation FMUs")
     if description.coSimulation is None:
         raise BadInputError(f"{path}: a model-exchange FMU; diagnose takes FMI 2.0 co-simulation FMUs")
+    platforms = [p for p in supported_platforms(str(path)) if p != "c-code"]
+    if platform not in platforms:
+        shipped = f"binaries for {', '.join(platforms)} only" if platforms else "no binaries"
+        raise BadInputError(f"{path}: this FMU has {shipped}; this machine needs {platform}"
+                            + (" (it ships C sources: `fmpy compile` builds them)"
+                               if "c-code" in supported_platforms(str(path)) else ""))
     return description
 
 

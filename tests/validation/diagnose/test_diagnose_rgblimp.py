@@ -110,4 +110,10 @@ def test_impossible_folds_and_partial_states_are_refused(tmp_path, capsys):
                         recording.output_names[:6])
     with pytest.raises(BadInputError, match="needs all 12 states"):
         diagnose([partial], reference="rgblimp")
+    spun = recording.outputs[:120].copy()
+    spun[0, recording.output_names.index("R")] = 400.0  # a start the model cannot fly: no verdict on NaN
+    diverging = Recording(recording.time[:120], recording.inputs[:120], recording.input_names, spun,
+                          recording.output_names, {"name": "spun"})
+    with pytest.raises(BadInputError, match="could not replay spun: its outputs are not finite"):
+        diagnose([diverging, diverging], reference="rgblimp")
     assert not out.exists()

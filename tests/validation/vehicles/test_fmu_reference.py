@@ -127,6 +127,29 @@ def test_fmus_of_another_kind_or_version_and_unmatched_columns_exit_2_with_one_l
     assert not (tmp_path / "out").exists()
 
 
+def test_an_fmu_without_a_binary_for_this_platform_exits_2_and_never_gives_a_verdict(fmu, tmp_path, capsys):
+    """An FMU whose binaries are for other platforms (the linux64 folder dropped from a copy),
+    or that has none, is refused in one line before anything is written; so is a reference whose
+    own replay is not finite, instead of a verdict on NaN."""
+    import zipfile
+
+    from fmpy import platform
+
+    foreign = tmp_path / "foreign.fmu"
+    with zipfile.ZipFile(fmu) as source, zipfile.ZipFile(foreign, "w") as target:
+        for item in source.infolist():
+            if not item.filename.startswith(f"binaries/{platform}/"):
+                target.writestr(item, source.read(item))
+    recording = tmp_path / "run.csv"
+    recording.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,q\n0,0,0,0,0,0\n0.01,0,0,0,0,0\n")
+    bare = _description_only_fmu(tmp_path / "bare.fmu", version="2.0", kind="CoSimulation")
+    for reference, message in ((foreign, "binaries for win64"), (bare, "this FMU has no binaries")):
+        code = main(["diagnose", str(recording), "--reference", str(reference), "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and f"this machine needs {platform}" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_column_map_renames_recording_columns_to_the_fmus_names(fmu, manoeuvre, tmp_path, capsys):
     """A recording whose columns carry other names is diagnosed through the map exactly as the
     same recording under the FMU's names; maps that name unknown variables or columns no
