@@ -37,10 +37,11 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from validation.cosim.cosimulation import cosimulate
+    from validation.vehicles.fmu_reference import read_cosimulation_fmu
 
-    for path in (args.gp_fmu, args.reference):
-        if path is not None and not path.is_file():
-            raise BadInputError(f"{path}: no such FMU")
+    for path in (args.gp_fmu, args.reference):  # before anything is flown or written
+        if path is not None:
+            read_cosimulation_fmu(path, purpose="cosim")
     check_output_folder(args.out)
     if (args.recording is None) == (args.vehicle is None):
         raise BadInputError("give either --recording FILE.csv or a manoeuvre with --vehicle and --input")

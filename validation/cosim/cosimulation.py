@@ -27,6 +27,7 @@ from validation.core.files import json_text, write_files_atomically
 from validation.core.metrics import rmse
 from validation.core.plots import png_bytes
 from validation.core.recordings import Recording
+from validation.vehicles.fmu_reference import read_cosimulation_fmu
 
 
 @dataclass
@@ -175,29 +176,30 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
         by measuring its fast path. Given for an FMU that lacks the parameter: refused.
         ``cosim.json`` records the values run.
     """
-    from fmpy import read_model_description
-
-    description = read_model_description(str(gp_fmu))
-    step = description.defaultExperiment.stepSize if description.defaultExperiment else None
-    if not step:
-        raise BadInputError(f"{gp_fmu}: no default experiment step; is it a flightgp rate predictor?")
-    step = float(step)
+    description = read_cosimulation_fmu(gp_fmu, purpose="cosim")
+    if reference_fmu is not None:
+        read_cosimulation_fmu(reference_fmu, purpose="cosim")
     variables = {v.name: v for v in description.modelVariables}
     axes = tuple(v.name for v in description.modelVariables
                  if v.causality == "output" and f"{v.name}_prev" in variables)
     controls = tuple(v.name for v in description.modelVariables
                      if v.causality == "input" and not v.name.endswith("_prev"))
-    sample = float(np.mean(np.diff(recording.time)))
-    decimation = int(round(step / sample))
-    if decimation < 1 or abs(decimation * sample - step) > 1e-6 * step:
-        raise BadInputError(f"the recording is sampled every {sample:g} s, which does not divide the "
-                            f"FMU's step of {step:g} s")
     asked = {name: value for name, value in (("exact_moments", exact_moments), ("parallel", parallel))
              if value is not None}
     lacking = [name for name in asked if name not in variables or variables[name].causality != "parameter"]
     if lacking:
         raise BadInputError(f"{gp_fmu}: no parameter {', '.join(lacking)} (a rate-predictor FMU of this "
                             "flightgp has it)")
+    step = description.defaultExperiment.stepSize if description.defaultExperiment else None
+    if not axes or not step:
+        raise BadInputError(f"{gp_fmu}: not a flightgp rate-predictor FMU (it needs outputs with <name>_prev inputs "
+                            "and a default experiment step); a physics FMU goes after --reference")
+    step = float(step)
+    sample = float(np.mean(np.diff(recording.time)))
+    decimation = int(round(step / sample))
+    if decimation < 1 or abs(decimation * sample - step) > 1e-6 * step:
+        raise BadInputError(f"the recording is sampled every {sample:g} s, which does not divide the "
+                            f"FMU's step of {step:g} s")
     # As run: the values asked for, else the FMU's defaults.
     run_with = {name: asked.get(name, variables[name].start in ("true", True))
                 for name in ("exact_moments", "parallel")

@@ -70,13 +70,15 @@ BENCH_NOISE_BY_UNIT = {"m/s": 0.1, "rad/s": 0.003, "rad": 0.002}
 START_WINDOW = 0.5
 
 
-def _read_description(path: Path):
-    """fmpy's model description of ``path``, checked: FMI 2.0, co-simulation, a binary for this
-    platform, Real inputs and outputs; BadInputError in one line otherwise. The version is read from the description's
-    root element before fmpy parses the rest, so that an FMU of another version is named as such
-    whatever else its description holds."""
+def read_cosimulation_fmu(path, *, purpose: str = "diagnose"):
+    """fmpy's model description of the FMU at ``path``, checked: an FMI 2.0 co-simulation FMU
+    with a binary for this platform; BadInputError in one line otherwise, saying that
+    ``purpose`` (the command) needs one. The version is read from the description's root element
+    before fmpy parses the rest, so that an FMU of another version is named as such whatever else
+    its description holds."""
     from fmpy import platform, read_model_description, supported_platforms  # loaded only for FMU references
 
+    path = Path(path)
     if not path.is_file():
         raise BadInputError(f"{path}: no such FMU")
     try:
@@ -87,9 +89,9 @@ def _read_description(path: Path):
         raise BadInputError(f"{path}: not an FMU ({type(error).__name__}: {str(error).splitlines()[0][:200]})") \
             from None
     if version != "2.0":
-        raise BadInputError(f"{path}: an FMI {version} FMU; diagnose takes FMI 2.0 co-simulation FMUs")
+        raise BadInputError(f"{path}: an FMI {version} FMU; {purpose} takes FMI 2.0 co-simulation FMUs")
     if description.coSimulation is None:
-        raise BadInputError(f"{path}: a model-exchange FMU; diagnose takes FMI 2.0 co-simulation FMUs")
+        raise BadInputError(f"{path}: a model-exchange FMU; {purpose} takes FMI 2.0 co-simulation FMUs")
     platforms = [p for p in supported_platforms(str(path)) if p != "c-code"]
     if platform not in platforms:
         shipped = f"binaries for {', '.join(platforms)} only" if platforms else "no binaries"
@@ -155,7 +157,7 @@ class FMUReference:
     def __init__(self, path, *, workers: int | None = None, instance_name: str = "flightgp_diagnose"):
         self.path = Path(path)
         self._instance_name = instance_name
-        description = _read_description(self.path)
+        description = read_cosimulation_fmu(self.path)
         self._description = description
         self.name = str(path)
         real = [v for v in description.modelVariables if v.type == "Real"]

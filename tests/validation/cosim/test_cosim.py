@@ -123,6 +123,23 @@ def test_cli_cosim_bad_usage_exits_2(case, tmp_path, capsys, argv, message):
     assert not (tmp_path / "o").exists()
 
 
+def test_files_that_are_no_rate_predictor_fmu_exit_2_with_one_line(case, bo105_reference_fmu, tmp_path, capsys):
+    """A file that is not an FMU, a model-exchange FMU, or the physics FMU given as the GP FMU:
+    one line naming the file and what it is, exit 2, nothing written (an internal error and a
+    numpy message before)."""
+    from tests.validation.vehicles.test_fmu_reference import _description_only_fmu
+
+    folder = case[0]
+    (tmp_path / "text.fmu").write_text("not a zip")
+    model_exchange = _description_only_fmu(tmp_path / "me.fmu", version="2.0", kind="ModelExchange")
+    for fmu, message in ((tmp_path / "text.fmu", "not an FMU"), (model_exchange, "a model-exchange FMU; cosim takes"),
+                         (bo105_reference_fmu, "not a flightgp rate-predictor FMU")):
+        assert main(["cosim", str(fmu), "--recording", str(folder / "flight.csv"), "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "o").exists()
+
+
 # Measured on this case (seed 0, the paper configuration with its 400 annealing samples, the
 # model of tests/conftest.py; the FMU's free run by moment matching over the samples): GP FMU RMSE
 # p 0.0105, q 0.0136, r 0.0238 rad/s; reference FMU p 0.0483, q 0.0422, r 0.0300. (With 64
