@@ -111,8 +111,11 @@ def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Loc
         for finding in findings:
             finding["replication"] = replication.of(finding)
     findings += models.unexplained + proof.unexplained
+    fitted = [m for m, held in zip(data.measured, data.held_out) if not held]
+    extent = {name: (float(min(m[:, i].min() for m in fitted)), float(max(m[:, i].max() for m in fitted)))
+              for i, name in enumerate(data.output_names)} if fitted else {}
     for finding in findings:
-        finding["statement"] = statement(finding, proof.fit, reference)
+        finding["statement"] = statement(finding, proof.fit, reference, extent=extent)
     return Diagnosis(reference=reference.name,
                      verdict="missing_physics" if findings else "consistent", mismatch=location.mismatch,
                      findings=findings, fit=proof.fit, locate=location.summary,
@@ -200,11 +203,12 @@ def _scope_words(finding: dict) -> str:
             "vehicle.")
 
 
-def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
+def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict | None = None) -> str:
     """The plain-language sentence of one finding (what a flight-test engineer would write): the
     columns in the words of :func:`validation.core.recordings.column_phrase`, a term in those of
-    ``reference`` (:meth:`~validation.vehicles.effects.EffectModel.term_description`); ``fit`` is
-    diagnosis.json's ``fit``."""
+    ``reference`` (:meth:`~validation.vehicles.effects.EffectModel.term_description`) and, where
+    the reference has ``value_context``, its value in perspective over ``extent`` (output ->
+    (min, max) over the diagnosed recordings); ``fit`` is diagnosis.json's ``fit``."""
     kind, value = finding["effect"], finding["value"]
     if kind == "unexplained":
         name = finding["output"]
@@ -273,6 +277,10 @@ def statement(finding: dict, fit: dict, reference: EffectModel) -> str:
         kind_words = _KIND_WORDS.get(kind, kind.replace("_", " "))
         text = (f"The {kind_words} {named} is {_number(value)} {unit} {interval}, not the "
                 f"model's {_number(model_value)} ({change}).")
+        context = getattr(reference, "value_context", None)
+        note = context(term, value, extent) if context is not None and extent else None
+        if note:
+            text += f" {note}"
     check = finding.get("amplitude_check")
     if check and check["amplitude_dependent"]:
         words = column_phrase(finding.get("main_output", ""))

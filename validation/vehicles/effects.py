@@ -159,7 +159,10 @@ class EffectModel(Protocol):
 
     Optional attributes: ``signal_units`` (dict input or state -> unit, where the reference
     declares its own, :func:`effect_unit`) and ``workers`` (settable: processes its replays
-    run on, :func:`validation.diagnose.diagnose`); an FMU reference has both.
+    run on, :func:`validation.diagnose.diagnose`); an FMU reference has both. Optional method:
+    ``value_context(term, value, extent) -> str | None``, a sentence that puts a term's fitted
+    value in physical perspective over ``extent`` (output -> (min, max) over the diagnosed
+    recordings), which a finding's statement then carries (the RGBlimp's draught field).
     """
 
     name: str

@@ -192,6 +192,9 @@ SENSOR_NOISE_STD = dict.fromkeys(STATE_NAMES, 1e-4)
 _ABSOLUTE_STEPS = {"Z_0": 1e-3, "cg_offset": 2e-3, "added_mass": 0.01, "added_inertia": 1e-3, "steady_wind": 0.01,
                    "thrust_asymmetry": 0.02, "coefficient": 1e-3, "thrust_speed_loss": 0.05, "thrust_line_y": 2e-3,
                    "draught_field": 0.01, "gondola_offset": 2e-3}
+#: Air speed, m/s, above which a room's air is no longer still: the draught limits of ISO
+#: 7730:2005, Annex A (mean air velocity 0.12-0.25 m/s by comfort category and season), their top.
+STILL_AIR_LIMIT = 0.25
 #: Relative screening step of terms with a model value (5 %, as for the blimp's).
 _RELATIVE_STEP = 0.05
 #: Largest thrust asymmetry: the weaker propeller keeps a tenth of its thrust.
@@ -360,6 +363,21 @@ class RGBlimpEffects:
         if term in ADDED_MASS_TERMS and value < 0:
             return f"an added mass or inertia cannot be negative, got {value} {TERM_UNITS[term]}"
         return None
+
+    def value_context(self, term: str, value: float, extent: dict) -> str | None:
+        """For a draught-field term, the change of the air's velocity it means across the
+        diagnosed flights (``extent``: output -> (min, max) over them), and whether that is more
+        than a room's air moves (:data:`STILL_AIR_LIMIT`); None for other terms."""
+        if term not in DRAUGHT_TERMS or term[-1] not in extent:
+            return None
+        low, high = extent[term[-1]]
+        change = abs(value) * (high - low)
+        text = (f"Across the {high - low:.1f} m the diagnosed flights cover along the room's {term[-1]} axis, the "
+                f"air's {term[5]} velocity would change by {change:.2g} m/s")
+        if change > STILL_AIR_LIMIT:
+            return text + (f", more than the air of a room moves (draught limits up to {STILL_AIR_LIMIT} m/s, "
+                           "ISO 7730): it may stand in for something else.")
+        return text + "."
 
     def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
         """Every term of :data:`TERMS`, whatever moves: the inputs are absolute thrusts and

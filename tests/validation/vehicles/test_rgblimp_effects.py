@@ -13,6 +13,7 @@ import pytest
 
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
+from validation.diagnose.report import statement
 from validation.models.rgblimp_identification import RGBlimpModel
 from validation.vehicles.blimp_equations import rotation_body_to_earth
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
@@ -236,3 +237,18 @@ def test_bad_values_and_missing_start_states_are_refused(flights):
     with pytest.raises(BadInputError, match="resample the recordings to 60 Hz"):
         model.simulate_many([[]], recording.time * 2, recording.inputs)
 
+
+
+def test_a_draught_field_is_stated_with_the_wind_change_it_means():
+    """A draught gradient is put in perspective over the diagnosed flights' extent: the change of
+    the air's velocity across them, and a warning where that is more than a room's air moves."""
+    model = effect_model("rgblimp", purpose="test")
+    extent = {"x": (0.1, 3.2), "y": (-1.7, 0.8)}
+    strong = model.value_context("wind_x_dy", 0.159, extent)
+    assert "Across the 2.5 m" in strong and "change by 0.4 m/s" in strong and "more than the air of a room" in strong
+    weak = model.value_context("wind_z_dx", -0.02, extent)
+    assert "change by 0.062 m/s." in weak and "more than" not in weak
+    assert model.value_context("wind_x", 0.1, extent) is None and model.value_context("wind_y_dy", 0.1, {}) is None
+    finding = {"effect": "draught_field", "term": "wind_x_dy", "value": 0.159, "unit": "1/s", "model_value": 0.0,
+               "interval": [0.142, 0.176]}
+    assert strong in statement(finding, {"rmse_reference": {}}, model, extent=extent)
