@@ -129,7 +129,7 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
         done("replicate")
     held_out = [(u, m, data.input_names) for u, m in zip(data.inputs, data.holdout_mask) if m.any()]
     fidelity = scorecard(proof.traces, proof.fit, held_out, step=data.step, tolerances=tolerances,
-                         pose_score=reference.family == "rgblimp")
+                         pose_score=getattr(reference, "pose_score", False))
     return assemble_diagnosis(reference, data, location, explanation, models, proof, scopes=scopes,
                               carried=carried, replication=replication, fidelity=fidelity)
 

@@ -159,7 +159,9 @@ class EffectModel(Protocol):
 
     Optional attributes: ``signal_units`` (dict input or state -> unit, where the reference
     declares its own, :func:`effect_unit`) and ``workers`` (settable: processes its replays
-    run on, :func:`validation.diagnose.diagnose`); an FMU reference has both. Optional method:
+    run on, :func:`validation.diagnose.diagnose`); an FMU reference has both; ``pose_score``
+    (True where the reference's own score of a free run, the RGBlimp source's, belongs in the
+    fidelity scorecard, :func:`validation.diagnose.fidelity.pose_scores`). Optional method:
     ``value_context(term, value, extent) -> str | None``, a sentence that puts a term's fitted
     value in physical perspective over ``extent`` (output -> (min, max) over the diagnosed
     recordings), which a finding's statement then carries (the RGBlimp's draught field).

@@ -92,12 +92,12 @@ def read_cosimulation_fmu(path, *, purpose: str = "diagnose"):
         raise BadInputError(f"{path}: an FMI {version} FMU; {purpose} takes FMI 2.0 co-simulation FMUs")
     if description.coSimulation is None:
         raise BadInputError(f"{path}: a model-exchange FMU; {purpose} takes FMI 2.0 co-simulation FMUs")
-    platforms = [p for p in supported_platforms(str(path)) if p != "c-code"]
-    if platform not in platforms:
-        shipped = f"binaries for {', '.join(platforms)} only" if platforms else "no binaries"
-        raise BadInputError(f"{path}: this FMU has {shipped}; this machine needs {platform}"
-                            + (" (it ships C sources: `fmpy compile` builds them)"
-                               if "c-code" in supported_platforms(str(path)) else ""))
+    shipped = supported_platforms(str(path))
+    binaries = [p for p in shipped if p != "c-code"]
+    if platform not in binaries:
+        has = f"binaries for {', '.join(binaries)} only" if binaries else "no binaries"
+        raise BadInputError(f"{path}: this FMU has {has}; this machine needs {platform}"
+                            + (" (it ships C sources: `fmpy compile` builds them)" if "c-code" in shipped else ""))
     return description
 
 

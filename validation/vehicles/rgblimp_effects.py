@@ -199,6 +199,22 @@ STILL_AIR_LIMIT = 0.25
 _RELATIVE_STEP = 0.05
 #: Largest thrust asymmetry: the weaker propeller keeps a tenth of its thrust.
 _MAX_ASYMMETRY = 0.9
+#: Bounds of the terms that have them: added mass and inertia, the thrust gain and the thrust
+#: loss with airspeed are never negative; the asymmetry stays within :data:`_MAX_ASYMMETRY`.
+_BOUNDS = {**dict.fromkeys((*ADDED_MASS_TERMS, "thrust_gain", "thrust_speed_loss"), (0.0, math.inf)),
+           "thrust_asymmetry": (-_MAX_ASYMMETRY, _MAX_ASYMMETRY)}
+
+
+def _screening_step(kind: str, term: str, value: float) -> float:
+    """A term's screening step: :data:`_ABSOLUTE_STEPS` of the term, of its field (added mass or
+    inertia) or of its kind, where there is one; else :data:`_RELATIVE_STEP` of the model's value
+    (at least 0.001 of a coefficient)."""
+    if term == "thrust_gain":
+        return _RELATIVE_STEP
+    for key in (term, ADDED_MASS_TERMS.get(term, (None,))[0], kind):
+        if key in _ABSOLUTE_STEPS:
+            return _ABSOLUTE_STEPS[key]
+    return max(_RELATIVE_STEP * abs(value), _ABSOLUTE_STEPS["coefficient"])
 
 
 def model_value(params: RGBlimpParameters, term: str) -> float:
@@ -334,6 +350,7 @@ class RGBlimpEffects:
     sensor_noise_sd = SENSOR_NOISE_STD
     min_noise_sd = MIN_NOISE_SD
     residual_gp_states = RESIDUAL_GP_STATES
+    pose_score = True
 
     def __init__(self, reference: RGBlimpReference, *, compiled: bool = True):
         self.reference, self.compiled = reference, compiled
@@ -387,24 +404,8 @@ class RGBlimpEffects:
         for kind, terms in TERMS.items():
             for term in terms:
                 value = self.model_value(term)
-                lower, upper = -math.inf, math.inf
-                if kind == "added_mass":
-                    lower = 0.0
-                    step = _ABSOLUTE_STEPS["added_mass" if ADDED_MASS_TERMS[term][0] == "added_mass"
-                                           else "added_inertia"]
-                elif term == "thrust_gain":
-                    lower, step = 0.0, _RELATIVE_STEP
-                elif term == "thrust_asymmetry":
-                    lower, upper, step = -_MAX_ASYMMETRY, _MAX_ASYMMETRY, _ABSOLUTE_STEPS["thrust_asymmetry"]
-                elif term == "thrust_speed_loss":
-                    lower, step = 0.0, _ABSOLUTE_STEPS[term]
-                elif term == "thrust_line_y":
-                    step = _ABSOLUTE_STEPS[term]
-                elif kind in ("force_offset", "cg_offset", "steady_wind", "draught_field", "gondola_offset"):
-                    step = _ABSOLUTE_STEPS["Z_0" if kind == "force_offset" else kind]
-                else:
-                    step = max(_RELATIVE_STEP * abs(value), _ABSOLUTE_STEPS["coefficient"])
-                hypotheses.append(Hypothesis(kind, term, value, lower, upper, step))
+                lower, upper = _BOUNDS.get(term, (-math.inf, math.inf))
+                hypotheses.append(Hypothesis(kind, term, value, lower, upper, _screening_step(kind, term, value)))
         return hypotheses
 
     def start_state(self, recording) -> np.ndarray:

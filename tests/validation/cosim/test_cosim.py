@@ -127,11 +127,11 @@ def test_files_that_are_no_rate_predictor_fmu_exit_2_with_one_line(case, bo105_r
     """A file that is not an FMU, a model-exchange FMU, or the physics FMU given as the GP FMU:
     one line naming the file and what it is, exit 2, nothing written (an internal error and a
     numpy message before)."""
-    from tests.validation.vehicles.test_fmu_reference import _description_only_fmu
+    from tests.validation.vehicles.test_fmu_reference import description_only_fmu
 
     folder = case[0]
     (tmp_path / "text.fmu").write_text("not a zip")
-    model_exchange = _description_only_fmu(tmp_path / "me.fmu", version="2.0", kind="ModelExchange")
+    model_exchange = description_only_fmu(tmp_path / "me.fmu", version="2.0", kind="ModelExchange")
     for fmu, message in ((tmp_path / "text.fmu", "not an FMU"), (model_exchange, "a model-exchange FMU; cosim takes"),
                          (bo105_reference_fmu, "not a flightgp rate-predictor FMU")):
         assert main(["cosim", str(fmu), "--recording", str(folder / "flight.csv"), "--out", str(tmp_path / "o")]) == 2

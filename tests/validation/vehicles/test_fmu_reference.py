@@ -94,7 +94,7 @@ def test_bad_fmus_exit_2_with_one_line(tmp_path, capsys):
         effect_model(str(tmp_path / "none.fmu"), purpose="test")
 
 
-def _description_only_fmu(path, *, version: str, kind: str) -> str:
+def description_only_fmu(path, *, version: str, kind: str) -> str:
     """A zip holding only a model description of FMI ``version`` and ``kind`` (CoSimulation or
     ModelExchange) with one Real input and output: enough for diagnose to read and refuse."""
     import zipfile
@@ -115,9 +115,9 @@ def test_fmus_of_another_kind_or_version_and_unmatched_columns_exit_2_with_one_l
     recording.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,q\n0,0,0,0,0,0\n0.01,0,0,0,0,0\n")
     other = tmp_path / "other.csv"
     other.write_text("time,elevator,pitch_rate\n0,0,0\n0.01,0,0\n")
-    cases = ((_description_only_fmu(tmp_path / "me.fmu", version="2.0", kind="ModelExchange"), recording,
+    cases = ((description_only_fmu(tmp_path / "me.fmu", version="2.0", kind="ModelExchange"), recording,
               "a model-exchange FMU"),
-             (_description_only_fmu(tmp_path / "v1.fmu", version="1.0", kind="CoSimulation"), recording,
+             (description_only_fmu(tmp_path / "v1.fmu", version="1.0", kind="CoSimulation"), recording,
               "an FMI 1.0 FMU"),
              (fmu, other, "--map renames columns"))
     for reference, data, message in cases:
@@ -142,7 +142,7 @@ def test_an_fmu_without_a_binary_for_this_platform_exits_2_and_never_gives_a_ver
                 target.writestr(item, source.read(item))
     recording = tmp_path / "run.csv"
     recording.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,q\n0,0,0,0,0,0\n0.01,0,0,0,0,0\n")
-    bare = _description_only_fmu(tmp_path / "bare.fmu", version="2.0", kind="CoSimulation")
+    bare = description_only_fmu(tmp_path / "bare.fmu", version="2.0", kind="CoSimulation")
     for reference, message in ((foreign, "binaries for win64"), (bare, "this FMU has no binaries")):
         code = main(["diagnose", str(recording), "--reference", str(reference), "--out", str(tmp_path / "out")])
         err = capsys.readouterr().err
