@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from validation.core.errors import BadInputError
+from validation.core.errors import BadInputError, unknown_name_message
 from validation.core.manoeuvres import MANOEUVRES
 
 #: The task kinds a study may name.
@@ -324,7 +324,7 @@ class _Parser:
             self.fail(where, f"must be a JSON object, got {_kind_of(raw)}")
         unknown = [key for key in raw if key not in (*required, *optional)]
         if unknown:
-            self.fail(where, f"unknown field {unknown[0]!r}; known: {', '.join((*required, *optional))}")
+            self.fail(where, unknown_name_message(unknown[0], (*required, *optional), what="field"))
         missing = [key for key in required if key not in raw]
         if missing:
             self.fail(where, f"missing field {missing[0]!r}")

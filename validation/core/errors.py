@@ -8,3 +8,16 @@ says what is wrong and where (file, row, column), and the CLI turns it into exit
 
 class BadInputError(ValueError):
     """Bad user input: the message is one line naming what is wrong and where."""
+
+
+def unknown_name_message(name: str, known, *, what: str = "key") -> str:
+    """The words that refuse ``name`` because it is not one of ``known``: ``"unknown key 'qq'
+    (did you mean 'q'?); known: u, w, q"``, the nearest known name by
+    :func:`difflib.get_close_matches` when one is close. ``what`` names the kind of name
+    (``"key"``, ``"field"``, ``"output"``)."""
+    import difflib
+
+    known = list(known)
+    close = difflib.get_close_matches(str(name), known, n=1, cutoff=0.6)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"unknown {what} {name!r}{hint}; known: {', '.join(known)}"

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-from validation.core.errors import BadInputError
+from validation.core.errors import BadInputError, unknown_name_message
 from validation.core.recordings import column_unit
 from validation.diagnose.prove import MODEL_KEYS
 from validation.vehicles.rgblimp_data import source_score
@@ -86,6 +86,23 @@ def read_tolerances(path) -> dict:
             raise BadInputError(f"{path}: the band of {name!r} must be a positive number in {column_unit(name)}, "
                                 f"got {value!r}")
     return {name: (float(value), f"{path.name}") for name, value in content.items()}
+
+
+def check_tolerance_outputs(tolerances: dict | None, output_names) -> None:
+    """Refuse a tolerance file's output that the diagnosed recordings do not hold (it would be
+    dropped while the report credits the file), naming the nearest output they do hold.
+
+    Parameters
+    ----------
+    tolerances : dict or None
+        Output -> (half-width, source), as :func:`read_tolerances` returns.
+    output_names : sequence of str
+        The outputs diagnosed.
+    """
+    for name, (_, source) in (tolerances or {}).items():
+        if name not in output_names:
+            raise BadInputError(f"{source}: {unknown_name_message(name, output_names, what='output')} "
+                                "(the outputs of the diagnosed recordings)")
 
 
 #: The pose outputs the RGBlimp's flight score weighs, in its order.

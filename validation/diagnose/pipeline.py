@@ -36,7 +36,7 @@ from __future__ import annotations
 from validation.diagnose.carry_over import carry_over
 from validation.diagnose.data import prepare
 from validation.diagnose.explain import explain
-from validation.diagnose.fidelity import scorecard
+from validation.diagnose.fidelity import check_tolerance_outputs, scorecard
 from validation.diagnose.locate import locate
 from validation.diagnose.model import build_models
 from validation.diagnose.prove import prove
@@ -77,7 +77,8 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     tolerances : dict, optional
         Output -> (band half-width in its SI unit, source) for the fidelity scorecard
         (:func:`validation.diagnose.fidelity.read_tolerances`); outputs not named keep the
-        default bands (:data:`validation.diagnose.fidelity.DEFAULT_TOLERANCES`).
+        default bands (:data:`validation.diagnose.fidelity.DEFAULT_TOLERANCES`); naming an output
+        the recordings do not hold is refused.
     column_map : dict of str to str, optional
         Recording column -> the reference's name for it (:func:`validation.diagnose.data.read_column_map`),
         for recordings whose columns are named otherwise than the reference's variables.
@@ -108,6 +109,7 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     if workers is not None and hasattr(reference, "workers"):
         reference.workers = workers
     data = prepare(recordings, reference, holdout=holdout, file_format=file_format, column_map=column_map)
+    check_tolerance_outputs(tolerances, data.output_names)
     if folds is not None:
         fold_recordings(data, folds)  # refuses impossible folds before the long stages
     fits, done = _stage_progress(progress)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from validation.core.errors import BadInputError
+from validation.core.errors import BadInputError, unknown_name_message
 from validation.core.recordings import Recording, column_unit
 from validation.core.sampling import check_history
 from validation.vehicles.linear_discretisation import zero_order_hold
@@ -257,6 +257,27 @@ def _matrix(content: dict, key: str, shape: tuple[int, int], source: str, meanin
     return matrix
 
 
+#: The keys of a state-space file (module docstring); any other is refused.
+FILE_KEYS = ("format", "name", "states", "inputs", "A", "B", "derivative_rows", "units", "sample_time")
+#: Units that are not flightgp's (docs/conventions.md, "Units and axes"), with the SI unit a
+#: model's matrices must be converted to.
+_NOT_SI = {"deg": "rad", "deg/s": "rad/s", "deg/s^2": "rad/s^2", "ft": "m", "ft/s": "m/s", "kt": "m/s",
+           "kts": "m/s", "knot": "m/s", "mph": "m/s", "km/h": "m/s", "lbf": "N", "ft lbf": "N m",
+           "ms": "s", "min": "s", "%": "1"}
+
+
+def _check_unit(column: str, unit: str, source: str) -> None:
+    """A state or input's declared unit must be flightgp's for a column flightgp knows (``q`` in
+    rad/s) and SI for any other: a matrix in degrees or feet would be read as radians or metres."""
+    own = column_unit(column)
+    if own != "?" and unit != own:
+        raise BadInputError(f"{source}: {column!r} is declared in {unit!r}, but flightgp's {column} is in {own} "
+                            f"(docs/conventions.md, \"Units and axes\"); convert its rows and columns of A and B")
+    if unit.strip().lower() in _NOT_SI:
+        raise BadInputError(f"{source}: {column!r} is declared in {unit!r}; flightgp reads SI units "
+                            f"({_NOT_SI[unit.strip().lower()]}): convert its rows and columns of A and B")
+
+
 def state_space_from_dict(content, *, source: str = "state-space model") -> LinearReference:
     """The :class:`LinearReference` a JSON dict describes (module docstring).
 
@@ -271,6 +292,11 @@ def state_space_from_dict(content, *, source: str = "state-space model") -> Line
     """
     if not isinstance(content, dict):
         raise BadInputError(f"{source}: a state-space model is a JSON object, got {type(content).__name__}")
+    unknown = [key for key in content if key not in FILE_KEYS]
+    if unknown:
+        raise BadInputError(f"{source}: {unknown_name_message(unknown[0], FILE_KEYS)}")
+    if content.get("format", FORMAT) != FORMAT:
+        raise BadInputError(f"{source}: format {content['format']!r} is not a state-space model ({FORMAT!r})")
     name = content.get("name")
     if not isinstance(name, str) or not name.strip():
         raise BadInputError(f"{source}: 'name' must be a non-empty string")
@@ -301,6 +327,8 @@ def state_space_from_dict(content, *, source: str = "state-space model") -> Line
     if missing or unknown:
         raise BadInputError(f"{source}: units missing for {missing} and given for unknown {unknown}" if unknown
                             else f"{source}: units missing for {', '.join(missing)}")
+    for column in states + inputs:
+        _check_unit(column, units[column], source)
     sample_time = content.get("sample_time", DEFAULT_SAMPLE_TIME)
     if isinstance(sample_time, bool) or not isinstance(sample_time, (int, float)) or not \
             (math.isfinite(sample_time) and sample_time > 0):

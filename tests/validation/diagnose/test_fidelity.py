@@ -54,6 +54,22 @@ def test_a_tolerance_file_overrides_the_bands_and_the_report_leads_with_them(del
     assert (out / "report.md").read_text().startswith("**Fidelity** (tolerance file and 14 CFR Part 60")
 
 
+def test_a_tolerance_for_an_output_not_recorded_is_refused_before_the_diagnosis(tmp_path, capsys):
+    """A band the scorecard would drop (a misspelt output) is refused at once, naming the nearest
+    recorded output, and nothing is written."""
+    recording = tmp_path / "run.csv"
+    recording.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,q\n"
+                         + "".join(f"{k / 100},0,{0.01 * (k // 50 % 2)},0,0,0\n" for k in range(300)))
+    bands = tmp_path / "bands.json"
+    bands.write_text(json.dumps({"qq": 0.03}))
+    code = main(["diagnose", str(recording), "--reference", "bo105-80kt", "--tolerances", str(bands),
+                 "--out", str(tmp_path / "out"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "bands.json: unknown output 'qq' (did you mean 'q'?); known: q" in err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("content, message", [
     ("{not json", "not a JSON tolerance file"),
     ('{"q": -1}', "the band of 'q' must be a positive number in rad/s"),

@@ -21,7 +21,7 @@ from validation.vehicles.state_space import read_state_space, state_space_from_d
 #: stable numbers of a light aircraft's order (Z_w -2 1/s, M_q -3 1/s).
 SHORT_PERIOD = {"name": "short-period", "states": ["w", "q"], "inputs": ["elevator"],
                 "A": [[-2.0, 50.0], [-0.2, -3.0]], "B": [[-5.0], [-20.0]],
-                "derivative_rows": {"w": "Z", "q": "M"}, "units": {"w": "m/s", "q": "rad/s", "elevator": "rad"}}
+                "derivative_rows": {"w": "Z", "q": "M"}, "units": {"w": "m/s", "q": "rad/s", "elevator": "1"}}
 
 
 @pytest.fixture(scope="module")
@@ -91,6 +91,14 @@ def _manoeuvre(reference, variant):
     ({"inputs": []}, "'inputs' must be a non-empty list"),
     ({"sample_time": -1}, "'sample_time' must be a positive number"),
     ({"name": ""}, "'name' must be a non-empty string"),
+    # Units that would be read as flightgp's: a known column in another unit, any column not SI.
+    ({"units": {"w": "m/s", "q": "deg/s", "elevator": "1"}},
+     "'q' is declared in 'deg/s', but flightgp's q is in rad/s"),
+    ({"states": ["w", "alpha"], "derivative_rows": {"w": "Z"}, "units": {"w": "m/s", "alpha": "deg", "elevator": "1"}},
+     "'alpha' is declared in 'deg'; flightgp reads SI units (rad)"),
+    # Keys the format does not have are refused, with the nearest known one.
+    ({"sample_rate": 100}, "unknown key 'sample_rate' (did you mean 'sample_time'?)"),
+    ({"format": "matlab-ss"}, "format 'matlab-ss' is not a state-space model"),
 ])
 def test_bad_state_space_files_are_refused_with_one_line(tmp_path, capsys, change, message):
     assert message in str(_refusal({**SHORT_PERIOD, **change}))
