@@ -412,6 +412,12 @@ def _parse_numbers(path: Path, header: list[str], rows: list[list[str]], line_nu
     return table
 
 
+#: Longest sample interval a recording may have, s: rigid-body modes of aircraft and airships
+#: last seconds (a blimp's pitch oscillation, Ko et al. 2007, about 4 s), and sampling them at
+#: 1 Hz or slower resolves none of them; a longer step is nearly always time in milliseconds.
+MAX_SAMPLE_TIME = 1.0
+
+
 def _check_time(path: Path, time: np.ndarray, line_numbers: list[int], *, uneven_allowed: bool) -> None:
     """``time`` must increase strictly, and by equal steps unless ``uneven_allowed``."""
     step = np.diff(time)
@@ -423,9 +429,13 @@ def _check_time(path: Path, time: np.ndarray, line_numbers: list[int], *, uneven
             f"{_where(path, line_numbers[k], 0, 'time')}: time {what} ({time[k - 1]:.9g} s, then "
             f"{time[k]:.9g} s); it must increase strictly"
         )
+    nominal = float(np.median(step))
+    if nominal > MAX_SAMPLE_TIME:
+        raise BadInputError(
+            f"{_where(path, line_numbers[1], 0, 'time')}: time steps by {nominal:g} s; flight-dynamics recordings "
+            f"are sampled well under {MAX_SAMPLE_TIME:g} s. Is time in milliseconds? flightgp reads seconds")
     if uneven_allowed:
         return
-    nominal = float(np.median(step))
     uneven = uneven_steps(time)
     if len(uneven):
         k = uneven[0] + 1
@@ -458,6 +468,12 @@ _ANGLE_RATE_PAIRS = (("theta", "q"), ("phi", "p"), ("theta", "Q"), ("phi", "P"))
 _DEGREES_PER_RADIAN = 180.0 / math.pi
 
 
+def looks_like_degrees(factor: float) -> bool:
+    """Whether a quantity ``factor`` times what it should be in rad (rad/s) is most likely in
+    degrees: ``factor`` within a factor of three of 57.3, far from any gain a model error gives."""
+    return _DEGREES_PER_RADIAN / 3 < factor < _DEGREES_PER_RADIAN * 3
+
+
 def _check_angle_rate_consistency(path: Path, header: list[str], table: np.ndarray) -> None:
     """Degrees that stay inside the magnitude limits: compare an attitude's rate of change with
     its body rate. At small angles ``d theta/dt ~ q``; a least-squares slope near 57.3 means the
@@ -478,7 +494,7 @@ def _check_angle_rate_consistency(path: Path, header: list[str], table: np.ndarr
             continue
         slope = float(angle_rate @ body_rate / (body_rate @ body_rate))
         for column, factor in ((angle, slope), (rate, 1.0 / slope)):
-            if _DEGREES_PER_RADIAN / 3 < factor < _DEGREES_PER_RADIAN * 3:
+            if looks_like_degrees(factor):
                 raise BadInputError(
                     f"{path}, column {header.index(column) + 1} ({column!r}): d{angle}/dt is "
                     f"{slope:.3g} x {rate}, where kinematics give about 1; {column!r} looks like "

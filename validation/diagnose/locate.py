@@ -22,6 +22,7 @@ import numpy as np
 from scipy import signal, stats
 
 from validation.core.errors import BadInputError
+from validation.core.recordings import column_unit, looks_like_degrees
 from validation.diagnose.data import EVEN_TOLERANCE, EXCITATION_THRESHOLD, PreparedData, evenly_sampled
 from validation.diagnose.noise import LOCATE_ALPHA, NOISE_ESTIMATOR
 from validation.vehicles.effects import EffectModel
@@ -68,6 +69,7 @@ def locate(data: PreparedData, reference: EffectModel) -> Location:
             raise BadInputError(f"{reference.name} could not replay {name}: its outputs are not finite (NaN or "
                                 "inf), so there is no model to diagnose; check that the model runs this recording "
                                 "(--map for its columns, its start state, its platform)")
+    _check_angle_units(data, replay, reference.name)
     residuals = [{n: m[:, i] - r[:, i] for i, n in enumerate(data.output_names)}
                  for m, r in zip(data.measured, replay)]
     mismatch = []
@@ -80,6 +82,40 @@ def locate(data: PreparedData, reference: EffectModel) -> Location:
                 mismatch.append({"output": output, "t_start": round(t_start, 4), "t_end": round(t_end, 4),
                                  "rms_error": rms, "recording": name})
     return Location(replay, mismatch, _spectra(data, residuals))
+
+
+#: Correlation of recording and replay above which their ratio is read as a unit's (and not a
+#: model's) difference.
+UNIT_CORRELATION = 0.9
+
+
+def _check_angle_units(data: PreparedData, replay: list, reference_name: str) -> None:
+    """Refuse an angle or rate output whose recording moves like the reference's replay but
+    about 57 times larger or smaller (degrees against radians): a unit slip the reading's
+    plausibility limits miss on a small manoeuvre, and no missing physics scales a whole
+    response by 57. The ratio is the least-squares gain of the recorded on the replayed changes
+    from each recording's first sample; only a clear likeness (correlation above
+    :data:`UNIT_CORRELATION`) is judged (:func:`~validation.core.recordings.looks_like_degrees`,
+    either way round)."""
+    diagnosed = [k for k in range(len(data.time)) if not data.held_out[k]]
+    for i, output in enumerate(data.output_names):
+        if column_unit(output) not in ("rad", "rad/s"):
+            continue
+        measured = np.concatenate([data.measured[k][:, i] - data.measured[k][0, i] for k in diagnosed])
+        replayed = np.concatenate([replay[k][:, i] - replay[k][0, i] for k in diagnosed])
+        if not (np.std(measured) > 0 and np.std(replayed) > 0):
+            continue
+        if np.corrcoef(measured, replayed)[0, 1] < UNIT_CORRELATION:
+            continue
+        gain = float(measured @ replayed / (replayed @ replayed))
+        if looks_like_degrees(abs(gain)):
+            raise BadInputError(f"the recorded {output} is {abs(gain):.3g} times {reference_name}'s replay of it: it "
+                                f"looks like degrees; flightgp reads {column_unit(output)} (docs/conventions.md, "
+                                "\"Units and axes\")")
+        if looks_like_degrees(1 / abs(gain)):
+            raise BadInputError(f"{reference_name}'s replay of {output} is {1 / abs(gain):.3g} times the recorded "
+                                f"{output}: the reference's {output} looks like degrees; flightgp reads "
+                                f"{column_unit(output)} (docs/conventions.md, \"Units and axes\")")
 
 
 def _spectra(data: PreparedData, residuals: list) -> dict:

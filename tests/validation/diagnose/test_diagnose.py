@@ -16,6 +16,7 @@ from validation.diagnose.report import statement
 from validation.vehicles.bo105_effects import identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD, Bo105FlightTest
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
+from validation.vehicles.registry import get_vehicle
 
 
 def _recordings(vehicle, *, duration=20.0):
@@ -274,11 +275,17 @@ def _write_table(path, header, rows):
     ("no_outputs", "no output columns"),
     ("too_short", "too short to identify anything"),
     ("nan", "not a finite number"),
+    # The reference's own pitch rate, in deg/s: below the reading's plausibility limit.
+    ("rate_in_degrees", "the recorded q is 57.3 times bo105-80kt's replay of it: it looks like degrees"),
 ])
 def test_bad_recordings_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, problem, expected):
     time = np.arange(0, 1.0, 0.01) if problem == "too_short" else np.arange(0, 4.0, 0.01)
     rows = [[t, 0.0, 0.01 * (t > 0.5), 0.0, 0.0, 0.0] for t in time]
     header = ["time", "theta_0", "theta_1s", "theta_1c", "theta_0T", "q"]
+    if problem == "rate_in_degrees":
+        reference = get_vehicle("bo105-80kt")
+        flown = reference.simulate(time, np.array([r[1:5] for r in rows]))
+        rows = [r[:5] + [math.degrees(q)] for r, q in zip(rows, flown.output("q"))]
     if problem == "missing_input":
         header, rows = header[:4] + header[5:], [r[:4] + r[5:] for r in rows]
     elif problem == "wrong_vehicle":
