@@ -15,7 +15,7 @@ from fmu_src.rate_predictor.predictor import NarxPredictor, pack_model
 from fmu_src.rate_predictor.slave import RatePredictor, rate_predictor_variables
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import three_two_one_one
-from validation.models.narx import load_trained
+from validation.models.narx import load_trained, training_envelope
 
 
 def build_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
@@ -186,11 +186,10 @@ def export_narx_arrays(trained) -> dict:
             "input_mean": gp.input_scaler_.mean_, "input_scale": gp.input_scaler_.scale_,
             "output_mean": gp.output_scaler_.mean_[0], "output_scale": gp.output_scaler_.scale_[0],
         })
-    first = trained.model.model.gps[0]
-    training = first.input_scaler_.inverse_transform(first.X_train_)
+    envelope_low, envelope_high = training_envelope(trained)
     return pack_model(step=trained.step, input_names=structure.input_names, output_names=structure.output_names,
                       input_lags=structure.input_lags, output_lags=structure.output_lags,
-                      envelope_low=training.min(axis=0), envelope_high=training.max(axis=0), outputs=outputs)
+                      envelope_low=envelope_low, envelope_high=envelope_high, outputs=outputs)
 
 
 def _interface(config) -> dict:

@@ -2,14 +2,16 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from fmu_src.fmi.runtime import ENVELOPE_MARGIN
 from validation.cli.arguments import add_format_argument, seed
 from validation.core.errors import BadInputError
 from validation.core.files import write_atomically
-from validation.models.narx import free_run, load_trained, one_step
+from validation.models.narx import free_run, load_trained, one_step, unseen_inputs
 from validation.vehicles import read_recording
 
 METHODS = ("monte_carlo", "moment_matching", "mean", "one_step")
@@ -40,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
     trained = load_trained(args.model)
     recording = read_recording(args.recording, file_format=args.file_format)
     name = str(args.recording)
+    for phrase in unseen_inputs(trained, recording, margin=ENVELOPE_MARGIN):
+        print(f"flightgp predict: warning: {phrase}", file=sys.stderr)
     if args.method == "one_step":
         prediction = one_step(trained, recording, name=name)
     else:

@@ -25,7 +25,7 @@ from gp_model import GPNarx, NarxStructure, load_model, read_header, save_model
 from validation.core.errors import BadInputError
 from validation.core.metrics import rmse
 from validation.core.progress import progress_bar
-from validation.core.recordings import Recording
+from validation.core.recordings import Recording, column_unit
 
 #: Kernels and hyperparameter methods ``train`` accepts (names of :meth:`GPNarx.fit`).
 KERNELS = ("higdon", "squared_exponential_ard")
@@ -215,6 +215,12 @@ def train_narx(recordings, config: NarxConfig, *, seed: int = 0, progress: bool 
             target_time.append(recording.time[index] if recording is recordings[0] else np.full(len(index), np.nan))
     target_index, target_time = np.concatenate(target_index), np.concatenate(target_time)
     keep = np.flatnonzero(target_index % config.stride == 0)
+    needed = min_training_points(config)
+    if len(keep) < needed:
+        raise BadInputError(
+            f"the recordings give {len(keep)} training point(s) (every {config.stride}th NARX target) for "
+            f"{len(config.structure().regressor_names)} regressors; a GP needs at least {needed}, two per "
+            "hyperparameter: record longer, or lower the stride")
     options = dict(inference_options)
     if config.n_inducing is not None:
         options["n_inducing"] = config.n_inducing
@@ -225,6 +231,43 @@ def train_narx(recordings, config: NarxConfig, *, seed: int = 0, progress: bool 
                            progress=update, **options)
     training_time = np.sort(target_time[keep][np.isfinite(target_time[keep])])
     return TrainedNarx(model, config, sample_time, training_time)
+
+
+def min_training_points(config: NarxConfig) -> int:
+    """Fewest training points :func:`train_narx` accepts: two per hyperparameter of one output's
+    GP (a length scale per regressor, the signal and the noise variance); with fewer, the
+    marginal likelihood cannot tell the hyperparameters apart and the bands mean nothing."""
+    return 2 * (len(config.structure().regressor_names) + 2)
+
+
+def training_envelope(trained: TrainedNarx) -> tuple[np.ndarray, np.ndarray]:
+    """The range of every regressor over the training rows, in physical units: ``(low, high)``,
+    each shape (n_regressors,) in the order of ``config.structure().regressor_names``."""
+    first = trained.model.model.gps[0]
+    training = first.input_scaler_.inverse_transform(first.X_train_)
+    return training.min(axis=0), training.max(axis=0)
+
+
+def unseen_inputs(trained: TrainedNarx, recording: Recording, *, margin: float) -> list[str]:
+    """What in ``recording``'s inputs the model never saw in training, one phrase each: an input
+    column it moves that the model does not take, or a model input that leaves the training
+    range by more than ``margin`` of that range (the FMUs' envelope rule). Empty when the
+    recording stays inside what the model learnt from."""
+    phrases = [f"{name} moves, but the model does not take it as an input (its inputs: "
+               f"{', '.join(trained.config.inputs)}), so the response to it is missing"
+               for name in recording.input_names
+               if name not in trained.config.inputs and np.ptp(recording.input(name)) > 0]
+    low, high = training_envelope(trained)
+    structure = trained.config.structure()
+    for name in trained.config.inputs:
+        columns = [i for i, regressor in enumerate(structure.regressor_names) if regressor.startswith(f"{name}(")]
+        trained_low, trained_high = low[columns].min(), high[columns].max()
+        widen = margin * (trained_high - trained_low)
+        values = recording.input(name)
+        if values.min() < trained_low - widen or values.max() > trained_high + widen:
+            phrases.append(f"{name} spans {values.min():.4g} .. {values.max():.4g} {column_unit(name)}, but the model "
+                           f"was trained on {trained_low:.4g} .. {trained_high:.4g}: the GP extrapolates there")
+    return phrases
 
 
 def one_step(trained: TrainedNarx, recording: Recording, *, name: str = "recording") -> NarxPrediction:

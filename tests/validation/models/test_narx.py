@@ -8,8 +8,16 @@ import pytest
 from gp_model import ModelFileError, save_model
 from validation.cli import main
 from validation.core.errors import BadInputError
-from validation.core.recordings import write_recording
-from validation.models.narx import NarxConfig, free_run, load_trained, one_step, save_trained, train_narx
+from validation.core.recordings import Recording, write_recording
+from validation.models.narx import (
+    NarxConfig,
+    free_run,
+    load_trained,
+    one_step,
+    save_trained,
+    train_narx,
+    unseen_inputs,
+)
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +120,28 @@ def test_cli_train_and_predict(tmp_path, recordings, capsys):
     # 8 s on the 0.1 s NARX grid: 81 rows; time, then measured, mean, lower, upper per axis.
     assert table.shape == (81, 13) and np.all(table[:, 3] <= table[:, 4])
     assert out.with_suffix(".png").stat().st_size > 10_000
-    assert "coverage" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert "coverage" in printed.out
+    # The unseen 3-2-1-1 is larger than the training one (1.3 deg against 1 deg).
+    assert "warning: theta_1s spans -0.02269 .. 0.02269 rad, but the model was trained on" in printed.err
+
+
+def test_predict_names_what_the_model_never_saw_move(trained, recordings):
+    """An input the model does not take, moved, and a model input beyond its training range
+    each give a phrase; the training flight itself none."""
+    assert unseen_inputs(trained, recordings[0], margin=0.1) == []
+    wider = recordings[0].inputs.copy()
+    wider[:, recordings[0].input_names.index("theta_1c")] = 0.01 * np.sign(np.sin(recordings[0].time))
+    wider[:, recordings[0].input_names.index("theta_1s")] *= 1.5
+    flown = Recording(recordings[0].time, wider, recordings[0].input_names, recordings[0].outputs,
+                      recordings[0].output_names)
+    phrases = unseen_inputs(trained, flown, margin=0.1)
+    assert len(phrases) == 2
+    assert phrases[0].startswith("theta_1c moves, but the model does not take it as an input (its inputs: theta_1s)")
+    assert phrases[1].startswith("theta_1s spans") and "the GP extrapolates there" in phrases[1]
+    # Within the margin (10 % of the range on each side) is still inside.
+    assert unseen_inputs(trained, Recording(recordings[0].time, recordings[0].inputs * 1.05, recordings[0].input_names,
+                                            recordings[0].outputs, recordings[0].output_names), margin=0.1) == []
 
 
 def test_cli_bad_inputs_exit_2_and_write_nothing(tmp_path, recordings, capsys):
@@ -123,12 +152,19 @@ def test_cli_bad_inputs_exit_2_and_write_nothing(tmp_path, recordings, capsys):
         ["train", str(tmp_path / "rec.csv"), "--out", str(tmp_path / "m.npz"), "--sparse", "0"],
         ["predict", str(tmp_path / "rec.csv"), str(tmp_path / "rec.csv"), "--out", str(tmp_path / "p.csv")],
         ["predict", str(tmp_path / "none.npz"), str(tmp_path / "rec.csv"), "--out", str(tmp_path / "p.csv")],
+        # Half a second: 2 training points for the paper's 5 regressors.
+        ["train", str(tmp_path / "short.csv"), "--out", str(tmp_path / "m.npz")],
     ]
+    short = recordings[0]
+    write_recording(tmp_path / "short.csv", Recording(short.time[:51], short.inputs[:51], short.input_names,
+                                                      short.outputs[:51], short.output_names, dict(short.metadata)))
     for argv in cases:
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err, err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "rec.json"]
+    assert "the recordings give 2 training point(s) (every 25th NARX target) for 5 regressors; a GP needs at " \
+           "least 14" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "rec.json", "short.csv", "short.json"]
 
 
 @pytest.mark.slow
