@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from validation.diagnose.data import read_column_map
     from validation.diagnose.fidelity import read_tolerances
     from validation.diagnose.pipeline import stage_count
+    from validation.diagnose.report import ignored_columns_phrase
 
     check_output_folder(args.out)
     tolerances = read_tolerances(args.tolerances) if args.tolerances is not None else None
@@ -74,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
     for key, words in (("reference", "before correction"), ("corrected", "after correction")):
         inside = ", ".join(n for n, e in banded.items() if e[key]["passes"]) or "none"
         print(f"inside the tolerance bands {words}: {inside} (of {', '.join(banded) or '-'})")
+    if result["ignored_columns"]:
+        print(f"left out: {ignored_columns_phrase(result['ignored_columns'], result['reference'])}")
     for finding in result["findings"]:
         print(f"- {finding['statement']}")
     fit = result["fit"]

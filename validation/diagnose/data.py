@@ -24,8 +24,9 @@ state), and each output's noise standard deviation is floored at the reference's
 """
 from __future__ import annotations
 
+import csv
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -84,6 +85,9 @@ class PreparedData(FitData):
         Why effects on the other inputs cannot be tested.
     typical_noise_sd : dict of str to float
         Per output: the median over recordings of its noise standard deviation, output units.
+    ignored_columns : list of str
+        Columns of the recordings that are none of the reference's variables (a reduced model,
+        or another instrument's channels), left out of the diagnosis; sorted, each once.
     """
 
     input_names: tuple
@@ -96,6 +100,7 @@ class PreparedData(FitData):
     excited: list
     untestable: list
     typical_noise_sd: dict
+    ignored_columns: list = field(default_factory=list)
 
     @property
     def sample_rate(self) -> float:
@@ -206,7 +211,8 @@ def prepare(recordings, reference: EffectModel, *, holdout=None, file_format: st
                         input_names=reference.input_names, holdout_mask=holdout_mask,
                         recording_names=[s.name for s in sources], held_out=[s.held_out for s in sources],
                         holdout_description=description, step=step, even=even, excited=excited,
-                        untestable=untestable, typical_noise_sd=typical)
+                        untestable=untestable, typical_noise_sd=typical,
+                        ignored_columns=sorted({c for s in sources for c in s.recording.metadata.get(IGNORED_KEY, ())}))
 
 
 def evenly_sampled(time: np.ndarray) -> bool:
@@ -264,17 +270,54 @@ def _read(path: Path, reference: EffectModel, file_format: str | None, column_ma
     """The recording file at ``path`` (in ``file_format``, or recognised) read as one of
     ``reference`` whose variables carry the names ``column_map`` gives them in the file."""
     in_file = {name: column for column, name in column_map.items()}
-    expected = SimpleNamespace(name=reference.name,
-                               input_names=tuple(in_file.get(n, n) for n in reference.input_names),
-                               state_names=tuple(in_file.get(n, n) for n in reference.state_names))
+    inputs = tuple(in_file.get(n, n) for n in reference.input_names)
+    states = tuple(in_file.get(n, n) for n in reference.state_names)
+    extra = _other_columns(path, (*inputs, *states))
+    expected = SimpleNamespace(name=reference.name, input_names=inputs, state_names=states + extra)
     try:
-        return read_recording(path, vehicle=expected if column_map else reference, file_format=file_format)
+        recording = read_recording(path, vehicle=expected if column_map or extra else reference,
+                                   file_format=file_format)
+        return _without_columns(recording, extra, name=path.name, reference=reference)
     except BadInputError as error:
         if "unknown column" in str(error) or "missing input column" in str(error):
             raise BadInputError(f"{error} (a recording of another vehicle than {reference.name}? Its inputs are "
                                 f"{', '.join(reference.input_names)}, its outputs "
                                 f"{', '.join(reference.state_names)}; --map renames columns)") from None
         raise
+
+
+#: The metadata key under which a recording keeps the columns left out of it.
+IGNORED_KEY = "ignored_columns"
+
+
+def _other_columns(path: Path, variables: tuple) -> tuple:
+    """The columns of the flightgp recording file at ``path`` that are none of ``variables``
+    (nor ``time``), in file order; none when the file is not one (its reader says why)."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as file:
+            header = next((row for row in csv.reader(file) if row), [])
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return ()
+    names = [name.strip() for name in header]
+    if not names or names[0] != "time":
+        return ()
+    return tuple(dict.fromkeys(n for n in names[1:] if n and n not in variables))
+
+
+def _without_columns(recording: Recording, columns, *, name: str, reference: EffectModel) -> Recording:
+    """``recording`` without the outputs ``columns`` (read as outputs only to be dropped), which
+    its metadata lists under :data:`IGNORED_KEY`; a recording left without outputs is refused."""
+    columns = [c for c in columns if c in recording.output_names or c in recording.input_names]
+    if not columns:
+        return recording
+    keep = [i for i, n in enumerate(recording.output_names) if n not in columns]
+    if not keep:
+        raise BadInputError(f"{name}: none of its columns is an output of {reference.name} "
+                            f"({', '.join(reference.state_names)}): a recording of another vehicle?")
+    order = [recording.input_names.index(n) for n in reference.input_names if n in recording.input_names]
+    return Recording(recording.time, recording.inputs[:, order], tuple(recording.input_names[i] for i in order),
+                     recording.outputs[:, keep], tuple(recording.output_names[i] for i in keep),
+                     {**recording.metadata, IGNORED_KEY: list(columns)})
 
 
 def _heading_unwrapped(recording: Recording) -> Recording:
@@ -294,13 +337,11 @@ def _checked_recording(recording: Recording, name: str, reference: EffectModel) 
     missing = [n for n in reference.input_names if n not in recording.input_names]
     if missing:
         raise BadInputError(f"{name}: missing input(s) {', '.join(missing)} of {reference.name}")
-    unknown = [n for n in recording.output_names if n not in reference.state_names]
-    if unknown:
-        raise BadInputError(f"{name}: output(s) {', '.join(unknown)} are not states of "
-                            f"{reference.name} ({', '.join(reference.state_names)}): a "
-                            "recording of another vehicle?")
     if not recording.output_names:
         raise BadInputError(f"{name}: no measured outputs")
+    variables = (*reference.input_names, *reference.state_names)
+    recording = _without_columns(recording, [n for n in (*recording.input_names, *recording.output_names)
+                                             if n not in variables], name=name, reference=reference)
     for what, array in (("time", recording.time), ("inputs", recording.inputs), ("outputs", recording.outputs)):
         if not np.all(np.isfinite(array)):
             raise BadInputError(f"{name}: {what} hold NaN or infinite values")

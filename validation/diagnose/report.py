@@ -49,7 +49,8 @@ class Diagnosis:
     """Result of :func:`validation.diagnose.pipeline.diagnose`.
 
     ``as_dict()`` is exactly ``diagnosis.json`` (docs/diagnose.md, "diagnosis.json"): ``reference``, ``verdict``,
-    ``mismatch``, ``findings``, ``fit``, plus ``locate`` (noise, bands, coherence), ``untestable``
+    ``mismatch``, ``findings``, ``fit``, plus ``locate`` (noise, bands, coherence), ``untestable``,
+    ``ignored_columns`` (recording columns none of the reference's variables, left out)
     and ``search`` (what was tested and the last rejected hypothesis), and ``replication`` (the
     folds' findings) when the search was replicated. The other attributes feed the report and the
     corrected-model file.
@@ -83,11 +84,12 @@ class Diagnosis:
     holdout_traces: dict = field(repr=False, default_factory=dict)
     replication: dict | None = None
     fidelity: dict | None = None
+    ignored_columns: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
         result = {"reference": self.reference, "verdict": self.verdict, "mismatch": self.mismatch,
                   "findings": self.findings, "fit": self.fit, "locate": self.locate,
-                  "untestable": self.untestable, "search": self.search}
+                  "untestable": self.untestable, "ignored_columns": self.ignored_columns, "search": self.search}
         if self.fidelity is not None:
             result["fidelity"] = self.fidelity
         if self.replication is not None:
@@ -121,7 +123,8 @@ def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Loc
                      findings=findings, fit=proof.fit, locate=location.summary,
                      untestable=data.untestable + proof.untestable, search=explanation.search,
                      corrected=models.corrected, named_effects=explanation.effects, holdout_traces=proof.traces,
-                     replication=replication.summary() if replication is not None else None, fidelity=fidelity)
+                     replication=replication.summary() if replication is not None else None, fidelity=fidelity,
+                     ignored_columns=data.ignored_columns)
 
 
 def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float,
@@ -388,6 +391,8 @@ def report_markdown(diagnosis: Diagnosis, plot_names: dict) -> str:
     if not result["findings"]:
         lines.append("None.")
     lines += _search_notes(result["search"], result["untestable"])
+    if result["ignored_columns"]:
+        lines.append(f"- Left out: {ignored_columns_phrase(result['ignored_columns'], result['reference'])}.")
     lines += ["", "## Where the reference misfits (locate)", ""]
     lines += _locate_notes(result["mismatch"], result["locate"])
     lines += ["", "## Held-out plots", ""]
@@ -467,6 +472,12 @@ def _finding_details(finding: dict) -> list[str]:
                  f"RMSE reference + GP {_number(finding['rmse_reference_gp'])} vs reference + "
                  f"this effect {_number(finding['rmse_effect_alone'])}.{flag}")
     return lines
+
+
+def ignored_columns_phrase(columns: list, reference: str) -> str:
+    """What the diagnosis left out of the recordings, in words (report and command line)."""
+    return (f"column(s) {', '.join(columns)} of the recordings, which are none of {reference}'s variables: "
+            "the diagnosis does not use them (inputs among them act on the vehicle outside the model)")
 
 
 def _search_notes(search: dict, untestable: list) -> list[str]:

@@ -10,9 +10,11 @@ import pytest
 from tests.validation.diagnose.test_diagnose import CASES, _concealed
 from validation.cli import main
 from validation.core.errors import BadInputError
+from validation.core.recordings import Recording, write_recording
 from validation.diagnose import diagnose
+from validation.diagnose.data import prepare
 from validation.vehicles.bo105 import Bo105Reference
-from validation.vehicles.effect_vehicle import EffectVehicle
+from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.linear_effects import LinearEffects
 from validation.vehicles.registry import get_vehicle
 from validation.vehicles.state_space import read_state_space, state_space_from_dict
@@ -61,9 +63,11 @@ def test_a_users_own_model_is_diagnosed_and_its_corrected_model_carries_it(tmp_p
     truth = {"effect": "stability_derivative", "term": "M_q", "value": -2.0}
     concealed = EffectVehicle(str(model_file), [truth], noise_sd={"w": 0.01, "q": 0.001})
     reference = get_vehicle(str(model_file))
-    fit = concealed.simulate(*_manoeuvre(reference, 0), seed=1)
+    fit = _with_other_columns(concealed.simulate(*_manoeuvre(reference, 0), seed=1))
     held = concealed.simulate(*_manoeuvre(reference, 1), seed=2)
     diagnosis = diagnose([fit], reference=str(model_file), holdout=[held])
+    # The recording of the whole aircraft: the model's columns used, the others named and left out.
+    assert diagnosis.as_dict()["ignored_columns"] == ["aileron", "theta"]
     finding = diagnosis.as_dict()["findings"][0]
     assert (finding["effect"], finding["term"]) == ("stability_derivative", "M_q")
     low, high = finding["interval"]  # within three half-widths of the 95 % interval (5.9 standard errors)
@@ -74,6 +78,41 @@ def test_a_users_own_model_is_diagnosed_and_its_corrected_model_carries_it(tmp_p
     loaded = EffectVehicle.load(saved)
     np.testing.assert_allclose(loaded.simulate_states(held.time, held.inputs),
                                diagnosis.corrected.simulate_states(held.time, held.inputs))
+
+
+def _with_other_columns(recording):
+    """``recording`` with a column the short-period model does not have among its inputs
+    (``aileron``, moving) and one among its outputs (``theta``)."""
+    aileron = 0.01 * np.sin(recording.time)
+    return Recording(recording.time, np.column_stack([recording.inputs, aileron]), (*recording.input_names, "aileron"),
+                     np.column_stack([recording.outputs, np.cumsum(recording.output("q")) * 0.01]),
+                     (*recording.output_names, "theta"), dict(recording.metadata))
+
+
+def test_a_reduced_model_reads_whole_recordings_and_says_what_it_left_out(tmp_path):
+    """A recording file with columns the model does not have is read with the model's columns
+    (the same numbers as without the others) and names the others; one sharing no output with
+    the model, or missing one of its inputs, is refused."""
+    model_file = tmp_path / "short_period.json"
+    model_file.write_text(json.dumps(SHORT_PERIOD))
+    reference = get_vehicle(str(model_file))
+    flown = reference.simulate(*_manoeuvre(reference, 0))
+    write_recording(tmp_path / "whole.csv", _with_other_columns(flown))
+    model = effect_model(str(model_file), purpose="test")
+    data = prepare([tmp_path / "whole.csv"], model)
+    assert data.ignored_columns == ["aileron", "theta"] and data.output_names == ("w", "q")
+    np.testing.assert_array_equal(data.measured[0], flown.outputs)
+    np.testing.assert_array_equal(data.inputs[0], flown.inputs)
+    assert prepare([flown], model).ignored_columns == []
+    elsewhere = _with_other_columns(flown)
+    only_theta = Recording(elsewhere.time, elsewhere.inputs, elsewhere.input_names, elsewhere.outputs[:, -1:],
+                           ("theta",))
+    with pytest.raises(BadInputError, match="none of its columns is an output of short-period"):
+        prepare([only_theta], model)
+    write_recording(tmp_path / "no_elevator.csv", Recording(flown.time, np.zeros((len(flown.time), 1)), ("aileron",),
+                                                            flown.outputs, flown.output_names))
+    with pytest.raises(BadInputError, match="missing input column"):
+        prepare([tmp_path / "no_elevator.csv"], model)
 
 
 def _manoeuvre(reference, variant):
