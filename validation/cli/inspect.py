@@ -8,7 +8,7 @@ import numpy as np
 
 from validation.cli.arguments import add_format_argument
 from validation.core.recordings import column_unit
-from validation.vehicles import read_recording
+from validation.vehicles import get_vehicle, read_recording
 
 
 def register(subparsers) -> None:
@@ -44,4 +44,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"{'column':<{width}}  {'role':<6}  {'unit':<5}  {'min':>12}  {'max':>12}")
     for name, role, values in rows:
         print(f"{name:<{width}}  {role:<6}  {column_unit(name):<5}  {values.min():>12.6g}  {values.max():>12.6g}")
+    if vehicle and getattr(get_vehicle(vehicle), "perturbations_from_trim", False):
+        for phrase in trim_departures(recording):
+            print(f"warning: {phrase}; {vehicle}'s columns are perturbations from trim, so its recordings start "
+                  "near 0: subtract the trim values (docs/conventions.md, \"Units and axes\")")
     return 0
+
+
+#: A column starts away from trim when its first value is more than this many times its whole
+#: motion over the recording away from zero: a perturbation recording starts within its motion
+#: of zero, an absolute one (u = 41 m/s at 80 kt, moving by 1 m/s) far outside it.
+TRIM_DEPARTURE_RATIO = 5.0
+
+
+def trim_departures(recording) -> list[str]:
+    """One phrase per column of ``recording`` whose first value lies further from zero than
+    :data:`TRIM_DEPARTURE_RATIO` times its peak-to-peak motion: recorded absolute, not as a
+    perturbation from trim."""
+    columns = [(name, recording.input(name)) for name in recording.input_names]
+    columns += [(name, recording.output(name)) for name in recording.output_names]
+    return [f"{name} starts at {values[0]:.6g} {column_unit(name)} and moves by {np.ptp(values):.3g} only"
+            for name, values in columns if abs(values[0]) > TRIM_DEPARTURE_RATIO * np.ptp(values)]

@@ -355,6 +355,8 @@ class Bo105FlightTest:
     input_names = INPUT_NAMES
     state_names = STATE_NAMES
     sample_time = SAMPLE_TIME
+    #: As the reference's: perturbations from trim (:attr:`LinearReference.perturbations_from_trim`).
+    perturbations_from_trim = True
 
     def __init__(self, speed_kt: int, *, flapping: bool = True, dynamic_inflow: bool = True,
                  actuators: bool = True, transport_delay: bool = True, off_axis_coupling: bool = True,

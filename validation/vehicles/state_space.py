@@ -118,6 +118,10 @@ class LinearReference:
     An instance never changes: :meth:`with_derivatives` returns a new one.
     """
 
+    #: Its states and inputs are perturbations from trim, so its recordings start near zero
+    #: (``flightgp inspect`` flags one that does not).
+    perturbations_from_trim = True
+
     def __init__(self, *, name: str, state_names, input_names, A, B, row_letters: dict, units: dict | None = None,
                  sample_time: float = DEFAULT_SAMPLE_TIME):
         self.name = name

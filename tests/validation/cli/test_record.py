@@ -136,3 +136,18 @@ class _FakeVehicle:
         for k in range(1, len(time)):
             q[k] = q[k - 1] + self.sample_time * (self.gain * inputs[k - 1, 0] - q[k - 1])
         return Recording(time, inputs, self.input_names, q, self.state_names, {"vehicle": self.name})
+
+
+def test_inspect_flags_a_recording_that_does_not_start_at_trim(tmp_path, capsys):
+    """The Bo105's columns are perturbations from trim: u recorded absolute (41 m/s at 80 kt,
+    moving by 0.3 m/s) is flagged, the same motion as a perturbation is not."""
+    rows = [(k * 0.01, 0.0, 0.01 * (k > 50), 0.0, 0.0, 0.3 * (k > 60), 0.02 * (k > 55)) for k in range(200)]
+    for name, trim_u, flagged in (("absolute.csv", 41.2, True), ("perturbation.csv", 0.0, False)):
+        path = tmp_path / name
+        path.write_text("time,theta_0,theta_1s,theta_1c,theta_0T,u,q\n"
+                        + "".join(",".join(map(repr, (*row[:5], row[5] + trim_u, row[6]))) + "\n" for row in rows))
+        assert main(["inspect", str(path), "--vehicle", "bo105-80kt"]) == 0
+        warnings = [line for line in capsys.readouterr().out.splitlines() if line.startswith("warning:")]
+        assert warnings == (["warning: u starts at 41.2 m/s and moves by 0.3 only; bo105-80kt's columns are "
+                             "perturbations from trim, so its recordings start near 0: subtract the trim values "
+                             "(docs/conventions.md, \"Units and axes\")"] if flagged else [])
