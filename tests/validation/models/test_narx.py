@@ -61,7 +61,20 @@ def test_trained_model_file_round_trip(tmp_path, trained, recordings):
     path = save_trained(tmp_path / "m.npz", trained)
     loaded = load_trained(path)
     assert loaded.config == trained.config and loaded.recording_sample_time == trained.recording_sample_time
+    # The condition it was trained at travels with it (an FMU of it states it).
+    assert trained.condition == loaded.condition == {"vehicle": "bo105-80kt-flight", "speed_kt": 80}
     np.testing.assert_array_equal(one_step(loaded, recordings[1]).mean, one_step(trained, recordings[1]).mean)
+
+
+def test_the_training_condition_is_what_every_recording_says(recordings):
+    from dataclasses import replace
+
+    from validation.models.narx import training_condition
+
+    other = replace(recordings[1], metadata={**recordings[1].metadata, "speed_kt": 60})
+    assert training_condition(recordings) == {"vehicle": "bo105-80kt-flight", "speed_kt": 80}
+    assert training_condition([recordings[0], other]) == {"vehicle": "bo105-80kt-flight"}
+    assert training_condition([replace(other, metadata={})]) == {}
 
 
 def test_plain_gp_file_is_not_a_narx_model(tmp_path, trained):
