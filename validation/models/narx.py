@@ -242,8 +242,8 @@ def train_narx(recordings, config: NarxConfig, *, seed: int = 0, progress: bool 
     options = dict(inference_options)
     if config.n_inducing is not None:
         options["n_inducing"] = config.n_inducing
-    with progress_bar(f"training {len(config.outputs)} GPs ({config.hyperparameters})",
-                      enabled=progress) as update:
+    with progress_bar(f"training ({config.hyperparameters.replace('_', ' ')})", enabled=progress,
+                      total=len(config.outputs), unit="GP") as update:
         model = GPNarx.fit(config.structure(), sequences, kernel=config.kernel,
                            hyperparameters=config.hyperparameters, rows=keep, seed=seed,
                            progress=update, **options)
@@ -268,7 +268,7 @@ def free_run(trained: TrainedNarx, recording: Recording, *, method: str = "monte
     time, u, y = _checked_arrays(trained, recording, name)
     first = trained.config.structure().max_lag
     with progress_bar(f"free run ({method.replace('_', ' ')})", enabled=progress and method == "monte_carlo",
-                      total=len(u) - first) as update:
+                      total=len(u) - first, unit="step") as update:
         result = trained.model.free_run(u, y[:first], method=method, n_runs=n_runs, seed=seed,
                                         progress=update)
     return NarxPrediction(time, y, result.mean, result.var, first)

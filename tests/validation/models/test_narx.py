@@ -115,17 +115,25 @@ def test_cli_train_and_predict(tmp_path, recordings, capsys):
     model = tmp_path / "m.npz"
     assert main(["train", str(tmp_path / "train.csv"), "--out", str(model),
                  "--hyperparameters", "maximum_likelihood"]) == 0
-    assert "ARD relevance" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert "ARD relevance" in printed.out
+    # Progress to a stream that is not a terminal (a log, a pipe): plain lines with their totals.
+    assert "\r" not in printed.err
+    assert [line.rsplit(", ", 1)[0] for line in printed.err.splitlines()] == [
+        f"training (maximum likelihood): {i}/3 GPs" for i in (1, 2, 3)]
+    assert load_trained(model).condition == {"vehicle": "bo105-80kt-flight", "speed_kt": 80}
     out = tmp_path / "pred.csv"
     assert main(["predict", str(model), str(tmp_path / "test.csv"), "--out", str(out),
                  "--runs", "100", "--plot"]) == 0
+    printed = capsys.readouterr()
+    assert "\r" not in printed.err and printed.err.splitlines()[-1].startswith("free run (monte carlo): 79/79 steps, ")
     header = out.read_text().splitlines()[0].split(",")
     assert header[:5] == ["time", "p_measured", "p_mean", "p_lower", "p_upper"]
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     # 8 s on the 0.1 s NARX grid: 81 rows; time, then measured, mean, lower, upper per axis.
     assert table.shape == (81, 13) and np.all(table[:, 3] <= table[:, 4])
     assert out.with_suffix(".png").stat().st_size > 10_000
-    assert "coverage" in capsys.readouterr().out
+    assert "coverage" in printed.out
 
 
 def test_cli_bad_inputs_exit_2_and_write_nothing(tmp_path, recordings, capsys):
