@@ -172,7 +172,10 @@ class GPNarx:
             output (variational free energy, O(n m^2)) instead of an exact GP (O(n^3)), so that
             all samples can be used (``stride=1``).
         progress : callable, optional
-            Passed to the hyperparameter inference (see :func:`~gp_model.simulated_annealing`).
+            Called as ``progress(1)`` after each output's GP is trained (its hyperparameters
+            inferred), and with annealing as ``progress(0, zeta=..., acceptance=...)`` after
+            each of its stages (see :func:`~gp_model.simulated_annealing`; its Metropolis steps
+            are not counted, as their number is not known beforehand).
         **inference_options
             Passed to :func:`~gp_model.anneal_hyperparameters` or
             :func:`~gp_model.maximize_marginal_likelihood`.
@@ -196,6 +199,11 @@ class GPNarx:
             X, Y = X[np.asarray(rows)], Y[np.asarray(rows)]
         n_dims = X.shape[1]
         start = {"higdon": 0.5, "squared_exponential_ard": 1.0}[kernel]
+
+        def stage_status(n, **status):  # the annealing's stages; its Metropolis steps are not the count
+            if status:
+                progress(0, **status)
+
         gps = []
         for j in range(Y.shape[1]):
             kernel_j = KERNELS[kernel](1.0, np.full(n_dims, start))
@@ -206,10 +214,13 @@ class GPNarx:
                                            inducing_seed=seed + j)
             gp.fit(X, Y[:, j])
             if hyperparameters == "annealing":
-                anneal_hyperparameters(gp, seed=seed + j, progress=progress, **inference_options)
+                anneal_hyperparameters(gp, seed=seed + j, progress=None if progress is None else stage_status,
+                                       **inference_options)
             else:
                 maximize_marginal_likelihood(gp, seed=seed + j, **inference_options)
             gps.append(gp)
+            if progress is not None:
+                progress(1)
         return cls(structure, PerOutputGP(gps))
 
     # -- one step ---------------------------------------------------------------------------

@@ -96,14 +96,39 @@ def rate_predictor_parts(model_path, out_dir, *, name: str | None = None) -> Rat
     predictor = NarxPredictor(arrays)  # checks shapes and finiteness
     error = fast_path_error(predictor)
     exact = error > FAST_PATH_CHECK
-    description = (f"GP-NARX predictor of {', '.join(trained.config.outputs)} with confidence bounds "
-                   f"from {', '.join(trained.config.inputs)} and the previous outputs; NARX step "
-                   f"{trained.step:g} s; {len(arrays['0/basis'])} basis points, "
-                   f"{len(arrays['0/weights'])} hyperparameter samples; model {model_path.name}; "
-                   f"free run's fast path off by {error:.2g} of the sd on a test 3-2-1-1, so exact_moments "
-                   f"defaults to {'true' if exact else 'false'}")
+    outputs, inputs = ", ".join(trained.config.outputs), ", ".join(trained.config.inputs)
+    description = (f"Gaussian-process (GP-NARX) rate predictor: predicts {outputs} one step of {trained.step:g} s "
+                   f"ahead, with confidence bounds, from {inputs} and the previous {outputs}. "
+                   f"{condition_words(trained.condition)}. {len(arrays['0/basis'])} basis points, "
+                   f"{len(arrays['0/weights'])} hyperparameter samples; model file {model_path.name}. "
+                   f"{_fast_path_words(error, exact=exact)}")
     return RatePredictorParts(target=target, arrays=arrays, interface={**interface, "exact_moments": exact},
                               description=description, step=float(trained.step), predictor=predictor)
+
+
+def condition_words(condition: dict) -> str:
+    """The flight condition a model is valid for, in words, from the condition it was trained at
+    (:attr:`validation.models.narx.TrainedNarx.condition`): ``"Trained on recordings of
+    bo105-80kt-flight, trimmed at 80 kt: valid near that flight condition only"``."""
+    vehicle, speed = condition.get("vehicle"), condition.get("speed_kt")
+    if vehicle is None:
+        return ("The model file does not name the vehicle or flight condition it was trained on: valid only "
+                "near the conditions of its training recordings")
+    if speed is None:
+        return f"Trained on recordings of {vehicle}: valid near the conditions flown in them only"
+    return f"Trained on recordings of {vehicle}, trimmed at {speed:g} kt: valid near that flight condition only"
+
+
+def _fast_path_words(error: float, *, exact: bool) -> str:
+    """What the build measured of the free run's faster arithmetic (:func:`fast_path_error`) and
+    the default of ``exact_moments`` it chose, in words."""
+    default = f"so exact_moments defaults to {'true' if exact else 'false'}"
+    if not math.isfinite(error):
+        return (f"Free run: its faster arithmetic (exact_moments = false) failed its check along a test 3-2-1-1, "
+                f"{default}.")
+    return (f"Free run: its faster arithmetic (exact_moments = false), checked along a test 3-2-1-1, differs from "
+            f"the exact one by at most {100 * error:.2g} % of the predicted standard deviation "
+            f"({'over' if exact else 'within'} the {100 * FAST_PATH_CHECK:g} % allowed), {default}.")
 
 
 #: The fast path's tolerance (docs/fmus.md, "Free run at simulator speed"): the free run's means

@@ -87,7 +87,7 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     variables = rate_predictor_variables(**parts.interface)
     identifier = parts.target.stem
     slave_class = type(identifier, (RatePredictor,), {
-        "description": parts.description + "; native C (no Python at run time)", "VARIABLES": variables,
+        "description": parts.description + " Built as native C (no Python at run time).", "VARIABLES": variables,
         "STEP_SIZE": parts.step})
     data = _narx_data(parts.arrays, predictor)
     n_doubles = (len(data) - len(_DATA_MAGIC) - 8) // 8  # after the magic and the count

@@ -75,38 +75,43 @@ def rate_predictor_variables(*, inputs, outputs, exact_moments: bool = False) ->
     table = []
     for name, unit, limit, phrase in inputs:
         table.append(Variable(name, "input", "continuous", None, unit,
-                              f"{phrase} at the current communication point (perturbation from trim)",
-                              0.0, None if limit is None else -limit, limit))
+                              f"{phrase} at the current communication point, held until the next "
+                              "(perturbation from trim)", 0.0, None if limit is None else -limit, limit))
     for name, unit, limit, phrase in outputs:
         table.append(Variable(f"{name}_prev", "input", "continuous", None, unit,
-                              f"measured {phrase} at the current communication point (read only at "
-                              "initialisation when free_run)", 0.0,
-                              None if limit is None else -limit, limit))
+                              f"{phrase} at the communication point t_k the next step starts from: with free_run "
+                              f"false (the default) the host must set it before every step to the {phrase} "
+                              f"measured at t_k, and the step predicts {name} at t_k + h from it (prev: the value "
+                              f"before the one predicted); with free_run true it is read only at initialisation, as "
+                              f"the starting {phrase}", 0.0, None if limit is None else -limit, limit))
     for name, unit, _, phrase in outputs:
         table += [
             Variable(name, "output", "continuous", "exact", unit,
-                     f"predicted {phrase}: GP mean for this communication point", 0.0),
+                     f"predicted {phrase} at the current communication point (the middle of the band): after a "
+                     "step from t_k, the prediction for t_k + h", 0.0),
             Variable(f"{name}_lower", "output", "continuous", "exact", unit,
-                     f"lower bound of the confidence_level band of the {phrase}", 0.0),
+                     f"lower end of the band that holds the {phrase} with probability confidence_level", 0.0),
             Variable(f"{name}_upper", "output", "continuous", "exact", unit,
-                     f"upper bound of the confidence_level band of the {phrase}", 0.0),
+                     f"upper end of the band that holds the {phrase} with probability confidence_level", 0.0),
         ]
     table += [
         Variable("confidence_level", "parameter", "tunable", "exact", "1",
-                 "probability of the two-sided band between the lower and upper bounds", 0.95,
-                 0.5, 0.9999),
+                 "probability that the true value lies between the lower and upper bounds (0.95: a 95 % band)",
+                 0.95, 0.5, 0.9999),
         Variable("free_run", "parameter", "fixed", "exact", None,
-                 "predict from the FMU's own earlier predictions instead of the *_prev inputs "
-                 "(moment matching: the bounds grow with the horizon)", False),
+                 "false (default): predict one step ahead from measured rates, which the host must then feed "
+                 "back into the *_prev inputs at every step; true: predict from the FMU's own earlier predictions "
+                 "(no measured rates needed: *_prev are read only at initialisation, as the starting rates), "
+                 "with bounds that widen with time as the uncertainty accumulates", False),
         Variable("exact_moments", "parameter", "fixed", "exact", None,
-                 "free run: every exponential of the moment matching in double precision; false "
-                 "takes the exponents and exponentials of its pair terms in single precision, faster; "
-                 "the build measured that path on a test manoeuvre and chose this default (see the "
-                 "FMU's description)", exact_moments),
+                 "free run only: true computes how the uncertainty carries from step to step in double precision "
+                 "throughout; false does part of it in single precision, faster, within 2 % of the predicted "
+                 "standard deviation; the build checked the faster way on a test input and chose this default "
+                 "(the FMU's description says what it measured)", exact_moments),
         Variable("parallel", "parameter", "fixed", "exact", None,
-                 "free run: the native FMU computes each step on two threads, its own and one it starts "
-                 "(about 1.5x faster where two cores are free; the pythonfmu FMU runs on one thread "
-                 "either way)", False),
+                 "free run only: true makes the native FMU compute each step on two threads, its own and one it "
+                 "starts (about 1.5x faster where two cores are free); the pythonfmu FMU runs on one thread "
+                 "either way", False),
     ]
     return tuple(table)
 

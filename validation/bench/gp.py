@@ -15,6 +15,7 @@ from gp_model import (
 )
 from validation.bench.rows import SummaryRow
 from validation.core.errors import BadInputError
+from validation.core.progress import progress_bar
 
 
 def _synthetic_regression(n: int, n_dims: int, seed: int):
@@ -46,37 +47,38 @@ def run(*, sizes=(100, 500, 2000), n_restarts: int = 1, n_dims: int = 4, seed: i
     except ImportError:
         raise BadInputError("bench gp compares against scikit-learn: pip install scikit-learn "
                             "(or install flightgp with its [test] extra)") from None
-    from tqdm.auto import tqdm
-
     rows = []
-    for n in tqdm(sizes, desc="bench gp", unit="size", disable=not progress):
-        X, y, X_test = _synthetic_regression(n, n_dims, seed)
-        start = time.perf_counter()
-        ours = GaussianProcess(SquaredExponentialARD(1.0, np.ones(n_dims)), noise_variance=0.1,
-                               normalize_inputs=False, normalize_outputs=True).fit(X, y)
-        result = maximize_marginal_likelihood(ours, n_restarts=n_restarts, seed=seed)
-        fit_s = time.perf_counter() - start
-        start = time.perf_counter()
-        ours.predict(X_test, return_var=True)
-        predict_s = time.perf_counter() - start
+    with progress_bar("bench gp", enabled=progress, total=len(sizes), unit="size") as update:
+        for n in sizes:
+            X, y, X_test = _synthetic_regression(n, n_dims, seed)
+            start = time.perf_counter()
+            ours = GaussianProcess(SquaredExponentialARD(1.0, np.ones(n_dims)), noise_variance=0.1,
+                                   normalize_inputs=False, normalize_outputs=True).fit(X, y)
+            result = maximize_marginal_likelihood(ours, n_restarts=n_restarts, seed=seed)
+            fit_s = time.perf_counter() - start
+            start = time.perf_counter()
+            ours.predict(X_test, return_var=True)
+            predict_s = time.perf_counter() - start
 
-        kernel = ConstantKernel(1.0) * RBF(np.ones(n_dims)) + WhiteKernel(0.1)
-        start = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # sklearn's convergence chatter at the bounds
-            theirs = GaussianProcessRegressor(kernel, normalize_y=True, n_restarts_optimizer=n_restarts,
-                                              random_state=seed).fit(X, y)
-        fit_s_sklearn = time.perf_counter() - start
-        start = time.perf_counter()
-        theirs.predict(X_test, return_std=True)
-        predict_s_sklearn = time.perf_counter() - start
-        rows.append({
-            "n": n, "fit_s": fit_s, "fit_s_sklearn": fit_s_sklearn,
-            "fit_speedup": fit_s_sklearn / fit_s,
-            "lml": result.log_marginal_likelihood, "lml_sklearn": float(theirs.log_marginal_likelihood_value_),
-            "predict_s": predict_s, "predict_s_sklearn": predict_s_sklearn,
-            "predict_speedup": predict_s_sklearn / predict_s,
-        })
+            kernel = ConstantKernel(1.0) * RBF(np.ones(n_dims)) + WhiteKernel(0.1)
+            start = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # sklearn's convergence chatter at the bounds
+                theirs = GaussianProcessRegressor(kernel, normalize_y=True, n_restarts_optimizer=n_restarts,
+                                                  random_state=seed).fit(X, y)
+            fit_s_sklearn = time.perf_counter() - start
+            start = time.perf_counter()
+            theirs.predict(X_test, return_std=True)
+            predict_s_sklearn = time.perf_counter() - start
+            rows.append({
+                "n": n, "fit_s": fit_s, "fit_s_sklearn": fit_s_sklearn,
+                "fit_speedup": fit_s_sklearn / fit_s,
+                "lml": result.log_marginal_likelihood, "lml_sklearn": float(theirs.log_marginal_likelihood_value_),
+                "predict_s": predict_s, "predict_s_sklearn": predict_s_sklearn,
+                "predict_speedup": predict_s_sklearn / predict_s,
+            })
+            if update:
+                update(1)
     return {"rows": rows, "n_dims": n_dims, "n_restarts": n_restarts,
             "peer": "scikit-learn GaussianProcessRegressor"}
 

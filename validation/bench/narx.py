@@ -79,7 +79,8 @@ def _monte_carlo_draws(n_runs: int, n_steps: int, n_samples, seed: int):
     return assignment, rng.standard_normal((n_steps, len(n_samples), n_runs))
 
 
-def _free_run_loop(structure: NarxStructure, sample_gps, inputs, initial, assignment, draws, runs):
+def _free_run_loop(structure: NarxStructure, sample_gps, inputs, initial, assignment, draws, runs, *,
+                   progress=None):
     """The peer of ``bench narx``: the Monte Carlo free run written the obvious way. Run by run
     and step by step, build the regressor vector, ask each output's GP for the run's
     hyperparameter sample (one :class:`GaussianProcess` per sample) for the predictive mean and
@@ -96,6 +97,8 @@ def _free_run_loop(structure: NarxStructure, sample_gps, inputs, initial, assign
         As returned by :func:`_monte_carlo_draws`.
     runs : sequence of int
         The runs to compute.
+    progress : callable, optional
+        Called as ``progress(1)`` after each run.
 
     Returns
     -------
@@ -115,6 +118,8 @@ def _free_run_loop(structure: NarxStructure, sample_gps, inputs, initial, assign
                 mean, var = gps[assignment[j][r]].predict(x, return_var=True, include_noise=True,
                                                           use_samples=False)
                 history[k, j] = mean[0] + np.sqrt(var[0]) * draws[k - start, j, r]
+        if progress:
+            progress(1)
     return result
 
 
@@ -150,13 +155,12 @@ def run(*, n_runs: int = 1000, n_steps: int = 800, loop_runs: int = 10, seed: in
         "peer"}``; times in seconds, speedup = loop / vectorised; ``goal_met`` is None unless
         the size is the goal's.
     """
-    from tqdm.auto import tqdm
-
     structure, start = NARX_STRUCTURE, NARX_STRUCTURE.max_lag
     inputs, outputs = _rate_response(NARX_STRIDE * NARX_TRAINING_POINTS + start, seed)
     X, Y = structure.regressors(inputs, outputs)
     X, Y = X[::NARX_STRIDE], Y[::NARX_STRIDE]
-    with progress_bar("bench narx: training", enabled=progress) as update:
+    with progress_bar("bench narx: training", enabled=progress, total=len(structure.output_names),
+                      unit="GP") as update:
         model = GPNarx.fit(structure, [(inputs, outputs)], kernel="higdon", hyperparameters="annealing",
                            stride=NARX_STRIDE, seed=seed, progress=update)
     test_inputs, _ = _rate_response(n_steps + start, seed + 1)
@@ -176,8 +180,8 @@ def run(*, n_runs: int = 1000, n_steps: int = 800, loop_runs: int = 10, seed: in
     assignment, draws = _monte_carlo_draws(n_runs, n_steps, [len(s) for s in samples], seed)
     runs = range(min(loop_runs, n_runs))
     begin = time.perf_counter()
-    loop = _free_run_loop(structure, sample_gps, test_inputs, initial, assignment, draws,
-                          tqdm(runs, desc="bench narx: loop", unit="run", disable=not progress))
+    with progress_bar("bench narx: loop", enabled=progress, total=len(runs), unit="run") as update:
+        loop = _free_run_loop(structure, sample_gps, test_inputs, initial, assignment, draws, runs, progress=update)
     loop_s_per_run = (time.perf_counter() - begin) / len(runs)
 
     max_abs_difference = float(np.max(np.abs(loop - vectorised.runs[:len(runs)])))

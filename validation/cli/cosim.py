@@ -61,6 +61,6 @@ def run(args: argparse.Namespace) -> int:
     for label, key in (("GP FMU (free run)", "gp"), ("reference FMU", "reference")):
         if key in rmse:
             print(f"{label:24}" + "".join(f"{rmse[key][a]:9.4f}" for a in result.axes))
-    print(f"{'GP bounds coverage':24}" + "".join(f"{coverage[a]:9.2f}" for a in result.axes))
+    print(f"{'GP ' + result.band_words + ' coverage':24}" + "".join(f"{coverage[a]:9.2f}" for a in result.axes))
     print(f"written {args.out}/cosim.json, cosim.png and the Cross-Check files")
     return 0

@@ -47,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
     for path in args.recordings:
         recording = read_recording(path, vehicle=args.vehicle, file_format=args.file_format)
         recording.metadata["source"] = str(path)
+        if args.vehicle is not None:  # the vehicle the model is trained on, whatever a sidecar says
+            recording.metadata["vehicle"] = args.vehicle
         recordings.append(recording)
     trained = train_narx(recordings, config, seed=args.seed, progress=True)
     save_trained(args.out, trained, meta={"trained_on": [str(p) for p in args.recordings]})

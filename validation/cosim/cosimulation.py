@@ -123,6 +123,9 @@ class CosimResult:
     measured : ndarray, shape (n, n_axes)
     gp : FmuRun
     reference : FmuRun or None
+    confidence_level : float or None
+        The probability of the GP FMU's band between its lower and upper bounds, as run (its
+        ``confidence_level``, e.g. 0.95); None for an FMU without that parameter.
     """
 
     time: np.ndarray
@@ -130,6 +133,12 @@ class CosimResult:
     measured: np.ndarray
     gp: FmuRun
     reference: FmuRun | None
+    confidence_level: float | None = None
+
+    @property
+    def band_words(self) -> str:
+        """The GP FMU's band in words: ``"95 % band"`` (``"bounds"`` without a confidence level)."""
+        return "bounds" if self.confidence_level is None else f"{100 * self.confidence_level:.4g} % band"
 
     def rmse(self) -> dict:
         """RMSE per axis against the recording, from the first predicted step on (rad/s)."""
@@ -143,7 +152,8 @@ class CosimResult:
         return table
 
     def coverage(self) -> dict:
-        """Fraction of recorded samples (after the first) inside the GP FMU's bounds."""
+        """Fraction of recorded samples (after the first) inside the GP FMU's bounds (its
+        :attr:`confidence_level` band)."""
         result = {}
         for j, axis in enumerate(self.axes):
             lower, upper = self.gp.outputs[f"{axis}_lower"][1:], self.gp.outputs[f"{axis}_upper"][1:]
@@ -222,14 +232,16 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
         reference = simulate(reference_fmu, time=time,
                              inputs={c: recording.input(c)[rows] for c in recording.input_names},
                              outputs=list(axes))
-    result = CosimResult(time, axes, measured, gp, reference)
+    level = getattr(variables.get("confidence_level"), "start", None)  # not set here: the FMU's start value
+    result = CosimResult(time, axes, measured, gp, reference, confidence_level=None if level is None else float(level))
     if out_dir is not None:
         out_dir = Path(out_dir)
         files = cross_check_files(gp, out_dir)
         if reference is not None:
             files.update(cross_check_files(reference, out_dir))
         summary = {"step_s": step, "axes": list(axes), "rmse": result.rmse(),
-                   "coverage": result.coverage(), "gp_fmu": str(gp_fmu),
+                   "coverage": result.coverage(), "coverage_level": result.confidence_level,
+                   "gp_fmu": str(gp_fmu),
                    "gp_parameters": run_with,
                    "reference_fmu": str(reference_fmu) if reference_fmu else None}
         files[out_dir / "cosim.json"] = json_text(summary)
@@ -249,7 +261,7 @@ def _figure(result: CosimResult) -> Figure:
                        label=f"{result.reference.name} (FMU)")
         panel.plot(result.time, result.gp.outputs[axis], color="tab:blue", label=f"{result.gp.name} (FMU)")
         panel.fill_between(result.time, result.gp.outputs[f"{axis}_lower"], result.gp.outputs[f"{axis}_upper"],
-                           color="tab:blue", alpha=0.25, label="GP bounds")
+                           color="tab:blue", alpha=0.25, label=f"GP {result.band_words}")
         panel.set_ylabel(f"{axis} [rad/s]")
         panel.grid(True, alpha=0.3)
     panels[0].legend(fontsize="small", ncol=2)

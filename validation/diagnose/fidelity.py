@@ -36,6 +36,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy import signal
@@ -45,18 +46,38 @@ from validation.core.recordings import column_unit
 from validation.diagnose.prove import MODEL_KEYS
 from validation.vehicles.rgblimp_data import source_score
 
-_KNOT = 1852.0 / 3600.0
 #: Where the default bands come from.
 TOLERANCE_SOURCE = "14 CFR Part 60, Appendix C, Table C2A (1-1-19 edition)"
-#: Default tolerance bands, output -> (half-width in the output's SI unit, the table's test).
+#: The units Table C2A states its bands in, and each one's size in the output's SI unit.
+_STATED_UNITS = {"deg": math.pi / 180.0, "deg/s": math.pi / 180.0, "kt": 1852.0 / 3600.0}
+
+
+class Band(NamedTuple):
+    """A tolerance band: ``half_width`` in the output's SI unit (docs/conventions.md, "Units and
+    axes"), where it comes from (``source``, e.g. the table's test) and, where its source states
+    it in another unit, the band as stated (``as_stated``, e.g. ``"2 deg/s"``; None when given in
+    SI)."""
+
+    half_width: float
+    source: str
+    as_stated: str | None = None
+
+
+def _stated(value: float, unit: str, test: str, what: str) -> Band:
+    """The band of Table C2A's ``test``, stated there as +-``value`` ``unit`` of ``what``."""
+    return Band(value * _STATED_UNITS[unit], f"{test}: +-{value:g} {unit} {what}", f"{value:g} {unit}")
+
+
+#: Default tolerance bands, output -> :class:`Band` (half-width in SI, computed from the table's
+#: deg, deg/s and kt).
 DEFAULT_TOLERANCES = {
-    "q": (math.radians(2.0), "2.c.3.b: +-2 deg/s pitch rate"),
-    "theta": (math.radians(1.5), "2.c.3.b: +-1.5 deg pitch"),
-    "p": (math.radians(5.0), "2.d.3.a: +-5 deg/s roll rate"),
-    "phi": (math.radians(5.0), "2.d.3.a: +-5 deg roll attitude"),
-    "r": (math.radians(4.0), "2.d.3.a: +-4 deg/s yaw rate"),
-    "psi": (math.radians(4.0), "2.d.3.a: +-4 deg yaw angle"),
-    "u": (5.0 * _KNOT, "2.c.3.a: +-5 kt airspeed"),
+    "q": _stated(2.0, "deg/s", "2.c.3.b", "pitch rate"),
+    "theta": _stated(1.5, "deg", "2.c.3.b", "pitch"),
+    "p": _stated(5.0, "deg/s", "2.d.3.a", "roll rate"),
+    "phi": _stated(5.0, "deg", "2.d.3.a", "roll attitude"),
+    "r": _stated(4.0, "deg/s", "2.d.3.a", "yaw rate"),
+    "psi": _stated(4.0, "deg", "2.d.3.a", "yaw angle"),
+    "u": _stated(5.0, "kt", "2.c.3.a", "airspeed"),
 }
 #: Tischler's cost: frequency points, weights and the coherence a point needs (Tischler &
 #: Remple 2012, ch. 11).
@@ -70,8 +91,8 @@ SEGMENT_SECONDS = 2.0
 
 def read_tolerances(path) -> dict:
     """A tolerance file: JSON ``{"q": 0.03, ...}``, half-widths in each output's SI unit
-    (docs/conventions.md, "Units and axes"); BadInputError for a missing or malformed file or a
-    band that is not a positive number."""
+    (docs/conventions.md, "Units and axes"), as output -> :class:`Band`; BadInputError for a
+    missing or malformed file or a band that is not a positive number."""
     path = Path(path)
     try:
         content = json.loads(path.read_text(encoding="utf-8"))
@@ -85,7 +106,7 @@ def read_tolerances(path) -> dict:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise BadInputError(f"{path}: the band of {name!r} must be a positive number in {column_unit(name)}, "
                                 f"got {value!r}")
-    return {name: (float(value), f"{path.name}") for name, value in content.items()}
+    return {name: Band(float(value), path.name) for name, value in content.items()}
 
 
 def check_tolerance_outputs(tolerances: dict | None, output_names) -> None:
@@ -124,30 +145,33 @@ def scorecard(traces: dict, fit: dict, holdout_inputs: list, *, step: float, tol
     step : float
         Sample interval, s.
     tolerances : dict, optional
-        Output -> (half-width, source); default :data:`DEFAULT_TOLERANCES`; outputs a file does
-        not name keep their default.
+        Output -> :class:`Band`; default :data:`DEFAULT_TOLERANCES`; outputs a file does not
+        name keep their default.
     pose_score : bool
         Add the RGBlimp's flight score (:func:`pose_scores`), where the traces hold the pose.
 
     Returns
     -------
     dict
-        ``tolerance_source`` and ``outputs``: per output ``tolerance`` (half-width or None),
-        ``tolerance_source`` and, per model (``reference``, ``corrected``, ``corrected_gp``),
-        ``rmse``, ``theil``, ``max_error``, ``inside_share`` and ``passes`` (None without a
-        band) and ``frequency_cost`` (None without a coherent input), plus the ``input`` the
-        frequency responses are taken from; with ``pose_score``, ``pose`` (:func:`pose_scores`).
+        ``tolerance_source`` and ``outputs``: per output ``tolerance`` (half-width in SI or
+        None), ``tolerance_source``, ``tolerance_as_stated`` (the band in its source's unit, e.g.
+        ``"2 deg/s"``; None when given in SI or without a band) and, per model (``reference``,
+        ``corrected``, ``corrected_gp``), ``rmse``, ``theil``, ``max_error``, ``inside_share``
+        and ``passes`` (None without a band) and ``frequency_cost`` (None without a coherent
+        input), plus the ``input`` the frequency responses are taken from; with ``pose_score``,
+        ``pose`` (:func:`pose_scores`).
     """
     bands = {**DEFAULT_TOLERANCES, **(tolerances or {})}
     outputs = {}
     for name, trace in traces.items():
         band = bands.get(name)
-        entry = {"tolerance": band[0] if band else None, "tolerance_source": band[1] if band else None}
+        entry = {"tolerance": band.half_width if band else None, "tolerance_source": band.source if band else None,
+                 "tolerance_as_stated": band.as_stated if band else None}
         input_name, responses = _frequency_costs(trace, holdout_inputs, step)
         entry["frequency_input"] = input_name
         for key in MODEL_KEYS:
             error = np.abs(trace[key] - trace["measured"])
-            inside = float(np.mean(error <= band[0])) if band else None
+            inside = float(np.mean(error <= band.half_width)) if band else None
             entry[key] = {"rmse": fit[f"rmse_{key}"][name], "theil": fit[f"theil_{key}"][name],
                           "max_error": float(np.max(error)), "inside_share": inside,
                           "passes": (inside == 1.0) if band else None, "frequency_cost": responses.get(key)}

@@ -373,17 +373,19 @@ def _output_figure(name: str, trace: dict, fit: dict) -> Figure:
 
 
 def report_markdown(diagnosis: Diagnosis, plot_names: dict) -> str:
-    """``report.md``: findings first, then the held-out fit table, the findings in detail, what
-    was tested, locate results and the plots (``plot_names``: output -> PNG file name)."""
+    """``report.md``: its title and verdict, the fidelity scorecard, the findings in plain
+    words, then the held-out fit table, the findings in detail, what was tested, locate results
+    and the plots (``plot_names``: output -> PNG file name)."""
     result = diagnosis.as_dict()
-    lines = _fidelity_lines(result.get("fidelity"))
+    lines = [f"# Diagnosis of {result['reference']} against recordings", "",
+             f"Verdict: **{result['verdict']}**.", ""]
+    lines += _fidelity_lines(result.get("fidelity"))
     if result["findings"]:
         lines += [f"- {finding['statement']}" for finding in result["findings"]]
     else:
         lines.append(f"- The simulation ({result['reference']}) is consistent with the recordings: no "
                      "named effect is significant and the residual is at the sensor-noise level.")
-    lines += ["", f"# Diagnosis of {result['reference']} against recordings", "",
-              f"Verdict: **{result['verdict']}**.", ""]
+    lines += [""]
     lines += _fit_table(result["fit"])
     lines += ["", "## Findings in detail", ""]
     for finding in result["findings"]:
@@ -404,8 +406,8 @@ def report_markdown(diagnosis: Diagnosis, plot_names: dict) -> str:
 
 
 def _fidelity_lines(fidelity: dict | None) -> list[str]:
-    """The report's first lines: which outputs pass their tolerance bands before and after
-    correction, and the scorecard table (:mod:`validation.diagnose.fidelity`)."""
+    """The head of the report, after its title and verdict: which outputs pass their tolerance
+    bands before and after correction, and the scorecard table (:mod:`validation.diagnose.fidelity`)."""
     if not fidelity:
         return []
     banded = {name: entry for name, entry in fidelity["outputs"].items() if entry["tolerance"] is not None}
@@ -420,7 +422,7 @@ def _fidelity_lines(fidelity: dict | None) -> list[str]:
              "frequency cost J (input) |", "|---|---|---|---|---|---|"]
     for name, entry in fidelity["outputs"].items():
         models = [entry[key] for key in MODEL_KEYS]
-        band = f"+-{_number(entry['tolerance'])} {column_unit(name)}" if entry["tolerance"] is not None else "-"
+        band = _band_words(name, entry)
         inside = " -> ".join(f"{m['inside_share']:.1%}" for m in models) if entry["tolerance"] is not None else "-"
         cost = " -> ".join("-" if m["frequency_cost"] is None else f"{m['frequency_cost']:.3g}" for m in models)
         errors = " -> ".join(_number(m["max_error"]) for m in models)
@@ -435,6 +437,17 @@ def _fidelity_lines(fidelity: dict | None) -> list[str]:
                       f"{pose['ranges_from']}), reference -> corrected -> corrected + GP: {scores}; position RMSE "
                       f"{positions} m."]
     return lines + [""]
+
+
+def _band_words(name: str, entry: dict) -> str:
+    """An output's tolerance band as its source states it, with the SI half-width the scorecard
+    computes with: ``"+-2 deg/s (0.0349 rad/s)"`` for a band of Table C2A, ``"+-0.035 rad/s"``
+    for one given in SI (a tolerance file), ``"-"`` without a band."""
+    if entry["tolerance"] is None:
+        return "-"
+    si = f"{_number(entry['tolerance'])} {column_unit(name)}"
+    stated = entry["tolerance_as_stated"]
+    return f"+-{stated} ({si})" if stated else f"+-{si}"
 
 
 def _fit_table(fit: dict) -> list[str]:

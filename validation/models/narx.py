@@ -12,7 +12,9 @@ this module ties it to :class:`~validation.core.recordings.Recording` s:
   with its regressors ``decimation`` samples apart; ``stride`` need not be a multiple of
   ``decimation``, and ``stride=1`` trains on all samples (every phase of the NARX grid);
 - the configuration travels inside the model file (JSON header), so ``predict`` needs nothing
-  but the model and a recording.
+  but the model and a recording; so does the condition it was trained at, the training
+  recordings' vehicle and trim speed (:func:`training_condition`), which an FMU of the model
+  states.
 """
 from __future__ import annotations
 
@@ -98,12 +100,17 @@ class TrainedNarx:
         s, of the training recordings; the NARX step is ``decimation`` times this.
     training_time : ndarray, shape (n_train,)
         Times (s, on the first training recording's axis) of the training targets, for plots.
+    condition : dict
+        The condition the model was trained at (:func:`training_condition`): ``vehicle`` (its
+        name, e.g. ``"bo105-80kt-flight"``) and ``speed_kt`` (trim speed, kt), each where every
+        training recording's metadata gives the same; empty for a model file that does not say.
     """
 
     model: GPNarx
     config: NarxConfig
     recording_sample_time: float
     training_time: np.ndarray = field(default_factory=lambda: np.empty(0))
+    condition: dict = field(default_factory=dict)
 
     @property
     def step(self) -> float:
@@ -186,6 +193,23 @@ def sample_time_of(recordings) -> float:
     return steps[0]
 
 
+#: The metadata keys of a recording (docs/conventions.md, "Recording files") that say the
+#: condition a model was trained at.
+CONDITION_KEYS = ("vehicle", "speed_kt")
+
+
+def training_condition(recordings) -> dict:
+    """The condition the recordings were flown at: each of :data:`CONDITION_KEYS` that every
+    recording's metadata gives, with the same value (``{"vehicle": "bo105-80kt-flight",
+    "speed_kt": 80}``); a key they lack or disagree on is left out."""
+    condition = {}
+    for key in CONDITION_KEYS:
+        values = [recording.metadata.get(key) for recording in recordings]
+        if values and values[0] is not None and all(value == values[0] for value in values):
+            condition[key] = values[0]
+    return condition
+
+
 def train_narx(recordings, config: NarxConfig, *, seed: int = 0, progress: bool = False,
                **inference_options) -> TrainedNarx:
     """Train a GP-NARX on one or more recordings (never straddling two of them).
@@ -224,13 +248,13 @@ def train_narx(recordings, config: NarxConfig, *, seed: int = 0, progress: bool 
     options = dict(inference_options)
     if config.n_inducing is not None:
         options["n_inducing"] = config.n_inducing
-    with progress_bar(f"training {len(config.outputs)} GPs ({config.hyperparameters})",
-                      enabled=progress) as update:
+    with progress_bar(f"training ({config.hyperparameters.replace('_', ' ')})", enabled=progress,
+                      total=len(config.outputs), unit="GP") as update:
         model = GPNarx.fit(config.structure(), sequences, kernel=config.kernel,
                            hyperparameters=config.hyperparameters, rows=keep, seed=seed,
                            progress=update, **options)
     training_time = np.sort(target_time[keep][np.isfinite(target_time[keep])])
-    return TrainedNarx(model, config, sample_time, training_time)
+    return TrainedNarx(model, config, sample_time, training_time, training_condition(recordings))
 
 
 def min_training_points(config: NarxConfig) -> int:
@@ -287,7 +311,7 @@ def free_run(trained: TrainedNarx, recording: Recording, *, method: str = "monte
     time, u, y = _checked_arrays(trained, recording, name)
     first = trained.config.structure().max_lag
     with progress_bar(f"free run ({method.replace('_', ' ')})", enabled=progress and method == "monte_carlo",
-                      total=len(u) - first) as update:
+                      total=len(u) - first, unit="step") as update:
         result = trained.model.free_run(u, y[:first], method=method, n_runs=n_runs, seed=seed,
                                         progress=update)
     return NarxPrediction(time, y, result.mean, result.var, first)
@@ -302,10 +326,11 @@ def _checked_arrays(trained: TrainedNarx, recording: Recording, name: str):
 
 
 def save_trained(path, trained: TrainedNarx, *, meta: dict | None = None) -> Path:
-    """Write a trained GP-NARX and its configuration to a portable model file."""
+    """Write a trained GP-NARX, its configuration and the condition it was trained at (the
+    header's ``vehicle`` and ``speed_kt``) to a portable model file."""
     header = {"narx_config": trained.config.to_json(),
               "recording_sample_time": trained.recording_sample_time,
-              "training_time": trained.training_time.tolist(), **(meta or {})}
+              "training_time": trained.training_time.tolist(), **trained.condition, **(meta or {})}
     return save_model(path, trained.model, meta=header)
 
 
@@ -319,4 +344,5 @@ def load_trained(path) -> TrainedNarx:
         raise ModelFileError(f"{path}: not a GP-NARX model file (no NARX configuration)")
     config = NarxConfig(**meta["narx_config"])
     return TrainedNarx(model, config, float(meta["recording_sample_time"]),
-                       np.asarray(meta.get("training_time", []), dtype=float))
+                       np.asarray(meta.get("training_time", []), dtype=float),
+                       {key: meta[key] for key in CONDITION_KEYS if meta.get(key) is not None})

@@ -108,7 +108,7 @@ def reproduce_bo105(out_dir, *, seed: int = 0, n_runs: int = 1000, beyond: bool 
     started = clock.perf_counter()
     trained = train_narx([flights["training"]], config, seed=seed, progress=progress)
     training_s = clock.perf_counter() - started
-    save_trained(out_dir / "bo105_gp_narx.npz", trained, meta={"vehicle": "bo105-80kt-flight"})
+    save_trained(out_dir / "bo105_gp_narx.npz", trained)  # with the flights' vehicle and speed
 
     osap = one_step(trained, flights["training"])
     fmp = free_run(trained, flights["training"], n_runs=n_runs, seed=seed, progress=progress)

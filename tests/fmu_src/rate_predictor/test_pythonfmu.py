@@ -80,12 +80,40 @@ def test_the_build_defaults_to_the_exact_moments_where_its_check_of_the_fast_pat
         return start in (True, "true"), description.description
 
     exact, text = default(build_rate_predictor_fmu(bo105_model_file, tmp_path / "checked"))
-    error = float(text.split("fast path off by ")[1].split(" ")[0])
-    assert not exact and 0 < error <= build.FAST_PATH_CHECK and "defaults to false" in text
+    error = float(text.split("by at most ")[1].split(" % of the predicted standard deviation")[0]) / 100
+    assert not exact and 0 < error <= build.FAST_PATH_CHECK and "(within the 1 % allowed), so exact_moments " \
+        "defaults to false." in text
     monkeypatch.setattr(build, "fast_path_error", lambda predictor: 0.05)
     for builder in (build_rate_predictor_fmu, build_native_rate_predictor_fmu):
         exact, text = default(builder(bo105_model_file, tmp_path / builder.__name__))
-        assert exact and "off by 0.05 of the sd" in text and "defaults to true" in text
+        assert exact and "by at most 5 % of the predicted standard deviation (over the 1 % allowed), so " \
+            "exact_moments defaults to true." in text
+
+
+def test_the_descriptions_say_what_the_host_must_feed_and_where_the_model_is_valid(rate_predictor_fmu):
+    """For a simulator engineer who never saw flightgp: the FMU's description states the vehicle
+    and trim it was trained at (from the model file), p_prev what to set and when, free_run that
+    the host must then feed measured rates back; no jargon of the build's check."""
+    from fmpy import read_model_description
+
+    description = read_model_description(str(rate_predictor_fmu))
+    assert "Trained on recordings of bo105-80kt-flight, trimmed at 80 kt: valid near that flight condition only" \
+        in description.description
+    variables = {v.name: v.description for v in description.modelVariables}
+    assert variables["p_prev"].startswith("roll rate at the communication point t_k the next step starts from: "
+                                          "with free_run false (the default) the host must set it before every "
+                                          "step to the roll rate measured at t_k")
+    assert "must then feed back into the *_prev inputs at every step" in variables["free_run"]
+    assert all(word not in text for text in (description.description, *variables.values())
+               for word in ("fast path", "of the sd", "moment matching", "GP mean"))
+
+
+def test_a_model_file_that_does_not_name_its_condition_says_so():
+    from fmu_src.rate_predictor.build import condition_words
+
+    assert condition_words({}).startswith("The model file does not name the vehicle or flight condition")
+    assert condition_words({"vehicle": "blimp-flight"}) == ("Trained on recordings of blimp-flight: valid near the "
+                                                           "conditions flown in them only")
 
 
 @pytest.mark.parametrize("fault", ["nan", "refused"])

@@ -55,6 +55,8 @@ def test_cross_check_files_and_summary(case, tmp_path):
     assert float(options["StepSize"]) == pytest.approx(0.1) and float(options["StopTime"]) == pytest.approx(8.0)
     summary = json.loads((tmp_path / "cosim.json").read_text())
     assert summary["rmse"] == result.rmse() and summary["axes"] == ["p", "q", "r"]
+    # The coverage is of the FMU's 95 % band (its confidence_level as built), and says so.
+    assert summary["coverage"] == result.coverage() and summary["coverage_level"] == 0.95
     # Nothing asked: the FMU's own defaults run and are recorded (the paper model's build measured
     # its fast path within 1 %, so exact_moments defaults to false).
     starts = {v.name: v.start for v in read_model_description(str(fmu)).modelVariables}
@@ -68,6 +70,7 @@ def test_cli_cosim_with_a_recording_and_with_a_manoeuvre(case, tmp_path, capsys)
     assert main(["cosim", str(fmu), "--recording", str(folder / "flight.csv"), "--out", str(tmp_path / "a")]) == 0
     first = capsys.readouterr().out
     assert "GP FMU (free run)" in first
+    assert first.splitlines()[-2].startswith("GP 95 % band coverage ")  # which band the coverage is of
     assert main(["cosim", str(fmu), "--vehicle", "bo105-80kt-flight", "--input", "theta_1s",
                  "--duration", "8", "--out", str(tmp_path / "b")]) == 0
     # The same manoeuvre and seed as the recording: the same table.

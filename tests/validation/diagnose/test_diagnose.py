@@ -256,8 +256,14 @@ def test_cli_writes_report_json_plots_and_a_loadable_corrected_model(tmp_path, c
     assert result["findings"][0]["effect"] == "time_delay"
     assert result["fit"]["data"] == "holdout" and set(result["fit"]["rmse_corrected_gp"]) == set(fit.output_names)
     report = (out / "report.md").read_text()
-    assert report.startswith("**Fidelity** (14 CFR Part 60")  # the scorecard first, then the findings
-    assert report.split("\n\n", 2)[2].lstrip().startswith("- The pitch rate response lags the model")
+    # The title first, then the verdict, the scorecard and the findings in plain words.
+    title, verdict, fidelity, table, findings = report.split("\n\n", 5)[:5]
+    assert title == "# Diagnosis of bo105-80kt against recordings" and verdict == "Verdict: **missing_physics**."
+    assert fidelity.startswith("**Fidelity** (14 CFR Part 60") and table.startswith("| output | band |")
+    assert findings.startswith("- The pitch rate response lags the model")
+    # Each band in the unit Table C2A states it in, with the SI half-width the scorecard computes with.
+    assert "| q | +-2 deg/s (0.0349 rad/s) |" in table and "| theta | +-1.5 deg (0.0262 rad) |" in table
+    assert "| u | +-5 kt (2.57 m/s) |" in table and "| w | - |" in table
     assert (out / "holdout_q.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     corrected = EffectVehicle.load(out / "corrected_model.json")
     assert corrected.effects[0]["input"] == "theta_1s"

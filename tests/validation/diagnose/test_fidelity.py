@@ -1,7 +1,8 @@
 """The fidelity scorecard (validation/diagnose/fidelity.py): a concealed pitch-axis delay fails
 the pitch-rate band of 14 CFR Part 60 before correction and passes after, its frequency-domain
 cost falls from above Tischler's acceptable 100 to below 50; a tolerance file overrides the
-bands; bad tolerance files exit 2."""
+bands (given in SI, shown in SI); the report shows Table C2A's bands in its units; bad
+tolerance files exit 2."""
 import json
 import math
 
@@ -27,7 +28,9 @@ def test_the_delay_fails_the_pitch_rate_band_before_correction_and_passes_after(
     fit, held = delayed
     fidelity = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()["fidelity"]
     q = fidelity["outputs"]["q"]
-    assert q["tolerance"] == pytest.approx(math.radians(2.0)) and "2.c.3.b" in q["tolerance_source"]
+    assert q["tolerance"] == pytest.approx(math.radians(2.0))
+    assert q["tolerance_source"] == "2.c.3.b: +-2 deg/s pitch rate"
+    assert q["tolerance_as_stated"] == "2 deg/s" and fidelity["outputs"]["u"]["tolerance_as_stated"] == "5 kt"
     assert not q["reference"]["passes"] and q["corrected"]["passes"]
     assert q["reference"]["max_error"] > q["tolerance"] >= q["corrected"]["max_error"]
     assert q["reference"]["inside_share"] < 1.0 == q["corrected"]["inside_share"]
@@ -50,8 +53,14 @@ def test_a_tolerance_file_overrides_the_bands_and_the_report_leads_with_them(del
     fidelity = json.loads((out / "diagnosis.json").read_text())["fidelity"]
     assert fidelity["outputs"]["q"]["tolerance"] == 1.0 and fidelity["outputs"]["q"]["reference"]["passes"]
     assert fidelity["outputs"]["w"]["tolerance"] == 0.001 and not fidelity["outputs"]["w"]["corrected"]["passes"]
-    assert fidelity["outputs"]["theta"]["tolerance"] == DEFAULT_TOLERANCES["theta"][0]
-    assert (out / "report.md").read_text().startswith("**Fidelity** (tolerance file and 14 CFR Part 60")
+    assert fidelity["outputs"]["theta"]["tolerance"] == DEFAULT_TOLERANCES["theta"].half_width
+    assert fidelity["outputs"]["q"]["tolerance_as_stated"] is None
+    assert fidelity["outputs"]["theta"]["tolerance_as_stated"] == "1.5 deg"
+    report = (out / "report.md").read_text()
+    assert report.split("\n\n")[2].startswith("**Fidelity** (tolerance file and 14 CFR Part 60")
+    # The file's bands in SI, as the file gives them; the table's in its units, with SI beside.
+    assert "| q | +-1 rad/s |" in report and "| w | +-0.001 m/s |" in report
+    assert "| theta | +-1.5 deg (0.0262 rad) |" in report
 
 
 def test_a_tolerance_for_an_output_not_recorded_is_refused_before_the_diagnosis(tmp_path, capsys):

@@ -69,7 +69,20 @@ def test_trained_model_file_round_trip(tmp_path, trained, recordings):
     path = save_trained(tmp_path / "m.npz", trained)
     loaded = load_trained(path)
     assert loaded.config == trained.config and loaded.recording_sample_time == trained.recording_sample_time
+    # The condition it was trained at travels with it (an FMU of it states it).
+    assert trained.condition == loaded.condition == {"vehicle": "bo105-80kt-flight", "speed_kt": 80}
     np.testing.assert_array_equal(one_step(loaded, recordings[1]).mean, one_step(trained, recordings[1]).mean)
+
+
+def test_the_training_condition_is_what_every_recording_says(recordings):
+    from dataclasses import replace
+
+    from validation.models.narx import training_condition
+
+    other = replace(recordings[1], metadata={**recordings[1].metadata, "speed_kt": 60})
+    assert training_condition(recordings) == {"vehicle": "bo105-80kt-flight", "speed_kt": 80}
+    assert training_condition([recordings[0], other]) == {"vehicle": "bo105-80kt-flight"}
+    assert training_condition([replace(other, metadata={})]) == {}
 
 
 def test_plain_gp_file_is_not_a_narx_model(tmp_path, trained):
@@ -110,17 +123,24 @@ def test_cli_train_and_predict(tmp_path, recordings, capsys):
     model = tmp_path / "m.npz"
     assert main(["train", str(tmp_path / "train.csv"), "--out", str(model),
                  "--hyperparameters", "maximum_likelihood"]) == 0
-    assert "ARD relevance" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert "ARD relevance" in printed.out
+    # Progress to a stream that is not a terminal (a log, a pipe): plain lines with their totals.
+    assert "\r" not in printed.err
+    assert [line.rsplit(", ", 1)[0] for line in printed.err.splitlines()] == [
+        f"training (maximum likelihood): {i}/3 GPs" for i in (1, 2, 3)]
+    assert load_trained(model).condition == {"vehicle": "bo105-80kt-flight", "speed_kt": 80}
     out = tmp_path / "pred.csv"
     assert main(["predict", str(model), str(tmp_path / "test.csv"), "--out", str(out),
                  "--runs", "100", "--plot"]) == 0
+    printed = capsys.readouterr()
+    assert "\r" not in printed.err and printed.err.splitlines()[-1].startswith("free run (monte carlo): 79/79 steps, ")
     header = out.read_text().splitlines()[0].split(",")
     assert header[:5] == ["time", "p_measured", "p_mean", "p_lower", "p_upper"]
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     # 8 s on the 0.1 s NARX grid: 81 rows; time, then measured, mean, lower, upper per axis.
     assert table.shape == (81, 13) and np.all(table[:, 3] <= table[:, 4])
     assert out.with_suffix(".png").stat().st_size > 10_000
-    printed = capsys.readouterr()
     assert "coverage" in printed.out
     # The unseen 3-2-1-1 is larger than the training one (1.3 deg against 1 deg).
     assert "warning: theta_1s spans -0.02269 .. 0.02269 rad, but the model was trained on" in printed.err
