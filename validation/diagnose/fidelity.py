@@ -116,13 +116,13 @@ def check_tolerance_outputs(tolerances: dict | None, output_names) -> None:
     Parameters
     ----------
     tolerances : dict or None
-        Output -> (half-width, source), as :func:`read_tolerances` returns.
+        Output -> :class:`Band`, as :func:`read_tolerances` returns.
     output_names : sequence of str
         The outputs diagnosed.
     """
-    for name, (_, source) in (tolerances or {}).items():
+    for name, band in (tolerances or {}).items():
         if name not in output_names:
-            raise BadInputError(f"{source}: {unknown_name_message(name, output_names, what='output')} "
+            raise BadInputError(f"{band.source}: {unknown_name_message(name, output_names, what='output')} "
                                 "(the outputs of the diagnosed recordings)")
 
 
