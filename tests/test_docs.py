@@ -71,8 +71,8 @@ _FENCE = re.compile(r"^```(\S*)[ \t]*([^\n]*)\n(.*?)^```", flags=re.S | re.M)
 _SYNOPSIS_WORD = re.compile(r"^\[|\.\.\.|<\w+>|\w\|\w")
 _FLIGHTGP = ("flightgp", ".venv/bin/flightgp")
 #: The repository's own folders: a documented path into one of them must exist on a fresh clone.
-_REPOSITORY_FOLDERS = {path.name for path in ROOT.iterdir() if path.is_dir() and not path.name.startswith(".")} - {
-    "build"}
+_REPOSITORY_FOLDERS = {path.name for path in ROOT.iterdir()
+                       if path.is_dir() and path.name != "build" and not path.name.startswith(".")}
 
 
 def _shell_lines(block: str, *, prompt: str = "") -> list:
