@@ -8,6 +8,7 @@ import pytest
 from gp_model import ModelFileError, save_model
 from validation.cli import main
 from validation.core.errors import BadInputError
+from validation.core.files import WRITTEN_LIST
 from validation.core.recordings import write_recording
 from validation.models.narx import NarxConfig, free_run, load_trained, one_step, save_trained, train_narx
 
@@ -128,7 +129,7 @@ def test_cli_bad_inputs_exit_2_and_write_nothing(tmp_path, recordings, capsys):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err, err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "rec.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [WRITTEN_LIST, "rec.csv", "rec.json"]
 
 
 @pytest.mark.slow
