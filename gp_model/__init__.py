@@ -16,7 +16,7 @@ from ._inference import (
                          simulated_annealing,
 )
 from ._kernels import HigdonKernel, SquaredExponentialARD, alpha_from_length_scale, length_scale_from_alpha
-from ._model_file import load_model, read_header, save_model
+from ._model_file import load_model, model_bytes, read_header, save_model
 from ._moment_matching import moment_matcher, predict_uncertain_input
 from ._narx import FreeRunResult, GPNarx, NarxStructure
 from ._priors import IndependentPrior
@@ -28,6 +28,6 @@ __all__ = [
     "MaximumLikelihoodResult", "MCMCResult", "ModelFileError", "NarxStructure", "PerOutputGP", "PredictiveForm",
     "PROPAGATION_STEP", "PropagatedRollout",
     "SparseGaussianProcess", "SquaredExponentialARD", "alpha_from_length_scale", "anneal_hyperparameters",
-    "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis",
+    "length_scale_from_alpha", "load_model", "maximize_marginal_likelihood", "metropolis", "model_bytes",
     "moment_matcher", "predict_uncertain_input", "read_header", "save_model", "simulated_annealing",
 ]

@@ -18,6 +18,7 @@ never leaves half a model behind.
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 import secrets
@@ -63,6 +64,22 @@ def save_model(path, model, *, meta: dict | None = None, physics: dict | None = 
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
+    content = model_bytes(model, meta=meta, physics=physics)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    try:
+        with open(temporary, "xb") as stream:
+            stream.write(content)
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def model_bytes(model, *, meta: dict | None = None, physics: dict | None = None) -> bytes:
+    """The content of :func:`save_model`'s file of ``model``, for a caller that writes the file
+    itself (parameters as :func:`save_model`)."""
     gps, structure = _decompose(model)
     is_greybox = isinstance(model, GreyBoxGP)
     if is_greybox and not (isinstance(physics, dict) and isinstance(physics.get("kind"), str)):
@@ -83,16 +100,9 @@ def save_model(path, model, *, meta: dict | None = None, physics: dict | None = 
     if is_greybox:
         header["physics"] = physics
     arrays["__header__"] = np.array(json.dumps(header))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    try:
-        with open(temporary, "xb") as stream:
-            np.savez(stream, **arrays)
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-    return path
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
 
 
 def read_header(path) -> dict:

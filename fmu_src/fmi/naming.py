@@ -26,11 +26,12 @@ def fmu_target(out_dir, name: str) -> Path:
     Raises
     ------
     validation.core.errors.BadInputError
-        ``name`` is not an FMU name, or ``out_dir`` cannot be a folder (e.g. it is a file).
+        ``name`` is not an FMU name, ``out_dir`` cannot be written (e.g. it is a file), or it holds
+        a ``<name>.fmu`` flightgp did not write (:func:`validation.core.files.check_output_folder`).
     """
     out_dir = Path(out_dir)
     if not FMU_NAME.match(name):
         raise BadInputError(f"FMU name {name!r} must start with a letter and hold only letters, "
                             "digits and underscores (at most 64); it becomes the FMI model identifier")
-    check_output_folder(out_dir)
+    check_output_folder(out_dir, writes=[f"{name}.fmu"])
     return out_dir / f"{name}.fmu"

@@ -11,6 +11,7 @@ from fmu_src.blimp_rkgp.native import MODEL_SOURCE as BLIMP_MODEL_SOURCE
 from fmu_src.fmi.native import compiled_sources
 from gp_model import save_model
 from validation.cli import main
+from validation.core.files import WRITTEN_LIST
 from validation.models.blimp_greybox import BlimpStepDescription
 from validation.models.narx import NarxConfig, save_trained, train_narx
 
@@ -18,7 +19,7 @@ from validation.models.narx import NarxConfig, save_trained, train_narx
 # -- pythonfmu FMUs ----------------------------------------------------------------------------------
 def test_build_fmu_command_writes_the_fmu(bo105_model_file, tmp_path, capsys):
     assert main(["build-fmu", str(bo105_model_file), "--out", str(tmp_path / "out"), "--name", "rates"]) == 0
-    assert [p.name for p in (tmp_path / "out").iterdir()] == ["rates.fmu"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [WRITTEN_LIST, "rates.fmu"]
     assert validate_fmu(str(tmp_path / "out" / "rates.fmu")) == []
     assert "rates.fmu" in capsys.readouterr().out
 
@@ -51,7 +52,7 @@ def test_build_fmu_bad_input_exits_2_and_writes_nothing(bo105_model_file, bo105_
                                                   ("jsbsim:c172x", "jsbsim_c172x.fmu")])
 def test_build_fmu_command_builds_reference_fmus(reference, file_name, tmp_path, capsys):
     assert main(["build-fmu", "--reference", reference, "--out", str(tmp_path / "out")]) == 0
-    assert [p.name for p in (tmp_path / "out").iterdir()] == [file_name]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [WRITTEN_LIST, file_name]
     assert validate_fmu(str(tmp_path / "out" / file_name)) == []
     assert file_name in capsys.readouterr().out
 
@@ -73,7 +74,7 @@ def test_build_fmu_bad_reference_exits_2_naming_the_valid_ones(arguments, tmp_pa
 
 def test_build_fmu_command_builds_the_blimp_rkgp_from_a_greybox_model(blimp_model_file, tmp_path, capsys):
     assert main(["build-fmu", str(blimp_model_file), "--out", str(tmp_path / "out"), "--name", "blimp"]) == 0
-    assert [p.name for p in (tmp_path / "out").iterdir()] == ["blimp.fmu"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [WRITTEN_LIST, "blimp.fmu"]
     assert validate_fmu(str(tmp_path / "out" / "blimp.fmu")) == []
     names = [v.name for v in read_model_description(str(tmp_path / "out" / "blimp.fmu")).modelVariables]
     assert "u_gondola" in names and "R_sd" in names
@@ -92,7 +93,7 @@ def test_build_fmu_refuses_a_greybox_model_of_other_physics(blimp_trained, tmp_p
 def test_build_fmu_command_native(bo105_model_file, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["build-fmu", str(bo105_model_file), "--native", "--out", str(out), "--name", "rates"]) == 0
-    assert [p.name for p in out.iterdir()] == ["rates.fmu"]
+    assert sorted(p.name for p in out.iterdir()) == [WRITTEN_LIST, "rates.fmu"]
     assert "rates.fmu" in capsys.readouterr().out
     assert read_model_description(str(out / "rates.fmu")).coSimulation.needsExecutionTool is False
 
@@ -109,7 +110,7 @@ def test_build_fmu_native_bad_input_exits_2(arguments, tmp_path, capsys):
 def test_build_fmu_command_native_builds_the_blimp_rkgp(blimp_model_file, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["build-fmu", str(blimp_model_file), "--native", "--out", str(out), "--name", "blimp"]) == 0
-    assert [p.name for p in out.iterdir()] == ["blimp.fmu"]
+    assert sorted(p.name for p in out.iterdir()) == [WRITTEN_LIST, "blimp.fmu"]
     assert "blimp.fmu" in capsys.readouterr().out
     assert validate_fmu(str(out / "blimp.fmu")) == []
     description = read_model_description(str(out / "blimp.fmu"))

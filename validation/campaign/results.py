@@ -20,6 +20,8 @@ RESULT_FORMAT = "flightgp-campaign-result"
 RESULT_VERSION = 1
 #: The percentiles summary.json gives of every figure, %.
 PERCENTILES = (5, 50, 95)
+#: The campaign folder's own files, rebuilt at the end of every run (:func:`write_results`).
+RESULT_FILES = ("results.csv", "summary.json")
 #: The first columns of results.csv; the task's settings and figures follow.
 COLUMNS = ("id", "study", "kind", "seed", "status", "workers_lost", "wall_time_s", "worker", "message")
 
@@ -213,10 +215,11 @@ def format_summary(summary: dict, *, failures_shown: int = 10) -> str:
 
 
 def write_results(out_dir, results, summary: dict) -> list[Path]:
-    """Write ``results.csv`` and ``summary.json`` to ``out_dir`` as one atomic step."""
+    """Write ``results.csv`` and ``summary.json`` (:data:`RESULT_FILES`) to ``out_dir`` as one atomic step."""
     out_dir = Path(out_dir)
-    return write_files_atomically({out_dir / "results.csv": results_csv(results),
-                                   out_dir / "summary.json": json_text(summary)})
+    csv_name, summary_name = RESULT_FILES
+    return write_files_atomically({out_dir / csv_name: results_csv(results),
+                                   out_dir / summary_name: json_text(summary)})
 
 
 def _finite(value):

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from validation.campaign.results import (
+    RESULT_FILES,
     TaskResult,
     read_result,
     result_files,
@@ -118,7 +119,7 @@ def run_campaign(spec, out_dir, *, scheduler: str | None = None, workers: int | 
         scheduler that cannot be reached or that has no workers, workers without flightgp.
     """
     started = clock.perf_counter()
-    out_dir = check_output_folder(out_dir)
+    out_dir = check_output_folder(out_dir, writes=RESULT_FILES)
     if workers is not None and workers < 1:
         raise BadInputError(f"workers must be at least 1, got {workers}")
     if workers is not None and scheduler is not None:

@@ -61,9 +61,10 @@ def run(args: argparse.Namespace) -> int:
             raise BadInputError(f"{option} ({what}) must be at least {minimum}, got {value}")
     if args.threads < 1:
         raise BadInputError(f"--threads must be 1 or more, got {args.threads}")
-    check_output_folder(args.out_dir)
     if args.summary.is_dir():
         raise BadInputError(f"--summary {args.summary} is a folder; give a file name such as build/bench.json")
+    check_output_folder(args.out_dir, writes=[f"{name}.json" for name in names])
+    check_output_folder(args.summary.parent, writes=[args.summary.name])
     from threadpoolctl import threadpool_limits
 
     reports = {}

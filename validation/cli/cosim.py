@@ -36,13 +36,13 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.cosim.cosimulation import cosimulate
+    from validation.cosim.cosimulation import COSIM_FILES, cosimulate
     from validation.vehicles.fmu_reference import read_cosimulation_fmu
 
     for path in (args.gp_fmu, args.reference):  # before anything is flown or written
         if path is not None:
             read_cosimulation_fmu(path, purpose="cosim")
-    check_output_folder(args.out)
+    check_output_folder(args.out, writes=COSIM_FILES)
     if (args.recording is None) == (args.vehicle is None):
         raise BadInputError("give either --recording FILE.csv or a manoeuvre with --vehicle and --input")
     if args.recording is not None:

@@ -26,11 +26,12 @@ def run(args: argparse.Namespace) -> int:
     from validation.reproduce.bo105 import format_results
     from validation.reproduce.demo import format_cosim, run_demo
 
-    check_output_folder(args.out)
+    check_output_folder(args.out, writes=["*"])  # demo writes many files: its folder is its own
     print(f"flightgp demo: Bo105 80 kt 3-2-1-1 -> {args.out}/")
     demo = run_demo(args.out, seed=args.seed)
     print(format_results(demo["results"]))
     print()
     print(format_cosim(demo["cosim"]))
-    print(f"written: {', '.join(sorted(p.name for p in args.out.iterdir()))}")
+    written = sorted(path.name for path in args.out.iterdir() if not path.name.startswith("."))
+    print(f"written: {', '.join(written)}")
     return 0

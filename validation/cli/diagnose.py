@@ -56,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
     from validation.diagnose.data import read_column_map
     from validation.diagnose.fidelity import read_tolerances
     from validation.diagnose.pipeline import stage_count
-    from validation.diagnose.report import ignored_columns_phrase
+    from validation.diagnose.report import DIAGNOSIS_FILES, ignored_columns_phrase
 
-    check_output_folder(args.out)
+    check_output_folder(args.out, writes=DIAGNOSIS_FILES)
     tolerances = read_tolerances(args.tolerances) if args.tolerances is not None else None
     column_map = read_column_map(args.column_map) if args.column_map is not None else None
     if args.workers is not None and args.workers < 1:

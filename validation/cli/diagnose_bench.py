@@ -12,6 +12,9 @@ from validation.core.errors import BadInputError
 from validation.core.files import check_output_folder, json_text, write_files_atomically
 from validation.core.progress import progress_bar
 
+#: The files diagnose-bench writes in ``--out`` (besides the ``campaign/`` folder of a run on Dask).
+SCORECARD_FILES = ("scorecard.json", "scorecard.txt")
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -69,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise BadInputError(f"unknown case(s) {', '.join(unknown)}; see flightgp diagnose-bench --list")
         cases = [case for case in cases if case.name in args.cases]
-    check_output_folder(args.out)
+    check_output_folder(args.out, writes=SCORECARD_FILES)
     if args.duration is not None and not args.duration >= 5:
         raise BadInputError(f"--duration must be at least 5 s (a 3-2-1-1 on each input), got {args.duration}")
     if args.workers is not None and args.workers < 1:
@@ -97,8 +100,8 @@ def run(args: argparse.Namespace) -> int:
         tables.append(format_seed_summary(result["summary"]))
     table = "\n\n".join(tables)
     print(table)
-    written = write_files_atomically({args.out / "scorecard.json": json_text(result),
-                                      args.out / "scorecard.txt": table + "\n"})
+    json_name, text_name = SCORECARD_FILES
+    written = write_files_atomically({args.out / json_name: json_text(result), args.out / text_name: table + "\n"})
     print(f"written {', '.join(str(path) for path in written)}")
     return 0
 

@@ -10,7 +10,7 @@ import numpy as np
 from fmu_src.fmi.runtime import ENVELOPE_MARGIN
 from validation.cli.arguments import add_format_argument, seed
 from validation.core.errors import BadInputError
-from validation.core.files import write_atomically
+from validation.core.files import check_output_folder, write_files_atomically
 from validation.models.narx import free_run, load_trained, one_step, unseen_inputs
 from validation.vehicles import read_recording
 
@@ -39,6 +39,9 @@ def run(args: argparse.Namespace) -> int:
         raise BadInputError(f"{args.out}: the prediction file name must end in .csv")
     if args.runs < 1:
         raise BadInputError(f"--runs must be at least 1, got {args.runs}")
+    plot_path = args.out.with_suffix(".png")
+    outputs = [args.out] + ([plot_path] if args.plot else [])
+    check_output_folder(args.out.parent, writes=[path.name for path in outputs])
     trained = load_trained(args.model)
     recording = read_recording(args.recording, file_format=args.file_format)
     name = str(args.recording)
@@ -65,9 +68,10 @@ def run(args: argparse.Namespace) -> int:
         png = png_bytes(paper_figure(prediction, None, title=f"{args.method}: {args.recording.name}",
                                      axes=outputs))
     lines = [",".join(header)] + [",".join(map(repr, row)) for row in table.tolist()]
-    write_atomically(args.out, "\n".join(lines) + "\n")
+    files = {args.out: "\n".join(lines) + "\n"}
     if png is not None:
-        write_atomically(args.out.with_suffix(".png"), png)
+        files[plot_path] = png
+    write_files_atomically(files)
     print(f"{args.method} prediction of {args.recording} ({len(prediction.time)} samples, "
           f"step {trained.step:g} s); wrote {args.out}")
     print(f"{'output':>8} {'RMSE':>10} {'95 % coverage':>14}")

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from validation.cli.arguments import FLIGHT_SUFFIX, add_flight_arguments, fly
-from validation.core.files import write_files_atomically
-from validation.core.recordings import Recording, recording_files
+from validation.core.files import check_output_folder, write_files_atomically
+from validation.core.recordings import Recording, recording_files, sidecar_path
 from validation.vehicles import get_vehicle
 
 
@@ -32,13 +32,16 @@ def register(subparsers) -> None:
 
 
 def _record(args: argparse.Namespace) -> int:
-    recording, _ = fly(args)
+    recording, _ = fly(args)  # quick, and it checks the flight's options first
+    plot_path = args.out.with_suffix(".png")
+    outputs = [args.out, sidecar_path(args.out)] + ([plot_path] if args.plot else [])
+    check_output_folder(args.out.parent, writes=[path.name for path in outputs])
     vehicle_name = recording.metadata["vehicle"]
     # Everything is computed before the first file is written, so an error leaves no files.
     png = _plot(recording, vehicle_name=vehicle_name) if args.plot else None
     files = recording_files(args.out, recording)
     if png is not None:
-        files[args.out.with_suffix(".png")] = png
+        files[plot_path] = png
     written = write_files_atomically(files)
     print(f"recorded {vehicle_name}: {args.manoeuvre} on {args.input}, {len(recording.time)} samples; "
           f"wrote {', '.join(map(str, written))}")

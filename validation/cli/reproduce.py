@@ -83,7 +83,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_folder(args.out)
+    check_output_folder(args.out, writes=["*"])  # a reproduction writes many files: its folder is its own
     if args.paper != "blimp" and (args.scheduler is not None or args.cluster_workers is not None):
         raise BadInputError("--scheduler and --cluster-workers apply to reproduce blimp only (its seeds run "
                             "side by side)")

@@ -22,12 +22,13 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.core.files import write_json
+    from validation.core.files import check_output_folder, write_json
     from validation.vehicles.registry import get_vehicle
     from validation.vehicles.state_space import LinearReference
 
     if args.out.suffix != ".json":
         raise BadInputError(f"{args.out}: the state-space file name must end in .json")
+    check_output_folder(args.out.parent, writes=[args.out.name])
     reference = get_vehicle(args.name)
     if not isinstance(reference, LinearReference):
         raise BadInputError(f"{args.name} is not a linear model; state-space files hold the bo105-<V>kt references")

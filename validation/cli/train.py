@@ -6,6 +6,7 @@ from pathlib import Path
 
 from validation.cli.arguments import add_format_argument, seed
 from validation.core.errors import BadInputError
+from validation.core.files import check_output_folder
 from validation.models.narx import HYPERPARAMETER_METHODS, KERNELS, NarxConfig, save_trained, train_narx
 from validation.vehicles import read_recording
 
@@ -40,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         raise BadInputError(f"{args.out}: the model file name must end in .npz")
     if args.sparse is not None and args.sparse < 1:
         raise BadInputError(f"--sparse must be a positive number of inducing points, got {args.sparse}")
+    check_output_folder(args.out.parent, writes=[args.out.name])
     config = NarxConfig(inputs=args.inputs, outputs=args.outputs, input_lags=args.input_lags,
                         output_lags=args.output_lags, decimation=args.decimation, stride=args.stride,
                         kernel=args.kernel, hyperparameters=args.hyperparameters, n_inducing=args.sparse)

@@ -29,6 +29,10 @@ from validation.core.plots import png_bytes
 from validation.core.recordings import Recording
 from validation.vehicles.fmu_reference import read_cosimulation_fmu
 
+#: The summary and the plot :func:`cosimulate` writes in ``out_dir`` (besides a folder of
+#: Cross-Check files per FMU).
+COSIM_FILES = ("cosim.json", "cosim.png")
+
 
 @dataclass
 class FmuRun:
@@ -244,8 +248,9 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
                    "gp_fmu": str(gp_fmu),
                    "gp_parameters": run_with,
                    "reference_fmu": str(reference_fmu) if reference_fmu else None}
-        files[out_dir / "cosim.json"] = json_text(summary)
-        files[out_dir / "cosim.png"] = png_bytes(_figure(result))
+        summary_name, plot_name = COSIM_FILES
+        files[out_dir / summary_name] = json_text(summary)
+        files[out_dir / plot_name] = png_bytes(_figure(result))
         write_files_atomically(files)
     return result
 

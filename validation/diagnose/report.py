@@ -532,6 +532,11 @@ def _locate_notes(mismatch: list, locate: dict) -> list[str]:
     return lines
 
 
+#: What :func:`write_diagnosis` writes in its folder (names and shell patterns), which ``flightgp
+#: diagnose`` checks before its long work (:func:`validation.core.files.check_output_folder`).
+DIAGNOSIS_FILES = ("diagnosis.json", "report.md", "corrected_model.json", "holdout_*.png")
+
+
 def diagnosis_files(diagnosis: Diagnosis, out_dir) -> dict:
     """``{path: str or bytes}`` of everything :func:`write_diagnosis` writes to ``out_dir``."""
     out_dir = Path(out_dir)

@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gp_model import GPNarx, NarxStructure, load_model, read_header, save_model
+from gp_model import GPNarx, NarxStructure, load_model, model_bytes, read_header
 from validation.core.errors import BadInputError
+from validation.core.files import write_atomically
 from validation.core.metrics import rmse
 from validation.core.progress import progress_bar
 from validation.core.recordings import Recording, column_unit
@@ -327,11 +328,12 @@ def _checked_arrays(trained: TrainedNarx, recording: Recording, name: str):
 
 def save_trained(path, trained: TrainedNarx, *, meta: dict | None = None) -> Path:
     """Write a trained GP-NARX, its configuration and the condition it was trained at (the
-    header's ``vehicle`` and ``speed_kt``) to a portable model file."""
+    header's ``vehicle`` and ``speed_kt``) to the portable model file ``path`` (``.npz``;
+    atomically, never over a file flightgp did not write: docs/conventions.md, "Writing files")."""
     header = {"narx_config": trained.config.to_json(),
               "recording_sample_time": trained.recording_sample_time,
               "training_time": trained.training_time.tolist(), **trained.condition, **(meta or {})}
-    return save_model(path, trained.model, meta=header)
+    return write_atomically(path, model_bytes(trained.model, meta=header))
 
 
 def load_trained(path) -> TrainedNarx:

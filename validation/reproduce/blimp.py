@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fmu_src import build_blimp_rkgp_fmu
-from gp_model import save_model
+from gp_model import model_bytes
 from validation.core.files import write_atomically, write_json
 from validation.core.plots import png_bytes
 from validation.core.progress import progress_bar
@@ -117,5 +117,6 @@ def reproduce_blimp(out_dir, *, seeds=DEFAULT_SEEDS, progress: bool = True, quic
 def _save_rkgp_model(out_dir: Path, fitted: FittedModels) -> dict:
     """The RKGP model as a portable file and as the blimp RKGP FMU built from it."""
     description = BlimpStepDescription(fitted.identified.params, max_step=RK_MAX_STEP, command_lags=COMMAND_LAGS)
-    model_path = save_model(out_dir / "blimp_rkgp.npz", fitted.models["RKGP"], physics=description.as_dict())
+    model_path = write_atomically(out_dir / "blimp_rkgp.npz",
+                                  model_bytes(fitted.models["RKGP"], physics=description.as_dict()))
     return {"model": model_path.name, "fmu": build_blimp_rkgp_fmu(model_path, out_dir, name="blimp_rkgp").name}

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gp_model import save_model
+from gp_model import model_bytes
 from validation.core.errors import BadInputError
 from validation.core.files import write_atomically, write_json
 from validation.core.plots import png_bytes
@@ -478,9 +478,9 @@ def _run_configuration(split: Split, flights: dict, ranges, global_model: RGBlim
     rkgp = fit_rkgp(fitting, identified.model, n_points=setup.training_points,
                     min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
     fit_seconds["rkgp"] = identified_seconds + clock.perf_counter() - started
-    model_file = save_model(rkgp_model_path(out_dir, split.configuration), rkgp,
-                            physics=RGBlimpStepDescription(identified.model).as_dict(),
-                            meta={"configuration": split.configuration, "fit": [f"data_{n}.csv" for n in split.fit]})
+    model_file = write_atomically(rkgp_model_path(out_dir, split.configuration), model_bytes(
+        rkgp, physics=RGBlimpStepDescription(identified.model).as_dict(),
+        meta={"configuration": split.configuration, "fit": [f"data_{n}.csv" for n in split.fit]}))
     sindyc = fit_sindyc(fitting)
     fit_seconds["sindyc"] = sindyc.fit_seconds
     hybrid = fit_rollout(fitting, identified.model, setup=setup.rollout)

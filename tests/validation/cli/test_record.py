@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from validation.cli import main
+from validation.core.files import WRITTEN_LIST
 from validation.core.recordings import Recording
 from validation.vehicles import read_recording
 
@@ -36,7 +37,7 @@ def test_record_writes_recording_sidecar_and_plot(tmp_path, capsys):
     assert recording.input("elevator").max() == 0.2
     assert np.abs(recording.output("q")).max() > 0.1  # the manoeuvre reached the aircraft
     assert out.with_suffix(".png").read_bytes().startswith(PNG_SIGNATURE)
-    assert sorted(p.name for p in out.parent.iterdir()) == ["c172x.csv", "c172x.json", "c172x.png"]
+    assert sorted(p.name for p in out.parent.iterdir()) == [WRITTEN_LIST, "c172x.csv", "c172x.json", "c172x.png"]
     assert str(out) in capsys.readouterr().out
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from validation.core.errors import BadInputError
+from validation.core.files import WRITTEN_LIST
 from validation.core.recordings import Recording, column_unit, write_recording
 from validation.vehicles import read_recording
 
@@ -72,9 +73,9 @@ def test_round_trip_is_exact(tmp_path):
     assert path.read_text().splitlines()[0] == "time,elevator,aileron,rudder,u,q,theta,psi"
 
 
-def test_write_leaves_only_the_two_files(tmp_path):
+def test_write_leaves_only_the_two_files_and_the_list_of_files_written(tmp_path):
     write_recording(tmp_path / "run.csv", _recording())
-    assert sorted(os.listdir(tmp_path)) == ["run.csv", "run.json"]
+    assert sorted(os.listdir(tmp_path)) == [WRITTEN_LIST, "run.csv", "run.json"]
 
 
 def test_failed_write_keeps_the_old_file_and_no_temporary(tmp_path, monkeypatch):
@@ -89,7 +90,7 @@ def test_failed_write_keeps_the_old_file_and_no_temporary(tmp_path, monkeypatch)
     with pytest.raises(OSError, match="disk full"):
         write_recording(path, _recording(seed=2))
     assert path.read_bytes() == before
-    assert sorted(os.listdir(tmp_path)) == ["run.csv", "run.json"]
+    assert sorted(os.listdir(tmp_path)) == [WRITTEN_LIST, "run.csv", "run.json"]
 
 
 def test_write_refuses_non_finite_values_and_writes_nothing(tmp_path):

@@ -1,5 +1,6 @@
 """flightgp diagnose: each stage on small cases, the acceptance criteria of docs/diagnose.md on
 concealed effects (EffectVehicle as ground truth, sensor noise on), and exit-2 errors."""
+import fnmatch
 import json
 import math
 
@@ -12,7 +13,7 @@ from validation.core.recordings import Recording, write_recording
 from validation.diagnose import diagnose, write_diagnosis
 from validation.diagnose.noise import UNEXPLAINED_RATIO, estimate_noise_sd, noise_excess
 from validation.diagnose.pipeline import STAGES, stage_count
-from validation.diagnose.report import statement
+from validation.diagnose.report import DIAGNOSIS_FILES, statement
 from validation.vehicles.bo105_effects import identification_manoeuvre
 from validation.vehicles.bo105_flight import SENSOR_NOISE_STD, Bo105FlightTest
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
@@ -347,7 +348,7 @@ def test_an_input_that_moves_only_in_the_held_out_data_skips_the_held_out_check(
     assert any(note.startswith("theta_0T: moves only in the held-out data") for note in result["untestable"])
 
 
-def test_write_diagnosis_is_all_or_nothing(tmp_path):
+def test_write_diagnosis_is_all_or_nothing_and_writes_the_files_diagnose_checks_first(tmp_path):
     fit, held = _concealed([], duration=4.0)
     diagnosis = diagnose([fit], reference="bo105-80kt", holdout=[held])
     blocker = tmp_path / "out"
@@ -356,3 +357,8 @@ def test_write_diagnosis_is_all_or_nothing(tmp_path):
     with pytest.raises(OSError):
         write_diagnosis(diagnosis, blocker)
     assert sorted(p.name for p in blocker.iterdir()) == ["report.md"]
+    (blocker / "report.md").rmdir()
+    # `flightgp diagnose` checks DIAGNOSIS_FILES before its long work: they name every file written
+    names = [path.name for path in write_diagnosis(diagnosis, blocker)]
+    assert "report.md" in names and any(name.endswith(".png") for name in names)
+    assert all(any(fnmatch.fnmatchcase(name, pattern) for pattern in DIAGNOSIS_FILES) for name in names)

@@ -8,6 +8,7 @@ import pytest
 from gp_model import ModelFileError, save_model
 from validation.cli import main
 from validation.core.errors import BadInputError
+from validation.core.files import WRITTEN_LIST
 from validation.core.recordings import Recording, write_recording
 from validation.models.narx import (
     NarxConfig,
@@ -184,7 +185,8 @@ def test_cli_bad_inputs_exit_2_and_write_nothing(tmp_path, recordings, capsys):
         assert err.count("\n") == 1 and "Traceback" not in err, err
     assert "the recordings give 2 training point(s) (every 25th NARX target) for 5 regressors; a GP needs at " \
            "least 14" in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "rec.json", "short.csv", "short.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [WRITTEN_LIST, "rec.csv", "rec.json", "short.csv",
+                                                          "short.json"]
 
 
 @pytest.mark.slow
