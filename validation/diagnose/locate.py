@@ -110,8 +110,8 @@ def _check_angle_units(data: PreparedData, replay: list, reference_name: str) ->
         gain = float(measured @ replayed / (replayed @ replayed))
         if looks_like_degrees(abs(gain)):
             raise BadInputError(f"the recorded {output} is {abs(gain):.3g} times {reference_name}'s replay of it: it "
-                                f"looks like degrees; flightgp reads {column_unit(output)} (docs/conventions.md, "
-                                "\"Units and axes\")")
+                                f"looks like degrees; flightgp reads {column_unit(output)} "
+                                "(docs/conventions.md, \"Units and axes\")")
         if looks_like_degrees(1 / abs(gain)):
             raise BadInputError(f"{reference_name}'s replay of {output} is {1 / abs(gain):.3g} times the recorded "
                                 f"{output}: the reference's {output} looks like degrees; flightgp reads "
