@@ -38,6 +38,7 @@ LAYERS = (
     ("fmu_src",),
     ("validation.cosim",),
     ("validation.diagnose",),
+    ("validation.qtg",),
     ("validation.reproduce",),
     ("validation.campaign",),
     ("validation.bench",),

@@ -24,6 +24,7 @@ from validation.cli import (
     diagnose_bench,
     inspect,
     predict,
+    qtg,
     record,
     reproduce,
     state_space,
@@ -33,7 +34,7 @@ from validation.core.errors import BadInputError
 
 #: The command modules, in the order ``--help`` lists their commands.
 COMMAND_MODULES = (demo, record, inspect, train, predict, reproduce, cosim, bench, build_fmu, diagnose,
-                   diagnose_bench, state_space, campaign)
+                   diagnose_bench, state_space, qtg, campaign)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -53,12 +53,86 @@ class FmuRun:
     outputs: dict = field(default_factory=dict)
 
 
-def simulate(fmu_path, *, time: np.ndarray, inputs: dict, outputs, start_values: dict | None = None) -> FmuRun:
+class OpenFmu:
+    """An FMU extracted and instantiated once for many runs of :func:`simulate`, reset between
+    them (``fmi2Reset``): one instantiation per FMU however many recordings it replays. Use it as
+    a context manager (or call :meth:`close`), which frees the instance and removes the extracted
+    files.
+
+    Parameters
+    ----------
+    path : path
+        An FMI 2.0 co-simulation FMU.
+
+    Attributes
+    ----------
+    path : Path
+    description : fmpy ModelDescription
+    unzipdir : str
+        The folder the FMU is extracted to.
+    messages : list of str
+        What the FMU logged, oldest first.
+    instantiations : int
+        How often the FMU was instantiated: 1, plus one per run after which it could not be reset
+        (a Fatal status).
+    """
+
+    def __init__(self, path):
+        from fmpy import extract, read_model_description
+
+        self.path = Path(path)
+        self.description = read_model_description(str(self.path))
+        self.messages = []
+        self.instantiations = 0
+        self.unzipdir = extract(str(self.path))
+        self._instance = None
+        self._used = False
+
+    def _logger(self, component, instance, status, category, message):
+        self.messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
+
+    def instance(self):
+        """The instance, ready for a run: instantiated at the first call, reset before each later
+        one (instantiated afresh when it cannot be reset)."""
+        from fmpy import instantiate_fmu
+
+        if self._instance is not None and self._used:
+            try:
+                self._instance.reset()
+            except Exception:  # noqa: BLE001 - after a Fatal status the instance cannot be reset
+                self._instance.freeInstance()
+                self._instance = None
+        if self._instance is None:
+            self._instance = instantiate_fmu(self.unzipdir, self.description, fmi_type="CoSimulation",
+                                             logger=self._logger)
+            self.instantiations += 1
+        self._used = True
+        return self._instance
+
+    def close(self) -> None:
+        """Free the instance and remove the extracted files."""
+        import shutil
+
+        if self._instance is not None:
+            self._instance.freeInstance()
+            self._instance = None
+        shutil.rmtree(self.unzipdir, ignore_errors=True)
+
+    def __enter__(self) -> OpenFmu:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def simulate(fmu, *, time: np.ndarray, inputs: dict, outputs, start_values: dict | None = None) -> FmuRun:
     """Run one FMU in fmpy on the grid ``time`` (evenly spaced) with the given inputs.
 
     Parameters
     ----------
-    fmu_path : path
+    fmu : path or OpenFmu
+        A path is extracted and instantiated for this run alone; an :class:`OpenFmu` runs its
+        kept instance (reset since its last run), so many runs instantiate it once.
     time : ndarray, shape (n,)
         Communication points, s; the step is ``time[1] - time[0]``.
     inputs : dict of str -> ndarray, shape (n,)
@@ -67,32 +141,30 @@ def simulate(fmu_path, *, time: np.ndarray, inputs: dict, outputs, start_values:
     start_values : dict, optional
         Parameters and start values.
     """
+    if not isinstance(fmu, OpenFmu):
+        with OpenFmu(fmu) as opened:
+            return simulate(opened, time=time, inputs=inputs, outputs=outputs, start_values=start_values)
     import fmpy
-    from fmpy import read_model_description
 
-    description = read_model_description(str(fmu_path))
+    description = fmu.description
     names = {v.name for v in description.modelVariables}
     missing = [n for n in (*inputs, *outputs, *(start_values or {})) if n not in names]
     if missing:
-        raise BadInputError(f"{fmu_path}: the FMU has no variable(s) {', '.join(missing)}")
+        raise BadInputError(f"{fmu.path}: the FMU has no variable(s) {', '.join(missing)}")
     signal = np.zeros(len(time), dtype=[("time", float)] + [(n, float) for n in inputs])
     signal["time"] = time
     for name, values in inputs.items():
         signal[name] = values
     step = float(time[1] - time[0])
-    messages = []
-
-    def logger(component, instance, status, category, message):
-        messages.append(message.decode(errors="replace") if isinstance(message, bytes) else str(message))
-
+    logged = len(fmu.messages)
     try:
-        result = fmpy.simulate_fmu(str(fmu_path), start_time=float(time[0]), stop_time=float(time[-1]),
+        result = fmpy.simulate_fmu(fmu.unzipdir, model_description=description, fmu_instance=fmu.instance(),
+                                   start_time=float(time[0]), stop_time=float(time[-1]),
                                    step_size=step, output_interval=step, input=signal,
-                                   output=list(outputs), start_values=start_values or {},
-                                   debug_logging=False, logger=logger)
+                                   output=list(outputs), start_values=start_values or {})
     except Exception as error:  # fmpy raises plain Exceptions for FMI error statuses
-        detail = f" ({messages[-1]})" if messages else ""
-        raise BadInputError(f"{fmu_path}: co-simulation failed: {error}{detail}") from None
+        detail = f" ({fmu.messages[-1]})" if len(fmu.messages) > logged else ""
+        raise BadInputError(f"{fmu.path}: co-simulation failed: {error}{detail}") from None
     rows = np.searchsorted(result["time"], time - 1e-9 * step)
     return FmuRun(description.modelName, time, dict(inputs),
                   {name: np.asarray(result[name])[rows] for name in outputs})
@@ -166,47 +238,78 @@ class CosimResult:
         return result
 
 
-def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None,
-               exact_moments: bool | None = None, parallel: bool | None = None) -> CosimResult:
-    """Co-simulate the GP rate predictor (free run) and a reference FMU under a recording's
-    inputs and compare both with it.
+@dataclass
+class FreeRun:
+    """A flightgp GP rate-predictor FMU run in free-run mode against a recording (:func:`free_run`).
+
+    Attributes
+    ----------
+    run : FmuRun
+        Its outputs (each axis with ``<axis>_lower`` and ``<axis>_upper``) on its step grid.
+    axes : tuple of str
+        The rates it predicts (outputs with a ``<name>_prev`` input), e.g. ``("p", "q", "r")``.
+    controls : tuple of str
+        The control inputs it takes.
+    step : float
+        Its communication step (the NARX step), s.
+    rows : slice
+        The recording's samples at its step grid (``recording.time[rows]`` is ``run.time``).
+    measured : ndarray, shape (n, n_axes)
+        The recorded rates at those samples.
+    parameters : dict of str -> bool
+        ``exact_moments`` and ``parallel`` as run, for an FMU that has them.
+    confidence_level : float or None
+        Its band's probability (its ``confidence_level`` start value), None without one.
+    """
+
+    run: FmuRun
+    axes: tuple
+    controls: tuple
+    step: float
+    rows: slice
+    measured: np.ndarray
+    parameters: dict
+    confidence_level: float | None
+
+
+def rate_predictor_axes(description) -> tuple:
+    """The outputs of an FMU's description that have a ``<name>_prev`` input: a flightgp GP
+    rate predictor's rates (docs/fmus.md, "GP-NARX rate predictor"); empty for any other FMU."""
+    variables = {v.name: v for v in description.modelVariables}
+    return tuple(v.name for v in description.modelVariables
+                 if v.causality == "output" and f"{v.name}_prev" in variables)
+
+
+def free_run(gp_fmu, recording: Recording, *, exact_moments: bool | None = None,
+             parallel: bool | None = None) -> FreeRun:
+    """Run a GP rate-predictor FMU in free-run mode under a recording's controls, started from the
+    recording's first rates, on its own step grid (docs/fmus.md, "GP-NARX rate predictor").
 
     Parameters
     ----------
-    gp_fmu : path
-        A rate-predictor FMU (``flightgp build-fmu``); its default experiment step is the
-        NARX step, and the recording is sampled on that grid.
+    gp_fmu : path or OpenFmu
+        A rate-predictor FMU (``flightgp build-fmu``); its default experiment step is the NARX
+        step, and the recording is sampled on that grid.
     recording : Recording
-        Inputs to apply and outputs to compare with (evenly sampled, step dividing the FMU's).
-    reference_fmu : path, optional
-        A physics FMU whose inputs are the recording's inputs and whose outputs include the
-        GP's outputs (e.g. ``flightgp build-fmu --reference bo105-80kt``).
-    out_dir : path, optional
-        Where to write the Cross-Check files, ``cosim.json`` and ``cosim.png`` (atomically).
+        Evenly sampled, its step dividing the FMU's; it must hold the FMU's controls and rates.
     exact_moments, parallel : bool, optional
-        The GP FMU's parameters of these names (docs/fmus.md, "GP-NARX rate predictor"): the
-        moment matching in double precision throughout; the free run on two threads (native
-        FMU). None (default): the FMU's own default, which for ``exact_moments`` its build chose
-        by measuring its fast path. Given for an FMU that lacks the parameter: refused.
-        ``cosim.json`` records the values run.
+        The FMU's parameters of these names (as :func:`cosimulate`); None: the FMU's default.
     """
-    description = read_cosimulation_fmu(gp_fmu, purpose="cosim")
-    if reference_fmu is not None:
-        read_cosimulation_fmu(reference_fmu, purpose="cosim")
+    description = gp_fmu.description if isinstance(gp_fmu, OpenFmu) else read_cosimulation_fmu(gp_fmu, purpose="cosim")
+    path = gp_fmu.path if isinstance(gp_fmu, OpenFmu) else gp_fmu
     variables = {v.name: v for v in description.modelVariables}
-    axes = tuple(v.name for v in description.modelVariables
-                 if v.causality == "output" and f"{v.name}_prev" in variables)
+    axes = rate_predictor_axes(description)
     controls = tuple(v.name for v in description.modelVariables
                      if v.causality == "input" and not v.name.endswith("_prev"))
     asked = {name: value for name, value in (("exact_moments", exact_moments), ("parallel", parallel))
              if value is not None}
     lacking = [name for name in asked if name not in variables or variables[name].causality != "parameter"]
     if lacking:
-        raise BadInputError(f"{gp_fmu}: no parameter {', '.join(lacking)} (a rate-predictor FMU of this "
+        raise BadInputError(f"{path}: no parameter {', '.join(lacking)} (a rate-predictor FMU of this "
                             "flightgp has it)")
     step = description.defaultExperiment.stepSize if description.defaultExperiment else None
     if not axes or not step:
-        raise BadInputError(f"{gp_fmu}: not a flightgp rate-predictor FMU (it needs outputs with <name>_prev inputs "
+        raise BadInputError(f"{path}: not a flightgp rate-predictor FMU (it needs outputs with <name>_prev inputs "
                             "and a default experiment step); a physics FMU goes after --reference")
     step = float(step)
     sample = float(np.mean(np.diff(recording.time)))
@@ -227,26 +330,58 @@ def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None
     # In free-run mode the *_prev inputs are read only at initialisation; they are still given
     # (held at their start values) so that no host warns about undriven inputs.
     held = {f"{a}_prev": np.full(len(time), measured[0, j]) for j, a in enumerate(axes)}
-    gp = simulate(gp_fmu, time=time, inputs={**{c: recording.input(c)[rows] for c in controls}, **held},
-                  outputs=[n for a in axes for n in (a, f"{a}_lower", f"{a}_upper")],
-                  start_values={"free_run": True, **asked,
-                                **{f"{a}_prev": float(measured[0, j]) for j, a in enumerate(axes)}})
+    run = simulate(gp_fmu, time=time, inputs={**{c: recording.input(c)[rows] for c in controls}, **held},
+                   outputs=[n for a in axes for n in (a, f"{a}_lower", f"{a}_upper")],
+                   start_values={"free_run": True, **asked,
+                                 **{f"{a}_prev": float(measured[0, j]) for j, a in enumerate(axes)}})
+    level = getattr(variables.get("confidence_level"), "start", None)  # not set here: the FMU's start value
+    return FreeRun(run, axes, controls, step, rows, measured, run_with, None if level is None else float(level))
+
+
+def cosimulate(gp_fmu, recording: Recording, *, reference_fmu=None, out_dir=None,
+               exact_moments: bool | None = None, parallel: bool | None = None) -> CosimResult:
+    """Co-simulate the GP rate predictor (free run) and a reference FMU under a recording's
+    inputs and compare both with it.
+
+    Parameters
+    ----------
+    gp_fmu : path
+        A rate-predictor FMU (``flightgp build-fmu``); its default experiment step is the
+        NARX step, and the recording is sampled on that grid (:func:`free_run`).
+    recording : Recording
+        Inputs to apply and outputs to compare with (evenly sampled, step dividing the FMU's).
+    reference_fmu : path, optional
+        A physics FMU whose inputs are the recording's inputs and whose outputs include the
+        GP's outputs (e.g. ``flightgp build-fmu --reference bo105-80kt``).
+    out_dir : path, optional
+        Where to write the Cross-Check files, ``cosim.json`` and ``cosim.png`` (atomically).
+    exact_moments, parallel : bool, optional
+        The GP FMU's parameters of these names (docs/fmus.md, "GP-NARX rate predictor"): the
+        moment matching in double precision throughout; the free run on two threads (native
+        FMU). None (default): the FMU's own default, which for ``exact_moments`` its build chose
+        by measuring its fast path. Given for an FMU that lacks the parameter: refused.
+        ``cosim.json`` records the values run.
+    """
+    read_cosimulation_fmu(gp_fmu, purpose="cosim")
+    if reference_fmu is not None:
+        read_cosimulation_fmu(reference_fmu, purpose="cosim")
+    gp = free_run(gp_fmu, recording, exact_moments=exact_moments, parallel=parallel)
+    time = gp.run.time
     reference = None
     if reference_fmu is not None:
         reference = simulate(reference_fmu, time=time,
-                             inputs={c: recording.input(c)[rows] for c in recording.input_names},
-                             outputs=list(axes))
-    level = getattr(variables.get("confidence_level"), "start", None)  # not set here: the FMU's start value
-    result = CosimResult(time, axes, measured, gp, reference, confidence_level=None if level is None else float(level))
+                             inputs={c: recording.input(c)[gp.rows] for c in recording.input_names},
+                             outputs=list(gp.axes))
+    result = CosimResult(time, gp.axes, gp.measured, gp.run, reference, confidence_level=gp.confidence_level)
     if out_dir is not None:
         out_dir = Path(out_dir)
-        files = cross_check_files(gp, out_dir)
+        files = cross_check_files(gp.run, out_dir)
         if reference is not None:
             files.update(cross_check_files(reference, out_dir))
-        summary = {"step_s": step, "axes": list(axes), "rmse": result.rmse(),
+        summary = {"step_s": gp.step, "axes": list(gp.axes), "rmse": result.rmse(),
                    "coverage": result.coverage(), "coverage_level": result.confidence_level,
                    "gp_fmu": str(gp_fmu),
-                   "gp_parameters": run_with,
+                   "gp_parameters": gp.parameters,
                    "reference_fmu": str(reference_fmu) if reference_fmu else None}
         summary_name, plot_name = COSIM_FILES
         files[out_dir / summary_name] = json_text(summary)

@@ -48,8 +48,17 @@ from validation.vehicles.rgblimp_data import source_score
 
 #: Where the default bands come from.
 TOLERANCE_SOURCE = "14 CFR Part 60, Appendix C, Table C2A (1-1-19 edition)"
-#: The units Table C2A states its bands in, and each one's size in the output's SI unit.
-_STATED_UNITS = {"deg": math.pi / 180.0, "deg/s": math.pi / 180.0, "kt": 1852.0 / 3600.0}
+#: The units a band may be stated in, each as (the SI unit of the outputs it measures, its size in
+#: that unit): the units Table C2A states its bands in (deg, deg/s, kt; fpm and ft for vertical
+#: velocity and altitude), other common ones, and the SI units themselves (docs/conventions.md,
+#: "Units and axes"). 1 kt = 1852 m / 3600 s and 1 ft = 0.3048 m exactly (international
+#: nautical mile and foot).
+STATED_UNITS = {
+    "deg": ("rad", math.pi / 180.0), "rad": ("rad", 1.0),
+    "deg/s": ("rad/s", math.pi / 180.0), "rad/s": ("rad/s", 1.0),
+    "kt": ("m/s", 1852.0 / 3600.0), "ft/s": ("m/s", 0.3048), "fpm": ("m/s", 0.3048 / 60.0), "m/s": ("m/s", 1.0),
+    "ft": ("m", 0.3048), "m": ("m", 1.0),
+}
 
 
 class Band(NamedTuple):
@@ -65,7 +74,7 @@ class Band(NamedTuple):
 
 def _stated(value: float, unit: str, test: str, what: str) -> Band:
     """The band of Table C2A's ``test``, stated there as +-``value`` ``unit`` of ``what``."""
-    return Band(value * _STATED_UNITS[unit], f"{test}: +-{value:g} {unit} {what}", f"{value:g} {unit}")
+    return Band(value * STATED_UNITS[unit][1], f"{test}: +-{value:g} {unit} {what}", f"{value:g} {unit}")
 
 
 #: Default tolerance bands, output -> :class:`Band` (half-width in SI, computed from the table's
@@ -217,36 +226,62 @@ def pose_scores(traces: dict) -> dict | None:
 
 
 def _frequency_costs(trace: dict, holdout_inputs: list, step: float) -> tuple[str | None, dict]:
-    """The input most coherent with the measured output on the held-out samples and each
-    model's cost J against the measurement's response from it (module docstring)."""
-    pieces = []
-    start = 0
-    for inputs, mask, names in holdout_inputs:
-        length = int(mask.sum())
-        pieces.append((inputs[mask], slice(start, start + length), names))
-        start += length
+    """:func:`frequency_costs` on the held-out samples of every recording, end to end."""
+    if not holdout_inputs:
+        return None, {}
+    inputs = np.concatenate([inputs[mask] for inputs, mask, _ in holdout_inputs])
+    return frequency_costs(inputs, holdout_inputs[0][2], trace["measured"],
+                           {key: trace[key] for key in MODEL_KEYS}, step=step)
+
+
+def frequency_costs(inputs: np.ndarray, input_names, measured: np.ndarray, models: dict, *,
+                    step: float) -> tuple[str | None, dict]:
+    """Tischler's frequency-domain cost J of each model's output against the measured one (module
+    docstring), from the input most coherent with the measurement.
+
+    Parameters
+    ----------
+    inputs : ndarray, shape (n, n_inputs)
+        The inputs, evenly sampled every ``step`` s, in their own units.
+    input_names : sequence of str, length n_inputs
+    measured : ndarray, shape (n,)
+        The measured output, in its SI unit.
+    models : dict of str -> ndarray, shape (n,)
+        Each model's output at the same samples.
+    step : float
+        Sample interval, s.
+
+    Returns
+    -------
+    input_name : str or None
+        The input the responses are taken from (None when no input moves).
+    costs : dict of str -> float
+        J per model (dimensionless; J <= 100 acceptable, J <= 50 nearly indistinguishable);
+        empty when no input moves or the coherence never reaches :data:`MIN_COHERENCE` over two
+        frequencies.
+    """
     best = (None, None, -1.0)
-    for column in range(pieces[0][0].shape[1]) if pieces else ():
-        x = np.concatenate([p[0][:, column] for p in pieces])
+    for column in range(inputs.shape[1]):
+        x = inputs[:, column]
         if np.ptp(x) <= 0:
             continue
-        frequencies, coherence = _spectra(x, trace["measured"], step)[::2]
+        frequencies, coherence = _spectra(x, measured, step)[::2]
         score = float(np.mean(coherence[1:])) if len(coherence) > 1 else 0.0
         if score > best[2]:
-            best = (pieces[0][2][column], column, score)
+            best = (input_names[column], column, score)
     if best[1] is None:
         return None, {}
-    x = np.concatenate([p[0][:, best[1]] for p in pieces])
-    frequencies, response, coherence = _spectra(x, trace["measured"], step)
+    x = inputs[:, best[1]]
+    frequencies, response, coherence = _spectra(x, measured, step)
     band = frequencies[(coherence >= MIN_COHERENCE) & (frequencies > 0)]
     if len(band) < 2:
         return best[0], {}
     points = np.geomspace(band.min(), band.max(), N_FREQUENCIES)
-    measured = _at(frequencies, response, points)
+    measured_response = _at(frequencies, response, points)
     weight = (1.58 * (1 - np.exp(-np.interp(points, frequencies, coherence) ** 2))) ** 2
     costs = {}
-    for key in ("reference", "corrected", "corrected_gp"):
-        ratio = _at(frequencies, _spectra(x, trace[key], step)[1], points) / measured
+    for key, predicted in models.items():
+        ratio = _at(frequencies, _spectra(x, predicted, step)[1], points) / measured_response
         magnitude_error = 20 * np.log10(np.maximum(np.abs(ratio), 1e-300))  # dB
         phase_error = np.degrees(np.angle(ratio))  # deg, within +-180
         costs[key] = float(20.0 / N_FREQUENCIES * np.sum(

@@ -8,7 +8,7 @@ from fmpy import read_model_description
 
 from validation.cli import main
 from validation.core.recordings import write_recording
-from validation.cosim.cosimulation import cosimulate
+from validation.cosim.cosimulation import OpenFmu, cosimulate, simulate
 from validation.models.narx import narx_arrays
 
 
@@ -161,3 +161,19 @@ def test_ci_guard_3211_rmse_of_the_fmu_against_the_flight_test(case, bo105_refer
     for axis in "pqr":
         assert rmse["gp"][axis] < GP_RMSE_GUARD[axis], (axis, rmse["gp"][axis])
         assert rmse["gp"][axis] < rmse["reference"][axis], axis
+
+
+def test_an_open_fmu_is_instantiated_once_and_reset_between_runs(bo105_reference_fmu, bo105_flights):
+    """Runs through one OpenFmu equal runs each through a fresh instance, whatever ran before
+    (``fmi2Reset`` restores the start state and parameters), and instantiate the FMU once."""
+    recording = bo105_flights["training"]
+    time = recording.time[:301]
+    inputs = {name: recording.input(name)[:301] for name in recording.input_names}
+    fresh = simulate(bo105_reference_fmu, time=time, inputs=inputs, outputs=["q", "theta"])
+    with OpenFmu(bo105_reference_fmu) as fmu:
+        changed = simulate(fmu, time=time, inputs=inputs, outputs=["q"], start_values={"M_q": -0.5, "q_start": 0.1})
+        again = simulate(fmu, time=time, inputs=inputs, outputs=["q", "theta"])
+        assert fmu.instantiations == 1
+    assert not np.allclose(changed.outputs["q"], fresh.outputs["q"])
+    for name in ("q", "theta"):
+        np.testing.assert_array_equal(again.outputs[name], fresh.outputs[name])
