@@ -436,12 +436,12 @@ class _Parser:
                 self.file(value, at, suffixes=(".fmu",))
         return self.value(raw, where, element=element, numeric=False)
 
-    def reference(self, raw, where: str, *, fmu: bool = True):
-        """A registry name, or a ``.fmu`` (unless ``fmu`` is false: the study takes FMUs as its
-        ``fmu``) or ``.json`` file (relative to the spec)."""
+    def reference(self, raw, where: str, *, fmu_allowed: bool = True):
+        """A registry name, or a ``.fmu`` (unless ``fmu_allowed`` is false: the study takes FMUs
+        as its ``fmu``) or ``.json`` file (relative to the spec)."""
         def element(value, at):
             self.string(value, at)
-            if not fmu and value.endswith(".fmu"):
+            if not fmu_allowed and value.endswith(".fmu"):
                 self.fail(at, f"{value!r} is an FMU; give it as 'fmu'")
             if is_file_reference(value):
                 self.file(value, at)
@@ -571,7 +571,7 @@ class _Parser:
                              "campaign) or as 'reference' (a registry name or a state-space FILE.json), one of them")
         return {"spec": self.qtg_spec(raw["spec"], f"{where}.spec"),
                 "fmu": self.fmu(raw["fmu"], f"{where}.fmu") if "fmu" in raw else None,
-                "reference": self.reference(raw["reference"], f"{where}.reference", fmu=False)
+                "reference": self.reference(raw["reference"], f"{where}.reference", fmu_allowed=False)
                 if "reference" in raw else None}
 
     def _reproduce(self, raw, where: str) -> dict:
