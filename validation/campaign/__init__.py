@@ -1,5 +1,5 @@
-"""``flightgp campaign``: many co-simulations, diagnoses, bench cases and reproductions as one
-campaign on Dask, on one machine or a cluster (docs/campaigns.md).
+"""``flightgp campaign``: many co-simulations, diagnoses, bench cases, reproductions and QTGs as
+one campaign on Dask, on one machine or a cluster (docs/campaigns.md).
 
 :mod:`~validation.campaign.spec` reads and expands the spec, :mod:`~validation.campaign.tasks`
 holds what the workers run, :mod:`~validation.campaign.runner` drives Dask and

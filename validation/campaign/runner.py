@@ -133,7 +133,8 @@ def run_campaign(spec, out_dir, *, scheduler: str | None = None, workers: int | 
     interrupted, n_workers, task_seconds = [], 0, 0.0
     if pending:
         labels = {label for task in pending for label in task.files}
-        bundles = {label: FileBundle.read(label, paths[label]) for label in sorted(labels)}
+        bundles = {label: FileBundle.read(label, paths[label], companions=spec.files[label].companions)
+                   for label in sorted(labels)}
         with dask_client(scheduler=scheduler, workers=workers) as client:
             n_workers = len(client.scheduler_info()["workers"])
             submitted = clock.perf_counter()

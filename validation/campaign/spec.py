@@ -22,7 +22,7 @@ import json
 import math
 import re
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +31,7 @@ from validation.core.errors import BadInputError, unknown_name_message
 from validation.core.manoeuvres import MANOEUVRES
 
 #: The task kinds a study may name.
-KINDS = ("cosim", "diagnose", "diagnose-bench", "reproduce")
+KINDS = ("cosim", "diagnose", "diagnose-bench", "reproduce", "qtg")
 #: The papers a ``reproduce`` study runs (``flightgp reproduce``'s with one seed each).
 PAPERS = ("bo105", "blimp")
 #: Version of the spec format this flightgp reads.
@@ -95,11 +95,15 @@ class FileRef:
         The file, resolved against the spec's folder.
     reference : str or None
         A reference FMU the campaign builds (``flightgp build-fmu --reference <name>``) instead.
+    companions : tuple of str
+        Files that travel with it, by the paths it names them by, relative to its folder (a QTG
+        spec's recordings; :meth:`validation.campaign.tasks.FileBundle.read` keeps them there).
     """
 
     label: str
     path: Path | None = None
     reference: str | None = None
+    companions: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -305,6 +309,10 @@ def _task_files(kind: str, settings: dict) -> list[str]:
     if kind == "diagnose-bench":
         return [settings[key] for key in ("reference", "through")
                 if settings[key] is not None and is_file_reference(settings[key])]
+    if kind == "qtg":
+        if settings["fmu"] is not None:
+            return [settings["spec"], file_label(settings["fmu"])]
+        return [settings["spec"]] + ([settings["reference"]] if is_file_reference(settings["reference"]) else [])
     return []
 
 
@@ -428,12 +436,37 @@ class _Parser:
                 self.file(value, at, suffixes=(".fmu",))
         return self.value(raw, where, element=element, numeric=False)
 
-    def reference(self, raw, where: str):
-        """A registry name, or a ``.fmu``/``.json`` file (relative to the spec)."""
+    def reference(self, raw, where: str, *, fmu_allowed: bool = True):
+        """A registry name, or a ``.fmu`` (unless ``fmu_allowed`` is false: the study takes FMUs
+        as its ``fmu``) or ``.json`` file (relative to the spec)."""
         def element(value, at):
             self.string(value, at)
+            if not fmu_allowed and value.endswith(".fmu"):
+                self.fail(at, f"{value!r} is an FMU; give it as 'fmu'")
             if is_file_reference(value):
                 self.file(value, at)
+        return self.value(raw, where, element=element, numeric=False)
+
+    def qtg_spec(self, raw, where: str):
+        """A QTG spec file (``.toml``), read and checked with its recordings, which travel with it
+        (:attr:`FileRef.companions`)."""
+        def element(value, at):
+            from validation.qtg import read_spec as read_qtg_spec
+
+            known = value in self.files
+            self.file(value, at, suffixes=(".toml",))
+            if known:
+                return
+            try:
+                qtg = read_qtg_spec(self.files[value].path)
+            except BadInputError as error:
+                self.fail(at, str(error))
+            recordings = tuple(dict.fromkeys(test.recording_path for test in qtg.tests))
+            absolute = [name for name in recordings if Path(name).is_absolute()]
+            if absolute:
+                self.fail(at, f"recording {absolute[0]} is an absolute path; name it relative to the QTG spec, "
+                              "so that the campaign can carry it to the workers")
+            self.files[value] = replace(self.files[value], companions=recordings)
         return self.value(raw, where, element=element, numeric=False)
 
     def recordings(self, raw, where: str):
@@ -532,6 +565,15 @@ class _Parser:
                 "duration": None if raw.get("duration") is None
                 else self.number(raw["duration"], f"{where}.duration", minimum=5)}
 
+    def _qtg(self, raw, where: str) -> dict:
+        if ("fmu" in raw) == ("reference" in raw):
+            self.fail(where, "give the model to qualify as 'fmu' (an FMU file, or {\"reference\": NAME} built by the "
+                             "campaign) or as 'reference' (a registry name or a state-space FILE.json), one of them")
+        return {"spec": self.qtg_spec(raw["spec"], f"{where}.spec"),
+                "fmu": self.fmu(raw["fmu"], f"{where}.fmu") if "fmu" in raw else None,
+                "reference": self.reference(raw["reference"], f"{where}.reference", fmu_allowed=False)
+                if "reference" in raw else None}
+
     def _reproduce(self, raw, where: str) -> dict:
         paper = self.choice_of(raw["paper"], f"{where}.paper", PAPERS)
         return {"paper": paper,
@@ -547,6 +589,7 @@ _STUDY_FIELDS = {
     "diagnose": (("recordings", "reference"), ("holdout", "folds")),
     "diagnose-bench": ((), ("cases", "reference", "through", "duration")),
     "reproduce": (("paper",), ("runs", "paper_only", "quick")),
+    "qtg": (("spec",), ("fmu", "reference")),
 }
 
 

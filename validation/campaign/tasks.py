@@ -20,7 +20,8 @@ import tempfile
 import threading
 import time as clock
 import traceback
-from dataclasses import dataclass, field
+from contextlib import ExitStack
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +46,8 @@ class FileBundle:
     key : str
         Hash of the names and contents: the folder the worker writes it to.
     files : tuple of (str, bytes)
-        File names and contents; the first is the file ``label`` names.
+        File names (paths relative to the bundle's folder, with ``/``) and contents; the first is
+        the file ``label`` names.
     """
 
     label: str
@@ -53,11 +55,18 @@ class FileBundle:
     files: tuple
 
     @classmethod
-    def read(cls, label: str, path) -> FileBundle:
-        """The bundle of ``path`` (a ``.csv`` recording with its sidecar, if it has one)."""
-        path = Path(path)
-        paths = [path] + ([sidecar_path(path)] if path.suffix == ".csv" and sidecar_path(path).is_file() else [])
-        files = tuple((p.name, p.read_bytes()) for p in paths)
+    def read(cls, label: str, path, *, companions=()) -> FileBundle:
+        """The bundle of ``path`` and its ``companions`` (paths relative to ``path``'s folder: a
+        QTG spec's recordings), each ``.csv`` recording with its sidecar, if it has one. The files
+        keep their places relative to each other, so ``path`` finds its companions by the same
+        relative paths in the worker's copy (:func:`local_file`)."""
+        path = Path(os.path.abspath(path))
+        paths = []
+        for main in dict.fromkeys([path, *(Path(os.path.abspath(path.parent / name)) for name in companions)]):
+            sidecar = sidecar_path(main)
+            paths += [main, sidecar] if main.suffix == ".csv" and sidecar.is_file() else [main]
+        root = Path(os.path.commonpath([p.parent for p in paths]))
+        files = tuple((p.relative_to(root).as_posix(), p.read_bytes()) for p in paths)
         digest = hashlib.sha256()
         for name, data in files:
             digest.update(name.encode() + b"\0" + hashlib.sha256(data).digest())
@@ -365,10 +374,48 @@ def run_reproduction(settings: dict, *, seed: int, paths: dict) -> TaskOutput:
     return TaskOutput(figures, files)
 
 
+# -- qtg --------------------------------------------------------------------------------------
+
+def run_qtg_task(settings: dict, *, seed: int, paths: dict) -> TaskOutput:
+    """``flightgp qtg`` (docs/qtg.md): every test of the QTG spec against the task's model, opened
+    once for all of them. A QTG is deterministic: ``seed`` is not used.
+
+    Figures: the counts ``passed``, ``failed``, ``errors`` and ``not_run``, ``all_passed`` (1 or
+    0: at least one test ran and none failed or erred), and per output ``y`` of a test that ran,
+    numbered ``NN`` as its plot (``01``, ``02``, ...), ``NN.y.excursion``: how far its largest
+    difference from the flight test lies beyond its band (the output's SI unit; 0 when every
+    sample is inside). Files: everything ``flightgp qtg`` writes (``summary.md``, ``qtg.html``,
+    ``junit.xml``, ``qtg.json``, ``plots/``); they name the spec as the campaign spec does.
+    """
+    from validation.qtg import read_spec, run_qtg
+    from validation.qtg.report import qtg_files
+    from validation.qtg.run import ERROR, FAILED, NOT_RUN, PASSED
+
+    spec = replace(read_spec(paths[settings["spec"]]), path=Path(settings["spec"]))
+    with ExitStack() as stack:
+        result = run_qtg(spec, open_qtg_model(stack, settings, paths), progress=False)
+    figures = {"passed": result.count(PASSED), "failed": result.count(FAILED), "errors": result.count(ERROR),
+               "not_run": result.count(NOT_RUN), "all_passed": result.passed}
+    for number, test in enumerate(result.tests, start=1):
+        figures.update({f"{number:02d}.{name}.excursion": output.excursion  # numbered as plots/NN_<id>.png
+                        for name, output in test.outputs.items()})
+    return TaskOutput({name: float(value) for name, value in figures.items()},
+                      {str(path): content for path, content in qtg_files(result, Path()).items()})
+
+
+def open_qtg_model(stack: ExitStack, settings: dict, paths: dict):
+    """The model a ``qtg`` task qualifies (:func:`validation.qtg.open_model`), an FMU opened in
+    ``stack``."""
+    from validation.qtg import open_model
+
+    fmu = None if settings["fmu"] is None else paths[file_label(settings["fmu"])]
+    return open_model(stack, fmu=fmu, reference=_resolved(settings["reference"], paths))
+
+
 #: The function of each task kind: ``function(settings, *, seed, paths) -> TaskOutput``, with
 #: ``paths`` the worker's copies of the task's files by label.
 TASK_KINDS = {"cosim": run_cosim, "diagnose": run_diagnose, "diagnose-bench": run_bench_case,
-              "reproduce": run_reproduction}
+              "reproduce": run_reproduction, "qtg": run_qtg_task}
 
 
 # -- checks before anything runs --------------------------------------------------------------
@@ -468,6 +515,18 @@ def _check_bench(settings: dict, paths: dict, once) -> None:
         once(("through", through), lambda: _named("through", effect_model, through, purpose="diagnose-bench"))
 
 
+def _check_qtg(settings: dict, paths: dict, once) -> None:
+    """The model opens (the QTG spec and its recordings were read with the campaign spec)."""
+    field = "reference" if settings["fmu"] is None else "fmu"
+    label = settings["reference"] if settings["fmu"] is None else file_label(settings["fmu"])
+
+    def opens():
+        with ExitStack() as stack:
+            open_qtg_model(stack, settings, paths)
+
+    once(("qtg model", label), lambda: _named(field, opens))
+
+
 def _named(field: str, function, *args, **kwargs):
     """``function(*args, **kwargs)``, its BadInputError prefixed with the spec's ``field``."""
     try:
@@ -477,4 +536,4 @@ def _named(field: str, function, *args, **kwargs):
 
 
 _CHECKS = {"cosim": _check_cosim, "diagnose": _check_diagnose, "diagnose-bench": _check_bench,
-           "reproduce": lambda settings, paths, once: None}
+           "reproduce": lambda settings, paths, once: None, "qtg": _check_qtg}

@@ -1,5 +1,5 @@
 """``flightgp campaign SPEC.json --out DIR [--scheduler ADDRESS] [--workers N]``: run a campaign
-of co-simulations, diagnoses, bench cases and reproductions on Dask (docs/campaigns.md)."""
+of co-simulations, diagnoses, bench cases, reproductions and QTGs on Dask (docs/campaigns.md)."""
 from __future__ import annotations
 
 import argparse
@@ -11,10 +11,10 @@ from validation.core.errors import BadInputError
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "campaign", help="run many co-simulations, diagnoses, bench cases or reproductions on Dask",
+        "campaign", help="run many co-simulations, diagnoses, bench cases, reproductions or QTGs on Dask",
         description="Expand SPEC.json (docs/campaigns.md) into tasks (Monte Carlo samples and grid sweeps "
-                    "of FMU co-simulations, diagnose runs, diagnose-bench cases, reproductions) and run them "
-                    "on a local Dask cluster or an existing one. Each finished task is written to "
+                    "of FMU co-simulations, diagnose runs, diagnose-bench cases, reproductions, QTGs against many "
+                    "models) and run them on a local Dask cluster or an existing one. Each finished task is written to "
                     "DIR/tasks/<id>/ (result.json and its files) at once; DIR/results.csv (one row per task) "
                     "and DIR/summary.json (counts, failures, statistics per figure) are rebuilt at the end. "
                     "Running the same command again resumes: only tasks without a result run.")

@@ -1,7 +1,8 @@
 """validation.campaign and ``flightgp campaign``: on a real Dask cluster of two worker processes
 (one thread each), shared by the module: a Monte Carlo of the Bo105 reference FMU with a task the
-FMU refuses, resuming, a worker killed mid-campaign, ``diagnose-bench`` over two seeds, bad specs
-and cluster options; and (slow) a scheduler and two workers started as separate processes."""
+FMU refuses, resuming, a worker killed mid-campaign, ``diagnose-bench`` over two seeds, a QTG
+against two models side by side, bad specs and cluster options; and (slow) a scheduler and two
+workers started as separate processes."""
 from __future__ import annotations
 
 import csv
@@ -11,12 +12,15 @@ import os
 import subprocess
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
+from xml.etree import ElementTree
 
 import cloudpickle
 import numpy as np
 import pytest
 
+from validation import qtg
 from validation.campaign import parse_spec, read_result, read_spec, run_campaign, task_folder
 from validation.campaign.tasks import FileBundle, run_task
 from validation.cli.main import main
@@ -191,6 +195,80 @@ def test_diagnose_bench_over_two_seeds_runs_on_the_cluster_and_scores_as_in_proc
            {k: v for k, v in alone["cases"][0].items() if k != "seconds"}
 
 
+#: A QTG of two tests on tests/conftest.py's qtg_flights, which lie outside the spec's folder
+#: (``{flights}``: their folder relative to it): a doublet flown on the reference, which it
+#: matches, and the stand-in's 3-2-1-1, whose pitch rate it misses.
+SIDE_BY_SIDE_QTG = """title = "side by side"
+[[test]]
+id = "pitch rate, longitudinal cyclic doublet"
+recording = "{flights}/ref_theta_1s_doublet.csv"
+outputs = ["q"]
+[[test]]
+id = "pitch rate, longitudinal cyclic 3-2-1-1"
+recording = "{flights}/flight_theta_1s_3211.csv"
+outputs = {{ q = "2 deg/s" }}
+"""
+
+
+def _side_by_side_qtg(tmp_path: Path, qtg_flights: Path) -> Path:
+    """:data:`SIDE_BY_SIDE_QTG` as ``tmp_path/qtg/side.toml``."""
+    (tmp_path / "qtg").mkdir(exist_ok=True)
+    spec = tmp_path / "qtg" / "side.toml"
+    spec.write_text(SIDE_BY_SIDE_QTG.format(flights=os.path.relpath(qtg_flights, spec.parent)), encoding="utf-8")
+    return spec
+
+
+def test_a_qtg_study_qualifies_two_models_side_by_side(cluster, qtg_flights, bo105_reference_fmu, tmp_path):
+    """The reference FMU and the registry's reference, one task each on the cluster: the workers
+    read the QTG spec and its recordings as the campaign carried them (from a folder of their
+    own, the recordings at the paths the spec names them by) and both models give the verdicts
+    and excursions of a run in this process."""
+    _side_by_side_qtg(tmp_path, qtg_flights)
+    spec = _write_spec(tmp_path, {"studies": [
+        {"id": "fmu", "kind": "qtg", "spec": "qtg/side.toml", "fmu": str(bo105_reference_fmu)},
+        {"id": "ref", "kind": "qtg", "spec": "qtg/side.toml", "reference": "bo105-80kt"}]})
+    out = tmp_path / "out"
+    assert main(["campaign", str(spec), "--out", str(out), "--scheduler", cluster, "--no-progress"]) == 0
+    with ExitStack() as stack:
+        alone = qtg.run_qtg(qtg.read_spec(tmp_path / "qtg" / "side.toml"),
+                            qtg.open_model(stack, reference="bo105-80kt"), progress=False)
+    excursion = alone.tests[1].outputs["q"].excursion
+    assert [t.status for t in alone.tests] == ["passed", "failed"] and excursion > 0.05
+    rows = _rows(out)
+    assert [(row["id"], row["status"]) for row in rows] == [("fmu-000", "done"), ("ref-000", "done")]
+    for row in rows:
+        counts = {key: float(row[key]) for key in ("passed", "failed", "errors", "not_run", "all_passed")}
+        assert counts == {"passed": 1, "failed": 1, "errors": 0, "not_run": 0, "all_passed": 0}
+        assert float(row["01.q.excursion"]) == 0
+        assert float(row["02.q.excursion"]) == pytest.approx(excursion, rel=1e-9)
+        folder = task_folder(out, row["id"])
+        report = json.loads((folder / "qtg.json").read_text())
+        assert report["spec"] == "qtg/side.toml" and [t["status"] for t in report["tests"]] == ["passed", "failed"]
+        suite = ElementTree.parse(folder / "junit.xml").getroot()[0]
+        assert (suite.get("tests"), suite.get("failures")) == ("2", "1")
+        assert len(list((folder / "plots").glob("*.png"))) == 2 and (folder / "qtg.html").is_file()
+        assert {"junit.xml", "qtg.json", "summary.md"} <= set(json.loads((folder / "result.json").read_text())["files"])
+    assert json.loads((task_folder(out, "fmu-000") / "qtg.json").read_text())["model"]["kind"] == "fmu"
+
+
+@pytest.mark.parametrize(("study", "says"), [
+    ({"spec": "missing.toml", "reference": "bo105-80kt"}, "studies[0] (\"q\").spec: no such file 'missing.toml'"),
+    ({"spec": "qtg/side.toml", "fmu": "model.fmu", "reference": "bo105-80kt"},
+     "give the model to qualify as 'fmu' (an FMU file, or {\"reference\": NAME} built by the campaign) or as "
+     "'reference'"),
+    ({"spec": "qtg/side.toml", "reference": "model.fmu"}, "'model.fmu' is an FMU; give it as 'fmu'"),
+    ({"spec": "qtg/side.toml", "reference": "bo105-85kt"}, "task q-000 (study q): reference: no Bo105 model at 85 kt"),
+])
+def test_a_bad_qtg_study_is_refused_before_anything_runs(qtg_flights, tmp_path, capsys, study, says):
+    _side_by_side_qtg(tmp_path, qtg_flights)
+    spec = _write_spec(tmp_path, {"studies": [{"id": "q", "kind": "qtg", **study}]})
+    assert main(["campaign", str(spec), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("flightgp campaign: error: ") and error.count("\n") == 1, error
+    assert says in error
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize(("text", "says"), [
     ("{\"studies\": [", "line 1, column 14: not JSON"),
     (json.dumps({"studies": [{"id": "a", "kind": "simulate"}]}), "unknown kind \"simulate\""),
@@ -263,6 +341,13 @@ def test_the_example_specs_expand_as_documented():
     bench = read_spec(ROOT / "examples" / "campaigns" / "diagnose_bench.json")
     assert {task.seed for task in bench.tasks} == {0, 1, 2, 3, 4}
     assert len(bench.tasks) == 5 * len({task.settings["case"] for task in bench.tasks})
+    qtgs = read_spec(ROOT / "examples" / "campaigns" / "bo105_qtg.json")
+    label = "../qtg/bo105_80kt.toml"
+    assert [task.files for task in qtgs.tasks] == [(label, "reference:bo105-80kt"), (label,)]
+    bundle = FileBundle.read(label, qtgs.files[label].path, companions=qtgs.files[label].companions)
+    names = [name for name, _ in bundle.files]  # the spec, then its 8 recordings with their sidecars
+    assert names[:3] == ["bo105_80kt.toml", "flights/theta_1s_3211.csv", "flights/theta_1s_3211.json"]
+    assert len(names) == 17
 
 
 def test_a_tasks_draws_depend_only_on_its_grid_point_and_sample(tmp_path):

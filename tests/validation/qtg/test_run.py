@@ -17,7 +17,7 @@ from validation.qtg.run import score
 from validation.qtg.spec import OutputCheck, Tolerance
 from validation.vehicles import get_vehicle
 
-#: Example-style tests on the flights of conftest.FLIGHTS flown on the unchanged reference.
+#: Example-style tests on the flights of tests/conftest.py's QTG_FLIGHTS flown on the unchanged reference.
 REFERENCE_TESTS = """
 [[test]]
 id = "2.c.3.b pitch rate response, longitudinal cyclic doublet"
