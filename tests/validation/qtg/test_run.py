@@ -10,6 +10,7 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
+from fmu_src.bo105_reference.build import build_bo105_reference_fmu
 from tests.validation.qtg.conftest import write_spec
 from validation.cli import main
 from validation.qtg import open_model, read_spec, run_qtg
@@ -94,6 +95,14 @@ def test_a_concealed_change_fails_exactly_the_tests_it_moves_beyond_their_bands(
     assert [t.status for t in unchanged.tests] == ["passed"] * 6
     assert [t.status for t in changed.tests] == ["failed", "failed"] + ["passed"] * 4
     assert changed.tests[0].outputs["q"].excursion > 0.5 * changed.tests[0].outputs["q"].half_width
+    # The same change built into an FMU (a simulator build whose pitch damping slipped) fails the
+    # same two tests with the same excursions.
+    fmu = build_bo105_reference_fmu(80, tmp_path / "fmu", derivatives={"M_q": -2.0})
+    through_fmu = _run(spec, fmu=fmu)
+    assert [t.status for t in through_fmu.tests] == [t.status for t in changed.tests]
+    for by_fmu, by_json in zip(through_fmu.tests, changed.tests):
+        for name, output in by_fmu.outputs.items():
+            assert output.excursion == pytest.approx(by_json.outputs[name].excursion, rel=1e-6, abs=1e-12)
 
 
 def test_a_gp_rate_predictor_runs_free_on_its_grid_and_skips_what_it_lacks(qtg_flights, rate_predictor_fmu):
