@@ -345,9 +345,9 @@ def test_the_example_specs_expand_as_documented():
     label = "../qtg/bo105_80kt.toml"
     assert [task.files for task in qtgs.tasks] == [(label, "reference:bo105-80kt"), (label,)]
     bundle = FileBundle.read(label, qtgs.files[label].path, companions=qtgs.files[label].companions)
-    names = [name for name, _ in bundle.files]  # the spec, then its 8 recordings with their sidecars
+    names = [name for name, _ in bundle.files]  # the spec, then its 12 recordings with their sidecars
     assert names[:3] == ["bo105_80kt.toml", "flights/theta_1s_3211.csv", "flights/theta_1s_3211.json"]
-    assert len(names) == 17
+    assert len(names) == 25
 
 
 def test_a_tasks_draws_depend_only_on_its_grid_point_and_sample(tmp_path):

@@ -212,14 +212,14 @@ def test_reference_option_names_a_registry_vehicle_and_refuses_an_fmu(qtg_flight
 
 
 def test_the_shipped_example_against_the_projects_own_fmus(bo105_reference_fmu, rate_predictor_fmu):
-    """examples/qtg/bo105_80kt.toml, as docs/qtg.md reports it: through the reference FMU 4 of
-    16 tests pass (its own discretisation of the reference; the stand-in's lags fail the rest),
+    """examples/qtg/bo105_80kt.toml, as docs/qtg.md reports it: through the reference FMU 5 of
+    20 tests pass (its own discretisation of the reference; the stand-in's lags fail the rest),
     one instantiation; through the GP rate predictor FMU the two pitch-rate tests run and the
-    other 14 are not run (outputs or moved inputs it lacks)."""
+    other 18 are not run (outputs or moved inputs it lacks)."""
     example = Path(__file__).parents[3] / "examples" / "qtg" / "bo105_80kt.toml"
     reference = _run(example, fmu=bo105_reference_fmu)
-    assert len(reference.tests) == 16 and reference.instantiations == 1
-    assert (reference.count("passed"), reference.count("failed")) == (4, 12)
+    assert len(reference.tests) == 20 and reference.instantiations == 1
+    assert (reference.count("passed"), reference.count("failed")) == (5, 15)
     gp = _run(example, fmu=rate_predictor_fmu)
     ran = [t for t in gp.tests if t.status != "not run"]
     assert len(ran) == 2 and all(set(t.outputs) == {"q"} for t in ran)
