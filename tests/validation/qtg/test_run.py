@@ -169,6 +169,10 @@ def test_cli_writes_the_files_and_exits_0_1_2(qtg_flights, tmp_path, capsys):
     out = tmp_path / "fail"
     assert "1 passed, 1 failed, 0 errors, 0 not run" in capsys.readouterr().out
 
+    from lxml import etree  # fmpy's XML library, installed with it
+
+    schema = etree.XMLSchema(etree.parse(str(Path(__file__).with_name("data") / "junit.xsd")))
+    schema.assertValid(etree.parse(str(out / "junit.xml")))
     root = ElementTree.parse(out / "junit.xml").getroot()
     assert root.tag == "testsuites" and [child.tag for child in root] == ["testsuite"]
     suite = root[0]
