@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from validation.bench import campaign, cosim, diagnose, fmu, gp, narx, rgblimp
+from validation.bench import campaign, cosim, diagnose, fmu, gp, narx, qtg, rgblimp
 from validation.bench.rows import SummaryRow
 
 
@@ -45,6 +45,7 @@ BENCHMARKS = {
     "diagnose": Benchmark(diagnose.run, diagnose.format_table, {}, diagnose.summary_rows),
     "campaign": Benchmark(campaign.run, campaign.format_table, {}, campaign.summary_rows),
     "rgblimp": Benchmark(rgblimp.run, rgblimp.format_table, {}, rgblimp.summary_rows),
+    "qtg": Benchmark(qtg.run, qtg.format_table, {}, qtg.summary_rows),
 }
 
 
