@@ -22,7 +22,8 @@ def register(subparsers) -> None:
     model = parser.add_mutually_exclusive_group(required=True)
     model.add_argument("--fmu", type=Path, metavar="FILE.fmu", help="an FMI 2.0 co-simulation FMU")
     model.add_argument("--reference", metavar="NAME",
-                       help="a built-in reference (bo105-<V>kt, ...) or a state-space FILE.json")
+                       help="a built-in reference (bo105-<V>kt, ...), a state-space FILE.json, or the "
+                            "corrected_model.json of a diagnosis")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--no-progress", action="store_true", help="show no progress on stderr")
     parser.set_defaults(func=run)

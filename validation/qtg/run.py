@@ -34,6 +34,7 @@ from validation.cosim.cosimulation import OpenFmu, free_run, rate_predictor_axes
 from validation.diagnose.fidelity import STATED_UNITS, frequency_costs
 from validation.qtg.spec import OutputCheck, QtgSpec, QtgTest
 from validation.vehicles import get_vehicle
+from validation.vehicles.effect_vehicle import EffectVehicle, is_effect_vehicle_file
 from validation.vehicles.fmu_reference import read_cosimulation_fmu
 
 #: The verdicts of a test.
@@ -51,12 +52,14 @@ class ModelRun:
 
 
 class VehicleModel:
-    """A vehicle of the registry (a built-in reference or a state-space ``FILE.json``) as a QTG model."""
+    """A vehicle of the registry (a built-in reference or a state-space ``FILE.json``), or the
+    model file of a diagnosis (``corrected_model.json``: a reference with named effects,
+    :class:`~validation.vehicles.effect_vehicle.EffectVehicle`), as a QTG model."""
 
     kind = "reference"
 
     def __init__(self, name: str):
-        self.vehicle = get_vehicle(name)
+        self.vehicle = EffectVehicle.load(name) if is_effect_vehicle_file(name) else get_vehicle(name)
         self.name = self.vehicle.name
         self.input_names, self.output_names = tuple(self.vehicle.input_names), tuple(self.vehicle.state_names)
 

@@ -75,6 +75,19 @@ def effect_model(name: str, *, purpose: str) -> EffectModel:
     raise BadInputError(f"{needs}; named effects are not implemented for {name!r} yet")
 
 
+def is_effect_vehicle_file(path) -> bool:
+    """Whether ``path`` names a readable JSON file of :class:`EffectVehicle`'s format (a
+    diagnosis's ``corrected_model.json``), and not, for instance, a state-space model."""
+    path = Path(path)
+    if path.suffix != ".json" or not path.is_file():
+        return False
+    try:
+        content = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(content, dict) and content.get("format") == _FILE_FORMAT
+
+
 class EffectVehicle:
     """A reference vehicle with named effects applied (module docstring).
 
