@@ -202,3 +202,32 @@ def json_text(data) -> str:
 def write_json(path, data) -> Path:
     """Write ``data`` as indented JSON (:func:`json_text`), atomically; returns the path."""
     return write_atomically(path, json_text(data))
+
+
+def read_document(path, *, what: str, syntax: str = "JSON"):
+    """The content of the JSON (or TOML) file a user gave, ``path``; :class:`BadInputError`
+    naming the file and ``what`` it should be (``"tolerance file"``) when it is missing, a
+    folder, not UTF-8 text or not valid ``syntax``: ``"no such tolerance file"``, ``"not a
+    JSON tolerance file (<the parser's words>)"``.
+
+    Parameters
+    ----------
+    path : path
+    what : str
+        What the file is, for the messages.
+    syntax : {"JSON", "TOML"}
+    """
+    import tomllib
+
+    from validation.core.errors import BadInputError
+
+    path = Path(path)
+    parse = {"JSON": json.loads, "TOML": tomllib.loads}[syntax]
+    try:
+        return parse(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise BadInputError(f"{path}: no such {what}") from None
+    except IsADirectoryError:
+        raise BadInputError(f"{path}: a folder, not a {what}") from None
+    except ValueError as error:  # JSON's and TOML's decode errors and UnicodeDecodeError are ValueErrors
+        raise BadInputError(f"{path}: not a {syntax} {what} ({error})") from None

@@ -25,7 +25,6 @@ state), and each output's noise standard deviation is floored at the reference's
 from __future__ import annotations
 
 import csv
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
@@ -33,6 +32,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from validation.core.errors import BadInputError
+from validation.core.files import read_document
 from validation.core.recordings import Recording
 from validation.core.sampling import nominal_step, uneven_steps
 from validation.diagnose.fitting import FitData
@@ -137,12 +137,7 @@ def read_column_map(path) -> dict[str, str]:
         A missing or unreadable file, or a map that is not as above.
     """
     path = Path(path)
-    try:
-        column_map = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise BadInputError(f"{path}: cannot read the column map ({error.strerror or error})") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise BadInputError(f"{path}: not a JSON column map ({error})") from None
+    column_map = read_document(path, what="column map")
     if not isinstance(column_map, dict) or not all(isinstance(k, str) and k and isinstance(v, str) and v
                                                    for k, v in column_map.items()):
         raise BadInputError(f'{path}: a column map is a JSON object of names, {{"recording column": '

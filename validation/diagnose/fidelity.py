@@ -33,7 +33,6 @@ qualification speaks in (diagnosis.json's ``fidelity``, docs/diagnose.md, "fidel
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -42,6 +41,7 @@ import numpy as np
 from scipy import signal
 
 from validation.core.errors import BadInputError, unknown_name_message
+from validation.core.files import read_document
 from validation.core.recordings import column_unit
 from validation.diagnose.prove import MODEL_KEYS
 from validation.vehicles.rgblimp_data import source_score
@@ -103,12 +103,7 @@ def read_tolerances(path) -> dict:
     (docs/conventions.md, "Units and axes"), as output -> :class:`Band`; BadInputError for a
     missing or malformed file or a band that is not a positive number."""
     path = Path(path)
-    try:
-        content = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise BadInputError(f"{path}: no such tolerance file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise BadInputError(f"{path}: not a JSON tolerance file ({error})") from None
+    content = read_document(path, what="tolerance file")
     if not isinstance(content, dict):
         raise BadInputError(f"{path}: a tolerance file maps outputs to band half-widths, e.g. {{\"q\": 0.035}}")
     for name, value in content.items():

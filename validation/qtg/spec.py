@@ -28,9 +28,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 from validation.core.errors import BadInputError, unknown_name_message
+from validation.core.files import read_document
 from validation.core.recordings import Recording, column_unit
 from validation.diagnose.fidelity import DEFAULT_TOLERANCES, STATED_UNITS, TOLERANCE_SOURCE
 from validation.vehicles import read_recording
@@ -130,12 +130,7 @@ def read_spec(path) -> QtgSpec:
         unit that does not measure the output, or an output with no tolerance and no default.
     """
     path = Path(path)
-    try:
-        content = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise BadInputError(f"{path}: no such QTG spec") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
-        raise BadInputError(f"{path}: not a TOML file ({error})") from None
+    content = read_document(path, what="QTG spec", syntax="TOML")
     _refuse_unknown(content, SPEC_KEYS, f"{path}")
     title = content.get("title")
     if not isinstance(title, str) or not title.strip():

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from validation.core.errors import BadInputError
-from validation.core.files import json_text, write_files_atomically
+from validation.core.files import json_text, read_document, write_files_atomically
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history, sampling_metadata
 from validation.vehicles.blimp_effects import BlimpEffects
@@ -214,11 +214,4 @@ class EffectVehicle:
     @classmethod
     def load(cls, path) -> EffectVehicle:
         """Read a model written by :meth:`save`."""
-        path = Path(path)
-        try:
-            content = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise BadInputError(f"{path}: no such model file") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise BadInputError(f"{path}: not a JSON model file ({error})") from None
-        return cls.from_dict(content, source=str(path))
+        return cls.from_dict(read_document(path, what="model file"), source=str(path))

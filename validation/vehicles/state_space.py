@@ -23,14 +23,13 @@ input; ``sample_time`` (s, the default recording interval) is optional (0.01 s).
 from __future__ import annotations
 
 import copy
-import json
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 
 from validation.core.errors import BadInputError, unknown_name_message
+from validation.core.files import read_document
 from validation.core.recordings import Recording, column_unit
 from validation.core.sampling import check_history
 from validation.vehicles.linear_discretisation import zero_order_hold
@@ -343,13 +342,4 @@ def state_space_from_dict(content, *, source: str = "state-space model") -> Line
 
 def read_state_space(path) -> LinearReference:
     """The state-space model in the JSON file ``path`` (:func:`state_space_from_dict`)."""
-    path = Path(path)
-    try:
-        content = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise BadInputError(f"{path}: no such state-space model file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise BadInputError(f"{path}: not a JSON state-space model ({error})") from None
-    except IsADirectoryError:
-        raise BadInputError(f"{path}: a folder, not a state-space model file") from None
-    return state_space_from_dict(content, source=str(path))
+    return state_space_from_dict(read_document(path, what="state-space model file"), source=str(path))

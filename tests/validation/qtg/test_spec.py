@@ -51,7 +51,7 @@ outputs = ["p", "phi"]
 @pytest.mark.parametrize("text, message", [
     ('title = "t"\n', "no [[test]] tables"),
     ('titel = "t"\n' + TEST + "outputs = ['q']\n", "unknown key 'titel' (did you mean 'title'?)"),
-    ("title = \n", "not a TOML file"),
+    ("title = \n", "not a TOML QTG spec"),
     ('title = ""\n' + TEST + "outputs = ['q']\n", "'title' must be a non-empty string"),
     (HEAD + '[[test]]\nrecording = "ref_theta_1s_doublet.csv"\noutputs = ["q"]\n', "test 1: 'id' must be"),
     (HEAD + TEST + "outptus = ['q']\n", "test '2.c.3.b': unknown key 'outptus' (did you mean 'outputs'?)"),
