@@ -31,9 +31,10 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from validation.qtg import open_model, read_spec, run_qtg, write_qtg
+    from validation.qtg.report import QTG_FILES
     from validation.qtg.run import PASSED
 
-    check_output_folder(args.out)
+    check_output_folder(args.out, writes=QTG_FILES)
     spec = read_spec(args.spec)
     with ExitStack() as stack:
         model = open_model(stack, fmu=args.fmu, reference=args.reference)

@@ -412,7 +412,7 @@ def _parse_numbers(path: Path, header: list[str], rows: list[list[str]], line_nu
     return table
 
 
-#: Longest sample interval a recording may have, s: rigid-body modes of aircraft and airships
+#: Sample interval a recording must stay below, s: rigid-body modes of aircraft and airships
 #: last seconds (a blimp's pitch oscillation, Ko et al. 2007, about 4 s), and sampling them at
 #: 1 Hz or slower resolves none of them; a longer step is nearly always time in milliseconds.
 MAX_SAMPLE_TIME = 1.0
@@ -430,7 +430,7 @@ def _check_time(path: Path, time: np.ndarray, line_numbers: list[int], *, uneven
             f"{time[k]:.9g} s); it must increase strictly"
         )
     nominal = float(np.median(step))
-    if nominal > MAX_SAMPLE_TIME:
+    if nominal >= MAX_SAMPLE_TIME:
         raise BadInputError(
             f"{_where(path, line_numbers[1], 0, 'time')}: time steps by {nominal:g} s; flight-dynamics recordings "
             f"are sampled well under {MAX_SAMPLE_TIME:g} s. Is time in milliseconds? flightgp reads seconds")

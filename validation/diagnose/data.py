@@ -309,7 +309,7 @@ def _without_columns(recording: Recording, columns, *, name: str, reference: Eff
     if not keep:
         raise BadInputError(f"{name}: none of its columns is an output of {reference.name} "
                             f"({', '.join(reference.state_names)}): a recording of another vehicle?")
-    order = [recording.input_names.index(n) for n in reference.input_names if n in recording.input_names]
+    order = [i for i, n in enumerate(recording.input_names) if n not in columns]  # the file's names, before --map
     return Recording(recording.time, recording.inputs[:, order], tuple(recording.input_names[i] for i in order),
                      recording.outputs[:, keep], tuple(recording.output_names[i] for i in keep),
                      {**recording.metadata, IGNORED_KEY: list(columns)})

@@ -18,6 +18,7 @@ this module ties it to :class:`~validation.core.recordings.Recording` s:
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -208,6 +209,9 @@ def training_condition(recordings) -> dict:
         values = [recording.metadata.get(key) for recording in recordings]
         if values and values[0] is not None and all(value == values[0] for value in values):
             condition[key] = values[0]
+    speed = condition.get("speed_kt")
+    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not math.isfinite(speed):
+        condition.pop("speed_kt", None)  # a hand-written sidecar's "80" or null says no speed
     return condition
 
 
@@ -284,7 +288,7 @@ def unseen_inputs(trained: TrainedNarx, recording: Recording, *, margin: float) 
                if name not in trained.config.inputs and np.ptp(recording.input(name)) > 0]
     low, high = training_envelope(trained)
     structure = trained.config.structure()
-    for name in trained.config.inputs:
+    for name in (n for n in trained.config.inputs if n in recording.input_names):  # else refused later
         columns = [i for i, regressor in enumerate(structure.regressor_names) if regressor.startswith(f"{name}(")]
         trained_low, trained_high = low[columns].min(), high[columns].max()
         widen = margin * (trained_high - trained_low)

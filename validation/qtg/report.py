@@ -90,6 +90,11 @@ def test_figure(test: TestResult, *, model_name: str) -> Figure:
     return figure
 
 
+#: The files a QTG run writes in its folder besides the plots (in ``plots/``), which the command
+#: checks before it runs (docs/conventions.md, "Writing files").
+QTG_FILES = ("summary.md", "qtg.html", "junit.xml", "qtg.json")
+
+
 def qtg_files(result: QtgResult, out_dir) -> dict:
     """Every file of a QTG run as ``{path: text or bytes}`` (module docstring), written by
     :func:`write_qtg`."""

@@ -34,7 +34,7 @@ from validation.cosim.cosimulation import OpenFmu, free_run, rate_predictor_axes
 from validation.diagnose.fidelity import STATED_UNITS, frequency_costs
 from validation.qtg.spec import OutputCheck, QtgSpec, QtgTest
 from validation.vehicles import get_vehicle
-from validation.vehicles.effect_vehicle import EffectVehicle, is_effect_vehicle_file
+from validation.vehicles.effect_vehicle import EffectVehicle, is_effect_vehicle_file, takes_effects
 from validation.vehicles.fmu_reference import read_cosimulation_fmu
 
 #: The verdicts of a test.
@@ -54,17 +54,33 @@ class ModelRun:
 class VehicleModel:
     """A vehicle of the registry (a built-in reference or a state-space ``FILE.json``), or the
     model file of a diagnosis (``corrected_model.json``: a reference with named effects,
-    :class:`~validation.vehicles.effect_vehicle.EffectVehicle`), as a QTG model."""
+    :class:`~validation.vehicles.effect_vehicle.EffectVehicle`), as a QTG model.
+
+    A reference that takes effects flies each recording from the state its replays start from
+    (:meth:`~validation.vehicles.effect_vehicle.EffectVehicle.replay_states`: the Bo105's and the
+    blimp's own trim or rest, the RGBlimp's first recorded state), noise-free; any other vehicle
+    (a flight-test stand-in, a JSBSim aircraft) flies it from its own start."""
 
     kind = "reference"
 
     def __init__(self, name: str):
-        self.vehicle = EffectVehicle.load(name) if is_effect_vehicle_file(name) else get_vehicle(name)
-        self.name = self.vehicle.name
+        if is_effect_vehicle_file(name):
+            self.vehicle, self.name = EffectVehicle.load(name), None
+        elif takes_effects(name):
+            self.vehicle = EffectVehicle(name, [])
+            self.name = self.vehicle.reference_name
+        else:
+            self.vehicle, self.name = get_vehicle(name), None
+        self.name = self.name or self.vehicle.name
         self.input_names, self.output_names = tuple(self.vehicle.input_names), tuple(self.vehicle.state_names)
 
     def run(self, recording: Recording, outputs) -> ModelRun:
         inputs = np.column_stack([recording.input(name) for name in self.input_names])
+        if isinstance(self.vehicle, EffectVehicle):
+            ordered = Recording(recording.time, inputs, self.input_names, recording.outputs, recording.output_names)
+            states = self.vehicle.replay_states(ordered)
+            return ModelRun(slice(None), recording.time,
+                            {name: states[:, self.output_names.index(name)] for name in outputs})
         simulated = self.vehicle.simulate(recording.time, inputs)
         return ModelRun(slice(None), recording.time, {name: simulated.output(name) for name in outputs})
 
@@ -303,6 +319,10 @@ def _run_test(test: QtgTest, model, runs: dict, needed: dict) -> TestResult:
             return TestResult(test, ERROR, f"the model's {check.name} is not finite from t = {run.time[bad[0]]:g} s")
     inputs = recording.inputs[run.rows]
     step = float(run.time[1] - run.time[0])
+    empty = [check.name for check in test.outputs if not window_mask(run.time, check.window, step).any()]
+    if empty:
+        return TestResult(test, NOT_RUN, f"the model's samples (every {step:g} s) fall outside the window of "
+                                         f"{', '.join(empty)}")
     outputs = {check.name: score(check, run.time, recording.output(check.name)[run.rows],
                                  run.outputs[check.name], inputs=inputs, input_names=recording.input_names,
                                  step=step)
@@ -310,6 +330,15 @@ def _run_test(test: QtgTest, model, runs: dict, needed: dict) -> TestResult:
     status = PASSED if all(result.passed for result in outputs.values()) else FAILED
     return TestResult(test, status, None, outputs, run.time,
                       {name: recording.input(name)[run.rows] for name in recording.input_names})
+
+
+def window_mask(time: np.ndarray, window, step: float) -> np.ndarray:
+    """Which of the samples ``time`` (m,), s, evenly spaced by ``step``, lie in ``window``
+    (``(t0, t1)`` s, or None: all), shape (m,) bool; a half-sample margin, so a window edge on a
+    sample includes it despite rounding."""
+    if window is None:
+        return np.ones(len(time), dtype=bool)
+    return (time >= window[0] - step / 2) & (time <= window[1] + step / 2)
 
 
 def score(check: OutputCheck, time: np.ndarray, recorded: np.ndarray, simulated: np.ndarray, *,
@@ -329,10 +358,7 @@ def score(check: OutputCheck, time: np.ndarray, recorded: np.ndarray, simulated:
     step : float
         s.
     """
-    if check.window is None:
-        in_window = np.ones(len(time), dtype=bool)
-    else:  # a half-sample margin: a window edge on a sample includes it despite rounding
-        in_window = (time >= check.window[0] - step / 2) & (time <= check.window[1] + step / 2)
+    in_window = window_mask(time, check.window, step)
     compared_time, compared, model = time[in_window], recorded[in_window], simulated[in_window]
     half_width = check.tolerance.half_width(compared)
     error = np.abs(model - compared)

@@ -32,6 +32,7 @@ import numpy as np
 from validation.core.errors import BadInputError, unknown_name_message
 from validation.core.files import read_document
 from validation.core.recordings import Recording, column_unit
+from validation.core.sampling import uneven_steps
 from validation.diagnose.fidelity import DEFAULT_TOLERANCES, STATED_UNITS, TOLERANCE_SOURCE
 from validation.vehicles import read_recording
 
@@ -194,6 +195,9 @@ def _recording(file: Path, as_given: str, where: str, recordings: dict) -> Recor
             recordings[key] = read_recording(file)
         except BadInputError as error:
             raise BadInputError(f"{where}: {error}") from None
+        if uneven_steps(recordings[key].time).size:
+            raise BadInputError(f"{where}: recording {as_given} is unevenly sampled; a QTG compares the model with "
+                                "it sample by sample on one step: resample it onto an even grid")
     return recordings[key]
 
 

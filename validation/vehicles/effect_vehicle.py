@@ -47,6 +47,11 @@ _FILE_FORMAT = "flightgp-effect-vehicle"
 _FILE_VERSION = 1
 
 
+def takes_effects(name: str) -> bool:
+    """Whether the reference called ``name`` takes named effects (:data:`EFFECT_MODELS`)."""
+    return any(re.fullmatch(pattern, name) for pattern, _ in EFFECT_MODELS.values())
+
+
 def effect_model(name: str, *, purpose: str) -> EffectModel:
     """The effect model of the reference called ``name`` (:data:`EFFECT_MODELS`).
 

@@ -38,6 +38,8 @@ NOT_WRITTEN = "exists and was not written by flightgp; choose another --out or m
                  "{tmp}/out/bo105_80kt_reference.fmu " + NOT_WRITTEN, id="build-fmu"),
     pytest.param(["out/scorecard.txt"], ["diagnose-bench", "--cases", "delay-theta_1s-60ms", "--out", "{tmp}/out"],
                  "{tmp}/out/scorecard.txt " + NOT_WRITTEN, id="diagnose-bench"),
+    pytest.param(["out/junit.xml"], ["qtg", "{tmp}/none.toml", "--reference", "bo105-80kt", "--out", "{tmp}/out"],
+                 "{tmp}/out/junit.xml " + NOT_WRITTEN, id="qtg"),
     pytest.param(["out/gp.json"], ["bench", "gp", "--out-dir", "{tmp}/out", "--summary", "{tmp}/bench.json"],
                  "{tmp}/out/gp.json " + NOT_WRITTEN, id="bench"),
     # demo and reproduce write many files: their folder holds flightgp's files only

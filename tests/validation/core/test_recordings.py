@@ -205,6 +205,8 @@ BAD_FILES = [
      ["row 5, column 1 ('time')", "uneven sampling", '"uneven_sampling": true']),
     ("time in ms", ["time,elevator,aileron,q", "0,0,0,0", "10,0,0,0", "20,0,0,0"], None, VEHICLE,
      ["row 3, column 1 ('time')", "time steps by 10 s", "Is time in milliseconds? flightgp reads seconds"]),
+    ("time in ms at 1 kHz", ["time,elevator,aileron,q", "0,0,0,0", "1,0,0,0", "2,0,0,0"], None, VEHICLE,
+     ["row 3, column 1 ('time')", "time steps by 1 s", "Is time in milliseconds?"]),
     ("rate in deg/s", _replace(GOOD_ROWS, 4, "0.02,0.1,0.0,11.5,0.01"), None, VEHICLE,
      ["row 4, column 4 ('q')", "looks like degrees; flightgp expects radians (rad/s)"]),
     ("attitude in deg", _replace(GOOD_ROWS, 6, "0.04,0.0,0.0,0.004,5.0"), None, VEHICLE,

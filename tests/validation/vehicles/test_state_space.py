@@ -104,6 +104,13 @@ def test_a_reduced_model_reads_whole_recordings_and_says_what_it_left_out(tmp_pa
     np.testing.assert_array_equal(data.measured[0], flown.outputs)
     np.testing.assert_array_equal(data.inputs[0], flown.inputs)
     assert prepare([flown], model).ignored_columns == []
+    # The same with the model's input under another name, renamed by a column map.
+    whole = _with_other_columns(flown)
+    write_recording(tmp_path / "renamed.csv", Recording(whole.time, whole.inputs, ("elev", "aileron"), whole.outputs,
+                                                        whole.output_names))
+    mapped = prepare([tmp_path / "renamed.csv"], model, column_map={"elev": "elevator"})
+    assert mapped.ignored_columns == ["aileron", "theta"]
+    np.testing.assert_array_equal(mapped.inputs[0], flown.inputs)
     elsewhere = _with_other_columns(flown)
     only_theta = Recording(elsewhere.time, elsewhere.inputs, elsewhere.input_names, elsewhere.outputs[:, -1:],
                            ("theta",))
