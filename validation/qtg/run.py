@@ -147,7 +147,7 @@ def open_model(stack: ExitStack, *, fmu=None, reference: str | None = None):
 
 #: The units a reviewer reads angles and rates in (plots, reports, failure messages): SI unit ->
 #: (unit shown, its number per SI unit).
-READING_UNITS = {"rad": ("deg", 180.0 / np.pi), "rad/s": ("deg/s", 180.0 / np.pi)}
+READING_UNITS = {si: (shown, 1.0 / STATED_UNITS[shown][1]) for si, shown in (("rad", "deg"), ("rad/s", "deg/s"))}
 
 
 def display(name: str, tolerance) -> tuple[str, float]:
