@@ -255,6 +255,13 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                       ({"effect": "nonlinear_stiffness", "term": "N_v^3", "value": 0.006},),
                       outside=("polynomial_term", "N_v^3", 0.006),
                       description="yaw moment cubic in lateral velocity N_v^3 = 0.006 (rad/s^2)/(m/s)^3, flown by RK4"),
+        # The same stiffness growing with the signed square (c v|v| = 0.094 rad/s^2 at 2.5 m/s, as
+        # the cube's), flown by RK4: neither N_v nor the cube may be taken for it.
+        ConcealedCase("quadratic-stiffness-N_v|v|", "single",
+                      ({"effect": "quadratic_stiffness", "term": "N_v|v|", "value": 0.015},),
+                      outside=("polynomial_term", "N_v|v|", 0.015),
+                      description="yaw moment quadratic in lateral velocity N_v|v| = 0.015 (rad/s^2)/(m/s)^2, "
+                                  "flown by RK4"),
         # Not a named effect: pitch control power growing with deflection, c u|u| (+30 % of the
         # linear M_theta_1s u at 2 deg), flown by RK4 at 1 and 2 deg. The residual search must
         # find it (a gain, a dead band or a limit fits neither amplitude).

@@ -31,6 +31,8 @@ _NONLINEAR_WHY = {
                            "its size, which no linear derivative can follow.",
     "nonlinear_damping": "The damping grows with the rate's size, so the large excursions are damped more than "
                          "any linear derivative can damp them.",
+    "quadratic_stiffness": "It grows with the square of the excursion, keeping its sign, so the response stiffens "
+                           "or softens with its size, which no linear derivative can follow.",
 }
 #: The term effect kinds of the contract (:data:`validation.vehicles.effects.TARGET_KEYS`) in words,
 #: where the name with spaces would not do.

@@ -46,7 +46,7 @@ TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative"
                "input_gain": "input", "output_scale": "output",
                "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term",
                "saturation": "input", "rate_limit": "input", "search_term": "term",
-               "nonlinear_stiffness": "term"}
+               "nonlinear_stiffness": "term", "quadratic_stiffness": "term"}
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.

@@ -34,7 +34,10 @@ How each effect enters ``x_dot = A x + B u``:
 - ``nonlinear_stiffness`` ``<row>_<s>^3`` adds ``c s^3`` to the derivative of the row's state,
   ``s`` another state the row depends on (``N_v^3``: a weathercock stability that hardens or
   softens with sideslip, the Duffing term of Nayfeh & Mook, *Nonlinear Oscillations*, 1979,
-  ch. 4), replayed as the damping below; ``search_term``: any polynomial term
+  ch. 4), replayed as the damping below; ``quadratic_stiffness`` ``<row>_<s>|<s>|`` the same
+  with the signed square ``c s |s|`` (``N_v|v|``: a weathercock stability growing with the
+  sideslip's size, as a fuselage's cross-flow force does; Padfield, *Helicopter Flight
+  Dynamics*, 2nd ed., 2007, ch. 4); ``search_term``: any polynomial term
   (:mod:`validation.vehicles.polynomial_terms`), what the residual search of ``diagnose`` finds;
 - ``nonlinear_damping`` ``<row>_<s>|<s>|`` adds ``c s |s|`` to the derivative of the row's
   state, ``s`` that state itself (``M_q|q|``: a pitch moment per unit inertia quadratic in the
@@ -181,7 +184,7 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
 
 
 #: The effect kinds that are polynomial terms (:mod:`validation.vehicles.polynomial_terms`).
-POLYNOMIAL_KINDS = ("nonlinear_damping", "nonlinear_stiffness", "search_term")
+POLYNOMIAL_KINDS = ("nonlinear_damping", "nonlinear_stiffness", "quadratic_stiffness", "search_term")
 
 
 def _stiffness_pairs(reference: LinearReference) -> list[tuple[str, str]]:
@@ -217,8 +220,8 @@ class LinearEffects:
 
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-             "nonlinear_damping", "nonlinear_stiffness", "dead_band", "input_gain", "saturation", "rate_limit",
-             "search_term")
+             "nonlinear_damping", "nonlinear_stiffness", "quadratic_stiffness", "dead_band", "input_gain",
+             "saturation", "rate_limit", "search_term")
     batches_simulations = False
     absolute_inputs = False
     needs_even_sampling = True
@@ -235,10 +238,13 @@ class LinearEffects:
         self.terms = {"control_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.input_names),
                       "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names),
                       "nonlinear_damping": tuple(term_name(a, "signed_square", s) for a, s in letters.items()),
-                      "nonlinear_stiffness": tuple(term_name(a, "cube", s) for a, s in _stiffness_pairs(reference))}
-        self._stiffness = [parse_term(term, letters, reference.state_names)
-                           for term in self.terms["nonlinear_stiffness"]]
-        named = set(self.terms["nonlinear_damping"]) | set(self.terms["nonlinear_stiffness"])
+                      "nonlinear_stiffness": tuple(term_name(a, "cube", s) for a, s in _stiffness_pairs(reference)),
+                      "quadratic_stiffness": tuple(term_name(a, "signed_square", s)
+                                                   for a, s in _stiffness_pairs(reference))}
+        self._stiffness = [(kind, parse_term(term, letters, reference.state_names))
+                           for kind in ("nonlinear_stiffness", "quadratic_stiffness") for term in self.terms[kind]]
+        named = {term for kind in ("nonlinear_damping", "nonlinear_stiffness", "quadratic_stiffness")
+                 for term in self.terms[kind]}
         signals = reference.state_names + reference.input_names  # a named term is not also a searched one
         self.terms["search_term"] = tuple(term for term in library(letters, signals) if term not in named)
         self.sensor_noise_sd = dict.fromkeys(reference.state_names, 0.0)
@@ -322,11 +328,12 @@ class LinearEffects:
             damping = abs(A[row, row])
             hypotheses.append(Hypothesis("nonlinear_damping", term_name(letter, "signed_square", row_state), 0.0,
                                          -math.inf, math.inf, max(damping, 1e-3)))
-        # c s^3 beside the linear A_rs s: screened at 5 % of |A_rs| per squared state unit.
-        for term in self._stiffness:
+        # c s^3 and c s|s| beside the linear A_rs s: screened at 5 % of |A_rs| per squared (per)
+        # state unit.
+        for kind, term in self._stiffness:
             row = self.state_names.index(self.reference.row_letters[term.letter])
             derivative = abs(A[row, self.state_names.index(term.signals[0])])
-            hypotheses.append(Hypothesis("nonlinear_stiffness", term.name, 0.0, -math.inf, math.inf, 0.05 * derivative))
+            hypotheses.append(Hypothesis(kind, term.name, 0.0, -math.inf, math.inf, 0.05 * derivative))
         return hypotheses
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:

@@ -34,7 +34,7 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
                      "nonlinear_damping", "dead_band", "saturation", "rate_limit", "search_term",
-                     "nonlinear_stiffness"}
+                     "nonlinear_stiffness", "quadratic_stiffness"}
     assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous"}
     assert len({case.name for case in cases}) == len(cases)
     for case in cases:
@@ -52,7 +52,8 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                 assert case.fit_variant == 2 and math.radians(1.2) <= value <= math.radians(1.6)
             elif kind == "rate_limit":  # bites on the steps: a 1 deg step ramps over at least 5 samples
                 assert math.radians(1.0) / value >= 5 * 0.01
-            elif kind in ("search_term", "nonlinear_stiffness"):  # moves the held-out flight by >= 3x noise
+            elif kind in ("search_term", "nonlinear_stiffness", "quadratic_stiffness"):
+                # moves the held-out flight by >= 3x noise
                 time, inputs = identification_manoeuvre(duration=20.0, sample_time=0.01, variant=1)
                 moved = (_polynomial_term_states("bo105-80kt", effect["term"], value, time, inputs)
                          - reference.simulate_states(time, inputs))
@@ -102,7 +103,7 @@ def test_outside_effects_change_the_flight_and_the_quadratic_integrator_is_accur
     q = STATE_NAMES.index("q")
     assert np.abs(damped[:, q]).max() < 0.9 * np.abs(reference[:, q]).max()
     flown_apart = [case for case in concealed_cases() if case.outside is not None]
-    assert len(flown_apart) == 3  # the quadratic damping, the cubic stiffness, the control power: by RK4
+    assert len(flown_apart) == 4  # the quadratic damping, both stiffnesses, the control power: by RK4
     noise = np.array([SENSOR_NOISE_STD[name] for name in STATE_NAMES])
     for case in flown_apart:
         recordings = case_recordings(case)

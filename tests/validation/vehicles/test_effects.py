@@ -107,6 +107,7 @@ def test_model_file_round_trip(tmp_path, manoeuvre):
     ({"effect": "stability_derivative", "term": "M_x", "value": 1}, "is not one of"),
     ({"effect": "control_derivative", "term": "M_q", "value": 1}, "M_q is a stability_derivative of"),
     ({"effect": "search_term", "term": "N_v^3", "value": 1}, re.escape('give it as {"effect": "nonlinear_stiffness"')),
+    ({"effect": "search_term", "term": "N_v|v|", "value": 1}, re.escape('give it as {"effect": "quadratic_stiffness"')),
     ({"effect": "input_lag", "input": "theta_0", "value": -0.1}, "outside"),
     ({"effect": "sensor_bias", "output": "q", "value": float("nan")}, "finite"),
 ])

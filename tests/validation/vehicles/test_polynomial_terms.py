@@ -47,6 +47,7 @@ def test_factors_and_library():
 
 @pytest.mark.parametrize("effects", [
     [("nonlinear_stiffness", "N_v^3", 0.006)],
+    [("quadratic_stiffness", "N_v|v|", 0.015)],
     [("search_term", "M_q*w", -0.5), ("nonlinear_damping", "M_q|q|", -20.0)],
     [("search_term", "L_theta_1c|theta_1c|", 400.0)],
 ])
@@ -79,7 +80,8 @@ def test_the_replay_with_terms_follows_rk4_of_the_continuous_model(effects):
 def test_search_terms_have_units_and_words():
     model = effect_model("bo105-80kt", purpose="test")
     assert "N_v^3" in model.terms["nonlinear_stiffness"] and model.model_value("N_v^3") == 0.0
-    assert "N_v|v|" in model.terms["search_term"] and "N_v^3" not in model.terms["search_term"]
+    assert "N_v|v|" in model.terms["quadratic_stiffness"] and model.term_unit("N_v|v|") == "(rad/s^2)/(m/s)^2"
+    assert not {"N_v|v|", "N_v^3"} & set(model.terms["search_term"])  # named, so not searched
     assert model.term_unit("N_v^3") == "(rad/s^2)/(m/s)^3"
     assert model.term_unit("M_q*w") == "(rad/s^2)/(rad/s m/s)"
     assert model.term_description("N_v^3") == "yaw moment proportional to v^3 (not linear in lateral velocity)"
