@@ -280,6 +280,12 @@ def rate_predictor_axes(description) -> tuple:
                  if v.causality == "output" and f"{v.name}_prev" in variables)
 
 
+def rate_predictor_controls(description) -> tuple:
+    """The inputs of a GP rate predictor's description that are controls (not the ``<name>_prev``
+    rates it starts from or is fed)."""
+    return tuple(v.name for v in description.modelVariables if v.causality == "input" and not v.name.endswith("_prev"))
+
+
 def free_run(gp_fmu, recording: Recording, *, exact_moments: bool | None = None,
              parallel: bool | None = None) -> FreeRun:
     """Run a GP rate-predictor FMU in free-run mode under a recording's controls, started from the
@@ -299,8 +305,7 @@ def free_run(gp_fmu, recording: Recording, *, exact_moments: bool | None = None,
     path = gp_fmu.path if isinstance(gp_fmu, OpenFmu) else gp_fmu
     variables = {v.name: v for v in description.modelVariables}
     axes = rate_predictor_axes(description)
-    controls = tuple(v.name for v in description.modelVariables
-                     if v.causality == "input" and not v.name.endswith("_prev"))
+    controls = rate_predictor_controls(description)
     asked = {name: value for name, value in (("exact_moments", exact_moments), ("parallel", parallel))
              if value is not None}
     lacking = [name for name in asked if name not in variables or variables[name].causality != "parameter"]

@@ -101,12 +101,9 @@ def qtg_files(result: QtgResult, out_dir) -> dict:
     out_dir = Path(out_dir)
     plots = {name: png_bytes(test_figure(test, model_name=result.model_name))
              for name, test in zip(plot_names(result).values(), [t for t in result.tests if t.outputs])}
-    files = {out_dir / name: data for name, data in plots.items()}
-    files[out_dir / "summary.md"] = summary_markdown(result)
-    files[out_dir / "qtg.html"] = qtg_html(result, plots)
-    files[out_dir / "junit.xml"] = junit_xml(result)
-    files[out_dir / "qtg.json"] = json_text(qtg_json(result))
-    return files
+    reports = (summary_markdown(result), qtg_html(result, plots), junit_xml(result), json_text(qtg_json(result)))
+    return {**{out_dir / name: data for name, data in plots.items()},
+            **{out_dir / name: data for name, data in zip(QTG_FILES, reports, strict=True)}}
 
 
 def write_qtg(result: QtgResult, out_dir) -> list[Path]:

@@ -30,7 +30,7 @@ from validation.core.errors import BadInputError
 from validation.core.metrics import rmse, theil_inequality
 from validation.core.progress import progress_bar
 from validation.core.recordings import Recording, column_unit
-from validation.cosim.cosimulation import OpenFmu, free_run, rate_predictor_axes, simulate
+from validation.cosim.cosimulation import OpenFmu, free_run, rate_predictor_axes, rate_predictor_controls, simulate
 from validation.diagnose.fidelity import STATED_UNITS, frequency_costs
 from validation.qtg.spec import OutputCheck, QtgSpec, QtgTest
 from validation.vehicles import get_vehicle
@@ -114,8 +114,7 @@ class RatePredictorModel:
         self.fmu = fmu
         self.name = fmu.description.modelName
         self.output_names = rate_predictor_axes(fmu.description)
-        self.input_names = tuple(v.name for v in fmu.description.modelVariables
-                                 if v.causality == "input" and not v.name.endswith("_prev"))
+        self.input_names = rate_predictor_controls(fmu.description)
 
     def run(self, recording: Recording, outputs) -> ModelRun:
         run = free_run(self.fmu, recording)

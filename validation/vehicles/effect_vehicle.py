@@ -11,7 +11,6 @@ registry name for every caller (diagnose, its bench, :class:`EffectVehicle`).
 """
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
@@ -83,12 +82,11 @@ def effect_model(name: str, *, purpose: str) -> EffectModel:
 def is_effect_vehicle_file(path) -> bool:
     """Whether ``path`` names a readable JSON file of :class:`EffectVehicle`'s format (a
     diagnosis's ``corrected_model.json``), and not, for instance, a state-space model."""
-    path = Path(path)
-    if path.suffix != ".json" or not path.is_file():
+    if Path(path).suffix != ".json":
         return False
     try:
-        content = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        content = read_document(path, what="model file")
+    except (BadInputError, OSError):  # not one: what reads it next says why
         return False
     return isinstance(content, dict) and content.get("format") == _FILE_FORMAT
 
