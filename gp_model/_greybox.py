@@ -306,7 +306,7 @@ class GreyBoxGP:
         return PropagatedRollout(mean[0], covariance[0]) if single else PropagatedRollout(mean, covariance)
 
     def sample_rollouts(self, initial_state, inputs, physics_step, *, n_samples: int,
-                        seed: int = 0, include_noise: bool = False) -> np.ndarray:
+                        seed: int = 0, include_noise: bool = False, spread_scale: float = 1.0) -> np.ndarray:
         """Rollouts that draw the GP residual instead of taking its mean (Ko et al., sec. IV-C).
 
         Each draw is conditioned on the residuals already drawn along the same rollout, so a
@@ -325,6 +325,12 @@ class GreyBoxGP:
         include_noise : bool, default False
             Add independent observation noise (variance ``sigma_n^2``) to every drawn residual;
             it is not part of the function and is not conditioned on.
+        spread_scale : float, default 1
+            Draw from a GP whose posterior covariance and noise variance are ``spread_scale**2``
+            times the fitted ones (every standard normal multiplied by it: the conditioned draws
+            then keep the scaled process's law, since the conditional mean's weights do not
+            change with the covariance's scale). 0 gives the mean rollout. A calibration of the
+            samples' size on validation flights; 1 is the posterior as fitted.
 
         Returns
         -------
@@ -332,11 +338,13 @@ class GreyBoxGP:
         """
         if n_samples < 1:
             raise ValueError(f"n_samples must be >= 1, got {n_samples}")
+        if not (np.isfinite(spread_scale) and spread_scale >= 0):
+            raise ValueError(f"spread_scale must be finite and >= 0, got {spread_scale}")
         state0, inputs, single = self._check_rollout(initial_state, inputs)
         if not single:
             raise ValueError("sample_rollouts takes one start state, shape (n_states,)")
         steps = inputs.shape[1]
-        normals = np.random.default_rng(seed).standard_normal((n_samples, steps, 2, self.n_states_))
+        normals = spread_scale * np.random.default_rng(seed).standard_normal((n_samples, steps, 2, self.n_states_))
         return self.sample_closed_loop(np.repeat(state0, n_samples, axis=0), lambda k, states: inputs[0, k],
                                        steps, physics_step, normals=normals, include_noise=include_noise)
 

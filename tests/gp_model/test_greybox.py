@@ -170,6 +170,27 @@ def test_incremental_draws_equal_the_joint_cholesky_draw(shared):
         columns += mean.shape[1]
 
 
+def test_spread_scale_draws_from_the_scaled_posterior():
+    """With the GP inputs fixed by the controls, a draw is ``mean + L z`` (above); scaling the
+    posterior covariance and the noise by ``c**2`` must give ``mean + c (L z + noise)`` for the
+    same normals, and ``c = 0`` the mean."""
+    states, inputs = trajectory(15, seed=7, extra=True)
+    model = GreyBoxGP(state_columns=[]).fit_trajectories([(states, inputs)], physics, optimize=False)
+    controls = np.array([[1.2], [1.4], [-0.3], [1.9]])
+
+    def drawn(scale):
+        runs = model.sample_rollouts(states[0], controls, physics, n_samples=3, seed=4, include_noise=True,
+                                     spread_scale=scale)
+        return np.stack([runs[:, k + 1] - physics(runs[:, k], np.broadcast_to(controls[k], (3, 1)))
+                         for k in range(len(controls))], axis=1)
+
+    mean = model.gp_.predict(model.gp_inputs(np.zeros((len(controls), 2)), controls))
+    np.testing.assert_allclose(drawn(0.0), np.broadcast_to(mean, (3, len(controls), 2)), atol=1e-12)
+    np.testing.assert_allclose(drawn(2.5) - drawn(0.0), 2.5 * (drawn(1.0) - drawn(0.0)), rtol=1e-8, atol=1e-12)
+    with pytest.raises(ValueError, match="spread_scale"):
+        model.sample_rollouts(states[0], controls, physics, n_samples=1, spread_scale=-1.0)
+
+
 def test_closed_loop_sampling_takes_the_policys_inputs_and_common_random_numbers():
     states, inputs = trajectory(40, seed=5, extra=True)
     model = GreyBoxGP(state_columns=[1], n_restarts=0).fit_trajectories([(states, inputs)], physics)

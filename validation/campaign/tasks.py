@@ -344,7 +344,8 @@ def run_reproduction(settings: dict, *, seed: int, paths: dict) -> TaskOutput:
     Figures: bo105, the RMSE (rad/s) and 95 % coverage tables of ``results.json`` (``osap.gp.q``,
     ``fmp.reference.p``, ``unseen.fmp.gp.r``, ``coverage95.q``, ...); blimp, the seed's Table I
     with filtered starts (``table1.<method>.<group>``, the group's unit), Table II's spread ratios
-    (``table2.spread_ratio_noise``, ``table2.spread_ratio_latent``) and Table III's mean yaw
+    (``table2.spread_ratio_noise``, ``table2.spread_ratio_latent``, ``table2.spread_ratio_calibrated``)
+    and Table III's mean yaw
     errors (``table3.<RK, RKGP or stand_in>``, deg) and their ratio. Files: everything the
     reproduction writes.
     """
@@ -364,7 +365,8 @@ def run_reproduction(settings: dict, *, seed: int, paths: dict) -> TaskOutput:
             results = reproduce_blimp(folder, seeds=(seed,), quick=settings["quick"], progress=False)
             first, second, third = (results[f"table{n}"]["by_seed"][str(seed)] for n in (1, 2, 3))
             tables = {"table1": {m: {g: first["filtered"][m][g] for g in GROUPS} for m in METHODS},
-                      "table2": {key: second[key] for key in ("spread_ratio_noise", "spread_ratio_latent")},
+                      "table2": {key: second[key] for key in ("spread_ratio_noise", "spread_ratio_latent",
+                                                                          "spread_ratio_calibrated")},
                       "table3": {**{name: third[name]["yaw_error_deg"] for name in LEARNED_IN},
                                  "yaw_error_ratio_RK_to_RKGP": third["yaw_error_ratio_RK_to_RKGP"]}}
         files = {str(path.relative_to(folder)): path.read_bytes() for path in sorted(Path(folder).rglob("*"))

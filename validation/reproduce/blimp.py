@@ -48,9 +48,10 @@ def run_seed(seed: int, *, quick: bool = False, progress: bool = False) -> SeedR
     fitted = blimp_prediction.fit_models(training, seed=seed, progress=progress)
     first = blimp_prediction.table1(fitted, held_out, setup, seed=seed, progress=progress)
     rkgp, rk = fitted.models["RKGP"], fitted.physics["RK"]
-    second, second_paths = blimp_spread.table2(
-        held_out[0].recording.inputs, rkgp, rk, blimp_spread.QUICK_SETUP if quick else blimp_spread.DEFAULT_SETUP,
-        seed=seed, progress=progress)
+    spread_setup = blimp_spread.QUICK_SETUP if quick else blimp_spread.DEFAULT_SETUP
+    calibration = blimp_spread.calibrate_spread(rkgp, rk, spread_setup, seed=seed, progress=progress)
+    second, second_paths = blimp_spread.table2(held_out[0].recording.inputs, rkgp, rk, spread_setup, seed=seed,
+                                               calibration=calibration, progress=progress)
     third, third_paths = blimp_control.table3(
         rkgp, rk, fitted.identified.params, blimp_control.QUICK_SETUP if quick else blimp_control.DEFAULT_SETUP,
         seed=seed, progress=progress)
@@ -68,7 +69,8 @@ def reproduce_blimp(out_dir, *, seeds=DEFAULT_SEEDS, progress: bool = True, quic
     seeds : sequence of int, default :data:`DEFAULT_SEEDS`
         For seed s: training flight i ``SeedSequence([s, 0, i])``, held-out flight i
         ``SeedSequence([s, 1, i])`` (commands and stand-in), start states ``default_rng([s, 2])``,
-        GP restarts ``s``; Table II stand-in run i ``[s, 3, i]`` and its samples ``[s, 3]``;
+        GP restarts ``s``; Table II stand-in run i ``[s, 3, i]`` and its samples ``[s, 3]``, its
+        calibration's commands and samples ``[s, 7]`` and stand-in run i ``[s, 7, i]``;
         Table III scenario i ``[s, 4, i]``, stand-in turn i ``[s, 5, i]``.
     progress : bool
         Progress bars on stderr.

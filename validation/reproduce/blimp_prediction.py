@@ -118,6 +118,14 @@ class FlownRecording:
     true_states: np.ndarray
 
 
+def random_commands(time, rng) -> np.ndarray:
+    """Random commands of :data:`COMMAND_RANGES`, each held :data:`COMMAND_HOLD` s, at the frame
+    times ``time`` (s, shape (n,)), drawn from ``rng``: shape (n, 3) in ``INPUT_NAMES`` order."""
+    held = np.floor(np.asarray(time) / COMMAND_HOLD + 1e-9).astype(int)
+    low, high = np.array(list(COMMAND_RANGES.values())).T
+    return rng.uniform(low, high, (held[-1] + 1, len(INPUT_NAMES)))[held]
+
+
 def random_command_flight(duration: float, seed) -> FlownRecording:
     """The ``blimp-flight`` stand-in flown with random commands (:data:`COMMAND_RANGES`, each
     held :data:`COMMAND_HOLD` s) for ``duration`` s at the 20 Hz nominal mocap rate.
@@ -126,11 +134,8 @@ def random_command_flight(duration: float, seed) -> FlownRecording:
     children draw the commands and seed the stand-in (jitter, drift, marker noise).
     """
     command_seed, flight_seed = np.random.SeedSequence(seed).spawn(2)
-    rng = np.random.default_rng(command_seed)
     time = np.arange(int(round(duration / SAMPLE_TIME)) + 1) * SAMPLE_TIME
-    held = np.floor(time / COMMAND_HOLD + 1e-9).astype(int)
-    low, high = np.array(list(COMMAND_RANGES.values())).T
-    commands = rng.uniform(low, high, (held[-1] + 1, len(INPUT_NAMES)))[held]
+    commands = random_commands(time, np.random.default_rng(command_seed))
     vehicle = BlimpFlightTest()
     flight = vehicle.fly(time, commands, seed=int(flight_seed.generate_state(1)[0]))
     return FlownRecording(vehicle.record(flight, commands), flight.states)

@@ -26,7 +26,16 @@ from validation.models.blimp_greybox import (
 from validation.reproduce import blimp_control
 from validation.reproduce.blimp_prediction import GROUPS, METHODS, RK_MAX_STEP, START_KINDS, random_command_flight
 from validation.reproduce.blimp_report import format_results
-from validation.reproduce.blimp_spread import ROWS, Table2Setup, table2
+from validation.reproduce.blimp_spread import (
+    CALIBRATED_ROWS,
+    CALIBRATION_ITERATIONS,
+    CALIBRATION_TOLERANCE,
+    QUICK_SETUP,
+    ROWS,
+    Table2Setup,
+    calibrate_spread,
+    table2,
+)
 from validation.vehicles.blimp import STATE_NAMES
 
 SEED = 3
@@ -96,8 +105,8 @@ def test_goals_say_what_the_tables_measured(quick):
         assert smallest[group] == pytest.approx(table["RK"][group] / table["RKGP"][group], rel=1e-12)
     margin = results["goals"]["table1_margin_over_RK"]
     assert margin["met"] == (smallest["position"] >= 3 and smallest["velocity"] >= 3)
-    ratio = results["table2"]["by_seed"][str(SEED)]["spread_ratio_noise"]
-    assert results["goals"]["table2_spread_with_noise_within_30_percent"]["met"] == (abs(ratio - 1) <= 0.3)
+    ratio = results["table2"]["by_seed"][str(SEED)]["spread_ratio_calibrated"]
+    assert results["goals"]["table2_calibrated_spread_within_30_percent"]["met"] == (abs(ratio - 1) <= 0.3)
     third = results["table3"]["by_seed"][str(SEED)]
     assert third["yaw_error_ratio_RK_to_RKGP"] == pytest.approx(
         third["RK"]["yaw_error_deg"] / third["RKGP"]["yaw_error_deg"], rel=1e-12)
@@ -119,7 +128,15 @@ def test_table2_rows_and_their_properties(quick):
     assert second["rkgp_sampled"]["position_spread_m"] > 0 and second["stand_in"]["position_spread_m"] > 0
     assert second["spread_ratio_noise"] == pytest.approx(
         second["rkgp_sampled_noise"]["position_spread_m"] / second["stand_in"]["position_spread_m"], rel=1e-12)
-    assert second["setup"]["stand_in_runs"] == 20 and "Table II" in printed
+    assert second["setup"]["stand_in_runs"] == QUICK_SETUP.stand_in_runs and "Table II" in printed
+    # The calibrated rows: the same normals at the scale chosen on validation repeats.
+    calibration = second["calibration"]
+    assert set(CALIBRATED_ROWS) <= set(second) and calibration["spread_scale"] > 0
+    assert (abs(calibration["calibrated_spread_m"] / calibration["stand_in_spread_m"] - 1) <= CALIBRATION_TOLERANCE
+            or calibration["rescalings"] == CALIBRATION_ITERATIONS)
+    assert second["rkgp_calibrated"]["position_spread_m"] < second["rkgp_calibrated_noise"]["position_spread_m"]
+    assert second["spread_ratio_calibrated"] == pytest.approx(
+        second["rkgp_calibrated_noise"]["position_spread_m"] / second["stand_in"]["position_spread_m"], rel=1e-12)
 
 
 @pytest.mark.slow
@@ -193,13 +210,23 @@ def test_table2_is_reproducible_from_the_seed():
     model = GreyBoxGP(state_columns=GP_STATE_COLUMNS, shared=False, min_noise_variance=MIN_NOISE_VARIANCE).fit(
         states[:-1:2], inputs[:-1:2], states[1::2], rk, optimize=False)
     setup = dataclasses.replace(Table2Setup(), horizon_frames=10, stand_in_runs=3, n_samples=3)
-    first, paths = table2(recording.inputs, model, rk, setup, seed=5)
-    again, paths_again = table2(recording.inputs, model, rk, setup, seed=5)
+    calibration = calibrate_spread(model, rk, setup, seed=5)
+    assert calibrate_spread(model, rk, setup, seed=5) == calibration
+    assert (abs(calibration.calibrated_spread_m / calibration.stand_in_spread_m - 1) <= CALIBRATION_TOLERANCE
+            or calibration.rescalings == CALIBRATION_ITERATIONS)
+    first, paths = table2(recording.inputs, model, rk, setup, seed=5, calibration=calibration)
+    again, paths_again = table2(recording.inputs, model, rk, setup, seed=5, calibration=calibration)
     other, other_paths = table2(recording.inputs, model, rk, setup, seed=6)
     for field in dataclasses.fields(paths):
         np.testing.assert_array_equal(getattr(paths, field.name), getattr(paths_again, field.name))
     drop = lambda row: {k: v for k, v in row.items() if k != "seconds"}  # noqa: E731
-    assert all(drop(first[row]) == drop(again[row]) for row in ROWS)
+    assert all(drop(first[row]) == drop(again[row]) for row in ROWS + CALIBRATED_ROWS)
+    assert other_paths.calibrated_noise is None and "rkgp_calibrated_noise" not in other
+    # After the first step (every sample starts from the same state) a sample's deviation from
+    # the mean rollout is its drawn residual and noise: exactly the scale times the uncalibrated one.
+    step_noise = paths.sampled_noise[:, 1, :3] - paths.mean[1, :3]
+    step_calibrated = paths.calibrated_noise[:, 1, :3] - paths.mean[1, :3]
+    np.testing.assert_allclose(step_calibrated, calibration.spread_scale * step_noise, rtol=1e-6, atol=1e-12)
     for row in ("stand_in", "rkgp_sampled", "rkgp_sampled_noise"):
         assert first[row]["position_spread_m"] != other[row]["position_spread_m"], row
     assert drop(first["rkgp_mean"]) != {} and first["rkgp_mean"]["position_spread_m"] == 0.0
