@@ -271,6 +271,34 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                       description="pitch control power quadratic in deflection, M_theta_1s|theta_1s| = 400 "
                                   "(rad/s^2)/rad^2, 1 and 2 deg steps, flown by RK4; found by search"),
     ]
+    return cases + _measurement_chain_cases(noise)
+
+
+def _measurement_chain_cases(noise: dict) -> list[ConcealedCase]:
+    """The Bo105's measurement-chain cases, each effect on the pitch-rate gyro at two values: a
+    sensor lag of 50 and 150 ms (a filter that moves ``q`` alone, not the attitude or the
+    velocities an input lag on longitudinal cyclic would), a scale factor of 1.1 and 0.9, a bias
+    drifting to 3 and 6 noise standard deviations over :data:`DURATION` s, and a cross-axis
+    sensitivity to the roll rate of 0.02 and 0.05 (a gyro misaligned by 1.1 and 2.9 deg)."""
+    single = _single_case
+    cases = []
+    for value in (0.05, 0.15):
+        cases.append(single({"effect": "sensor_lag", "output": "q", "value": value},
+                            f"sensor-lag-q-{round(value * 1000)}ms",
+                            f"pitch-rate gyro lagging by {round(value * 1000)} ms (first-order filter)"))
+    for value in (1.1, 0.9):
+        cases.append(single({"effect": "output_scale", "output": "q", "value": value}, f"scale-q-{value:g}",
+                            f"pitch-rate gyro scale factor {value:g}"))
+    for multiple in (3, 6):
+        rate = multiple * noise["q"] / DURATION
+        cases.append(single({"effect": "sensor_drift", "output": "q", "value": rate}, f"drift-q-{multiple}sd",
+                            f"pitch-rate gyro bias drifting by {rate:.3g} rad/s per s ({multiple}x noise "
+                            f"after {DURATION:g} s)"))
+    for value in (0.02, 0.05):
+        cases.append(single({"effect": "sensor_cross_axis", "output": "q_from_p", "value": value},
+                            f"cross-axis-q_from_p-{value:g}",
+                            f"pitch-rate gyro seeing {value:g} of the roll rate (misaligned by "
+                            f"{math.degrees(math.asin(value)):.1f} deg)"))
     return cases
 
 
