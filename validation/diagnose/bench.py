@@ -11,6 +11,9 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
   effects (``nonlinear_damping``, ``nonlinear_stiffness``) and a pitch control power quadratic
   in deflection a term the residual search must find (``search_term``), all flown by RK4 of the
   continuous model rather than by the replay diagnose fits with;
+- **measurement chain**: each sensor effect on the pitch-rate gyro at two values (a lag, a scale
+  factor, a drifting bias, a cross-axis sensitivity to the roll rate), single cases
+  (:func:`_measurement_chain_cases`);
 - **pair**: two named effects at once (one of them nonlinear in one pair);
 - **none**: the reference itself (any finding is a false finding);
 - **ambiguous**: a dead band flown at one amplitude, which no data of that manoeuvre can tell

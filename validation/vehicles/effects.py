@@ -254,7 +254,7 @@ class EffectModel(Protocol):
         Returns
         -------
         ndarray, shape (B, n, n_states)
-            The states as recorded (sensor biases added), SI units, in :attr:`state_names`
+            The states as recorded (through :func:`apply_measurement_chain`), SI units, in :attr:`state_names`
             order.
         """
         ...
