@@ -11,6 +11,9 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
   effects (``nonlinear_damping``, ``nonlinear_stiffness``) and a pitch control power quadratic
   in deflection a term the residual search must find (``search_term``), all flown by RK4 of the
   continuous model rather than by the replay diagnose fits with;
+- **measurement chain**: each sensor effect on the pitch-rate gyro at two values (a lag, a scale
+  factor, a drifting bias, a cross-axis sensitivity to the roll rate), single cases
+  (:func:`_measurement_chain_cases`);
 - **pair**: two named effects at once (one of them nonlinear in one pair);
 - **none**: the reference itself (any finding is a false finding);
 - **ambiguous**: a dead band flown at one amplitude, which no data of that manoeuvre can tell
@@ -33,8 +36,8 @@ The ``blimp`` suite (:func:`blimp_cases`, ``concealed_cases(reference="blimp")``
 ODE: 20 Hz (the mocap rate), all 12 states with the white noise of
 :data:`validation.vehicles.blimp_effects.SENSOR_NOISE_STD`, the manoeuvres of
 :func:`validation.vehicles.blimp_effects.identification_manoeuvre`; single effects of every kind the blimp
-takes, a pair, no effect, and a fan nonlinearity outside the named list (thrust quadratic in
-the command).
+takes but the measurement chain's beyond a bias (those are benchmarked on the Bo105), a pair, no
+effect, and a fan nonlinearity outside the named list (thrust quadratic in the command).
 
 Scorecard columns, per case: every true effect named with the right effect kind and target
 (``named``); the true value inside the reported interval (``in_interval``); the held-out RMSE of
@@ -123,7 +126,8 @@ def _scaled_case(reference: EffectModel, kind: str, term: str, factor: float, *,
 
 
 def blimp_cases(*, reference: EffectModel | None = None) -> list[ConcealedCase]:
-    """The blimp suite (module docstring): every effect kind the blimp takes at sizes a real
+    """The blimp suite (module docstring): every effect kind the blimp takes (of the measurement
+    chain, the bias) at sizes a real
     indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
     errors, a buoyancy imbalance of 0.3 g, a command limit and a slew limit), a pair, no effect,
     and a fan nonlinearity outside the named list (:data:`COMMAND_MAPS`). ``reference``: the blimp's effect model
@@ -271,6 +275,34 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                       description="pitch control power quadratic in deflection, M_theta_1s|theta_1s| = 400 "
                                   "(rad/s^2)/rad^2, 1 and 2 deg steps, flown by RK4; found by search"),
     ]
+    return cases + _measurement_chain_cases(noise)
+
+
+def _measurement_chain_cases(noise: dict) -> list[ConcealedCase]:
+    """The Bo105's measurement-chain cases, each effect on the pitch-rate gyro at two values: a
+    sensor lag of 50 and 150 ms (a filter that moves ``q`` alone, not the attitude or the
+    velocities an input lag on longitudinal cyclic would), a scale factor of 1.1 and 0.9, a bias
+    drifting to 3 and 6 noise standard deviations over :data:`DURATION` s, and a cross-axis
+    sensitivity to the roll rate of 0.02 and 0.05 (a gyro misaligned by 1.1 and 2.9 deg)."""
+    single = _single_case
+    cases = []
+    for value in (0.05, 0.15):
+        cases.append(single({"effect": "sensor_lag", "output": "q", "value": value},
+                            f"sensor-lag-q-{round(value * 1000)}ms",
+                            f"pitch-rate gyro lagging by {round(value * 1000)} ms (first-order filter)"))
+    for value in (1.1, 0.9):
+        cases.append(single({"effect": "output_scale", "output": "q", "value": value}, f"scale-q-{value:g}",
+                            f"pitch-rate gyro scale factor {value:g}"))
+    for multiple in (3, 6):
+        rate = multiple * noise["q"] / DURATION
+        cases.append(single({"effect": "sensor_drift", "output": "q", "value": rate}, f"drift-q-{multiple}sd",
+                            f"pitch-rate gyro bias drifting by {rate:.3g} rad/s per s ({multiple}x noise "
+                            f"after {DURATION:g} s)"))
+    for value in (0.02, 0.05):
+        cases.append(single({"effect": "sensor_cross_axis", "output": "q_from_p", "value": value},
+                            f"cross-axis-q_from_p-{value:g}",
+                            f"pitch-rate gyro seeing {value:g} of the roll rate (misaligned by "
+                            f"{math.degrees(math.asin(value)):.1f} deg)"))
     return cases
 
 

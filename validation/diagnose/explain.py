@@ -54,7 +54,16 @@ from validation.diagnose.data import PreparedData
 from validation.diagnose.fitting import FitData, FittedModel, fit_many, null_model, weigh_step
 from validation.diagnose.locate import Location
 from validation.diagnose.search import search_candidates
-from validation.vehicles.effects import MAX_DELAY, MAX_LAG, TARGET_KEYS, EffectModel, Hypothesis, effect_unit
+from validation.vehicles.effects import (
+    MAX_DELAY,
+    MAX_LAG,
+    TARGET_KEYS,
+    EffectModel,
+    Hypothesis,
+    cross_axis_pairs,
+    cross_axis_target,
+    effect_unit,
+)
 
 #: Most named effects in one diagnosis (pairs must be found; three leaves room for one more).
 MAX_EFFECTS = 3
@@ -77,6 +86,11 @@ _GAIN_STEP = 0.05
 #: The time, s, the largest excursion takes to ramp through a rate limit at its null: a
 #: microsecond, four orders below any sample interval, so the null limit never bites.
 _NO_RAMP = 1e-6
+#: A sensor drift is screened at one noise standard deviation per this many s (its effect is
+#: linear in its value, so the step only has to move the outputs well above rounding).
+_DRIFT_STEP_TIME = 10.0
+#: Screening step of a cross-axis sensitivity: 1 % of the source state (linear in the value too).
+_CROSS_AXIS_STEP = 0.01
 
 
 @dataclass
@@ -320,10 +334,16 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
     does nothing; screened inward) and a rate limit (searched as its reciprocal, the ramp time
     per unit of input, null :data:`_NO_RAMP` per excursion, screened at :data:`_TIMING_STEP`
     per excursion, at most ``MAX_LAG`` per excursion) on each excited input, the
-    reference's term hypotheses, a bias on each measured output (each kind where the reference
-    takes it, :attr:`EffectModel.kinds`).
+    reference's term hypotheses, and the measurement chain of each measured output (a bias,
+    screened at a noise standard deviation; a scale, null 1, at least 0, screened at
+    :data:`_GAIN_STEP`; a sensor lag, as an input lag; a drift, screened at a noise standard
+    deviation per :data:`_DRIFT_STEP_TIME`; a cross-axis sensitivity to every other state of the
+    same unit, null 0, screened at :data:`_CROSS_AXIS_STEP`), each kind where the reference
+    takes it (:attr:`EffectModel.kinds`). A sensor effect moves its own recorded output only, an
+    input effect every output the input drives: that is what tells them apart.
 
-    ``noise_sd`` (dict output -> typical noise standard deviation) sets the bias screening step;
+    ``noise_sd`` (dict output -> typical noise standard deviation) sets the bias and drift
+    screening steps;
     ``excursions`` (dict input -> largest ``|u - u[0]|`` in the fitted data, the input's unit)
     the dead band's step and bound (no dead band hypothesis without it).
     """
@@ -343,8 +363,14 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
                 hypotheses.append(Hypothesis("rate_limit", name, _NO_RAMP / excursion, _NO_RAMP / excursion,
                                              MAX_LAG / excursion, _TIMING_STEP / excursion, reciprocal=True))
     hypotheses += reference.term_hypotheses(excited_inputs)
-    for name in output_names:
+    for name in output_names:  # the measurement chain of each recorded output
         hypotheses.append(Hypothesis("sensor_bias", name, 0.0, -math.inf, math.inf, float(noise_sd[name])))
+        hypotheses.append(Hypothesis("output_scale", name, 1.0, 0.0, math.inf, _GAIN_STEP))
+        hypotheses.append(Hypothesis("sensor_lag", name, 0.0, 0.0, MAX_LAG, _TIMING_STEP))
+        hypotheses.append(Hypothesis("sensor_drift", name, 0.0, -math.inf, math.inf,
+                                     float(noise_sd[name]) / _DRIFT_STEP_TIME))
+    hypotheses += [Hypothesis("sensor_cross_axis", cross_axis_target(recorded, source), 0.0, -math.inf, math.inf,
+                              _CROSS_AXIS_STEP) for recorded, source in cross_axis_pairs(reference, output_names)]
     return [h for h in hypotheses if h.effect in reference.kinds]
 
 

@@ -21,7 +21,7 @@ from validation.diagnose.prove import MODEL_KEYS, Proof
 from validation.diagnose.replicate import Replication
 from validation.diagnose.scope import Scope
 from validation.vehicles.effect_vehicle import EffectVehicle
-from validation.vehicles.effects import TARGET_KEYS, EffectModel
+from validation.vehicles.effects import TARGET_KEYS, EffectModel, split_cross_axis
 
 #: Why a named nonlinear term is physics no linear derivative holds, closing its statement. A
 #: stiffness term may also be a cube of a rate (any state its row depends on), so its words speak
@@ -260,8 +260,20 @@ def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict 
         text = (f"A control-effectiveness (gain) error on {_input_words(finding['input'])}: it acts "
                 f"{_number(value)} times as strongly as the model has it {interval}.")
     elif kind == "output_scale":
-        text = (f"The {column_phrase(finding['output'])} reads {_number(value)} times the model's {interval}: "
-                f"a scale-factor error on {finding['output']}.")
+        text = (f"The recorded {column_phrase(finding['output'])} reads {_number(value)} times the vehicle's "
+                f"{interval}: a scale-factor error of the {finding['output']} sensor.")
+    elif kind == "sensor_lag":
+        name = finding["output"]
+        text = (f"The recorded {column_phrase(name)} lags the vehicle's by {_number(value)} s {interval}: a "
+                f"first-order lag (a filter) of the {name} sensor, which no other output shows.")
+    elif kind == "sensor_drift":
+        name = finding["output"]
+        text = (f"The recorded {column_phrase(name)}'s bias grows by {_number(value)} {unit} {interval}, from 0 "
+                f"at the first sample: a drifting {name} sensor.")
+    elif kind == "sensor_cross_axis":
+        recorded, source = split_cross_axis(finding["output"], reference.state_names)
+        text = (f"The recorded {column_phrase(recorded)} sees {_number(value)} {interval} of the vehicle's "
+                f"{column_phrase(source)} {source}: a misaligned or cross-coupled {recorded} sensor.")
     elif kind == "sensor_bias":
         name = finding["output"]
         text = (f"The {column_phrase(name)} sensor reads {_number(abs(value))} {unit} "
@@ -299,7 +311,7 @@ def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict 
         target = alternative[TARGET_KEYS[alternative["effect"]]]
         text += (f" Next best: {alternative['effect'].replace('_', ' ')} on {target} "
                  f"({_number(alternative['value'])}), which the data disfavour {alternative['evidence_ratio']:.3g}:1.")
-        text += _amplitude_advice(finding, alternative)
+        text += _amplitude_advice(finding, alternative) + _lag_advice(finding, alternative)
     return text + _scope_words(finding) + _improvement(finding, fit) + _replication_words(finding)
 
 
@@ -324,6 +336,23 @@ def _amplitude_advice(finding: dict, alternative: dict) -> str:
             "the input moves between trim and one amplitude only, where a dead band of w on steps of A is a gain "
             f"of 1 - w/A and a limit L a gain of L/A. Repeat the manoeuvre on {name} at twice the amplitude to "
             "tell them apart (a dead band costs the larger steps less, a limit more, a gain the same).")
+
+
+def _lag_advice(finding: dict, alternative: dict) -> str:
+    """What the data cannot tell apart and what would: a lag of an output's sensor and a lag on
+    an input whose evidence ratio is under :data:`INDISTINGUISHABLE`. A linear response through
+    a first-order lag is the same whether the lag filters the input or the output (the two
+    transfer functions commute), so where the recorded output is the only one the input moves
+    measurably the two are one effect; another recorded output the input drives tells them apart
+    (an input lag slows it too, a sensor lag does not). Empty otherwise."""
+    kinds = {finding["effect"]: finding, alternative["effect"]: alternative}
+    if set(kinds) != {"sensor_lag", "input_lag"} or alternative["evidence_ratio"] >= INDISTINGUISHABLE:
+        return ""
+    output, control = kinds["sensor_lag"]["output"], kinds["input_lag"]["input"]
+    return (f" These data cannot tell a lag of the {output} sensor from a lag on {control}: where {output} is the "
+            f"only recorded output {control} moves, a first-order lag gives the same recording whether it filters "
+            f"the input or the output. Record another output {control} drives to tell them apart (a lag on "
+            f"{control} slows it too, a lag of the {output} sensor does not).")
 
 
 #: The input effects that one amplitude cannot tell apart, in the words of :func:`_amplitude_advice`.

@@ -38,7 +38,9 @@ blimp's system inertia matrix, so an extra generalised force ``tau`` adds ``M^-1
 - ``force_offset``, terms ``X_0``, ``Y_0`` (body-axis forces, N), ``N_0`` (yaw moment, N m) and
   ``Z_0`` (net downward force, weight minus buoyancy, N, along the earth vertical and acting at
   the centre of buoyancy: a buoyancy imbalance; the model's is ``-net_lift``);
-- ``sensor_bias`` on any of the 12 states: a constant added to the recorded output;
+- the effects of the measurement chain on any of the 12 states (``output_scale``,
+  ``sensor_cross_axis``, ``sensor_lag``, ``sensor_bias``, ``sensor_drift``), on the replayed
+  states as recorded, through :func:`~validation.vehicles.effects.apply_measurement_chain`;
 - ``dead_band``, ``saturation`` and ``rate_limit`` on an input, before its delay and lag: a dead
   band of the half-width about rest (:func:`~validation.vehicles.effects.dead_band_inputs`), the
   command clipped at +/- the limit, and a fan or servo that ramps no faster than the rate limit
@@ -78,6 +80,7 @@ from validation.vehicles.blimp_flight import ATTITUDE_NOISE_STD, POSITION_NOISE_
 from validation.vehicles.blimp_jax import compiled_replay
 from validation.vehicles.effects import (
     Hypothesis,
+    apply_measurement_chains,
     check_trim_start,
     dead_band_inputs,
     delayed_interval_means,
@@ -157,7 +160,8 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs, *, com
     Returns
     -------
     ndarray, shape (B, n, 12)
-        ``x, y, z, phi, theta, psi, U, V, W, P, Q, R`` as recorded (biases added), SI units,
+        ``x, y, z, phi, theta, psi, U, V, W, P, Q, R`` as recorded (through the measurement
+        chain), SI units,
         from the reference's hanging state at rest.
     """
     time, inputs = check_command_history(time, inputs)
@@ -166,8 +170,9 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs, *, com
     held = _held_inputs(effect_lists, time, inputs)
     changes = _TermChanges.of(reference, effect_lists)
     if compiled:
-        changed = {f.name: getattr(changes, f.name) for f in fields(changes) if f.name != "bias"}
-        return compiled_replay(params, changed, hanging_state(params), held, steps) + changes.bias[:, None, :]
+        changed = {f.name: getattr(changes, f.name) for f in fields(changes)}
+        states = compiled_replay(params, changed, hanging_state(params), held, steps)
+        return apply_measurement_chains(states, time, effect_lists, STATE_NAMES)
     _, inverse = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
                              params.cg_position)
     states = np.empty((len(effect_lists), len(time), 12))
@@ -177,7 +182,7 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs, *, com
         command = held[:, k]
         state = rk4(partial(changes.rates, command=command, params=params, inverse=inverse), state, step)
         states[:, k + 1] = state
-    return states + changes.bias[:, None, :]
+    return apply_measurement_chains(states, time, effect_lists, STATE_NAMES)
 
 
 def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
@@ -221,10 +226,10 @@ def _shaped_inputs(effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
 
 @dataclass
 class _TermChanges:
-    """What the term effects and biases of B members change in the blimp's ODE (module
-    docstring), one row per member: thrust gains for positive and negative commands (3 inputs),
-    extra rotational damping (P, Q, R) and quadratic drag (U, V, W), constant generalised forces
-    (6), extra net downward force, N, and biases on the 12 recorded states."""
+    """What the term effects of B members change in the blimp's ODE (module docstring), one row
+    per member: thrust gains for positive and negative commands (3 inputs), extra rotational
+    damping (P, Q, R) and quadratic drag (U, V, W), constant generalised forces (6) and extra net
+    downward force, N."""
 
     gain_positive: np.ndarray
     gain_negative: np.ndarray
@@ -232,18 +237,15 @@ class _TermChanges:
     extra_drag: np.ndarray
     constant: np.ndarray
     extra_down: np.ndarray
-    bias: np.ndarray
 
     @classmethod
     def of(cls, reference: BlimpReference, effect_lists) -> _TermChanges:
         batch = len(effect_lists)
         changes = cls(np.ones((batch, 3)), np.ones((batch, 3)), np.zeros((batch, 3)), np.zeros((batch, 3)),
-                      np.zeros((batch, 6)), np.zeros(batch), np.zeros((batch, 12)))
+                      np.zeros((batch, 6)), np.zeros(batch))
         for b, effects in enumerate(effect_lists):
             for effect in effects:
-                if effect["effect"] == "sensor_bias":
-                    changes.bias[b, STATE_NAMES.index(effect["output"])] += effect["value"]
-                elif "term" in effect:
+                if "term" in effect:
                     changes.set_term(b, effect["term"], effect["value"], model_value(reference, effect["term"]))
         return changes
 
@@ -346,7 +348,8 @@ class BlimpEffects:
 
     family = "blimp"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias", "quadratic_drag",
-             "force_offset", "dead_band", "saturation", "rate_limit")
+             "force_offset", "dead_band", "saturation", "rate_limit", "output_scale", "sensor_cross_axis", "sensor_lag",
+             "sensor_drift")
     terms = TERMS
     batches_simulations = True
     absolute_inputs = False

@@ -151,7 +151,7 @@ class EffectVehicle:
         return dict(self._noise_sd)
 
     def simulate_states(self, time, inputs) -> np.ndarray:
-        """Noise-free recorded states (biases included), shape (n, n_states); see
+        """Noise-free recorded states (through the measurement chain), shape (n, n_states); see
         :meth:`validation.vehicles.effects.EffectModel.simulate_many`."""
         return self._reference.simulate_many([self._effects], time, inputs)[0]
 

@@ -9,13 +9,18 @@ An *effect* is a dict in the shape of a ``flightgp diagnose`` finding (docs/diag
     {"effect": "control_derivative", "term": "M_theta_1s", "value": -20.0}
     {"effect": "stability_derivative", "term": "L_q", "value": -3.35}   # new value, not a change
     {"effect": "sensor_bias", "output": "q", "value": 0.01}             # output units
+    {"effect": "output_scale", "output": "q", "value": 1.08}            # 1 (a scale factor)
+    {"effect": "sensor_lag", "output": "q", "value": 0.05}              # s, first-order time constant
+    {"effect": "sensor_drift", "output": "q", "value": 1e-4}            # output units per s
+    {"effect": "sensor_cross_axis", "output": "q_from_p", "value": 0.05}  # 1: recorded q sees 0.05 p
     {"effect": "quadratic_drag", "term": "X_UU", "value": -0.2}         # the blimp's
     {"effect": "force_offset", "term": "Z_0", "value": 0.003}           # the blimp's
     {"effect": "aerodynamic_coefficient", "term": "c_l_alpha", "value": 3.5}  # the RGBlimp's
 
 Other keys (``unit``, ``interval``, ``statement`` ...) are ignored, so the findings of a
-diagnosis can be fed back in unchanged. Delays, lags and biases mean the same on every
-reference; what a *term* (a derivative, a drag coefficient, a force offset) is, how effects enter
+diagnosis can be fed back in unchanged. Delays, lags and the effects of the measurement chain
+(:data:`OUTPUT_KINDS`, applied by :func:`apply_measurement_chain` on every reference) mean the
+same on every reference; what a *term* (a derivative, a drag coefficient, a force offset) is, how effects enter
 the reference's equations and which hypotheses diagnose tests on it is the reference's own
 business, supplied by an object implementing :class:`EffectModel`:
 :class:`validation.vehicles.bo105_effects.Bo105Effects` for every ``bo105-<V>kt``,
@@ -33,6 +38,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.signal import lfilter
 
 from validation.core.errors import BadInputError
 from validation.core.recordings import column_unit
@@ -46,12 +52,19 @@ TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative"
                "input_gain": "input", "output_scale": "output",
                "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term",
                "saturation": "input", "rate_limit": "input", "search_term": "term",
-               "nonlinear_stiffness": "term", "quadratic_stiffness": "term"}
+               "nonlinear_stiffness": "term", "quadratic_stiffness": "term", "sensor_lag": "output",
+               "sensor_drift": "output", "sensor_cross_axis": "output"}
+#: The effects of the measurement chain, between the vehicle and the recording of one output, in
+#: the order :func:`apply_measurement_chain` applies them. A ``sensor_cross_axis`` names its
+#: target ``"<recorded>_from_<source>"`` (:func:`cross_axis_target`).
+OUTPUT_KINDS = ("output_scale", "sensor_cross_axis", "sensor_lag", "sensor_bias", "sensor_drift")
 #: Largest delay and lag accepted, s: far beyond any actuator or rotor (the Bo105's flap time
 #: constant is 0.07 s, Padfield, *Helicopter Flight Dynamics*, 2nd ed., 2007, ch. 3), small
 #: enough to keep the augmented systems well conditioned.
 MAX_DELAY = 1.0
 MAX_LAG = 2.0
+#: Joins the recorded output and the source state of a ``sensor_cross_axis`` target.
+CROSS_AXIS_JOIN = "_from_"
 
 
 @dataclass(frozen=True)
@@ -241,7 +254,7 @@ class EffectModel(Protocol):
         Returns
         -------
         ndarray, shape (B, n, n_states)
-            The states as recorded (sensor biases added), SI units, in :attr:`state_names`
+            The states as recorded (through :func:`apply_measurement_chain`), SI units, in :attr:`state_names`
             order.
         """
         ...
@@ -412,22 +425,215 @@ def check_trim_start(start, name: str) -> None:
                             "(they start there, docs/conventions.md, \"Time\"); got another start state")
 
 
+def signal_unit(name: str, reference: EffectModel) -> str:
+    """The unit of input or state ``name`` of ``reference``: the reference's own (its optional
+    ``signal_units`` mapping: an FMU's declared units, a linear reference's) or else flightgp's
+    (:func:`validation.core.recordings.column_unit`; ``"?"`` for an unknown column)."""
+    return getattr(reference, "signal_units", {}).get(name) or column_unit(name)
+
+
 def effect_unit(effect: dict, reference: EffectModel) -> str:
-    """Unit of ``effect["value"]`` on ``reference``: s for delays and lags, 1 for a gain or a
-    scale, the input's unit for a dead band or a saturation (per s for a rate limit), the
-    output's unit for a bias, the reference's unit of a term. A signal's unit is the
-    reference's own (an FMU's declared units, its optional ``signal_units`` mapping) or else
-    flightgp's (:func:`validation.core.recordings.column_unit`)."""
+    """Unit of ``effect["value"]`` on ``reference``: s for delays and lags (of an input or a
+    sensor), 1 for a gain, a scale or a cross-axis sensitivity, the input's unit for a dead band
+    or a saturation (per s for a rate limit), the output's unit for a bias (per s for a drift),
+    the reference's unit of a term (:func:`signal_unit`)."""
     kind = effect["effect"]
-    if kind in ("time_delay", "input_lag"):
+    if kind in ("time_delay", "input_lag", "sensor_lag"):
         return "s"
-    if kind in ("input_gain", "output_scale"):
+    if kind in ("input_gain", "output_scale", "sensor_cross_axis"):
         return "1"
-    if kind in ("dead_band", "saturation", "sensor_bias", "rate_limit"):
-        name = effect[TARGET_KEYS[kind]]
-        unit = getattr(reference, "signal_units", {}).get(name) or column_unit(name)
-        return f"{unit}/s" if kind == "rate_limit" else unit
+    if kind in ("dead_band", "saturation", "sensor_bias", "rate_limit", "sensor_drift"):
+        unit = signal_unit(effect[TARGET_KEYS[kind]], reference)
+        return f"{unit}/s" if kind in ("rate_limit", "sensor_drift") else unit
     return reference.term_unit(effect["term"])
+
+
+def cross_axis_target(recorded: str, source: str) -> str:
+    """The target of a ``sensor_cross_axis``: ``"q_from_p"`` for a recorded ``q`` that sees some
+    of the vehicle's ``p``."""
+    return f"{recorded}{CROSS_AXIS_JOIN}{source}"
+
+
+def split_cross_axis(target: str, output_names) -> tuple[str, str] | None:
+    """``(recorded, source)`` of a ``sensor_cross_axis`` target (:func:`cross_axis_target`), both
+    among ``output_names``; None when it names no such pair."""
+    for name in output_names:
+        prefix = name + CROSS_AXIS_JOIN
+        if target.startswith(prefix) and target[len(prefix):] in output_names:
+            return name, target[len(prefix):]
+    return None
+
+
+def cross_axis_pairs(reference: EffectModel, output_names) -> list[tuple[str, str]]:
+    """Every ``(recorded, source)`` pair of a recorded output (``output_names``) and another state
+    of ``reference`` in the same known unit (:func:`signal_unit`): the cross-axis sensitivities
+    a diagnosis can test."""
+    units = {name: signal_unit(name, reference) for name in reference.state_names}
+    return [(a, b) for a in output_names for b in reference.state_names
+            if a != b and units[a] == units[b] and units[a] not in ("?", "")]
+
+
+def _output_of(effect: dict, output_names) -> tuple[int, int | None]:
+    """Column of the recorded output an output effect acts on and, for a cross-axis
+    sensitivity, of its source (None otherwise)."""
+    if effect["effect"] == "sensor_cross_axis":
+        recorded, source = split_cross_axis(effect["output"], output_names)
+        return output_names.index(recorded), output_names.index(source)
+    return output_names.index(effect["output"]), None
+
+
+def apply_measurement_chain(outputs: np.ndarray, time: np.ndarray, effects, output_names) -> np.ndarray:
+    """The outputs as recorded through the measurement chain of ``effects``: the sensor effects
+    between the vehicle and the recording of one output (:data:`OUTPUT_KINDS`; the others in
+    ``effects`` are ignored), the same on every reference. With ``y`` the vehicle's outputs and
+    ``m`` the recorded ones, for output ``i``, in this order:
+
+    1. scale and cross-axis sensitivity, on the vehicle's values: ``s_i y_i + sum_j c_ij y_j``
+       (``output_scale`` ``s_i``, ``sensor_cross_axis`` ``c_ij`` on ``"i_from_j"``, ``j`` of the
+       same unit: a misaligned or cross-coupled sensor);
+    2. a first-order sensor lag of time constant ``T``: ``T z_dot = -z + (step 1)``, ``z`` starting
+       at the first sample's value of step 1 (a sensor at rest on its signal);
+    3. a constant bias ``b_i`` and a drift ``d_i`` growing from 0 at the first sample:
+       ``m_i = z_i + b_i + d_i (t - t_0)``.
+
+    These are the sensor models of a flight-data compatibility check (scale factor, bias,
+    misalignment, time lag; Jategaonkar, *Flight Vehicle System Identification*, 2nd ed., 2015,
+    ch. 10) with the bias's slow change taken as linear over one recording. The lag is
+    discretised exactly for a signal linear between the samples (first-order hold): with
+    ``h_k = t_{k+1} - t_k``, ``a = exp(-h_k / T)`` and ``g = (T / h_k) (1 - a)``,
+    ``z[k+1] = a z[k] + (g - a) x[k] + (1 - g) x[k+1]`` (:func:`lagged_samples`); it is exact
+    wherever the vehicle's output is piecewise linear between samples and otherwise errs by the
+    curvature within one interval (second order in ``h``), and it is continuous at ``T = 0``.
+
+    Parameters
+    ----------
+    outputs : ndarray, shape (n, m)
+        The vehicle's outputs at ``time``, in ``output_names`` order, their units.
+    time : ndarray, shape (n,)
+        Strictly increasing sample times, s (even or not).
+    effects : list of dict
+        Checked effects (:func:`check_effects`).
+    output_names : sequence of str
+        The m outputs' names.
+
+    Returns
+    -------
+    ndarray, shape (n, m)
+        The outputs as recorded; ``outputs`` itself when no output effect acts.
+    """
+    chain = [e for e in effects if e["effect"] in OUTPUT_KINDS]
+    if not chain:
+        return outputs
+    names = list(output_names)
+    outputs = np.asarray(outputs, dtype=float)
+    time = np.asarray(time, dtype=float)
+    recorded = outputs.copy()
+    for effect in chain:
+        column, source = _output_of(effect, names)
+        if effect["effect"] == "output_scale":
+            recorded[:, column] += (effect["value"] - 1.0) * outputs[:, column]
+        elif effect["effect"] == "sensor_cross_axis":
+            recorded[:, column] += effect["value"] * outputs[:, source]
+    for effect in chain:
+        if effect["effect"] == "sensor_lag" and effect["value"] > 0:
+            column = names.index(effect["output"])
+            recorded[:, column] = lagged_samples(recorded[:, column], effect["value"], time)
+    for effect in chain:
+        if effect["effect"] == "sensor_bias":
+            recorded[:, names.index(effect["output"])] += effect["value"]
+        elif effect["effect"] == "sensor_drift":
+            recorded[:, names.index(effect["output"])] += effect["value"] * (time - time[0])
+    return recorded
+
+
+def apply_measurement_chains(outputs: np.ndarray, time: np.ndarray, effect_lists, output_names) -> np.ndarray:
+    """:func:`apply_measurement_chain` of each member of a batch: ``outputs`` (B, n, m), one
+    effect list per member; returns (B, n, m) (``outputs`` itself when no member has an output
+    effect)."""
+    if not any(e["effect"] in OUTPUT_KINDS for effects in effect_lists for e in effects):
+        return outputs
+    return np.stack([apply_measurement_chain(member, time, effects, output_names)
+                     for member, effects in zip(outputs, effect_lists)])
+
+
+def lagged_samples(signal_: np.ndarray, time_constant: float, time: np.ndarray) -> np.ndarray:
+    """Samples of a first-order lag ``T z_dot = -z + x`` of the sampled ``signal_`` ``x``, taken
+    linear between its samples (first-order hold), starting at rest on it (``z[0] = x[0]``): the
+    exact discretisation of :func:`apply_measurement_chain`.
+
+    Parameters
+    ----------
+    signal_ : ndarray, shape (n,)
+    time_constant : float
+        ``T``, s, > 0.
+    time : ndarray, shape (n,)
+        Strictly increasing, s.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``z`` at ``time``, the unit of ``signal_``.
+    """
+    steps = np.diff(time)
+    ratio = steps / time_constant
+    decay = np.exp(-ratio)  # a
+    gain = -np.expm1(-ratio) / ratio  # g = (T / h) (1 - a)
+    deviation = signal_ - signal_[0]  # from rest at x[0]: z - x[0] starts at 0
+    if np.ptp(steps) <= 1e-9 * steps[0]:  # even: one linear filter
+        filtered = lfilter([1.0 - gain[0], gain[0] - decay[0]], [1.0, -decay[0]], deviation)
+        return signal_[0] + filtered
+    lagged = np.empty(len(signal_))
+    state = 0.0
+    lagged[0] = 0.0
+    for k, (a, g, start, end) in enumerate(zip(decay.tolist(), gain.tolist(), deviation[:-1].tolist(),
+                                              deviation[1:].tolist())):
+        state = a * state + (g - a) * start + (1.0 - g) * end
+        lagged[k + 1] = state
+    return signal_[0] + lagged
+
+
+def true_first_values(recorded: np.ndarray, effects, output_names) -> np.ndarray:
+    """The vehicle's outputs at the first sample from the recorded ones, through the inverse of
+    :func:`apply_measurement_chain` there (a lag starts at rest and a drift at 0, so only scales,
+    cross-axis sensitivities and biases act: ``m = M y + b`` with ``M = diag(s) + C``): for
+    references that replay a recording from its first recorded state, so that a sensor that
+    reads wrong from the first sample is not taken for a state the vehicle started in.
+
+    Parameters
+    ----------
+    recorded : ndarray, shape (m,)
+        The recorded first values, ``output_names`` order; NaN where unknown (every output that
+        depends on an unknown one is NaN too).
+    effects : list of dict
+        Checked effects.
+    output_names : sequence of str
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        ``recorded`` itself where no output effect acts or ``M`` is singular (a scale of 0).
+    """
+    chain = [e for e in effects if e["effect"] in ("output_scale", "sensor_cross_axis", "sensor_bias")]
+    if not chain:
+        return recorded
+    names = list(output_names)
+    mixing = np.eye(len(names))
+    bias = np.zeros(len(names))
+    for effect in chain:
+        column, source = _output_of(effect, names)
+        if effect["effect"] == "output_scale":
+            mixing[column, column] = effect["value"]
+        elif effect["effect"] == "sensor_cross_axis":
+            mixing[column, source] = effect["value"]
+        else:
+            bias[column] = effect["value"]
+    try:
+        inverse = np.linalg.inv(mixing)
+    except np.linalg.LinAlgError:
+        return recorded
+    difference = np.asarray(recorded, dtype=float) - bias
+    terms = np.where(inverse != 0.0, inverse * np.where(np.isfinite(difference), difference, np.nan), 0.0)
+    return terms.sum(axis=1)
 
 
 def check_effects(effects, reference: EffectModel) -> list[dict]:
@@ -438,8 +644,9 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
     ------
     BadInputError
         Unknown effect or target, a term of the wrong kind (``M_q`` is a stability derivative,
-        ``M_theta_1s`` a control derivative), a non-finite value, a delay or lag outside
-        ``[0, MAX_DELAY]`` / ``[0, MAX_LAG]`` s, a value the reference refuses
+        ``M_theta_1s`` a control derivative), a cross-axis sensitivity whose recorded output
+        and source are not two outputs of the same unit, a non-finite value, a delay or a lag
+        (of an input or a sensor) outside ``[0, MAX_DELAY]`` / ``[0, MAX_LAG]`` s, a value the reference refuses
         (:meth:`EffectModel.term_value_problem`), or two effects of the same kind on the same
         target.
     """
@@ -456,7 +663,9 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
         allowed = {"input": reference.input_names, "output": reference.state_names}.get(key)
         if key == "term":
             allowed = reference.terms[kind]
-        if target not in allowed:
+        if kind == "sensor_cross_axis":
+            _check_cross_axis(target, reference, where)
+        elif target not in allowed:
             other = [k for k, terms in reference.terms.items() if key == "term" and k != kind and target in terms]
             if other:
                 raise BadInputError(f"{where} ({kind}): {target} is a {other[0]} of {reference.name}; "
@@ -464,7 +673,7 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
             listed = ", ".join(allowed) if len(allowed) <= 20 else f"{', '.join(allowed[:8])}, ... ({len(allowed)})"
             raise BadInputError(f"{where} ({kind}): {key} {target!r} is not one of {listed}")
         value = _finite_value(effect, f"{where} ({kind} on {target})")
-        limit = {"time_delay": MAX_DELAY, "input_lag": MAX_LAG}.get(kind)
+        limit = {"time_delay": MAX_DELAY, "input_lag": MAX_LAG, "sensor_lag": MAX_LAG}.get(kind)
         if limit is not None and not 0.0 <= value <= limit:
             raise BadInputError(f"{where} ({kind} on {target}): {value} s is outside 0 .. {limit} s")
         if kind == "dead_band" and value < 0:
@@ -481,6 +690,21 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
         seen.add((kind, target))
         checked.append({"effect": kind, key: target, "value": value})
     return checked
+
+
+def _check_cross_axis(target, reference: EffectModel, where: str) -> None:
+    """BadInputError unless ``target`` is ``"<recorded>_from_<source>"`` with two different
+    outputs of ``reference`` in the same known unit."""
+    pair = split_cross_axis(target, reference.state_names) if isinstance(target, str) else None
+    if pair is None:
+        raise BadInputError(f"{where} (sensor_cross_axis): output {target!r} must name the recorded output and "
+                            f"the state it sees, both among {', '.join(reference.state_names)}, as "
+                            f"\"{cross_axis_target('q', 'p')}\"")
+    recorded, source = pair
+    units = signal_unit(recorded, reference), signal_unit(source, reference)
+    if recorded == source or units[0] != units[1] or "?" in units:
+        raise BadInputError(f"{where} (sensor_cross_axis on {target}): the recorded {recorded} ({units[0]}) can "
+                            f"only see another state of the same unit, not {source} ({units[1]})")
 
 
 def _finite_value(effect: dict, where: str) -> float:

@@ -14,7 +14,9 @@ parameters ``<output>_start`` for it. :class:`FMUEffects` is its
   (the FMU sees ``gain * u``: control effectiveness), ``dead_band`` and ``saturation`` (a dead
   band or a limit about the input's first value) and ``rate_limit`` (an actuator ramping no faster
   than the limit, :func:`~validation.vehicles.effects.rate_limited_interval_means`);
-- on an output: ``sensor_bias`` (``+ b``) and ``output_scale`` (``* s``; the scale first);
+- on an output, the measurement chain of every reference
+  (:func:`~validation.vehicles.effects.apply_measurement_chain`): ``output_scale``,
+  ``sensor_cross_axis``, ``sensor_lag``, ``sensor_bias`` and ``sensor_drift``;
 - ``fmu_parameter``: any Real parameter the FMU exposes (``causality="parameter"``, not a
   ``<output>_start``), set before initialisation; named by the FMU's own name and described by
   its own description.
@@ -45,11 +47,13 @@ from validation.core.recordings import Recording
 from validation.core.sampling import check_history
 from validation.vehicles.effects import (
     Hypothesis,
+    apply_measurement_chain,
     dead_band_inputs,
     delayed_interval_means,
     lagged_interval_means,
     rate_limited_interval_means,
     simulate_each_recording,
+    true_first_values,
 )
 from validation.vehicles.linear_effects import sequential_three_two_one_one
 from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME
@@ -381,7 +385,7 @@ class FMUEffects:
 
     family = "fmu"
     kinds = ("time_delay", "input_lag", "dead_band", "saturation", "rate_limit", "input_gain", "sensor_bias",
-             "output_scale", "fmu_parameter")
+             "output_scale", "sensor_cross_axis", "sensor_lag", "sensor_drift", "fmu_parameter")
     batches_simulations = True  # a batch's replays run side by side on the reference's workers
     absolute_inputs = False
     needs_even_sampling = True
@@ -424,11 +428,10 @@ class FMUEffects:
         return None
 
     def term_hypotheses(self, excited_inputs) -> list[Hypothesis]:
-        """A scale on each output (null 1, positive, step 5 %) and every parameter (step 5 % of
-        its value, 1e-3 where it is zero); the gain on each excited input is diagnose's
+        """Every parameter (step 5 % of its value, 1e-3 where it is zero); the gain on each
+        excited input and the measurement chain of each output are diagnose's
         (:func:`validation.diagnose.explain.hypotheses_for`)."""
-        hypotheses = [Hypothesis("output_scale", name, 1.0, 0.0, math.inf, 0.05) for name in self.state_names]
-        hypotheses += [Hypothesis("fmu_parameter", name, value, -math.inf, math.inf, max(0.05 * abs(value), 1e-3))
+        hypotheses = [Hypothesis("fmu_parameter", name, value, -math.inf, math.inf, max(0.05 * abs(value), 1e-3))
                        for name, (value, _, _) in self.reference.parameters.items()]
         return hypotheses
 
@@ -475,27 +478,25 @@ class FMUEffects:
                     self._refusals.add(result)
                     _log.warning("%s refused a replay with %s: %s", self.name, effects, result)
                 result = np.full((len(time), len(self.state_names)), math.nan)
-            for effect in effects:
-                if effect["effect"] == "output_scale":
-                    result[:, self.state_names.index(effect["output"])] *= effect["value"]
-            for effect in effects:
-                if effect["effect"] == "sensor_bias":
-                    result[:, self.state_names.index(effect["output"])] += effect["value"]
-            replays.append(result)
+            replays.append(apply_measurement_chain(result, time, effects, self.state_names))
         return np.stack(replays)
 
     def _true_start(self, effects, starts: dict) -> dict:
         """The start values of a replay from a recording with ``effects``: the recorded start
-        (``starts``, or the FMU's own start value where the recording agrees with it) with the
-        effects' sensor bias and scale taken off (``y = (m - b) / s``), so that a sensor that
-        reads high from the first sample is a bias and not a state the aircraft started in."""
+        (``starts``, or the FMU's own start value where the recording agrees with it) through
+        the inverse of the measurement chain at the first sample
+        (:func:`~validation.vehicles.effects.true_first_values`: scale, cross-axis sensitivity and
+        bias taken off), so that a sensor that reads wrong from the first sample is not a state
+        the aircraft started in."""
+        recorded = np.array([starts.get(n, self.reference.start_values.get(n, math.nan)) for n in self.state_names])
+        true = true_first_values(recorded, effects, self.state_names)
+        if true is recorded:
+            return dict(starts)
         corrected = dict(starts)
         for name in self.reference.start_parameters:
-            bias = sum(e["value"] for e in effects if e["effect"] == "sensor_bias" and e["output"] == name)
-            scale = math.prod(e["value"] for e in effects if e["effect"] == "output_scale" and e["output"] == name)
-            if bias != 0 or scale != 1:
-                recorded = starts.get(name, self.reference.start_values[name])
-                corrected[name] = (recorded - bias) / scale if scale != 0 else recorded
+            value = true[self.state_names.index(name)]
+            if math.isfinite(value) and value != recorded[self.state_names.index(name)]:
+                corrected[name] = float(value)
         return corrected
 
     def _effective_inputs(self, effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:

@@ -3,7 +3,7 @@
 read from JSON): its :class:`~validation.vehicles.effects.EffectModel`, :class:`LinearEffects`.
 
 The effect dicts are those of :mod:`validation.vehicles.effects` (docs/vehicles.md). A linear
-reference takes delays, lags and sensor biases, and as terms its derivatives:
+reference takes delays, lags and the sensor effects, and as terms its derivatives:
 ``stability_derivative`` ``<row>_<state>`` and ``control_derivative`` ``<row>_<input>`` with the
 reference's row letters (``X, Z, M, Y, L, N`` for a flight vehicle: ``M_q``, ``L_theta_1c`` ...).
 How each effect enters ``x_dot = A x + B u``:
@@ -18,7 +18,9 @@ How each effect enters ``x_dot = A x + B u``:
   ``Gamma_b = int_0^{(1-f)h} e^{As} ds b_j`` and ``Gamma_a = e^{A(1-f)h} int_0^{fh} e^{As} ds b_j``
   (Franklin, Powell & Workman, *Digital Control of Dynamic Systems*, 3rd ed., 1998, sec. 4.3.3).
   The result is exact and continuous in ``tau``, which a fit needs;
-- ``sensor_bias`` adds a constant to a recorded output;
+- the effects of the measurement chain (``output_scale``, ``sensor_cross_axis``, ``sensor_lag``,
+  ``sensor_bias``, ``sensor_drift``) act on the replayed states as recorded, through
+  :func:`validation.vehicles.effects.apply_measurement_chain`, as on every reference;
 - ``dead_band`` on input ``j``: the input passes through a dead band (free play) of the given
   half-width about trim (:func:`validation.vehicles.effects.dead_band_inputs`) before it acts;
   ``input_gain``: the input acts ``gain`` times as strongly (a gearing or control-effectiveness
@@ -62,6 +64,7 @@ from validation.core.recordings import column_phrase
 from validation.core.sampling import check_history
 from validation.vehicles.effects import (
     Hypothesis,
+    apply_measurement_chain,
     check_trim_start,
     dead_band_inputs,
     rate_limited_interval_means,
@@ -98,8 +101,8 @@ def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
 
 
 def simulate_linear_with_effects(reference: LinearReference, effects, time, inputs) -> np.ndarray:
-    """States (plus sensor biases) of a linear reference with checked ``effects`` (module
-    docstring), from trim.
+    """States as recorded (through the measurement chain) of a linear reference with checked
+    ``effects`` (module docstring), from trim.
 
     Parameters
     ----------
@@ -176,10 +179,7 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
                                       signal_names=signal_names)[:, :n_states]
     else:
         states = propagate(Phi, forcing, np.zeros(size))[:, :n_states]
-    for effect in effects:
-        if effect["effect"] == "sensor_bias":
-            states[:, reference.state_names.index(effect["output"])] += effect["value"]
-    return states
+    return apply_measurement_chain(states, time, effects, reference.state_names)
 
 
 
@@ -211,6 +211,8 @@ class LinearEffects:
     Attributes
     ----------
     reference : LinearReference
+    signal_units : dict of str to str
+        The reference's unit of every state and input (``reference.units``).
     sensor_noise_sd : dict of str to float
         Zero for every state: a user's model comes with no sensor model, so the
         concealed-effect bench's recordings of it are noise-free.
@@ -221,7 +223,8 @@ class LinearEffects:
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
              "nonlinear_damping", "nonlinear_stiffness", "quadratic_stiffness", "dead_band", "input_gain",
-             "saturation", "rate_limit", "search_term")
+             "saturation", "rate_limit", "search_term", "output_scale", "sensor_cross_axis", "sensor_lag",
+             "sensor_drift")
     batches_simulations = False
     absolute_inputs = False
     needs_even_sampling = True
@@ -234,6 +237,7 @@ class LinearEffects:
         self.name, self.sample_time = reference.name, reference.sample_time
         self.input_names, self.state_names = reference.input_names, reference.state_names
         self.residual_gp_states = reference.state_names
+        self.signal_units = dict(reference.units)
         letters = reference.row_letters
         self.terms = {"control_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.input_names),
                       "stability_derivative": tuple(f"{a}_{c}" for a in letters for c in reference.state_names),

@@ -9,6 +9,7 @@ from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.diagnose import diagnose
 from validation.diagnose.bench import (
+    DURATION,
     REQUIRED_CUT,
     ConcealedCase,
     _polynomial_term_states,
@@ -34,7 +35,8 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
                      "nonlinear_damping", "dead_band", "saturation", "rate_limit", "search_term",
-                     "nonlinear_stiffness", "quadratic_stiffness"}
+                     "nonlinear_stiffness", "quadratic_stiffness", "sensor_lag", "output_scale", "sensor_drift",
+                     "sensor_cross_axis"}
     assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous"}
     assert len({case.name for case in cases}) == len(cases)
     for case in cases:
@@ -46,6 +48,14 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                 assert value >= 0.05
             elif kind == "sensor_bias":
                 assert abs(value) >= 3 * SENSOR_NOISE_STD[effect["output"]] - 1e-15
+            elif kind == "sensor_lag":
+                assert value >= 0.05
+            elif kind == "output_scale":  # a 10 % scale factor error or more
+                assert abs(value - 1.0) >= 0.1 - 1e-12
+            elif kind == "sensor_drift":  # 3x noise or more by the end of the recording
+                assert abs(value) * DURATION >= 3 * SENSOR_NOISE_STD[effect["output"]] - 1e-15
+            elif kind == "sensor_cross_axis":  # a misalignment of 1 deg or more
+                assert abs(value) >= 0.017
             elif kind == "dead_band":  # 10-30 % of the manoeuvre's 1 deg steps
                 assert math.radians(0.1) <= value <= math.radians(0.3) + 1e-15
             elif kind == "saturation":  # 60-80 % of the larger (2 deg) steps of variant 2
@@ -69,6 +79,9 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
             else:
                 old = reference.derivative(effect["term"])
                 assert abs(value - old) >= 0.25 * abs(old) - 1e-12, (effect, old)
+    # Each measurement-chain kind at two values.
+    for kind in ("sensor_lag", "output_scale", "sensor_drift", "sensor_cross_axis"):
+        assert len({e["value"] for c in cases for e in c.effects if e["effect"] == kind}) >= 2, kind
     # Several channels per single-effect kind.
     for kind, key in (("time_delay", "input"), ("input_lag", "input"), ("control_derivative", "term"),
                       ("stability_derivative", "term"), ("sensor_bias", "output")):
