@@ -20,7 +20,12 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
   from a gain or a limit: named or offered as the alternative, nothing false above
   :data:`AMBIGUOUS_CONFIDENCE`;
 - **outside** (the blimp's; the FMU suites' where an effect cannot be named there): physics
-  outside the named list, where the honest answer is ``unexplained``.
+  outside the named list, where the honest answer is ``unexplained``;
+- **changing**: a derivative that drifts during the flight (flown by RK4 with the derivative
+  moving linearly in time): named, and said to change in the right direction
+  (:mod:`validation.diagnose.over_time`); its value is the flight's average, which the interval
+  of a constant need not hold. On every ``single`` and ``pair`` case, a finding said to change is
+  a false finding.
 
 Recordings (both :data:`DURATION` s from trim at the reference's
 :attr:`~validation.vehicles.effects.EffectModel.sample_time`, every state measured with its
@@ -63,7 +68,7 @@ from validation.core.recordings import Recording
 from validation.diagnose.pipeline import diagnose
 from validation.vehicles.blimp_equations import rk4
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
-from validation.vehicles.effects import TARGET_KEYS, EffectModel, dead_band_inputs
+from validation.vehicles.effects import TARGET_KEYS, EffectModel, dead_band_inputs, split_cross_axis
 from validation.vehicles.polynomial_terms import factor_values, parse_term
 
 #: Held-out RMSE cut of the affected output that a named effect must achieve: the corrected model
@@ -83,7 +88,7 @@ class ConcealedCase:
     ----------
     name : str
         Short identifier, e.g. ``"delay-theta_1s-60ms"``.
-    kind : {"single", "pair", "none", "outside", "ambiguous"}
+    kind : {"single", "pair", "none", "outside", "ambiguous", "changing"}
     effects : tuple of dict
         The named effects applied (the truth), in the shape of diagnosis findings; empty for
         ``none`` and ``outside``.
@@ -91,6 +96,8 @@ class ConcealedCase:
         How the recordings are flown when not by the reference with ``effects``: a physics change
         outside the named list, ``(map, input, parameter)`` with a map of :data:`COMMAND_MAPS`
         (e.g. ``("dead_band", "theta_1s", half_width_rad)``), or
+        ``("drifting_derivative", term, start, end)`` (RK4 of the continuous model with the
+        derivative moving linearly in time over the recording, a ``changing`` case), or
         ``("polynomial_term", term, coefficient)`` (RK4 of the continuous model with a polynomial
         term, :mod:`validation.vehicles.polynomial_terms`; with a
         ``nonlinear_damping`` effect as the truth, the named effect flown by an integrator other
@@ -266,6 +273,16 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                       outside=("polynomial_term", "N_v|v|", 0.015),
                       description="yaw moment quadratic in lateral velocity N_v|v| = 0.015 (rad/s^2)/(m/s)^2, "
                                   "flown by RK4"),
+        # Pitch damping weakening during the flight (a rotor speed or a temperature that drifts):
+        # M_q from the model's value to 60 % of it over the 20 s, flown by RK4 of x_dot = A(t) x +
+        # B u. The truth's value is the flight's average; the finding must say that it changes,
+        # in the right direction.
+        ConcealedCase("M_q-drift", "changing",
+                      ({"effect": "stability_derivative", "term": "M_q", "value": reference.model_value("M_q") * 0.8},),
+                      outside=("drifting_derivative", "M_q", reference.model_value("M_q"),
+                               reference.model_value("M_q") * 0.6),
+                      description=f"pitch damping M_q drifting from {reference.model_value('M_q'):.3g} to "
+                                  f"{reference.model_value('M_q') * 0.6:.3g} over the flight, flown by RK4"),
         # Not a named effect: pitch control power growing with deflection, c u|u| (+30 % of the
         # linear M_theta_1s u at 2 deg), flown by RK4 at 1 and 2 deg. The residual search must
         # find it (a gain, a dead band or a limit fits neither amplitude).
@@ -342,7 +359,7 @@ def diagnosed_truth(case: ConcealedCase, model: EffectModel) -> ConcealedCase:
         kind = effect["effect"]
         if kind not in model.kinds and "term" in effect and effect["term"] in model.terms.get("fmu_parameter", ()):
             effect = {"effect": "fmu_parameter", "term": effect["term"], "value": effect["value"]}
-        elif kind not in model.kinds or effect[TARGET_KEYS[kind]] not in _targets(model, kind):
+        elif kind not in model.kinds or not _takes_target(model, kind, effect[TARGET_KEYS[kind]]):
             if case.outside is not None:  # flown apart from the effects: outside this model's list
                 return replace(case, kind="outside", effects=(),
                                description=f"{case.description} (not a named effect of {model.name})")
@@ -356,9 +373,14 @@ def diagnosed_truth(case: ConcealedCase, model: EffectModel) -> ConcealedCase:
     return replace(case, effects=tuple(effects))
 
 
-def _targets(model: EffectModel, kind: str) -> tuple:
+def _takes_target(model: EffectModel, kind: str, target: str) -> bool:
+    """Whether ``model`` takes an effect of ``kind`` on ``target`` (a cross-axis target names two
+    of its states, :func:`validation.vehicles.effects.split_cross_axis`)."""
     key = TARGET_KEYS[kind]
-    return model.terms[kind] if key == "term" else (model.input_names if key == "input" else model.state_names)
+    if kind == "sensor_cross_axis":
+        return split_cross_axis(target, model.state_names) is not None
+    return target in (model.terms[kind] if key == "term" else
+                      (model.input_names if key == "input" else model.state_names))
 
 
 def concealed_cases(*, reference: str = "bo105-80kt") -> list[ConcealedCase]:
@@ -448,7 +470,34 @@ def _outside_states(outside: tuple, vehicle: EffectVehicle, time, inputs) -> np.
         return vehicle.simulate_states(time, flown)
     if kind == "polynomial_term":
         return _polynomial_term_states(vehicle.reference_name, outside[1], outside[2], time, inputs)
+    if kind == "drifting_derivative":
+        return _drifting_derivative_states(vehicle.reference_name, *outside[1:], time, inputs)
     raise ValueError(f"unknown outside effect {kind!r}")
+
+
+def _drifting_derivative_states(reference: str, term: str, start: float, end: float, time, inputs) -> np.ndarray:
+    """``x_dot = A(t) x + B(t) u`` with derivative ``term`` moving linearly in time from ``start``
+    at the first sample to ``end`` at the last (every other entry the reference's), integrated by
+    classical RK4 at the recording interval with the inputs held over each interval.
+    ``reference`` names a linear reference (``bo105-<V>kt``)."""
+    linear = effect_model(reference, purpose="diagnose-bench").reference
+    first, last = linear.with_derivatives({term: start}), linear.with_derivatives({term: end})
+    span = float(time[-1] - time[0])
+
+    def derivative(t, x, u):
+        share = (t - time[0]) / span
+        return ((1 - share) * first.A + share * last.A) @ x + ((1 - share) * first.B + share * last.B) @ u
+
+    step = float(time[1] - time[0])
+    states = np.zeros((len(time), len(linear.state_names)))
+    for k in range(len(time) - 1):
+        t, x, u = time[k], states[k], inputs[k]
+        k1 = derivative(t, x, u)
+        k2 = derivative(t + step / 2, x + step / 2 * k1, u)
+        k3 = derivative(t + step / 2, x + step / 2 * k2, u)
+        k4 = derivative(t + step, x + step * k3, u)
+        states[k + 1] = x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return states
 
 
 def _polynomial_term_states(reference: str, term: str, coefficient: float, time, inputs) -> np.ndarray:
@@ -499,6 +548,8 @@ class CaseScore:
     seconds: float = 0.0
     certain_false: list = field(default_factory=list)
     offered: set = field(default_factory=set)
+    changing: list = field(default_factory=list)
+    drift_direction_right: bool = False
 
     @property
     def cut(self) -> float | None:
@@ -515,6 +566,8 @@ class CaseScore:
             return self.says_unexplained
         if kind == "ambiguous":  # the truth named or offered as an alternative, nothing false certain
             return not self.certain_false and self.offered == {_target(e) for e in self.case.effects}
+        if kind == "changing":  # named, said to drift the right way; its average value may miss
+            return self.named and self.drift_direction_right and not self.false_findings
         return (self.named and self.in_interval and not self.false_findings
                 and self.cut is not None and self.cut >= REQUIRED_CUT)
 
@@ -527,6 +580,7 @@ class CaseScore:
                 "cut": self.cut, "false_findings": self.false_findings,
                 "says_unexplained": self.says_unexplained, "seconds": self.seconds,
                 "certain_false": self.certain_false, "offered": sorted(" ".join(key) for key in self.offered),
+                "changing": self.changing, "drift_direction_right": self.drift_direction_right,
                 "passed": self.passed}
 
 
@@ -571,9 +625,19 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
                 score.certain_false.append(f"{key[0]} {key[1]}")
         offered = [_target(alternative) for alternative in finding.get("alternatives") or []]
         score.offered.update(key for key in [_target(finding)] + offered if key in truth)
-    if case.kind not in ("outside", "ambiguous"):
-        # An unexplained residual next to the true effects is a false finding too.
+    if case.kind not in ("outside", "ambiguous", "changing"):
+        # An unexplained residual next to the true effects is a false finding too (not next to
+        # a drift, which the constant correction leaves partly unexplained).
         score.false_findings += [f"unexplained {f['output']}" for f in findings if f["effect"] == "unexplained"]
+    score.changing = [" ".join(_target(f)) for f in named if (f.get("time_check") or {}).get("changes")]
+    if case.kind == "changing":
+        _, _, start, end = case.outside
+        check = (matched.get(_target(case.effects[0])) or {}).get("time_check") or {}
+        score.drift_direction_right = bool(check.get("drifts") and (check["drift_end"] - check["drift_start"])
+                                           * (end - start) > 0)
+    elif case.kind in ("single", "pair"):
+        # Constant physics said to change during the flight is a false finding.
+        score.false_findings += [f"changing {key}" for key in score.changing]
     if truth:
         score.named = set(matched) == set(truth)
         score.in_interval = score.named and all(

@@ -40,7 +40,8 @@ Inference*, 2nd ed., 2002, sec. 2.9). Each accepted effect is finally ranked by 
 likelihood ratio (against the final model refitted without it), and each constant change (a
 derivative, a gain, an FMU's parameter) is checked for amplitude dependence
 (:func:`amplitude_check`), which caps the confidence of one the data want different on large and
-small excursions.
+small excursions; every accepted effect is checked for a change during the flights
+(:mod:`validation.diagnose.over_time`), which caps the confidence of one that changes.
 """
 from __future__ import annotations
 
@@ -53,6 +54,7 @@ from scipy import stats
 from validation.diagnose.data import PreparedData
 from validation.diagnose.fitting import FitData, FittedModel, fit_many, null_model, weigh_step
 from validation.diagnose.locate import Location
+from validation.diagnose.over_time import refit_windows, time_check
 from validation.diagnose.search import search_candidates
 from validation.vehicles.effects import (
     MAX_DELAY,
@@ -159,6 +161,9 @@ class NamedEffect:
         (:mod:`validation.diagnose.search`).
     amplitude_check : dict or None
         For a linear change (:data:`LINEAR_KINDS`), :func:`amplitude_check`'s result.
+    time_check : dict or None
+        Whether it holds over the flights or changes during them
+        (:func:`validation.diagnose.over_time.time_check`).
     """
 
     effect: dict
@@ -173,6 +178,7 @@ class NamedEffect:
     alone: list
     found_by: str = "named hypothesis"
     amplitude_check: dict | None = None
+    time_check: dict | None = None
 
     @property
     def target(self) -> str:
@@ -214,6 +220,7 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
     selection = select_effects(data, reference, hypotheses, progress=progress, excited=data.excited)
     fitted, steps = selection.model, {step["key"]: step for step in selection.steps}
     named, split_fits = [], {}
+    window_fits = refit_windows(data, reference, fitted) if fitted.hypotheses else []
     for index, (h, effect) in enumerate(zip(fitted.hypotheses, fitted.effects())):
         lr, step = selection.drop_lr[h.key], steps[h.key]
         alone = data.simulate(reference, [effect])
@@ -221,15 +228,19 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
         check = (amplitude_check(data, reference, fitted, index, main_output=main_output,
                                  reference_replay=location.reference_replay, fits=split_fits)
                  if h.effect in LINEAR_KINDS else None)
+        over_time = time_check(fitted, index, window_fits)
+        confidence = step["confidence"]
+        if check and check["amplitude_dependent"]:
+            confidence = min(confidence, check["weight_linear"])
+        if over_time and over_time["changes"]:
+            confidence = min(confidence, over_time["weight_constant"])
         named.append(NamedEffect(
             effect=effect, unit=effect_unit(effect, reference), interval=[float(v) for v in fitted.interval(index)],
             model_value=reference.model_value(h.target) if "term" in effect else None,
-            confidence=(min(step["confidence"], check["weight_linear"]) if check and check["amplitude_dependent"]
-                        else step["confidence"]),
-            likelihood_ratio=lr, p_value=float(stats.chi2.sf(lr, 1)),
+            confidence=confidence, likelihood_ratio=lr, p_value=float(stats.chi2.sf(lr, 1)),
             alternatives=step["alternatives"], main_output=main_output,
             alone=alone, found_by="search" if h.effect == "search_term" else "named hypothesis",
-            amplitude_check=check))
+            amplitude_check=check, time_check=over_time))
     search = {"hypotheses_tested": selection.n_screened, "null_rss": selection.null_rss,
               "final_rss": fitted.rss, "n_residuals": data.n_residuals,
               "rejected": _describe_rejected(selection.rejected), "residual_search": selection.residual_search}

@@ -146,6 +146,8 @@ def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect
                     "rmse_reference_gp": rmse_reference_gp, "gp_absorbs": gp_absorbs, "found_by": named.found_by})
     if named.amplitude_check is not None:
         finding["amplitude_check"] = named.amplitude_check
+    if named.time_check is not None:
+        finding["time_check"] = named.time_check
     return finding
 
 
@@ -305,6 +307,7 @@ def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict 
                  f"{_number(check['value_small'])} on the smaller (likelihood ratio {check['likelihood_ratio']:.3g}): "
                  "the response depends on amplitude, so this is not a linear error for certain; a nonlinearity "
                  "(a damping or stiffness that grows with size, a dead band, a limit) may be behind it.")
+    text += _change_words(finding)
     alternatives = finding.get("alternatives") or []
     if alternatives:
         alternative = alternatives[0]
@@ -313,6 +316,28 @@ def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict 
                  f"({_number(alternative['value'])}), which the data disfavour {alternative['evidence_ratio']:.3g}:1.")
         text += _amplitude_advice(finding, alternative) + _lag_advice(finding, alternative)
     return text + _scope_words(finding) + _improvement(finding, fit) + _replication_words(finding)
+
+
+def _change_words(finding: dict) -> str:
+    """``" But it changes during the flights: ..."`` when :mod:`validation.diagnose.over_time`
+    finds it changing; empty otherwise."""
+    check = finding.get("time_check")
+    if not check or not check["changes"]:
+        return ""
+    target = finding[TARGET_KEYS[finding["effect"]]]
+    unit = finding["unit"]
+    thirds = ", ".join("-" if v is None else _number(v) for v in check["values"])
+    text = (f" But it changes during the flights: fitted on each of {len(check['values'])} consecutive parts of "
+            f"the diagnosed flights it is {thirds} {unit} (a constant is rejected, p = {check['p_value']:.2g}), so "
+            "the value above is an average.")
+    if check["drifts"]:
+        start, end = check["drift_start"], check["drift_end"]
+        verb = "grows" if abs(end) > abs(start) else "shrinks"
+        text += (f" {target} {verb} from {_number(start)} to {_number(end)} {unit} over the flights, as a drift "
+                 "linear in time does (e.g. a rotor speed, a temperature or a battery that changes).")
+    else:
+        text += " No steady drift fits it: it moves between the parts (e.g. a condition that came and went)."
+    return text
 
 
 #: Evidence ratio below which a dead band and a gain on the same input are stated as

@@ -37,7 +37,7 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                      "nonlinear_damping", "dead_band", "saturation", "rate_limit", "search_term",
                      "nonlinear_stiffness", "quadratic_stiffness", "sensor_lag", "output_scale", "sensor_drift",
                      "sensor_cross_axis"}
-    assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous"}
+    assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous", "changing"}
     assert len({case.name for case in cases}) == len(cases)
     for case in cases:
         for effect in case.effects:
@@ -76,6 +76,9 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                     reference.simulate_states(time, inputs),
                     _polynomial_term_states("bo105-80kt", "M_q|q|", value, time, inputs))]
                 assert peaks[1] <= 0.8 * peaks[0], peaks
+            elif case.kind == "changing":  # the derivative moves by >= 25 % over the flight
+                _, _, start, end = case.outside
+                assert abs(end - start) >= 0.25 * abs(start) and value == pytest.approx((start + end) / 2)
             else:
                 old = reference.derivative(effect["term"])
                 assert abs(value - old) >= 0.25 * abs(old) - 1e-12, (effect, old)
@@ -116,7 +119,7 @@ def test_outside_effects_change_the_flight_and_the_quadratic_integrator_is_accur
     q = STATE_NAMES.index("q")
     assert np.abs(damped[:, q]).max() < 0.9 * np.abs(reference[:, q]).max()
     flown_apart = [case for case in concealed_cases() if case.outside is not None]
-    assert len(flown_apart) == 4  # the quadratic damping, both stiffnesses, the control power: by RK4
+    assert len(flown_apart) == 5  # the quadratic damping, both stiffnesses, the control power, the drift: by RK4
     noise = np.array([SENSOR_NOISE_STD[name] for name in STATE_NAMES])
     for case in flown_apart:
         recordings = case_recordings(case)
