@@ -478,26 +478,25 @@ def _outside_states(outside: tuple, vehicle: EffectVehicle, time, inputs) -> np.
 def _drifting_derivative_states(reference: str, term: str, start: float, end: float, time, inputs) -> np.ndarray:
     """``x_dot = A(t) x + B(t) u`` with derivative ``term`` moving linearly in time from ``start``
     at the first sample to ``end`` at the last (every other entry the reference's), integrated by
-    classical RK4 at the recording interval with the inputs held over each interval.
-    ``reference`` names a linear reference (``bo105-<V>kt``)."""
+    classical RK4 at the recording interval with the inputs held over each interval (time is
+    integrated as one more state, ``t_dot = 1``, so the steps are those of
+    :func:`validation.vehicles.blimp_equations.rk4`). ``reference`` names a linear reference
+    (``bo105-<V>kt``)."""
     linear = effect_model(reference, purpose="diagnose-bench").reference
     first, last = linear.with_derivatives({term: start}), linear.with_derivatives({term: end})
     span = float(time[-1] - time[0])
 
-    def derivative(t, x, u):
-        share = (t - time[0]) / span
-        return ((1 - share) * first.A + share * last.A) @ x + ((1 - share) * first.B + share * last.B) @ u
+    def derivative(augmented, u):
+        x, share = augmented[:-1], (augmented[-1] - time[0]) / span
+        dx = ((1 - share) * first.A + share * last.A) @ x + ((1 - share) * first.B + share * last.B) @ u
+        return np.append(dx, 1.0)
 
     step = float(time[1] - time[0])
-    states = np.zeros((len(time), len(linear.state_names)))
+    augmented = np.zeros((len(time), len(linear.state_names) + 1))
+    augmented[0, -1] = time[0]
     for k in range(len(time) - 1):
-        t, x, u = time[k], states[k], inputs[k]
-        k1 = derivative(t, x, u)
-        k2 = derivative(t + step / 2, x + step / 2 * k1, u)
-        k3 = derivative(t + step / 2, x + step / 2 * k2, u)
-        k4 = derivative(t + step, x + step * k3, u)
-        states[k + 1] = x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return states
+        augmented[k + 1] = rk4(partial(derivative, u=inputs[k]), augmented[k], step)
+    return augmented[:, :-1]
 
 
 def _polynomial_term_states(reference: str, term: str, coefficient: float, time, inputs) -> np.ndarray:

@@ -76,8 +76,7 @@ def refit_windows(data: FitData, reference: EffectModel, model: FittedModel,
     return fits
 
 
-def time_check(model: FittedModel, index: int, fits: list[FittedModel | None], *,
-               windows: int = WINDOWS) -> dict | None:
+def time_check(model: FittedModel, index: int, fits: list[FittedModel | None]) -> dict | None:
     """Whether effect ``index`` of ``model`` holds over the flights (module docstring).
 
     Parameters
@@ -87,8 +86,7 @@ def time_check(model: FittedModel, index: int, fits: list[FittedModel | None], *
     index : int
         The effect tested, an index into ``model.hypotheses``.
     fits : list of FittedModel or None
-        :func:`refit_windows` of ``model``, one per window.
-    windows : int
+        :func:`refit_windows` of ``model``, one per window, in time order.
 
     Returns
     -------
@@ -102,7 +100,7 @@ def time_check(model: FittedModel, index: int, fits: list[FittedModel | None], *
         when fewer than three windows inform the value (a variance that is zero, not finite or
         from a window too short to fit).
     """
-    h = model.hypotheses[index]
+    h, windows = model.hypotheses[index], len(fits)
     centres = (np.arange(windows) + 0.5) / windows
     values, variances, kept = [], [], []
     for w, fit in enumerate(fits):

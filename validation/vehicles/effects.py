@@ -525,25 +525,38 @@ def apply_measurement_chain(outputs: np.ndarray, time: np.ndarray, effects, outp
     if not chain:
         return outputs
     names = list(output_names)
-    outputs = np.asarray(outputs, dtype=float)
     time = np.asarray(time, dtype=float)
-    recorded = outputs.copy()
-    for effect in chain:
-        column, source = _output_of(effect, names)
-        if effect["effect"] == "output_scale":
-            recorded[:, column] += (effect["value"] - 1.0) * outputs[:, column]
-        elif effect["effect"] == "sensor_cross_axis":
-            recorded[:, column] += effect["value"] * outputs[:, source]
+    mixing, bias = _static_chain(chain, names)
+    # The bias acts after the lag; a lag starting at rest passes a constant unchanged, so adding
+    # it first is the same. The drift does not pass unchanged: it comes after.
+    recorded = np.asarray(outputs, dtype=float) @ mixing.T + bias
     for effect in chain:
         if effect["effect"] == "sensor_lag" and effect["value"] > 0:
             column = names.index(effect["output"])
             recorded[:, column] = lagged_samples(recorded[:, column], effect["value"], time)
     for effect in chain:
-        if effect["effect"] == "sensor_bias":
-            recorded[:, names.index(effect["output"])] += effect["value"]
-        elif effect["effect"] == "sensor_drift":
+        if effect["effect"] == "sensor_drift":
             recorded[:, names.index(effect["output"])] += effect["value"] * (time - time[0])
     return recorded
+
+
+def _static_chain(chain, names: list) -> tuple[np.ndarray, np.ndarray]:
+    """``(M, b)`` of the memoryless part of a measurement chain, ``m = M y + b`` at any one
+    sample before the lag and the drift act (:func:`apply_measurement_chain`): ``M = diag(s) +
+    C`` of the scales and cross-axis sensitivities (m, m) and ``b`` the biases (m,)."""
+    mixing = np.eye(len(names))
+    bias = np.zeros(len(names))
+    for effect in chain:
+        kind = effect["effect"]
+        if kind in ("output_scale", "sensor_cross_axis", "sensor_bias"):
+            column, source = _output_of(effect, names)
+            if kind == "output_scale":
+                mixing[column, column] = effect["value"]
+            elif kind == "sensor_cross_axis":
+                mixing[column, source] = effect["value"]
+            else:
+                bias[column] = effect["value"]
+    return mixing, bias
 
 
 def apply_measurement_chains(outputs: np.ndarray, time: np.ndarray, effect_lists, output_names) -> np.ndarray:
@@ -616,17 +629,7 @@ def true_first_values(recorded: np.ndarray, effects, output_names) -> np.ndarray
     chain = [e for e in effects if e["effect"] in ("output_scale", "sensor_cross_axis", "sensor_bias")]
     if not chain:
         return recorded
-    names = list(output_names)
-    mixing = np.eye(len(names))
-    bias = np.zeros(len(names))
-    for effect in chain:
-        column, source = _output_of(effect, names)
-        if effect["effect"] == "output_scale":
-            mixing[column, column] = effect["value"]
-        elif effect["effect"] == "sensor_cross_axis":
-            mixing[column, source] = effect["value"]
-        else:
-            bias[column] = effect["value"]
+    mixing, bias = _static_chain(chain, list(output_names))
     try:
         inverse = np.linalg.inv(mixing)
     except np.linalg.LinAlgError:

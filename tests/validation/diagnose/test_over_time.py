@@ -64,10 +64,7 @@ def test_windows_that_cannot_fit_the_value_leave_it_untold():
 
 def test_the_drifting_flight_follows_an_independent_integration():
     """RK4 at the recording interval with M_q moving linearly in time, against scipy's RK45 at
-    rtol 1e-10 over each held interval; with nothing drifting, the exact linear replay.
-
-    The RK4 steps are the bench's own (not :func:`validation.vehicles.blimp_equations.rk4`),
-    since the derivative depends on time."""
+    rtol 1e-10 over each held interval; with nothing drifting, the exact linear replay."""
     from scipy.integrate import solve_ivp
 
     time, inputs = identification_manoeuvre(duration=3.0, sample_time=0.01)
