@@ -89,6 +89,10 @@ MAX_ITERATIONS = 30
 _TOLERANCE = 1e-6
 #: Relative step of the Jacobian's forward differences (in the scaled variable).
 _DIFFERENCE_STEP = 1e-6
+#: A configuration's coefficients' prior standard deviation about the vehicle's, in units of
+#: their spread between configurations (:func:`identify_configurations`), chosen on validation
+#: flights (docs/rgblimp.md, "Configurations drawn toward the vehicle").
+SHRINKAGE = 0.25
 _YAW = STATE_NAMES.index("psi")
 _DAMPING_AXES = {"rate_damping_x": 0, "rate_damping_y": 1, "rate_damping_z": 2}
 _WIND_AXES = {"wind_x": 0, "wind_y": 1}
@@ -474,3 +478,72 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
         rms_residual=rms_state_residual(residual), initial_rms_residual=initial_rms,
         n_segments=n_segments, n_evaluations=int(solution.nfev), converged=bool(solution.status > 0),
         flights=tuple(sorted({int(n) for n in segments.flights})), seconds=time.perf_counter() - started)
+
+
+def between_spread(results) -> np.ndarray:
+    """How much the identified coefficients differ between configurations: per coefficient,
+    1.4826 times the median absolute deviation of ``results``' values from their median (a
+    standard deviation robust to a few configurations whose fit went astray; Hampel 1974).
+
+    Parameters
+    ----------
+    results : sequence of IdentificationResult
+        At least three, of the same coefficients.
+
+    Returns
+    -------
+    ndarray, shape (p,)
+        In each coefficient's unit.
+    """
+    values = np.array([r.values for r in results])
+    return 1.4826 * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
+
+
+def identify_configurations(groups, initial: RGBlimpModel, *, shrinkage: float | None = SHRINKAGE,
+                            names=IDENTIFIED_PARAMETERS, **options) -> list[IdentificationResult]:
+    """Each configuration's coefficients identified on its own flights and drawn toward the
+    vehicle's (a hierarchical model, estimated by empirical Bayes: Efron & Morris, JASA 70(350),
+    1975). A configuration's two flights show one steady spiral each, and coefficients fitted to
+    them alone learn part of what differs between repeats (the buoyancy of the day, the launch);
+    the configurations together say how far a configuration's coefficients may sit from the
+    vehicle's.
+
+    First every configuration is fitted alone, from ``initial``, with no prior; the spread of
+    those estimates between configurations (:func:`between_spread`) times ``shrinkage`` becomes
+    the standard deviation of a Gaussian prior about ``initial``'s values, and every
+    configuration is fitted again with it (:func:`identify_parameters`'s ``prior_sd``).
+
+    Parameters
+    ----------
+    groups : sequence of sequence of RGBlimpFlight
+        Each configuration's fitting flights.
+    initial : RGBlimpModel
+        The vehicle's model (identified on every configuration's flights at once): the start and
+        the prior's mean.
+    shrinkage : float or None
+        The prior's standard deviation in units of the spread between configurations
+        (:data:`SHRINKAGE`, chosen on validation flights); None fits each configuration alone,
+        as does a set of fewer than three configurations (no spread to estimate).
+    names : sequence of str
+        The coefficients (:data:`IDENTIFIED_PARAMETERS`).
+    **options
+        ``segment_duration``, ``max_segments``, ``max_iterations`` of :func:`identify_parameters`.
+
+    Returns
+    -------
+    list of IdentificationResult
+        One per group, in order; ``seconds`` counts both fits of the group.
+    """
+    if shrinkage is not None and not (np.isfinite(shrinkage) and shrinkage > 0):
+        raise BadInputError(f"shrinkage must be a positive number or None, got {shrinkage!r}")
+    alone = [identify_parameters(flights, names=names, initial=initial, **options) for flights in groups]
+    if shrinkage is None or len(groups) < 3:
+        return alone
+    # A coefficient every configuration fits alike keeps a tiny prior width, not zero.
+    width = np.maximum(shrinkage * between_spread(alone), 1e-12)
+    prior_sd = dict(zip(alone[0].names, width))
+    drawn = []
+    for flights, first in zip(groups, alone):
+        result = identify_parameters(flights, names=names, initial=initial, prior_sd=prior_sd, **options)
+        drawn.append(dataclasses.replace(result, seconds=result.seconds + first.seconds))
+    return drawn

@@ -70,7 +70,9 @@ from validation.models.rgblimp_identification import (
     MAX_ITERATIONS,
     MAX_SEGMENTS,
     SEGMENT_DURATION,
+    SHRINKAGE,
     RGBlimpModel,
+    identify_configurations,
     identify_parameters,
     wrapped_difference,
 )
@@ -138,6 +140,7 @@ class RGBlimpSetup:
     global_training_points: int = 2 * TRAINING_POINTS
     min_noise_variance: float = MIN_NOISE_VARIANCE
     smoothing: tuple = (SMOOTHING_WINDOW, SMOOTHING_ORDER)
+    shrinkage: float | None = SHRINKAGE
     rollout: RolloutSetup = RolloutSetup()
 
 
@@ -370,12 +373,10 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
         seconds["global_fit"] = clock.perf_counter() - tick
         if update:
             update(1, stage="global model")
-        identified, identified_seconds = {}, {}
-        for split in splits:
-            tick = clock.perf_counter()
-            identified[split] = identify_configuration([flights[n] for n in split.fit], global_identified.model,
-                                                       setup=setup)
-            identified_seconds[split] = clock.perf_counter() - tick
+        results = identify_all_configurations([[flights[n] for n in split.fit] for split in splits],
+                                              global_identified.model, setup=setup)
+        identified = dict(zip(splits, results))
+        identified_seconds = {split: result.seconds for split, result in identified.items()}
         tick = clock.perf_counter()
         hybrids_global = fit_rollout_global([([flights[n] for n in s.fit], identified[s].model) for s in splits],
                                             setup=setup.rollout)
@@ -400,7 +401,9 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
                  "x y z phi theta psi, over 23; yaw wrapped); position m; yaw rad; coverage: fraction of "
                  "samples and coordinates inside the 95 % band",
         "models": {"physics": "published first-principle model (utils/parameters.py of zhu-yj/ABNODE), RK4 at 1/60 s",
-                   "identified": "coefficients re-fitted per configuration by output error on its fitting flights",
+                   "identified": "coefficients re-fitted per configuration by output error on its fitting flights, "
+                                 "drawn toward the global model's by a prior of their spread between "
+                                 "configurations times setup.shrinkage",
                    "rkgp": "identified model plus residual GPs per configuration, GreyBoxGP.propagate",
                    "rkgp_global": "one identified model and RKGP fitted on all configurations' fitting flights",
                    "sindyc": "published model plus a PySINDy sparse polynomial (STLSQ) of its residual "
@@ -412,7 +415,7 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
                                     "include the thrusts and the gondola position) and each configuration's "
                                     "coefficients refined with it, fitted once on all fitting flights"},
         "default_model": DEFAULT_MODEL,
-        "setup": {"identified_parameters": list(setup.identified_parameters),
+        "setup": {"identified_parameters": list(setup.identified_parameters), "shrinkage": setup.shrinkage,
                   "segment_duration_s": setup.segment_duration, "max_segments": setup.max_segments,
                   "global_max_segments": setup.global_max_segments, "max_iterations": setup.max_iterations,
                   "gp_inputs": list(GP_INPUT_NAMES), "training_points": setup.training_points,
@@ -455,6 +458,17 @@ def fit_global(fitting, setup: RGBlimpSetup, *, seed: int, with_rkgp: bool = Tru
         return identified, None
     return identified, fit_rkgp(fitting, identified.model, n_points=setup.global_training_points,
                                 min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
+
+
+def identify_all_configurations(groups, initial: RGBlimpModel, *, setup: RGBlimpSetup) -> list:
+    """Every configuration's coefficients identified on its fitting flights (``groups``: one
+    sequence of flights per configuration), each drawn toward ``initial`` (the global model) by
+    ``setup.shrinkage`` times the spread between configurations
+    (:func:`~validation.models.rgblimp_identification.identify_configurations`): one
+    :class:`~validation.models.rgblimp_identification.IdentificationResult` per group."""
+    return identify_configurations(groups, initial, shrinkage=setup.shrinkage, names=setup.identified_parameters,
+                                   segment_duration=setup.segment_duration, max_segments=setup.max_segments,
+                                   max_iterations=setup.max_iterations)
 
 
 def identify_configuration(fitting, initial: RGBlimpModel, *, setup: RGBlimpSetup):

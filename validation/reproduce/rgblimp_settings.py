@@ -7,7 +7,8 @@ present it fits on the lowest-numbered one and validates on the next (on a folde
 ``4j+1 .. 4j+3``: fit on ``4j+1``, validate on ``4j+2``), with the reproduction's
 own procedure (a global identification on the fitting flights of every configuration,
 :func:`validation.reproduce.rgblimp.fit_global`, then per configuration the identified model
-started from it (:func:`validation.reproduce.rgblimp.identify_configuration`) and its RKGP; free runs
+started from it and drawn toward it (:func:`validation.reproduce.rgblimp.identify_all_configurations`) and
+its RKGP; free runs
 of the whole validation flight, the RKGP's mean only). Candidates that share the identification
 settings share the identified models. Each candidate changes
 one setting of the chosen one (:data:`validation.reproduce.rgblimp.DEFAULT_SETUP`); the table is
@@ -31,7 +32,7 @@ from validation.reproduce.rgblimp import (
     Split,
     fit_global,
     flight_metrics,
-    identify_configuration,
+    identify_all_configurations,
     read_score_ranges,
 )
 from validation.vehicles.rgblimp_data import flights_by_configuration, read_rgblimp_flight
@@ -47,6 +48,8 @@ CANDIDATES = {
     "smoothing 21 samples": replace(DEFAULT_SETUP, smoothing=(21, 2)),
     "300 training points": replace(DEFAULT_SETUP, training_points=300),
     "noise floor 1e-2": replace(DEFAULT_SETUP, min_noise_variance=1e-2),
+    "not drawn toward the vehicle": replace(DEFAULT_SETUP, shrinkage=None),
+    "shrinkage 0.5": replace(DEFAULT_SETUP, shrinkage=0.5),
 }
 #: The models each candidate is scored on.
 SCORED = ("physics", "identified", "rkgp")
@@ -107,9 +110,17 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
         for name, setup in candidates.items():
             began = clock.perf_counter()
             key = (setup.identified_parameters, setup.segment_duration, setup.max_segments,
-                   setup.global_max_segments, setup.max_iterations)  # everything the identifications use
+                   setup.global_max_segments, setup.max_iterations)  # everything the global fit uses
             if key not in globals_:
                 globals_[key] = fit_global(fitting, setup, seed=seed, with_rkgp=False)[0]
+            if (key, setup.shrinkage) not in identified_:  # the configurations are drawn toward each other
+                results = identify_all_configurations([[flights[n] for n in s.fit] for s in splits],
+                                                      globals_[key].model, setup=setup)
+                identified_[key, setup.shrinkage] = {}
+                for split, result in zip(splits, results):
+                    test = flights[split.test].recording
+                    identified_[key, setup.shrinkage][split] = result.model, flight_metrics(
+                        result.model.simulate(test.outputs[0], test.inputs), test.outputs, ranges[split.kind])
             per_configuration = []
             for split in splits:
                 fitting_flights = [flights[n] for n in split.fit]
@@ -117,11 +128,7 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
                 if split not in physics_:  # no setting changes the published model's run
                     physics_[split] = flight_metrics(RGBlimpModel().simulate(test.outputs[0], test.inputs),
                                                      test.outputs, ranges[split.kind])
-                if (key, split) not in identified_:  # nor, within a key, the identified model's
-                    model = identify_configuration(fitting_flights, globals_[key].model, setup=setup).model
-                    identified_[key, split] = model, flight_metrics(
-                        model.simulate(test.outputs[0], test.inputs), test.outputs, ranges[split.kind])
-                model, identified_metrics = identified_[key, split]
+                model, identified_metrics = identified_[key, setup.shrinkage][split]
                 rkgp = fit_rkgp(fitting_flights, model, n_points=setup.training_points,
                                 min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
                 start = continuous_states(test.outputs[:1])[0]
@@ -221,11 +228,11 @@ def study_hybrid_settings(data_dir, *, configurations=None, candidates=None, see
                for s in splits for n in (*s.fit, s.test)}
     fitting = [flights[n] for s in splits for n in s.fit]
     global_model = fit_global(fitting, setup, seed=seed, with_rkgp=False)[0].model
+    results = identify_all_configurations([[flights[n] for n in s.fit] for s in splits], global_model, setup=setup)
     identified, baseline = {}, {}
-    for split in splits:
+    for split, result in zip(splits, results):
         test = flights[split.test].recording
-        model = identify_configuration([flights[n] for n in split.fit], global_model, setup=setup).model
-        identified[split] = model
+        model = identified[split] = result.model
         baseline[split] = {name: flight_metrics(m.simulate(test.outputs[0], test.inputs), test.outputs,
                                                 ranges[split.kind])
                            for name, m in (("physics", RGBlimpModel()), ("identified", model))}

@@ -15,7 +15,9 @@ from validation.models.rgblimp_identification import (
     IDENTIFIED_PARAMETERS,
     RGBlimpModel,
     batched_parameters,
+    between_spread,
     cut_segments,
+    identify_configurations,
     identify_parameters,
     wrapped_difference,
 )
@@ -118,6 +120,31 @@ def test_a_prior_keeps_coefficients_the_flight_does_not_show_near_their_start():
     assert abs(tight.values[1] - RGBlimpModel().value("rate_damping_z")) < 1e-5
     with pytest.raises(BadInputError, match="rate_damping_z"):
         identify_parameters([flight], names=names, prior_sd={"thrust_gain": 1.0})
+
+
+def test_configurations_are_drawn_toward_the_vehicle_by_their_spread():
+    """Four configurations flown with thrust gains 0.8 .. 1.3: fitted alone each finds its own;
+    drawn toward the published model (gain 1) by a prior of ``shrinkage`` times their spread,
+    each lands between its own gain and 1, nearer 1 the smaller the shrinkage."""
+    gains = (0.8, 0.9, 1.05, 1.3)
+    groups = [[synthetic_flight(RGBlimpModel().replaced({"thrust_gain": g}), samples=361, number=4 * j + 1)]
+              for j, g in enumerate(gains)]
+    options = {"names": ("thrust_gain",), "segment_duration": 2.0}
+    alone = identify_configurations(groups, RGBlimpModel(), shrinkage=None, **options)
+    np.testing.assert_allclose([r.values[0] for r in alone], gains, atol=1e-4)
+    # 1.4826 times the median absolute deviation from the median 0.975: (0.075, 0.075, 0.175, 0.325).
+    np.testing.assert_allclose(between_spread(alone), [1.4826 * 0.125], rtol=1e-3)
+    loose, tight = (np.array([r.values[0] for r in identify_configurations(groups, RGBlimpModel(), shrinkage=s,
+                                                                           **options)]) for s in (0.1, 0.01))
+    own = np.array(gains) - 1.0
+    assert np.all(np.abs(tight - 1.0) < np.abs(loose - 1.0) - 1e-4)
+    assert np.all(np.abs(loose - 1.0) <= np.abs(own) + 1e-6)
+    assert np.all(np.sign(tight - 1.0) == np.sign(own))
+    # Two configurations give no spread to estimate: each is fitted alone.
+    pair = identify_configurations(groups[:2], RGBlimpModel(), shrinkage=0.01, **options)
+    np.testing.assert_allclose([r.values[0] for r in pair], gains[:2], atol=1e-4)
+    with pytest.raises(BadInputError, match="shrinkage"):
+        identify_configurations(groups, RGBlimpModel(), shrinkage=0.0, **options)
 
 
 def test_short_flights_give_one_masked_segment_and_long_ones_are_thinned():
