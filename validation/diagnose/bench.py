@@ -240,6 +240,13 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
         ConcealedCase("dead-band-theta_1s-two-amplitudes", "single",
                       ({"effect": "dead_band", "input": "theta_1s", "value": math.radians(0.3)},),
                       description="+/-0.3 deg dead band on longitudinal cyclic, 1 and 2 deg steps", fit_variant=2),
+        # Free play in the longitudinal-cyclic linkage, 10 and 25 % of the 1 deg steps: each step
+        # away from trim loses it as a dead band's would, but after the 3-2-1-1 the rotor stays
+        # that far off trim, which a dead band, a gain or a limit cannot do.
+        *(ConcealedCase(f"backlash-theta_1s-{width}deg", "single",
+                        ({"effect": "backlash", "input": "theta_1s", "value": math.radians(width)},),
+                        description=f"+/-{width} deg free play in the longitudinal-cyclic linkage")
+          for width in (0.1, 0.25)),
         # A limit at 70 % of the larger steps: it bites the 2 deg steps only.
         ConcealedCase("saturation-theta_1s-1.4deg", "single",
                       ({"effect": "saturation", "input": "theta_1s", "value": math.radians(1.4)},),

@@ -340,7 +340,7 @@ def _describe_rejected(rejected: dict | None) -> dict | None:
 def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd,
                    excursions=None) -> list[Hypothesis]:
     """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``), a lag (up to
-    ``MAX_LAG``), a dead band (up to the input's largest excursion), a gain (null 1, at least
+    ``MAX_LAG``), a dead band and free play (each up to the input's largest excursion), a gain (null 1, at least
     0, screened at :data:`_GAIN_STEP`), a saturation (null: the largest excursion, where it
     does nothing; screened inward) and a rate limit (searched as its reciprocal, the ramp time
     per unit of input, null :data:`_NO_RAMP` per excursion, screened at :data:`_TIMING_STEP`
@@ -367,6 +367,7 @@ def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, nois
             excursion = (excursions or {}).get(name, 0.0)
             if excursion > 0:  # a dead band grows from 0; a limit does nothing at the excursion: screened inward
                 hypotheses.append(Hypothesis("dead_band", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
+                hypotheses.append(Hypothesis("backlash", name, 0.0, 0.0, excursion, _DEAD_BAND_STEP * excursion))
                 hypotheses.append(Hypothesis("saturation", name, excursion, 0.0, excursion,
                                              -_DEAD_BAND_STEP * excursion))
                 # searched as the ramp time per unit of input: null, a largest excursion ramping

@@ -252,6 +252,11 @@ def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict 
         text = (f"A dead band (free play) on {_input_words(finding['input'])}: nothing passes within "
                 f"{_number(value)} {unit} {interval} of where it started, and beyond that the input arrives short "
                 "by as much.")
+    elif kind == "backlash":
+        text = (f"Free play (backlash) in the path of {_input_words(finding['input'])}: what it drives stays put "
+                f"until the command has moved {_number(2 * value)} {unit} back across the play, and then follows it "
+                f"{_number(value)} {unit} {interval} behind, so after a step and back it rests that far off where it "
+                "started (a hysteresis; a linkage with friction and a spring does the same).")
     elif kind == "saturation":
         text = (f"A position limit (saturation) on {_input_words(finding['input'])}: it stops at {_number(value)} "
                 f"{unit} {interval} from trim.")
@@ -314,7 +319,8 @@ def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict 
         target = alternative[TARGET_KEYS[alternative["effect"]]]
         text += (f" Next best: {alternative['effect'].replace('_', ' ')} on {target} "
                  f"({_number(alternative['value'])}), which the data disfavour {alternative['evidence_ratio']:.3g}:1.")
-        text += _amplitude_advice(finding, alternative) + _lag_advice(finding, alternative)
+        text += (_amplitude_advice(finding, alternative) + _lag_advice(finding, alternative)
+                 + _play_advice(finding, alternative))
     return text + _scope_words(finding) + _improvement(finding, fit) + _replication_words(finding)
 
 
@@ -361,6 +367,24 @@ def _amplitude_advice(finding: dict, alternative: dict) -> str:
             "the input moves between trim and one amplitude only, where a dead band of w on steps of A is a gain "
             f"of 1 - w/A and a limit L a gain of L/A. Repeat the manoeuvre on {name} at twice the amplitude to "
             "tell them apart (a dead band costs the larger steps less, a limit more, a gain the same).")
+
+
+def _play_advice(finding: dict, alternative: dict) -> str:
+    """What the data cannot tell apart and the manoeuvre that would: free play and a dead band on
+    the same input whose evidence ratio is under :data:`INDISTINGUISHABLE`. Both take ``w`` off a
+    step away from where the input started; only on the way back do they differ (a dead band
+    returns to the start, free play stays ``w`` short of it), so an input that never comes back
+    cannot tell them apart (:func:`validation.vehicles.effects.backlash_inputs`). Empty
+    otherwise."""
+    kinds = {finding["effect"], alternative["effect"]}
+    if (kinds != {"backlash", "dead_band"} or finding.get("input") != alternative.get("input")
+            or alternative["evidence_ratio"] >= INDISTINGUISHABLE):
+        return ""
+    name = finding["input"]
+    return (f" These data cannot tell free play on {name} from a dead band: both take as much off every step away "
+            f"from where {name} started, and only on the way back do they differ (a dead band returns to the start, "
+            f"free play stays short of it). Step {name} away and back to where it started, and hold it there, "
+            "to tell them apart.")
 
 
 def _lag_advice(finding: dict, alternative: dict) -> str:

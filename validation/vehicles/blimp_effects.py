@@ -41,8 +41,9 @@ blimp's system inertia matrix, so an extra generalised force ``tau`` adds ``M^-1
 - the effects of the measurement chain on any of the 12 states (``output_scale``,
   ``sensor_cross_axis``, ``sensor_lag``, ``sensor_bias``, ``sensor_drift``), on the replayed
   states as recorded, through :func:`~validation.vehicles.effects.apply_measurement_chain`;
-- ``dead_band``, ``saturation`` and ``rate_limit`` on an input, before its delay and lag: a dead
-  band of the half-width about rest (:func:`~validation.vehicles.effects.dead_band_inputs`), the
+- ``dead_band``, ``backlash``, ``saturation`` and ``rate_limit`` on an input, before its delay and
+  lag: a dead band of the half-width about rest (:func:`~validation.vehicles.effects.dead_band_inputs`),
+  free play of the half-width centred at rest (:func:`~validation.vehicles.effects.backlash_inputs`), the
   command clipped at +/- the limit, and a fan or servo that ramps no faster than the rate limit
   (:func:`~validation.vehicles.effects.rate_limited_interval_means`), in command units (per s).
 
@@ -81,6 +82,7 @@ from validation.vehicles.blimp_jax import compiled_replay
 from validation.vehicles.effects import (
     Hypothesis,
     apply_measurement_chains,
+    backlash_inputs,
     check_trim_start,
     dead_band_inputs,
     delayed_interval_means,
@@ -207,16 +209,18 @@ def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarr
 
 
 def _shaped_inputs(effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-    """The inputs (n, 3) through ``effects``' dead bands, then limits about rest (0), then rate
+    """The inputs (n, 3) through ``effects``' dead bands, then free play, then limits about rest (0), then rate
     limits (interval means of the ramps, rows 0 .. n-2; the last row as recorded), in that order
     whatever the order of ``effects``, as on every reference."""
     shaped = inputs
-    for kind in ("dead_band", "saturation", "rate_limit"):  # this order, whatever the list's
+    for kind in ("dead_band", "backlash", "saturation", "rate_limit"):  # this order, whatever the list's
         for effect in (e for e in effects if e["effect"] == kind):
             shaped = shaped.copy() if shaped is inputs else shaped
             j = INPUT_NAMES.index(effect["input"])
             if kind == "dead_band":
                 shaped[:, j] = dead_band_inputs(shaped[:, j], effect["value"])
+            elif kind == "backlash":
+                shaped[:, j] = backlash_inputs(shaped[:, j], effect["value"])
             elif kind == "saturation":
                 np.clip(shaped[:, j], -effect["value"], effect["value"], out=shaped[:, j])
             else:
@@ -348,8 +352,8 @@ class BlimpEffects:
 
     family = "blimp"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias", "quadratic_drag",
-             "force_offset", "dead_band", "saturation", "rate_limit", "output_scale", "sensor_cross_axis", "sensor_lag",
-             "sensor_drift")
+             "force_offset", "dead_band", "backlash", "saturation", "rate_limit", "output_scale", "sensor_cross_axis",
+             "sensor_lag", "sensor_drift")
     terms = TERMS
     batches_simulations = True
     absolute_inputs = False

@@ -50,7 +50,7 @@ TARGET_KEYS = {"time_delay": "input", "input_lag": "input", "control_derivative"
                "force_offset": "term", "aerodynamic_coefficient": "term", "cg_offset": "term",
                "added_mass": "term", "steady_wind": "term", "draught_field": "term", "gondola_offset": "term",
                "input_gain": "input", "output_scale": "output",
-               "fmu_parameter": "term", "dead_band": "input", "nonlinear_damping": "term",
+               "fmu_parameter": "term", "dead_band": "input", "backlash": "input", "nonlinear_damping": "term",
                "saturation": "input", "rate_limit": "input", "search_term": "term",
                "nonlinear_stiffness": "term", "quadratic_stiffness": "term", "sensor_lag": "output",
                "sensor_drift": "output", "sensor_cross_axis": "output"}
@@ -373,6 +373,50 @@ def dead_band_inputs(signal_: np.ndarray, half_width: float, *, centre: float = 
     return centre + np.sign(deviation) * np.maximum(np.abs(deviation) - half_width, 0.0)
 
 
+def backlash_inputs(signal_: np.ndarray, half_width: float, *, centre: float = 0.0) -> np.ndarray:
+    """A command through free play (backlash) of ``half_width`` on either side: the driven part
+    stays where it is until the command has crossed the play and pushes it, and then follows the
+    command ``half_width`` behind, on the side it was pushed from. This is the play operator
+    (Krasnosel'skii & Pokrovskii, *Systems with Hysteresis*, 1989; Brokate & Sprekels,
+    *Hysteresis and Phase Transitions*, 1996, sec. 2.3), the elementary hysteresis of a control
+    path: a surface on a spring linkage held by Coulomb friction whose breakout force equals its
+    sliding force acts the same, with ``half_width`` the friction force over the linkage's
+    stiffness. On commands held over each interval it is exact at every sample:
+    ``y_k = min(max(y_{k-1}, u_k - w), u_k + w)``, ``y_{-1} = centre`` (the part centred in its
+    play at the start).
+
+    Unlike a dead band (:func:`dead_band_inputs`) it remembers the way it was last pushed: on
+    steps from trim to ``+A`` and ``-A`` both give ``+-(A - w)``, but back at trim a dead band
+    gives trim and free play leaves the part ``w`` off it, on the side of the last step.
+
+    Parameters
+    ----------
+    signal_ : ndarray, shape (n,)
+        Commands held over each interval, in the input's unit.
+    half_width : float
+        >= 0, the input's unit.
+    centre : float
+        Where the part starts (trim, 0 for inputs that are perturbations from it, or the command
+        held at the start of a recording).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    width = float(half_width)
+    if width <= 0.0:
+        return np.array(signal_, dtype=float)
+    commands = np.asarray(signal_, dtype=float)
+    # A sequential recursion, over runs of equal commands (held inputs change at a few samples).
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(commands) != 0.0) + 1]) if len(commands) else np.zeros(0, int)
+    positions = np.empty(len(starts))
+    position = float(centre)
+    for r, command in enumerate(commands[starts].tolist()):
+        position = min(max(position, command - width), command + width)
+        positions[r] = position
+    return np.repeat(positions, np.diff(np.append(starts, len(commands))))
+
+
 def rate_limited_interval_means(held: np.ndarray, rate: float, steps: np.ndarray, *,
                                 centre: float = 0.0) -> np.ndarray:
     """Interval means of an actuator that follows a zero-order-held command no faster than
@@ -434,15 +478,15 @@ def signal_unit(name: str, reference: EffectModel) -> str:
 
 def effect_unit(effect: dict, reference: EffectModel) -> str:
     """Unit of ``effect["value"]`` on ``reference``: s for delays and lags (of an input or a
-    sensor), 1 for a gain, a scale or a cross-axis sensitivity, the input's unit for a dead band
-    or a saturation (per s for a rate limit), the output's unit for a bias (per s for a drift),
+    sensor), 1 for a gain, a scale or a cross-axis sensitivity, the input's unit for a dead band,
+    a free play or a saturation (per s for a rate limit), the output's unit for a bias (per s for a drift),
     the reference's unit of a term (:func:`signal_unit`)."""
     kind = effect["effect"]
     if kind in ("time_delay", "input_lag", "sensor_lag"):
         return "s"
     if kind in ("input_gain", "output_scale", "sensor_cross_axis"):
         return "1"
-    if kind in ("dead_band", "saturation", "sensor_bias", "rate_limit", "sensor_drift"):
+    if kind in ("dead_band", "backlash", "saturation", "sensor_bias", "rate_limit", "sensor_drift"):
         unit = signal_unit(effect[TARGET_KEYS[kind]], reference)
         return f"{unit}/s" if kind in ("rate_limit", "sensor_drift") else unit
     return reference.term_unit(effect["term"])
@@ -679,7 +723,7 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
         limit = {"time_delay": MAX_DELAY, "input_lag": MAX_LAG, "sensor_lag": MAX_LAG}.get(kind)
         if limit is not None and not 0.0 <= value <= limit:
             raise BadInputError(f"{where} ({kind} on {target}): {value} s is outside 0 .. {limit} s")
-        if kind == "dead_band" and value < 0:
+        if kind in ("dead_band", "backlash") and value < 0:
             raise BadInputError(f"{where} ({kind} on {target}): a half-width cannot be negative, got {value}")
         if kind == "saturation" and value < 0:
             raise BadInputError(f"{where} ({kind} on {target}): a limit cannot be negative, got {value}")

@@ -11,9 +11,10 @@ parameters ``<output>_start`` for it. :class:`FMUEffects` is its
 - on an input: ``time_delay`` and ``input_lag`` (the interval means of
   :func:`~validation.vehicles.effects.delayed_interval_means` and
   :func:`~validation.vehicles.effects.lagged_interval_means`, as for the blimp), ``input_gain``
-  (the FMU sees ``gain * u``: control effectiveness), ``dead_band`` and ``saturation`` (a dead
-  band or a limit about the input's first value) and ``rate_limit`` (an actuator ramping no faster
-  than the limit, :func:`~validation.vehicles.effects.rate_limited_interval_means`);
+  (the FMU sees ``gain * u``: control effectiveness), ``dead_band``, ``backlash`` and
+  ``saturation`` (a dead band, free play or a limit about the input's first value) and
+  ``rate_limit`` (an actuator ramping no faster than the limit,
+  :func:`~validation.vehicles.effects.rate_limited_interval_means`);
 - on an output, the measurement chain of every reference
   (:func:`~validation.vehicles.effects.apply_measurement_chain`): ``output_scale``,
   ``sensor_cross_axis``, ``sensor_lag``, ``sensor_bias`` and ``sensor_drift``;
@@ -48,6 +49,7 @@ from validation.core.sampling import check_history
 from validation.vehicles.effects import (
     Hypothesis,
     apply_measurement_chain,
+    backlash_inputs,
     dead_band_inputs,
     delayed_interval_means,
     lagged_interval_means,
@@ -384,8 +386,8 @@ class FMUEffects:
     """
 
     family = "fmu"
-    kinds = ("time_delay", "input_lag", "dead_band", "saturation", "rate_limit", "input_gain", "sensor_bias",
-             "output_scale", "sensor_cross_axis", "sensor_lag", "sensor_drift", "fmu_parameter")
+    kinds = ("time_delay", "input_lag", "dead_band", "backlash", "saturation", "rate_limit", "input_gain",
+             "sensor_bias", "output_scale", "sensor_cross_axis", "sensor_lag", "sensor_drift", "fmu_parameter")
     batches_simulations = True  # a batch's replays run side by side on the reference's workers
     absolute_inputs = False
     needs_even_sampling = True
@@ -511,6 +513,10 @@ class FMUEffects:
             if effect["effect"] == "dead_band" and effect["value"] > 0:
                 j = self.input_names.index(effect["input"])
                 held[:, j] = dead_band_inputs(held[:, j], effect["value"], centre=first[j])
+        for effect in effects:  # free play after every dead band, as on every reference
+            if effect["effect"] == "backlash" and effect["value"] > 0:
+                j = self.input_names.index(effect["input"])
+                held[:, j] = backlash_inputs(held[:, j], effect["value"], centre=first[j])
             if effect["effect"] == "saturation":
                 j = self.input_names.index(effect["input"])
                 held[:, j] = np.clip(held[:, j], first[j] - effect["value"], first[j] + effect["value"])

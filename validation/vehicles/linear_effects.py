@@ -23,6 +23,8 @@ How each effect enters ``x_dot = A x + B u``:
   :func:`validation.vehicles.effects.apply_measurement_chain`, as on every reference;
 - ``dead_band`` on input ``j``: the input passes through a dead band (free play) of the given
   half-width about trim (:func:`validation.vehicles.effects.dead_band_inputs`) before it acts;
+  ``backlash``: free play of the half-width, centred at trim at the start
+  (:func:`validation.vehicles.effects.backlash_inputs`), after the dead band;
   ``input_gain``: the input acts ``gain`` times as strongly (a gearing or control-effectiveness
   error: every control derivative of the input scaled at once); ``saturation``: the input's
   deflection from trim is clipped at +/- the limit (a position limit). On a manoeuvre that moves an
@@ -65,6 +67,7 @@ from validation.core.sampling import check_history
 from validation.vehicles.effects import (
     Hypothesis,
     apply_measurement_chain,
+    backlash_inputs,
     check_trim_start,
     dead_band_inputs,
     rate_limited_interval_means,
@@ -145,14 +148,18 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
     held = inputs[:-1]
     bands = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
              if e["effect"] == "dead_band" and e["value"] > 0]
+    plays = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
+             if e["effect"] == "backlash" and e["value"] > 0]
     gains = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
              if e["effect"] == "input_gain" and e["value"] != 1.0]
     limits = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "saturation"]
     rates = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "rate_limit"]
-    if bands or gains or limits or rates:  # about trim (0): the inputs are perturbations from it
+    if bands or plays or gains or limits or rates:  # about trim (0): the inputs are perturbations from it
         held = held.copy()
-        for column, half_width in bands:  # the order of every reference: band, limit, rate limit, gain
+        for column, half_width in bands:  # the order of every reference: band, play, limit, rate limit, gain
             held[:, column] = dead_band_inputs(held[:, column], half_width)
+        for column, half_width in plays:
+            held[:, column] = backlash_inputs(held[:, column], half_width)
         for column, limit in limits:
             np.clip(held[:, column], -limit, limit, out=held[:, column])
         for column, rate in rates:
@@ -222,7 +229,7 @@ class LinearEffects:
 
     family = "state-space"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-             "nonlinear_damping", "nonlinear_stiffness", "quadratic_stiffness", "dead_band", "input_gain",
+             "nonlinear_damping", "nonlinear_stiffness", "quadratic_stiffness", "dead_band", "backlash", "input_gain",
              "saturation", "rate_limit", "search_term", "output_scale", "sensor_cross_axis", "sensor_lag",
              "sensor_drift")
     batches_simulations = False

@@ -34,7 +34,7 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
     cases = concealed_cases(reference="bo105-80kt")
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias",
-                     "nonlinear_damping", "dead_band", "saturation", "rate_limit", "search_term",
+                     "nonlinear_damping", "dead_band", "backlash", "saturation", "rate_limit", "search_term",
                      "nonlinear_stiffness", "quadratic_stiffness", "sensor_lag", "output_scale", "sensor_drift",
                      "sensor_cross_axis"}
     assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous", "changing"}
@@ -58,6 +58,8 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                 assert abs(value) >= 0.017
             elif kind == "dead_band":  # 10-30 % of the manoeuvre's 1 deg steps
                 assert math.radians(0.1) <= value <= math.radians(0.3) + 1e-15
+            elif kind == "backlash":  # 10-40 % of the manoeuvre's 1 deg steps
+                assert math.radians(0.1) <= value <= math.radians(0.4) + 1e-15
             elif kind == "saturation":  # 60-80 % of the larger (2 deg) steps of variant 2
                 assert case.fit_variant == 2 and math.radians(1.2) <= value <= math.radians(1.6)
             elif kind == "rate_limit":  # bites on the steps: a 1 deg step ramps over at least 5 samples
@@ -215,6 +217,24 @@ def test_the_statement_says_what_one_amplitude_cannot_tell_and_what_would():
     limit = {**finding, "effect": "saturation", "value": 0.0122}
     assert "cannot tell a saturation on theta_1s from a lower gain" in statement(limit, fit, reference)
     assert "stops at 0.0122 rad" in statement(limit, fit, reference)
+
+
+def test_free_play_is_said_in_words_and_what_cannot_tell_it_from_a_dead_band():
+    from validation.diagnose.report import statement
+    from validation.vehicles.effect_vehicle import effect_model
+
+    reference = effect_model("bo105-80kt", purpose="test")
+    finding = {"effect": "backlash", "input": "theta_1s", "value": 0.0044, "interval": [0.0043, 0.0045],
+               "unit": "rad", "confidence": 0.6,
+               "alternatives": [{"effect": "dead_band", "input": "theta_1s", "value": 0.0044, "evidence_ratio": 1.5}]}
+    fit = {"rmse_reference": {}}
+    text = statement(finding, fit, reference)
+    assert "Free play (backlash)" in text and "0.0088 rad back across the play" in text
+    assert "cannot tell free play on theta_1s from a dead band" in text and "back to where it started" in text
+    told = {**finding, "alternatives": [{**finding["alternatives"][0], "evidence_ratio": 50.0}]}
+    assert "cannot tell" not in statement(told, fit, reference)
+    other_input = {**finding, "alternatives": [{**finding["alternatives"][0], "input": "theta_1c"}]}
+    assert "cannot tell" not in statement(other_input, fit, reference)
 
 
 def test_the_statements_of_a_rate_limit_and_of_an_amplitude_dependent_derivative():

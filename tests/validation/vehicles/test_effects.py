@@ -252,3 +252,51 @@ def test_a_reciprocal_hypothesis_reports_the_rate_and_its_interval_in_order():
     fitted = FittedModel([h], np.array([0.25]), 1.0, variance, variance)
     low, high = fitted.interval(0)
     assert low == pytest.approx(1 / 0.3) and high == pytest.approx(1 / 0.2)
+
+
+def test_free_play_is_a_spring_linkage_held_by_friction_and_remembers_its_last_push():
+    """Free play against a surface on a spring linkage held by Coulomb friction (breakout force
+    equal to the sliding force, a negligible mass), integrated independently: the surface moves
+    only while the spring's pull ``k (u - y)`` exceeds the friction ``F``, relaxing quickly toward
+    ``|u - y| = F / k``; the play operator with ``w = F / k`` gives the same positions. A step
+    away from trim loses ``w`` as a dead band does; back at trim free play stays ``w`` off."""
+    from validation.vehicles.effects import backlash_inputs, dead_band_inputs
+
+    held = np.array([0.0, 1.0, 1.0, -1.0, -1.0, 0.3, 0.25, 0.0, 0.0, -0.05, 0.6, 0.0])
+    stiffness, friction = 50.0, 10.0  # N/unit, N: w = 0.2
+    width = friction / stiffness
+    position, fine = 0.0, np.empty(len(held))
+    for k, command in enumerate(held):  # 2000 sub-steps per interval of a stiff relaxation
+        for _ in range(2000):
+            pull = stiffness * (command - position)
+            excess = np.sign(pull) * max(abs(pull) - friction, 0.0)
+            position += 1e-3 * excess / stiffness * 20.0
+        fine[k] = position
+    got = backlash_inputs(held, width)
+    np.testing.assert_allclose(got, fine, atol=1e-6)
+    np.testing.assert_allclose(got[:3], dead_band_inputs(held[:3], width))  # away from trim: a dead band
+    # Back at trim after a push up to 0.6, free play rests w above it; a dead band returns.
+    assert got[11] == pytest.approx(width) and dead_band_inputs(held, width)[11] == 0.0
+    np.testing.assert_allclose(got[5:10], 0.1)  # pushed to 0.3 - w, then held still inside the play
+    np.testing.assert_array_equal(backlash_inputs(held, 0.0), held)
+
+
+def test_free_play_on_the_bo105_leaves_the_cyclic_off_trim_after_the_manoeuvre(manoeuvre):
+    """On the Bo105 free play is the reference flown with the play operator's commands (built
+    here from the definition), and it differs from a dead band of the same width only after the
+    input has come back: the 3-2-1-1's last step is down, so the rotor stays w below trim."""
+    time, inputs = manoeuvre
+    width = np.radians(0.3)
+    got = _states([{"effect": "backlash", "input": "theta_1s", "value": width}], time, inputs)
+    flown, position = inputs.copy(), 0.0
+    for k, command in enumerate(inputs[:, 1]):
+        position = min(max(position, command - width), command + width)
+        flown[k, 1] = position
+    np.testing.assert_allclose(got, Bo105Reference(80).simulate_states(time, flown), atol=1e-12)
+    band = _states([{"effect": "dead_band", "input": "theta_1s", "value": width}], time, inputs)
+    moved = np.flatnonzero(inputs[:, 1] != 0.0)
+    before_return = slice(0, moved[-1] + 1)
+    np.testing.assert_allclose(got[before_return], band[before_return], atol=1e-12)
+    assert flown[-1, 1] == pytest.approx(-width) and np.abs(got[-1] - band[-1]).max() > 1e-3
+    with pytest.raises(BadInputError, match="half-width cannot be negative"):
+        check_effects([{"effect": "backlash", "input": "theta_1s", "value": -0.01}], Bo105Effects(Bo105Reference(80)))
