@@ -200,41 +200,42 @@ def test_an_ambiguous_case_passes_when_the_truth_is_offered_and_nothing_false_is
     assert not passes([{**gain, "alternatives": []}])
 
 
-def test_the_statement_says_what_one_amplitude_cannot_tell_and_what_would():
+def _input_finding(kind: str, value: float, alternative: str, alternative_value: float, ratio: float) -> dict:
+    """A finding on theta_1s (rad) whose first alternative is ``alternative`` at evidence ratio ``ratio``."""
+    return {"effect": kind, "input": "theta_1s", "value": value, "interval": [0.98 * value, 1.02 * value],
+            "unit": "rad", "confidence": 0.5,
+            "alternatives": [{"effect": alternative, "input": "theta_1s", "value": alternative_value,
+                              "evidence_ratio": ratio}]}
+
+
+def _words(finding: dict) -> str:
     from validation.diagnose.report import statement
     from validation.vehicles.effect_vehicle import effect_model
 
-    reference = effect_model("bo105-80kt", purpose="test")
-    finding = {"effect": "dead_band", "input": "theta_1s", "value": 0.0052, "interval": [0.0051, 0.0053],
-               "unit": "rad", "confidence": 0.5,
-               "alternatives": [{"effect": "input_gain", "input": "theta_1s", "value": 0.7, "evidence_ratio": 1.0}]}
-    fit = {"rmse_reference": {}}
-    text = statement(finding, fit, reference)
+    return statement(finding, {"rmse_reference": {}}, effect_model("bo105-80kt", purpose="test"))
+
+
+def test_the_statement_says_what_one_amplitude_cannot_tell_and_what_would():
+    finding = _input_finding("dead_band", 0.0052, "input_gain", 0.7, 1.0)
+    text = _words(finding)
     assert "cannot tell a dead band on theta_1s from a lower gain" in text
     assert "at twice the amplitude" in text
     far = {**finding, "alternatives": [{**finding["alternatives"][0], "evidence_ratio": 50.0}]}
-    assert "cannot tell" not in statement(far, fit, reference)
+    assert "cannot tell" not in _words(far)
     limit = {**finding, "effect": "saturation", "value": 0.0122}
-    assert "cannot tell a saturation on theta_1s from a lower gain" in statement(limit, fit, reference)
-    assert "stops at 0.0122 rad" in statement(limit, fit, reference)
+    assert "cannot tell a saturation on theta_1s from a lower gain" in _words(limit)
+    assert "stops at 0.0122 rad" in _words(limit)
 
 
 def test_free_play_is_said_in_words_and_what_cannot_tell_it_from_a_dead_band():
-    from validation.diagnose.report import statement
-    from validation.vehicles.effect_vehicle import effect_model
-
-    reference = effect_model("bo105-80kt", purpose="test")
-    finding = {"effect": "backlash", "input": "theta_1s", "value": 0.0044, "interval": [0.0043, 0.0045],
-               "unit": "rad", "confidence": 0.6,
-               "alternatives": [{"effect": "dead_band", "input": "theta_1s", "value": 0.0044, "evidence_ratio": 1.5}]}
-    fit = {"rmse_reference": {}}
-    text = statement(finding, fit, reference)
+    finding = _input_finding("backlash", 0.0044, "dead_band", 0.0044, 1.5)
+    text = _words(finding)
     assert "Free play (backlash)" in text and "0.0088 rad back across the play" in text
     assert "cannot tell free play on theta_1s from a dead band" in text and "back to where it started" in text
     told = {**finding, "alternatives": [{**finding["alternatives"][0], "evidence_ratio": 50.0}]}
-    assert "cannot tell" not in statement(told, fit, reference)
+    assert "cannot tell" not in _words(told)
     other_input = {**finding, "alternatives": [{**finding["alternatives"][0], "input": "theta_1c"}]}
-    assert "cannot tell" not in statement(other_input, fit, reference)
+    assert "cannot tell" not in _words(other_input)
 
 
 def test_the_statements_of_a_rate_limit_and_of_an_amplitude_dependent_derivative():
