@@ -399,11 +399,12 @@ class AirCompetitor:
     def __init__(self, data: FitData, reference: EffectModel):
         self.data, self.reference = data, reference
         self._fits: dict = {}
+        self._refined: set = set()
         self._noise_only = float(stats.chi2.isf(FAMILY_ALPHA, data.n_residuals))
 
     def fit(self, model) -> GustFit | None:
         """:func:`fit_gusts` of ``model`` (a :class:`~validation.diagnose.fitting.FittedModel`)."""
-        key = tuple((h.key, float(v)) for h, v in zip(model.hypotheses, model.values))
+        key = self._key(model)
         if key not in self._fits:
             self._fits[key] = fit_gusts(self.data, self.reference, model.effects())
         return self._fits[key]
@@ -417,12 +418,61 @@ class AirCompetitor:
         fit = self.fit(model)
         return fit is not None and fit.likelihood_ratio > stats.chi2.isf(FAMILY_ALPHA, 4)
 
-    def weigh(self, model, candidate, *, n_tested: int) -> dict | None:
+    @staticmethod
+    def _key(model) -> tuple:
+        return tuple((h.key, float(v)) for h, v in zip(model.hypotheses, model.values))
+
+    def refine(self, model):
+        """``model`` with all its values moved to the filter error's optimum in the turbulence
+        estimated for it (:data:`_FILTER_ERROR_STEPS` Gauss-Newton steps on the whitened
+        innovations, forward-difference sensitivities of :data:`_DIFFERENCE_STEP` screening
+        steps, within the bounds; Jategaonkar 2006, ch. 5, with the turbulence held), its RSS
+        the output error's there and its covariance the filter error's Cramér-Rao bound
+        ``(J^T J)^-1`` (``J`` the whitened sensitivities). As it is without effects, where the
+        model cannot carry gusts, or where it was refined already."""
+        key = self._key(model)
+        if not model.hypotheses or key in self._refined:
+            return model
+        fit = self.fit(model)
+        if fit is None or fit.whiten is None:
+            return model
+        chosen = [i for i, mask in enumerate(self.data.fit_mask) if mask.any()]
+        hypotheses = model.hypotheses
+        lower, upper = np.array([h.lower for h in hypotheses]), np.array([h.upper for h in hypotheses])
+        values, information = np.array(model.values, dtype=float), None
+        with np.errstate(all="ignore"):
+            for _ in range(_FILTER_ERROR_STEPS):
+                steps = np.array([h.step * _DIFFERENCE_STEP for h in hypotheses])
+                steps = np.where(values + steps > upper, -steps, steps)
+                trials = [values] + [values + np.eye(len(values))[j] * steps[j] for j in range(len(values))]
+                replays = self.data.simulate_many(self.reference, [[h.as_effect(v) for h, v in zip(hypotheses, t)]
+                                                                   for t in trials])
+                residuals = [[self.data.measured[i] - replay[i] for i in chosen] for replay in replays]
+                white = fit.whiten(residuals[0])
+                jacobian = np.column_stack([fit.whiten([a - b for a, b in zip(residuals[0], moved)]) / steps[j]
+                                            for j, moved in enumerate(residuals[1:])])
+                information = jacobian.T @ jacobian
+                if not (np.all(np.isfinite(information)) and np.all(np.isfinite(white))):
+                    return model
+                values = np.clip(values + np.linalg.lstsq(information, jacobian.T @ white, rcond=None)[0], lower, upper)
+        covariance = np.linalg.pinv(information)
+        effects = [h.as_effect(v) for h, v in zip(hypotheses, values)]
+        rss = float(np.sum(self.data.weighted_residuals(self.reference, effects) ** 2))
+        refined = dataclasses.replace(model, values=values, rss=rss, covariance=covariance,
+                                      white_covariance=covariance)
+        self._refined.add(self._key(refined))
+        return refined
+
+    def weigh(self, model, candidate, *, n_tested: int) -> tuple:
         """:func:`weigh_against_air` of ``candidate`` (``model`` plus one effect) against
-        ``model``; None where the candidate leaves only noise (class docstring)."""
+        ``model``, each first moved to the filter error's optimum (:meth:`refine`, so that the
+        effect is not credited with a better value of the others); ``(result, refined
+        candidate)``, ``(None, candidate)`` where the candidate leaves only noise (class
+        docstring)."""
         if candidate.rss <= self._noise_only:
-            return None
-        return weigh_against_air(self.fit(model), self.fit(candidate), n_tested=n_tested)
+            return None, candidate
+        refined = self.refine(candidate)
+        return weigh_against_air(self.fit(self.refine(model)), self.fit(refined), n_tested=n_tested), refined
 
     def screen(self, model, hypotheses: list) -> list:
         """The ``hypotheses`` on top of ``model`` screened and fitted by filter error in the

@@ -501,7 +501,7 @@ def _weigh_against_air(air: AirCompetitor, data: FitData, reference: EffectModel
 
     if step is not None:
         trials += 1
-        against = air.weigh(model, best, n_tested=n_tested)
+        against, best = air.weigh(model, best, n_tested=n_tested)
         if against is None:
             step["against_air"] = None
             return best, step, rejected
@@ -511,6 +511,7 @@ def _weigh_against_air(air: AirCompetitor, data: FitData, reference: EffectModel
             chosen = (best, step, rejected)
         else:
             first_rejected = note(best, against)
+    model = air.refine(model)
     screened = air.screen(model, candidates) if air.in_play(model) else []
     if screened:
         null = air.fit(model).minus_two_log_likelihood
@@ -521,7 +522,7 @@ def _weigh_against_air(air: AirCompetitor, data: FitData, reference: EffectModel
         if trials >= MAX_AIR_TRIALS or (chosen and fitted.hypotheses[-1].key == chosen[0].hypotheses[-1].key):
             break  # output error's choice is the filter error's too
         trials += 1
-        against = air.weigh(model, fitted, n_tested=n_tested)
+        against, fitted = air.weigh(model, fitted, n_tested=n_tested)
         if against is None:  # only the noise is left with it: output error's estimate
             fitted = fit_many(data, reference, [(fitted.hypotheses, fitted.values)])[0]
             against = {"likelihood_ratio": math.inf, "passes": True, "weight": 1.0}
