@@ -21,6 +21,12 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
   :data:`AMBIGUOUS_CONFIDENCE`;
 - **outside** (the blimp's; the FMU suites' where an effect cannot be named there): physics
   outside the named list, where the honest answer is ``unexplained``;
+- **turbulence**: the reference itself flown in light and in moderate Dryden turbulence
+  (:func:`case_gusts`): nothing may be stated with confidence above
+  :data:`TURBULENCE_CONFIDENCE`, and the diagnosis must say that the residual looks like
+  atmospheric disturbance; concealed effects flown in the same air are ``single`` cases, scored
+  as without it except that their held-out RMSEs are taken against the flight without the gusts
+  (no model predicts the held-out flight's gusts);
 - **changing**: a derivative that drifts during the flight (flown by RK4 with the derivative
   moving linearly in time): named, and said to change in the right direction
   (:mod:`validation.diagnose.over_time`); its value is the flight's average, which the interval
@@ -51,7 +57,8 @@ noise-free held-out flight) for the reference and the corrected model, and the c
 that match no true effect (``false``); wall-clock seconds of the diagnosis. A case passes when
 all of its true effects are named with the value inside the interval, the cut is at least
 :data:`REQUIRED_CUT`, and nothing false is found (for ``none``: no finding at all; for
-``outside``: an ``unexplained`` finding).
+``outside``: an ``unexplained`` finding; for ``turbulence``: the air named and nothing
+confident).
 """
 from __future__ import annotations
 
