@@ -44,7 +44,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg, stats
+from scipy import linalg, signal, stats
 from scipy.optimize import minimize
 
 from validation.diagnose.fitting import FAMILY_ALPHA, MIN_EXCESS_FRACTION, FitData
@@ -74,6 +74,10 @@ _FILTER_ERROR_STEPS, _DIFFERENCE_STEP = 3, 0.1
 #: Hypotheses fitted by filter error per step, the best of the score test
 #: (:meth:`AirCompetitor.screen`).
 SCREENED = 6
+#: Time constants, s, of the filters of the inputs' increments the innovations are tested
+#: against (:func:`_input_coherence`): a response within a sample or two, one of a rotor or an
+#: actuator, one of the short-period and roll modes.
+_INPUT_TIME_CONSTANTS = (0.02, 0.2, 1.0)
 #: A gust standard deviation below this, m/s, is still air (the search's floor).
 _SIGMA_FLOOR = 1e-4
 
@@ -102,6 +106,9 @@ class GustFit:
         S^-1``), flattened; linear, so it takes sensitivities alike. None for still air.
     n_residuals : int
         Fitted samples times outputs.
+    input_p_value : float
+        :func:`_input_coherence`'s p-value: small where the innovations follow the inputs, which
+        gusts do not.
     excess : float
         The innovations' energy beyond its expectation, ``sum e^T S^-1 e - N`` (``N`` residuals),
         at least 0: what the air does not explain (for still air, ``RSS - N``).
@@ -115,6 +122,7 @@ class GustFit:
     excess: float = 0.0
     whiten: object = None
     n_residuals: int = 0
+    input_p_value: float = 1.0
 
     @property
     def likelihood_ratio(self) -> float:
@@ -287,8 +295,39 @@ def fit_gusts(data: FitData, reference: EffectModel, effects: list, *, replays: 
         with np.errstate(all="ignore"):
             return np.concatenate([w.ravel() for w in _whitened_innovations(filters, others, masks)])
 
+    with np.errstate(all="ignore"):
+        white = _whitened_innovations(filters, residuals, masks)
+    input_p_value = _input_coherence(white, [data.inputs[i] for i in chosen], masks, step)
     return GustFit(sigma, time_constant, best, still, evaluate, excess=max(energy - n_residuals, 0.0),
-                   whiten=whiten, n_residuals=n_residuals)
+                   whiten=whiten, n_residuals=n_residuals, input_p_value=input_p_value)
+
+
+def _input_coherence(white: list, inputs: list, masks: list, step: float) -> float:
+    """Whether the filter's innovations follow the inputs: gusts are independent of what the
+    pilot does, a model error is not (a missing lag or a derivative that drifts shows right after
+    each input step). Each whitened innovation (unit-variance white noise where the air alone
+    is left) is regressed on the inputs' increments passed through first-order filters of
+    :data:`_INPUT_TIME_CONSTANTS`; the explained sum of squares over all of them is
+    chi-squared with (regressors times outputs) degrees of freedom under the air alone (an F
+    test with known variance; e.g. Seber & Lee, *Linear Regression Analysis*, 2nd ed., 2003,
+    sec. 4.3). Returns its p-value (1 where no input moves)."""
+    total, dof = 0.0, 0
+    for w, u, mask in zip(white, inputs, masks):
+        last = int(np.flatnonzero(mask)[-1]) + 1
+        u = np.asarray(u[:last], dtype=float)
+        increments = np.diff(u, axis=0, prepend=u[:1])
+        columns = []
+        for time_constant in _INPUT_TIME_CONSTANTS:
+            a = math.exp(-step / time_constant)
+            columns.append(signal.lfilter([1.0 - a], [1.0, -a], increments, axis=0))
+        X = np.hstack(columns)[mask[:last]]
+        X = X[:, np.abs(X).max(axis=0) > 0]
+        if X.shape[1] == 0 or not np.all(np.isfinite(w)):
+            continue
+        basis, _ = np.linalg.qr(X / np.abs(X).max(axis=0))
+        total += float(np.sum((basis.T @ w) ** 2))
+        dof += basis.shape[1] * w.shape[1]
+    return float(stats.chi2.sf(total, dof)) if dof else 1.0
 
 
 def weigh_against_air(model_fit: GustFit | None, with_effect: GustFit | None, *, n_tested: int) -> dict | None:
@@ -361,20 +400,22 @@ def describe(fit: GustFit | None, *, airspeed: float | None = None) -> dict:
     Returns
     -------
     dict
-        ``tested``, ``looks_like_turbulence``, ``sigma`` (``{"u", "v", "w"}``, m/s),
+        ``tested``, ``looks_like_turbulence``, ``input_p_value``, ``sigma`` (``{"u", "v", "w"}``, m/s),
         ``intensity`` (their root-mean-square, m/s), ``time_constant`` (s), ``scale_length``
         (m, or None), ``likelihood_ratio``, ``p_value``, ``innovation_ratio``.
     """
     if fit is None:
-        return {"tested": False, "looks_like_turbulence": False, "sigma": None, "intensity": None,
-                "time_constant": None, "scale_length": None, "likelihood_ratio": None, "p_value": None,
-                "innovation_ratio": None}
+        return {"tested": False, "looks_like_turbulence": False, "input_p_value": None, "sigma": None,
+                "intensity": None, "time_constant": None, "scale_length": None, "likelihood_ratio": None,
+                "p_value": None, "innovation_ratio": None}
     lr = fit.likelihood_ratio
     ratio = math.sqrt((fit.excess + fit.n_residuals) / fit.n_residuals) if fit.n_residuals else None
     still = lr <= 0 or not math.isfinite(fit.time_constant)
     p_value = float(stats.chi2.sf(lr, 4))
-    looks = bool(not still and p_value < FAMILY_ALPHA and ratio is not None and ratio <= UNEXPLAINED_RATIO)
-    return {"tested": True, "looks_like_turbulence": looks,
+    follows_inputs = fit.input_p_value < FAMILY_ALPHA
+    looks = bool(not still and p_value < FAMILY_ALPHA and ratio is not None and ratio <= UNEXPLAINED_RATIO
+                 and not follows_inputs)
+    return {"tested": True, "looks_like_turbulence": looks, "input_p_value": fit.input_p_value,
             "sigma": dict(zip(("u", "v", "w"), (float(v) for v in fit.sigma))),
             "intensity": fit.intensity, "time_constant": None if still else fit.time_constant,
             "scale_length": None if still or airspeed is None else fit.time_constant * airspeed,

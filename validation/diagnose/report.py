@@ -15,6 +15,7 @@ from validation.core.recordings import column_phrase, column_unit
 from validation.diagnose.carry_over import LEFT_OUT, CarryOver, HeldOutEffect
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation, NamedEffect
+from validation.diagnose.fitting import FAMILY_ALPHA
 from validation.diagnose.locate import Location
 from validation.diagnose.model import Models
 from validation.diagnose.prove import MODEL_KEYS, Proof
@@ -148,6 +149,11 @@ def disturbance_statement(disturbance: dict, *, n_named: int) -> str | None:
     if not disturbance["looks_like_turbulence"]:
         if disturbance["time_constant"] is None:
             return "The residual shows no atmospheric disturbance: still air explains it as well as gusts do."
+        if disturbance["input_p_value"] is not None and disturbance["input_p_value"] < FAMILY_ALPHA:
+            return (f"Gusts of {_number(disturbance['intensity'])} m/s RMS would whiten the residual "
+                    f"(likelihood ratio {disturbance['likelihood_ratio']:.3g} against still air), but what is left "
+                    f"follows the inputs (p = {disturbance['input_p_value']:.2g}), which gusts do not: it does not "
+                    "look like atmospheric disturbance.")
         return (f"Gusts of {_number(disturbance['intensity'])} m/s RMS would explain part of the residual "
                 f"(likelihood ratio {disturbance['likelihood_ratio']:.3g} against still air), but not down to the "
                 f"sensor noise (whitened innovations {disturbance['innovation_ratio']:.3g} times the noise): "

@@ -68,3 +68,14 @@ def test_a_reference_that_cannot_carry_gusts_is_not_tested():
     """The blimp's ODE has no linear gust response: no filter, and diagnosis.json says so."""
     assert gust_dynamics(effect_model("blimp", purpose="test"), []) is None
     assert describe(None)["tested"] is False and describe(None)["looks_like_turbulence"] is False
+
+
+def test_a_model_error_that_gusts_would_whiten_is_not_taken_for_the_air():
+    """A concealed 60 ms delay in still air, the reference as the model: gusts of several m/s
+    would whiten the residual, but what is left follows the inputs, which gusts do not."""
+    reference = effect_model("bo105-80kt", purpose="test")
+    recordings = case_recordings(CASES["delay-theta_1s-60ms"], seed=0, duration=10.0)
+    data = prepare([recordings.fit], reference, holdout=[recordings.holdout])
+    described = describe(fit_gusts(data, reference, []))
+    assert described["likelihood_ratio"] > 1000  # the gusts explain much of it
+    assert described["input_p_value"] < 1e-6 and not described["looks_like_turbulence"]
