@@ -79,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"left out: {ignored_columns_phrase(result['ignored_columns'], result['reference'])}")
     for finding in result["findings"]:
         print(f"- {finding['statement']}")
+    if (result.get("disturbance") or {}).get("looks_like_turbulence"):
+        print(f"- {result['disturbance']['statement']}")
     fit = result["fit"]
     print(f"held-out RMSE ({fit['holdout']}): output reference -> corrected -> corrected + GP")
     for name in fit["outputs"]:

@@ -21,6 +21,12 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
   :data:`AMBIGUOUS_CONFIDENCE`;
 - **outside** (the blimp's; the FMU suites' where an effect cannot be named there): physics
   outside the named list, where the honest answer is ``unexplained``;
+- **turbulence**: the reference itself flown in light and in moderate Dryden turbulence
+  (:func:`case_gusts`): nothing may be stated with confidence above
+  :data:`TURBULENCE_CONFIDENCE`, and the diagnosis must say that the residual looks like
+  atmospheric disturbance; concealed effects flown in the same air are ``single`` cases, scored
+  as without it except that their held-out RMSEs are taken against the flight without the gusts
+  (no model predicts the held-out flight's gusts);
 - **changing**: a derivative that drifts during the flight (flown by RK4 with the derivative
   moving linearly in time): named, and said to change in the right direction
   (:mod:`validation.diagnose.over_time`); its value is the flight's average, which the interval
@@ -51,7 +57,8 @@ noise-free held-out flight) for the reference and the corrected model, and the c
 that match no true effect (``false``); wall-clock seconds of the diagnosis. A case passes when
 all of its true effects are named with the value inside the interval, the cut is at least
 :data:`REQUIRED_CUT`, and nothing false is found (for ``none``: no finding at all; for
-``outside``: an ``unexplained`` finding).
+``outside``: an ``unexplained`` finding; for ``turbulence``: the air named and nothing
+confident).
 """
 from __future__ import annotations
 
@@ -67,9 +74,13 @@ from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
 from validation.diagnose.pipeline import diagnose
 from validation.vehicles.blimp_equations import rk4
+from validation.vehicles.bo105 import KNOT
+from validation.vehicles.bo105_flight import TURBULENCE_MIN_ADVECTION_SPEED
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.effects import TARGET_KEYS, EffectModel, dead_band_inputs, split_cross_axis
+from validation.vehicles.linear_effects import simulate_linear_with_effects
 from validation.vehicles.polynomial_terms import factor_values, parse_term
+from validation.vehicles.turbulence import dryden_gusts, low_altitude_turbulence
 
 #: Held-out RMSE cut of the affected output that a named effect must achieve: the corrected model
 #: must remove most of the error the effect causes (docs/diagnose.md, "The concealed-effect
@@ -88,7 +99,7 @@ class ConcealedCase:
     ----------
     name : str
         Short identifier, e.g. ``"delay-theta_1s-60ms"``.
-    kind : {"single", "pair", "none", "outside", "ambiguous", "changing"}
+    kind : {"single", "pair", "none", "outside", "ambiguous", "changing", "turbulence"}
     effects : tuple of dict
         The named effects applied (the truth), in the shape of diagnosis findings; empty for
         ``none`` and ``outside``.
@@ -104,6 +115,9 @@ class ConcealedCase:
         than the one diagnose replays it with).
     description : str
         One line for the scorecard.
+    turbulence : {"light", "moderate"}, optional
+        Fly both recordings in Dryden turbulence of this intensity (:func:`case_gusts`); the
+        ``turbulence`` kind is the reference itself in it.
     fit_variant : int
         The identification manoeuvre's variant the diagnosed recording flies (0; the Bo105's 2
         flies the longitudinal-cyclic 3-2-1-1 at two amplitudes). The held-out one flies 1.
@@ -115,6 +129,7 @@ class ConcealedCase:
     outside: tuple | None = None
     description: str = ""
     fit_variant: int = 0
+    turbulence: str | None = None
 
 
 def _single_case(effect: dict, name: str, description: str) -> ConcealedCase:
@@ -299,7 +314,32 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                       description="pitch control power quadratic in deflection, M_theta_1s|theta_1s| = 400 "
                                   "(rad/s^2)/rad^2, 1 and 2 deg steps, flown by RK4; found by search"),
     ]
-    return cases + _measurement_chain_cases(noise)
+    return cases + _measurement_chain_cases(noise) + _turbulence_cases(reference)
+
+
+def _turbulence_cases(reference: EffectModel) -> list[ConcealedCase]:
+    """The Bo105's turbulence cases (:func:`case_gusts`): the reference itself in light and in
+    moderate turbulence (nothing missing: the residual is the air's doing), and concealed
+    effects of the suite in the same air: the 60 ms delay on longitudinal cyclic in light and in
+    moderate turbulence, the pitch control power -30 % and the pitch damping -40 % in moderate
+    turbulence (a control derivative leaves the gust response as it is, a stability derivative
+    changes it)."""
+    delay = {"effect": "time_delay", "input": "theta_1s", "value": 0.06}
+    damping = {"effect": "stability_derivative", "term": "M_q", "value": reference.model_value("M_q") * 0.6}
+    power = {"effect": "control_derivative", "term": "M_theta_1s", "value": reference.model_value("M_theta_1s") * 0.7}
+    cases = [ConcealedCase(f"turbulence-{level}", "turbulence", turbulence=level,
+                           description=f"the reference itself in {level} Dryden turbulence, with sensor noise")
+             for level in ("light", "moderate")]
+    for level in ("light", "moderate"):
+        cases.append(ConcealedCase(f"delay-theta_1s-60ms-{level}-turbulence", "single", (delay,), turbulence=level,
+                                   description=f"transport delay 60 ms on longitudinal cyclic in {level} turbulence"))
+    cases.append(ConcealedCase("M_theta_1s-30%-moderate-turbulence", "single", (power,), turbulence="moderate",
+                               description=f"M_theta_1s (-30 %): {reference.model_value('M_theta_1s'):.4g} -> "
+                                           f"{power['value']:.4g} in moderate turbulence"))
+    cases.append(ConcealedCase("M_q-40%-moderate-turbulence", "single", (damping,), turbulence="moderate",
+                               description=f"M_q (-40 %): {reference.model_value('M_q'):.4g} -> "
+                                           f"{damping['value']:.4g} in moderate turbulence"))
+    return cases
 
 
 def _measurement_chain_cases(noise: dict) -> list[ConcealedCase]:
@@ -427,10 +467,37 @@ class CaseRecordings:
     truth_states: np.ndarray
 
 
+#: Height above ground the turbulence cases are flown at, m (500 ft: the low-altitude Dryden
+#: model's, :func:`validation.vehicles.turbulence.low_altitude_turbulence`; at it ``L_w = 152 m``,
+#: ``L_u = L_v = 288 m``, ``sigma_u = sigma_v = 1.24 sigma_w``).
+TURBULENCE_ALTITUDE = 152.4
+
+
+def case_gusts(case: ConcealedCase, reference: EffectModel, time: np.ndarray, *, seed: int,
+               variant: int) -> np.ndarray:
+    """Dryden gust velocities (n, 3), m/s, for one recording of a turbulence case: the
+    low-altitude model at :data:`TURBULENCE_ALTITUDE` and the case's intensity (light: ``W_20 =
+    15 kt``, ``sigma_w = 0.77 m/s``; moderate: 30 kt, 1.54 m/s;
+    :func:`validation.vehicles.turbulence.low_altitude_turbulence`), flown through at the Bo105
+    reference's trim speed (at least the stand-in's 5 m/s in hover), one gust per sample held
+    over its interval, drawn from their own stream (seeded by the run's seed, the recording and
+    the case's name) so that the sensor noise is the same draw as without turbulence."""
+    speed = getattr(getattr(reference, "reference", None), "speed_kt", None)
+    if speed is None:
+        raise BadInputError(f"case {case.name}: turbulence is flown on the Bo105 references only, not on "
+                            f"{reference.name}")
+    sigma, length = low_altitude_turbulence(case.turbulence, altitude_m=TURBULENCE_ALTITUDE)
+    rng = np.random.default_rng([seed, variant, zlib.crc32(case.name.encode()), 1])
+    step = float(time[1] - time[0])
+    return dryden_gusts(sigma, length, max(speed * KNOT, TURBULENCE_MIN_ADVECTION_SPEED), step, len(time), rng)
+
+
 def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed: int = 0,
                     duration: float = DURATION) -> CaseRecordings:
     """The diagnosed and the held-out recording of ``case`` on the reference called
-    ``reference`` (``duration`` s each), and the held-out truth (module docstring)."""
+    ``reference`` (``duration`` s each), and the held-out truth (module docstring). A case with
+    ``turbulence`` is flown in the gusts of :func:`case_gusts`; its held-out truth is the flight
+    without them (what a model can predict)."""
     reference = effect_model(reference, purpose="diagnose-bench")
     vehicle = EffectVehicle(reference, case.effects, noise_sd=reference.sensor_noise_sd)
     recordings = []
@@ -441,6 +508,12 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
             states = vehicle.simulate_states(time, inputs)
         else:
             states = _outside_states(case.outside, vehicle, time, inputs)
+        truth = states
+        if case.turbulence:
+            if case.outside is not None:
+                raise BadInputError(f"case {case.name}: turbulence is flown with named effects only")
+            gusts = case_gusts(case, reference, time, seed=seed, variant=variant)
+            states = simulate_linear_with_effects(reference.reference, vehicle.effects, time, inputs, gusts=gusts)
         # Each case draws its own noise (seeded by its name), so the cases of one run are
         # independent trials of diagnose rather than one noise draw seen through many effects.
         rng = np.random.default_rng([seed, variant, zlib.crc32(case.name.encode())])
@@ -450,7 +523,7 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
                     "sample_time": reference.sample_time, "seed": seed,
                     "sensor_noise_std": dict(reference.sensor_noise_sd)}
         recordings.append((Recording(time, inputs, vehicle.input_names, measured, vehicle.state_names, metadata),
-                           states))
+                           truth))
     (fit, _), (holdout, truth_states) = recordings
     return CaseRecordings(fit, holdout, truth_states)
 
@@ -535,6 +608,9 @@ def _polynomial_term_states(reference: str, term: str, coefficient: float, time,
 #: ``ambiguous`` case (the data cannot tell the truth from its alternative, so neither may be
 #: stated as near-certain).
 AMBIGUOUS_CONFIDENCE = 0.9
+#: Confidence above which a false finding fails a ``turbulence`` case: in turbulence with nothing
+#: missing, no finding may be stated with more confidence than its absence.
+TURBULENCE_CONFIDENCE = 0.5
 
 
 @dataclass
@@ -556,6 +632,8 @@ class CaseScore:
     offered: set = field(default_factory=set)
     changing: list = field(default_factory=list)
     drift_direction_right: bool = False
+    says_turbulence: bool = False
+    confident_false: list = field(default_factory=list)
 
     @property
     def cut(self) -> float | None:
@@ -568,6 +646,8 @@ class CaseScore:
         kind = self.case.kind
         if kind == "none":
             return not self.found
+        if kind == "turbulence":  # nothing stated with confidence, and the air named
+            return self.says_turbulence and not self.confident_false
         if kind == "outside":
             return self.says_unexplained
         if kind == "ambiguous":  # the truth named or offered as an alternative, nothing false certain
@@ -587,7 +667,8 @@ class CaseScore:
                 "says_unexplained": self.says_unexplained, "seconds": self.seconds,
                 "certain_false": self.certain_false, "offered": sorted(" ".join(key) for key in self.offered),
                 "changing": self.changing, "drift_direction_right": self.drift_direction_right,
-                "passed": self.passed}
+                "turbulence": self.case.turbulence, "says_turbulence": self.says_turbulence,
+                "confident_false": self.confident_false, "passed": self.passed}
 
 
 def _target(effect: dict) -> tuple:
@@ -629,8 +710,11 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
             score.false_findings.append(f"{key[0]} {key[1]}")
             if finding.get("confidence", 1.0) > AMBIGUOUS_CONFIDENCE:
                 score.certain_false.append(f"{key[0]} {key[1]}")
+        if key not in truth and finding.get("confidence", 1.0) > TURBULENCE_CONFIDENCE:
+            score.confident_false.append(f"{key[0]} {key[1]}")
         offered = [_target(alternative) for alternative in finding.get("alternatives") or []]
         score.offered.update(key for key in [_target(finding)] + offered if key in truth)
+    score.says_turbulence = bool((diagnosis.get("disturbance") or {}).get("looks_like_turbulence"))
     if case.kind not in ("outside", "ambiguous", "changing"):
         # An unexplained residual next to the true effects is a false finding too (not next to
         # a drift, which the constant correction leaves partly unexplained).
@@ -654,7 +738,7 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     replay = reference.simulate_many([[]], holdout.time, holdout.inputs)[0]
     noise_sd, names = reference.sensor_noise_sd, reference.state_names
     outputs = diagnosis["fit"]["outputs"]
-    if case.kind != "none":
+    if case.kind not in ("none", "turbulence"):
         energy = [np.sum(((truth_states[:, names.index(n)] - replay[:, names.index(n)])
                           / noise_sd[n]) ** 2) for n in outputs]
         name = outputs[int(np.argmax(energy))]
@@ -663,6 +747,18 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
         score.rmse_reference = fit["rmse_reference"][name]
         score.rmse_corrected = fit["rmse_corrected"][name]
         score.rmse_corrected_gp = fit["rmse_corrected_gp"][name]
+        if case.turbulence:
+            # No model predicts the gusts of the held-out flight: the RMSEs are against its
+            # noise-free flight without them (truth_states), of the reference and of the
+            # corrected model (the findings it holds), and there is no GP's.
+            column = names.index(name)
+            corrected = [{"effect": f["effect"], TARGET_KEYS[f["effect"]]: _target(f)[1], "value": f["value"]}
+                         for f in named if f.get("in_corrected_model")]
+            flown = EffectVehicle(reference, corrected).simulate_states(holdout.time, holdout.inputs)
+            rms = lambda error: float(np.sqrt(np.mean(error ** 2)))  # noqa: E731
+            score.rmse_reference = rms(truth_states[:, column] - replay[:, column])
+            score.rmse_corrected = rms(truth_states[:, column] - flown[:, column])
+            score.rmse_corrected_gp = None
     return score
 
 
@@ -741,6 +837,8 @@ def format_scorecard(report: dict) -> str:
         cut = "-" if row["cut"] is None else f"{row['cut']:.0%}"
         found = ", ".join(f"{f['effect']} {f.get('input') or f.get('term') or f.get('output')}"
                           for f in row["found"]) or "consistent"
+        if row.get("says_turbulence"):
+            found += " (the residual looks like atmospheric disturbance)"
         yes = lambda flag: "yes" if flag else "no"  # noqa: E731
         named = "-" if not row["truth"] else yes(row["named"])
         in_ci = "-" if not row["truth"] else yes(row["in_interval"])
@@ -759,8 +857,9 @@ def summarise_seeds(reports: list) -> dict:
     twenty and a family-wise 1 % test raises a false finding about once in a hundred steps, so
     the rates over several seeds are the measure. Per case: ``runs``, ``passed``, ``named``
     (every true effect named), ``in_interval`` (named with every true value inside its
-    interval), ``with_false_findings``, ``says_unexplained``, the median ``cut`` and the largest
-    ``seconds``.
+    interval), ``with_false_findings``, ``says_unexplained``, ``says_turbulence`` (the residual
+    said to look like atmospheric disturbance), ``with_confident_false`` (a false finding above
+    :data:`TURBULENCE_CONFIDENCE`), the median ``cut`` and the largest ``seconds``.
     """
     names = [row["case"] for row in reports[0]["cases"]]
     cases = []
@@ -773,6 +872,8 @@ def summarise_seeds(reports: list) -> dict:
                       "in_interval": sum(row["in_interval"] for row in rows),
                       "with_false_findings": sum(bool(row["false_findings"]) for row in rows),
                       "says_unexplained": sum(row["says_unexplained"] for row in rows),
+                      "says_turbulence": sum(bool(row.get("says_turbulence")) for row in rows),
+                      "with_confident_false": sum(bool(row.get("confident_false")) for row in rows),
                       "median_cut": float(np.median(cuts)) if cuts else None,
                       "max_seconds": max(row["seconds"] for row in rows)})
     named_runs = [c for c in cases if c["kind"] in ("single", "pair")]

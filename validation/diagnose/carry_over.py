@@ -21,6 +21,12 @@ did not see (the weight of Burnham & Anderson, *Model Selection and Multimodel I
 ed., 2002, sec. 2.9, evaluated out of sample); a finding's confidence is capped by that weight
 when it does not carry over, so such a finding is never stated with confidence.
 
+Where the residual of the final model looks like atmospheric turbulence
+(:mod:`validation.diagnose.disturbance`), no model predicts the held-out flights' gusts, and
+``C`` is the filter error's ``-2 ln L`` on the held-out samples instead, in the turbulence
+estimated on the diagnosed ones (:func:`validation.diagnose.disturbance.held_out_cost`): the
+same weights, each model's misfit weighed by what the air could have done.
+
 The corrected model starts from the findings that carry over and hold for the vehicle
 (:mod:`validation.diagnose.scope`, ``offered``) and removes, one at a time, the finding without
 which the held-out cost falls most, until every finding it keeps lowers the held-out cost of the
@@ -39,6 +45,7 @@ import numpy as np
 
 from validation.core.metrics import rmse
 from validation.diagnose.data import PreparedData
+from validation.diagnose.disturbance import held_out_cost
 from validation.diagnose.explain import Explanation, NamedEffect
 from validation.diagnose.locate import Location
 from validation.vehicles.effects import EffectModel, effect_key
@@ -116,9 +123,14 @@ def carry_over(data: PreparedData, location: Location, explanation: Explanation,
     replays = data.simulate_many(reference, [[e for e in final if e != n.effect] for n in named] + [final])
     if progress:
         progress(1, fitted="carry-over")
-    cost_reference = _held_out_cost(data, location.reference_replay)
-    cost_final = _held_out_cost(data, replays[-1])
-    effects = [_weigh(n, data, cost_reference, _held_out_cost(data, n.alone), _held_out_cost(data, replay),
+    cost_of = _plain_held_out_cost
+    if (explanation.disturbance or {}).get("looks_like_turbulence"):
+        in_air = held_out_cost(data, reference, final, explanation.air)
+        if in_air is not None:
+            cost_of = lambda _, replay: in_air(replay)  # noqa: E731
+    cost_reference = cost_of(data, location.reference_replay)
+    cost_final = cost_of(data, replays[-1])
+    effects = [_weigh(n, data, cost_reference, cost_of(data, n.alone), cost_of(data, replay),
                       cost_final) for n, replay in zip(named, replays)]
     reasons = {}
     for n, held in zip(named, effects):
@@ -132,7 +144,7 @@ def carry_over(data: PreparedData, location: Location, explanation: Explanation,
     current = cost_final if kept == final else None
     while kept:  # backward elimination on the held-out cost
         trials = ([] if current is not None else [kept]) + [[e for e in kept if e != drop] for drop in kept]
-        costs = [_held_out_cost(data, replay) for replay in data.simulate_many(reference, trials)]
+        costs = [cost_of(data, replay) for replay in data.simulate_many(reference, trials)]
         if progress:
             progress(1, fitted="carry-over")
         if current is None:
@@ -161,7 +173,7 @@ def _weigh(named: NamedEffect, data: PreparedData, cost_reference: float, cost_a
                          bool(gain_in_model > 0), weight)
 
 
-def _held_out_cost(data: PreparedData, replay: list) -> float:
+def _plain_held_out_cost(data: PreparedData, replay: list) -> float:
     """``C`` of ``replay`` (per recording, shape (n_r, n_out)) on the held-out samples (module docstring)."""
     return float(sum(np.sum(data.weighted_output_residual(replay, i, data.holdout_mask) ** 2)
                      for i in range(len(data.output_names))))

@@ -52,7 +52,16 @@ import numpy as np
 from scipy import stats
 
 from validation.diagnose.data import PreparedData
-from validation.diagnose.fitting import FitData, FittedModel, fit_many, null_model, weigh_step
+from validation.diagnose.disturbance import AirCompetitor, describe, gust_dynamics, trim_airspeed
+from validation.diagnose.fitting import (
+    MAX_ALTERNATIVES,
+    MAX_EVIDENCE_RATIO,
+    FitData,
+    FittedModel,
+    fit_many,
+    null_model,
+    weigh_step,
+)
 from validation.diagnose.locate import Location
 from validation.diagnose.over_time import refit_windows, time_check
 from validation.diagnose.search import search_candidates
@@ -74,6 +83,9 @@ MAX_EFFECTS = 3
 LINEAR_KINDS = ("control_derivative", "stability_derivative", "input_gain", "fmu_parameter")
 #: Level of the amplitude test of each linear finding.
 AMPLITUDE_ALPHA = 0.01
+#: Effects output error would accept that are weighed against "the air moved" per step, best
+#: first, before the step gives up (:func:`_weigh_against_air`).
+MAX_AIR_TRIALS = 4
 #: Hypotheses fitted in full per step, besides the best of each kind.
 N_FULL_FITS = 6
 #: Screening step of delays and lags, s: a fraction of the shortest actuator and rotor time
@@ -110,7 +122,9 @@ class Selection:
         ``confidence`` (Akaike weight), ``alternatives`` (list of dicts with ``effect``,
         target, ``value``, ``evidence_ratio``).
     drop_lr : dict of key -> float
-        LR of each accepted effect against the final model refitted without it.
+        LR of each accepted effect against the final model refitted without it (by filter
+        error where the air explains some of the final model's residual,
+        :func:`_drop_one_against_air`).
     rejected : dict or None
         The best hypothesis that failed the test at the last step (``key``, ``value``, ``lr``,
         ``threshold``), for the report.
@@ -118,6 +132,10 @@ class Selection:
         Named hypotheses (the residual search's terms come on top, ``residual_search``).
     residual_search : dict or None
         What the residual search offered (:func:`_search_summary`).
+    air : GustFit or None
+        The turbulence that best explains the final model's residual
+        (:meth:`validation.diagnose.disturbance.AirCompetitor.final_fit`); None where the model
+        cannot carry gusts.
     """
 
     model: FittedModel
@@ -127,6 +145,7 @@ class Selection:
     rejected: dict | None
     n_screened: int
     residual_search: dict | None = None
+    air: object = None
 
 
 @dataclass
@@ -202,12 +221,19 @@ class Explanation:
         ``threshold``, or None).
     model : FittedModel
         The accepted effects' hypotheses at their joint values, in the order of ``effects``.
+    disturbance : dict
+        diagnosis.json's ``disturbance``: whether the final model's residual looks like
+        atmospheric turbulence, and how strong (:func:`validation.diagnose.disturbance.describe`).
+    air : GustFit or None
+        The turbulence estimated on the final model (:attr:`Selection.air`).
     """
 
     effects: list
     named: list
     search: dict
     model: FittedModel
+    disturbance: dict | None = None
+    air: object = None
 
 
 def explain(data: PreparedData, location: Location, reference: EffectModel, *, progress=None) -> Explanation:
@@ -219,16 +245,20 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
                                 noise_sd=data.typical_noise_sd, excursions=_excursions(data))
     selection = select_effects(data, reference, hypotheses, progress=progress, excited=data.excited)
     fitted, steps = selection.model, {step["key"]: step for step in selection.steps}
+    disturbance = describe(selection.air, airspeed=trim_airspeed(reference))
+    # In turbulence, output-error refits on parts of the flights (the amplitude and time checks)
+    # see different gusts and differ by them: the checks are not made.
+    checked = not disturbance["looks_like_turbulence"]
     named, split_fits = [], {}
-    window_fits = refit_windows(data, reference, fitted) if fitted.hypotheses else []
+    window_fits = refit_windows(data, reference, fitted) if fitted.hypotheses and checked else []
     for index, (h, effect) in enumerate(zip(fitted.hypotheses, fitted.effects())):
         lr, step = selection.drop_lr[h.key], steps[h.key]
         alone = data.simulate(reference, [effect])
         main_output = _main_output(data, alone, location.reference_replay)
         check = (amplitude_check(data, reference, fitted, index, main_output=main_output,
                                  reference_replay=location.reference_replay, fits=split_fits)
-                 if h.effect in LINEAR_KINDS else None)
-        over_time = time_check(fitted, index, window_fits)
+                 if h.effect in LINEAR_KINDS and checked else None)
+        over_time = time_check(fitted, index, window_fits) if checked else None
         confidence = step["confidence"]
         if check and check["amplitude_dependent"]:
             confidence = min(confidence, check["weight_linear"])
@@ -244,7 +274,8 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
     search = {"hypotheses_tested": selection.n_screened, "null_rss": selection.null_rss,
               "final_rss": fitted.rss, "n_residuals": data.n_residuals,
               "rejected": _describe_rejected(selection.rejected), "residual_search": selection.residual_search}
-    return Explanation(fitted.effects(), sorted(named, key=lambda n: -n.likelihood_ratio), search, fitted)
+    return Explanation(fitted.effects(), sorted(named, key=lambda n: -n.likelihood_ratio), search, fitted,
+                       disturbance, selection.air)
 
 
 def amplitude_check(data: FitData, reference: EffectModel, model: FittedModel, index: int, *, main_output: int,
@@ -333,8 +364,11 @@ def _describe_rejected(rejected: dict | None) -> dict | None:
     if rejected is None:
         return None
     kind, target = rejected["key"]
-    return {"effect": kind, TARGET_KEYS[kind]: target, "value": rejected["value"],
-            "likelihood_ratio": rejected["lr"], "threshold": rejected["threshold"]}
+    described = {"effect": kind, TARGET_KEYS[kind]: target, "value": rejected["value"],
+                 "likelihood_ratio": rejected["lr"], "threshold": rejected["threshold"]}
+    if rejected.get("against_air"):  # the air explained what it takes (filter-error likelihood ratio)
+        described["against_air"] = True
+    return described
 
 
 def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd,
@@ -395,6 +429,7 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
     model = null_model(data, reference)
     null_rss = model.rss
     steps, rejected, searches = [], None, []
+    air = AirCompetitor(data, reference) if gust_dynamics(reference, []) is not None else None
     for _ in range(MAX_EFFECTS):
         taken = {h.key for h in model.hypotheses}
         candidates = [h for h in hypotheses if h.key not in taken]
@@ -407,12 +442,109 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
             break
         fits = _fit_promising(data, reference, model, candidates, progress)
         best, step, rejected = weigh_step(data, model, fits, n_tested=n_tested)
+        if air is not None and (step is not None or air.in_play(model)):
+            best, step, rejected = _weigh_against_air(air, data, reference, model, candidates, best, step,
+                                                      rejected, n_tested=n_tested)
         if step is None:
             break
         steps.append(step)
         model = best
-    return Selection(model, null_rss, steps, _drop_one_lr(data, reference, model, null_rss), rejected,
-                     len(hypotheses), _search_summary(searches))
+    in_air = air is not None and bool(model.hypotheses) and air.in_play(model)
+    drop_lr = _drop_one_against_air(air, model) if in_air else _drop_one_lr(data, reference, model, null_rss)
+    return Selection(model, null_rss, steps, drop_lr, rejected, len(hypotheses), _search_summary(searches),
+                     air.final_fit(model) if air else None)
+
+
+def _drop_one_against_air(air: AirCompetitor, model: FittedModel) -> dict:
+    """Where the air explains some of the final ``model``'s residual: the filter-error
+    likelihood ratio of each effect against ``model`` without it (the others' values kept), each
+    in its own estimated turbulence (:func:`validation.diagnose.disturbance.fit_gusts`)."""
+    full = air.fit(model).minus_two_log_likelihood
+    result = {}
+    for index, h in enumerate(model.hypotheses):
+        keep = [i for i in range(len(model.hypotheses)) if i != index]
+        reduced = replace(model, hypotheses=[model.hypotheses[i] for i in keep], values=model.values[keep])
+        result[h.key] = float(air.fit(reduced).minus_two_log_likelihood - full)
+    return result
+
+
+def _weigh_against_air(air: AirCompetitor, data: FitData, reference: EffectModel, model: FittedModel,
+                       candidates: list, best: FittedModel, step: dict | None, rejected: dict | None, *,
+                       n_tested: int) -> tuple:
+    """The effect the step would accept, against "the air moved"
+    (:func:`validation.diagnose.disturbance.weigh_against_air`).
+
+    Output error's choice (``best``, accepted: ``step``) stands as it is where with it the
+    residual is the noise's (no air is left to weigh against). Otherwise, where the air explains
+    some of ``model``'s residual (:meth:`~validation.diagnose.disturbance.AirCompetitor.in_play`),
+    the filter error decides: the ``candidates`` screened and fitted by filter error
+    (:meth:`~validation.diagnose.disturbance.AirCompetitor.screen`) are weighed against the air,
+    most likely first, up to :data:`MAX_AIR_TRIALS` weighings in all with output error's
+    choice; of output error's choice (when it passes) and the first screened one that passes,
+    the one with the larger filter-error likelihood ratio against the air is accepted (a
+    screened one that leaves only noise is refitted by output error, the right estimator
+    without process noise). Its confidence is capped by its weight against the air, a screened
+    one's is the smaller of that and its Akaike weight among the screened competitors and "no
+    further effect" (filter-error likelihoods).
+
+    Returns ``(best, step, rejected)`` as :func:`~validation.diagnose.fitting.weigh_step`;
+    ``step`` None when none passes, and then ``rejected`` is the first weighed (with
+    ``against_air`` true and the turbulence ``intensity`` estimated, m/s), or output error's
+    rejection where none was.
+    """
+    first_rejected, trials, chosen = None, 0, None
+
+    def note(fitted, against):
+        new = fitted.hypotheses[-1]
+        return first_rejected or {"key": new.key, "value": new.effect_value(fitted.values[-1]),
+                                  "lr": against["likelihood_ratio"], "threshold": against["threshold"],
+                                  "against_air": True, "intensity": against["intensity"]}
+
+    if step is not None:
+        trials += 1
+        against, best = air.weigh(model, best, n_tested=n_tested)
+        if against is None:
+            step["against_air"] = None
+            return best, step, rejected
+        if against["passes"]:
+            step["against_air"] = against
+            step["confidence"] = min(step["confidence"], against["weight"])
+            chosen = (best, step, rejected)
+        else:
+            first_rejected = note(best, against)
+    model = air.refine(model)
+    screened = air.screen(model, candidates) if air.in_play(model) else []
+    if screened:
+        null = air.fit(model).minus_two_log_likelihood
+        criteria = np.array([null] + [value + 2 for _, value in screened])  # AIC, up to a constant
+        weights = np.exp(-(criteria - criteria.min()) / 2)
+        weights /= weights.sum()
+    for index, (fitted, value) in enumerate(screened):
+        if trials >= MAX_AIR_TRIALS or (chosen and fitted.hypotheses[-1].key == chosen[0].hypotheses[-1].key):
+            break  # output error's choice is the filter error's too
+        trials += 1
+        against, fitted = air.weigh(model, fitted, n_tested=n_tested)
+        if against is None:  # only the noise is left with it: output error's estimate
+            fitted = fit_many(data, reference, [(fitted.hypotheses, fitted.values)])[0]
+            against = {"likelihood_ratio": math.inf, "passes": True, "weight": 1.0}
+        if not against["passes"]:
+            first_rejected = note(fitted, against)
+            continue
+        if chosen and chosen[1]["against_air"]["likelihood_ratio"] >= against["likelihood_ratio"]:
+            break
+        alternatives = []
+        for other, other_value in screened:
+            ratio = math.exp(min((other_value - value) / 2, 700.0))
+            if other is not screened[index][0] and ratio < MAX_EVIDENCE_RATIO and len(alternatives) < MAX_ALTERNATIVES:
+                alternatives.append({**other.hypotheses[-1].as_effect(other.values[-1]), "evidence_ratio": ratio})
+        lr = max(model.rss - fitted.rss, 0.0)
+        step = {"key": fitted.hypotheses[-1].key, "lr": float(lr), "p_value": float(stats.chi2.sf(lr, 1)),
+                "confidence": float(min(weights[index + 1], against["weight"])), "alternatives": alternatives,
+                "against_air": against if math.isfinite(against["likelihood_ratio"]) else None}
+        return fitted, step, None
+    if chosen:
+        return chosen
+    return best, None, first_rejected or rejected
 
 
 def _search_summary(searches: list) -> dict | None:

@@ -15,6 +15,7 @@ from validation.core.recordings import column_phrase, column_unit
 from validation.diagnose.carry_over import LEFT_OUT, CarryOver, HeldOutEffect
 from validation.diagnose.data import PreparedData
 from validation.diagnose.explain import Explanation, NamedEffect
+from validation.diagnose.fitting import FAMILY_ALPHA
 from validation.diagnose.locate import Location
 from validation.diagnose.model import Models
 from validation.diagnose.prove import MODEL_KEYS, Proof
@@ -52,8 +53,9 @@ class Diagnosis:
 
     ``as_dict()`` is exactly ``diagnosis.json`` (docs/diagnose.md, "diagnosis.json"): ``reference``, ``verdict``,
     ``mismatch``, ``findings``, ``fit``, plus ``locate`` (noise, bands, coherence), ``untestable``,
-    ``ignored_columns`` (recording columns none of the reference's variables, left out)
-    and ``search`` (what was tested and the last rejected hypothesis), and ``replication`` (the
+    ``ignored_columns`` (recording columns none of the reference's variables, left out),
+    ``search`` (what was tested and the last rejected hypothesis) and ``disturbance`` (whether
+    the residual looks like atmospheric turbulence, :func:`disturbance_statement`), and ``replication`` (the
     folds' findings) when the search was replicated. The other attributes feed the report and the
     corrected-model file.
 
@@ -87,11 +89,13 @@ class Diagnosis:
     replication: dict | None = None
     fidelity: dict | None = None
     ignored_columns: list = field(default_factory=list)
+    disturbance: dict | None = None
 
     def as_dict(self) -> dict:
         result = {"reference": self.reference, "verdict": self.verdict, "mismatch": self.mismatch,
                   "findings": self.findings, "fit": self.fit, "locate": self.locate,
-                  "untestable": self.untestable, "ignored_columns": self.ignored_columns, "search": self.search}
+                  "untestable": self.untestable, "ignored_columns": self.ignored_columns, "search": self.search,
+                  "disturbance": self.disturbance}
         if self.fidelity is not None:
             result["fidelity"] = self.fidelity
         if self.replication is not None:
@@ -114,7 +118,15 @@ def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Loc
     if replication is not None:
         for finding in findings:
             finding["replication"] = replication.of(finding)
-    findings += models.unexplained + proof.unexplained
+    disturbance = dict(explanation.disturbance) if explanation.disturbance else None
+    unexplained = models.unexplained
+    if disturbance is not None and disturbance["looks_like_turbulence"]:
+        # The air accounts for the fitted residual: it is not unexplained.
+        disturbance["accounts_for"] = [f["output"] for f in unexplained]
+        unexplained = []
+    if disturbance is not None:
+        disturbance["statement"] = disturbance_statement(disturbance, n_named=len(explanation.named))
+    findings += unexplained + proof.unexplained
     fitted = [m for m, held in zip(data.measured, data.held_out) if not held]
     extent = {name: (float(min(m[:, i].min() for m in fitted)), float(max(m[:, i].max() for m in fitted)))
               for i, name in enumerate(data.output_names)} if fitted else {}
@@ -126,7 +138,38 @@ def assemble_diagnosis(reference: EffectModel, data: PreparedData, location: Loc
                      untestable=data.untestable + proof.untestable, search=explanation.search,
                      corrected=models.corrected, named_effects=explanation.effects, holdout_traces=proof.traces,
                      replication=replication.summary() if replication is not None else None, fidelity=fidelity,
-                     ignored_columns=data.ignored_columns)
+                     ignored_columns=data.ignored_columns, disturbance=disturbance)
+
+
+def disturbance_statement(disturbance: dict, *, n_named: int) -> str | None:
+    """The plain-words sentence of diagnosis.json's ``disturbance``
+    (:func:`validation.diagnose.disturbance.describe`): None where it was not tested."""
+    if not disturbance["tested"]:
+        return None
+    if not disturbance["looks_like_turbulence"]:
+        if disturbance["time_constant"] is None:
+            return "The residual shows no atmospheric disturbance: still air explains it as well as gusts do."
+        if disturbance["input_p_value"] is not None and disturbance["input_p_value"] < FAMILY_ALPHA:
+            return (f"Gusts of {_number(disturbance['intensity'])} m/s RMS would whiten the residual "
+                    f"(likelihood ratio {disturbance['likelihood_ratio']:.3g} against still air), but what is left "
+                    f"follows the inputs (p = {disturbance['input_p_value']:.2g}), which gusts do not: it does not "
+                    "look like atmospheric disturbance.")
+        return (f"Gusts of {_number(disturbance['intensity'])} m/s RMS would explain part of the residual "
+                f"(likelihood ratio {disturbance['likelihood_ratio']:.3g} against still air), but not down to the "
+                f"sensor noise (whitened innovations {disturbance['innovation_ratio']:.3g} times the noise): "
+                "it does not look like atmospheric disturbance alone.")
+    sigma = disturbance["sigma"]
+    scale = (f", a scale length of {disturbance['scale_length']:.0f} m" if disturbance["scale_length"] is not None
+             else "")
+    named = ("No effect is named: every one output error would take was weighed against the air and lost."
+             if n_named == 0 else
+             f"The {n_named} named effect{'s' if n_named > 1 else ''} won against it.")
+    return (f"The residual looks like atmospheric disturbance: the model's response to Dryden turbulence of "
+            f"{_number(disturbance['intensity'])} m/s RMS (sigma_u {_number(sigma['u'])}, sigma_v "
+            f"{_number(sigma['v'])}, sigma_w {_number(sigma['w'])} m/s; time constant "
+            f"{disturbance['time_constant']:.3g} s{scale}) accounts for it down to "
+            f"{disturbance['innovation_ratio']:.3g} times the sensor noise (likelihood ratio "
+            f"{disturbance['likelihood_ratio']:.3g} against still air). {named}")
 
 
 def _named_finding(named: NamedEffect, main_output: str, held_out: HeldOutEffect, gp_absorbs: float,
@@ -460,11 +503,18 @@ def report_markdown(diagnosis: Diagnosis, plot_names: dict) -> str:
     lines = [f"# Diagnosis of {result['reference']} against recordings", "",
              f"Verdict: **{result['verdict']}**.", ""]
     lines += _fidelity_lines(result.get("fidelity"))
+    disturbance = result.get("disturbance") or {}
+    turbulent = bool(disturbance.get("looks_like_turbulence"))
     if result["findings"]:
         lines += [f"- {finding['statement']}" for finding in result["findings"]]
+    elif turbulent:
+        lines.append(f"- The simulation ({result['reference']}) is consistent with the recordings once the air's "
+                     "motion is allowed for: no named effect is significant against it.")
     else:
         lines.append(f"- The simulation ({result['reference']}) is consistent with the recordings: no "
                      "named effect is significant and the residual is at the sensor-noise level.")
+    if turbulent:
+        lines.append(f"- {disturbance['statement']}")
     lines += [""]
     lines += _fit_table(result["fit"])
     lines += ["", "## Findings in detail", ""]

@@ -54,7 +54,8 @@ keyword of the same name; all on by default):
     Keller's wake distortion does. At 80 kt: ``L_q`` 1.17 -> -3.35, ``M_p`` -0.23 -> 1.13,
     ``L_p`` -13.61 -> -13.06, ``M_q`` -4.00 -> -3.89 (1/s). With ``flapping`` off the
     stand-in is exactly the reference with these four derivatives changed.
-``turbulence`` -- Dryden turbulence (MIL-F-8785C, 1980; MIL-HDBK-1797, 1997): gust velocities
+``turbulence`` -- Dryden turbulence (MIL-F-8785C, 1980; MIL-HDBK-1797, 1997;
+    :mod:`validation.vehicles.turbulence`): gust velocities
     ``u_g, v_g, w_g`` from ``H_u = sigma sqrt(2T) / (Ts + 1)`` and
     ``H_v = H_w = sigma sqrt(T) (sqrt(3) T s + 1) / (Ts + 1)^2``, ``T = L_t / V``, driven by
     unit-intensity white noise so that each gust has standard deviation ``sigma``. Isotropic
@@ -82,10 +83,8 @@ turbulence and sensor noise, so switching one effect off leaves the other's draw
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 
 import numpy as np
-from scipy import linalg
 
 from validation.core.recordings import Recording
 from validation.core.sampling import check_history
@@ -110,8 +109,8 @@ from validation.vehicles.bo105 import (
     padfield_condition,
     padfield_table,
 )
-from validation.vehicles.linear_discretisation import expm
 from validation.vehicles.state_space import cached_zero_order_hold, propagate
+from validation.vehicles.turbulence import dryden_gusts
 
 _STATE = {name: i for i, name in enumerate(STATE_NAMES)}
 _INPUT = {name: i for i, name in enumerate(INPUT_NAMES)}
@@ -210,53 +209,6 @@ def _wake_distortion_rotation() -> np.ndarray:
     rotation = np.eye(len(STATE_NAMES))
     rotation[np.ix_([p, q], [p, q])] = [[c, s * I_YY / I_XX], [-s * I_XX / I_YY, c]]
     return rotation
-
-
-def _dryden_filter(advection_speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Continuous Dryden filters for (u_g, v_g, w_g): ``xi_dot = F xi + G n``, ``gust = C xi``.
-
-    ``n`` is unit-intensity white noise (3,); shapes F (5, 5), G (5, 3), C (3, 5). Transfer
-    functions in the module docstring (``turbulence``); each gust has variance sigma^2.
-    """
-    T = TURBULENCE_SCALE_LENGTH / advection_speed
-    sigma = TURBULENCE_STD
-    F, G, C = np.zeros((5, 5)), np.zeros((5, 3)), np.zeros((3, 5))
-    F[0, 0], G[0, 0], C[0, 0] = -1 / T, 1.0, sigma * math.sqrt(2 * T) / T
-    for gust, first in ((1, 1), (2, 3)):  # v_g, w_g: controllable canonical form of 1/(s + 1/T)^2
-        F[first, first + 1] = 1.0
-        F[first + 1, first:first + 2] = [-1 / T**2, -2 / T]
-        G[first + 1, gust] = 1.0
-        C[gust, first:first + 2] = sigma * math.sqrt(T) / T**2 * np.array([1.0, math.sqrt(3) * T])
-    return F, G, C
-
-
-@lru_cache(maxsize=32)
-def _dryden_discretisation(advection_speed: float, step: float):
-    """Exact discrete Dryden filters at ``step`` s (Van Loan, IEEE TAC 23(3), 1978).
-
-    ``expm([[-F, G G^T], [0, F^T]] h)`` gives ``Phi = E22^T`` and ``Q = Phi E12``. Returns
-    ``Phi`` (5, 5), a square root of ``Q`` (5, 5), a square root of the stationary covariance
-    ``P`` (``F P + P F^T + G G^T = 0``) (5, 5), and ``C`` (3, 5).
-    """
-    F, G, C = _dryden_filter(advection_speed)
-    n = len(F)
-    E = expm(np.block([[-F, G @ G.T], [np.zeros((n, n)), F.T]]) * step)
-    transition = E[n:, n:].T
-    process_noise = linalg.cholesky(transition @ E[:n, n:], lower=True)
-    stationary = linalg.cholesky(linalg.solve_continuous_lyapunov(F, -G @ G.T), lower=True)
-    return transition, process_noise, stationary, C
-
-
-def _dryden_gusts(advection_speed: float, step: float, n_steps: int, rng) -> np.ndarray:
-    """Gust velocities (u_g, v_g, w_g), shape (n_steps, 3), m/s, one per internal step.
-
-    The filters start from their stationary distribution, so the air is turbulent from the
-    first sample.
-    """
-    transition, process_noise, stationary, C = _dryden_discretisation(advection_speed, step)
-    xi = stationary @ rng.standard_normal(len(transition))
-    increments = rng.standard_normal((n_steps, len(transition))) @ process_noise.T
-    return propagate(transition, increments, xi)[:-1] @ C.T
 
 
 def _augmented_system(reference: Bo105Reference, effects: dict[str, bool]):
@@ -406,7 +358,8 @@ class Bo105FlightTest:
         gusts = np.zeros((n_internal, 3))
         if self._effects["turbulence"]:
             advection = max(self.speed_kt * KNOT, TURBULENCE_MIN_ADVECTION_SPEED)
-            gusts = _dryden_gusts(advection, internal_step, n_internal, turbulence_rng)
+            gusts = dryden_gusts((TURBULENCE_STD,) * 3, (TURBULENCE_SCALE_LENGTH,) * 3, advection, internal_step,
+                                 n_internal, turbulence_rng)
         Ad, Bd = cached_zero_order_hold(self._discretisations, self._F, self._G, internal_step)
         forcing = np.hstack([commands, gusts]) @ Bd.T
         outputs = propagate(Ad, forcing, np.zeros(len(Ad)), every=substeps)[:, :len(STATE_NAMES)]

@@ -103,7 +103,8 @@ def _delayed(signal: np.ndarray, samples: int) -> np.ndarray:
     return shifted
 
 
-def simulate_linear_with_effects(reference: LinearReference, effects, time, inputs) -> np.ndarray:
+def simulate_linear_with_effects(reference: LinearReference, effects, time, inputs, *,
+                                 gusts: np.ndarray | None = None) -> np.ndarray:
     """States as recorded (through the measurement chain) of a linear reference with checked
     ``effects`` (module docstring), from trim.
 
@@ -116,6 +117,14 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
         Evenly spaced sample times, s.
     inputs : ndarray, shape (n, n_inputs)
         In ``reference.input_names`` order and units, zero-order hold.
+    gusts : ndarray, shape (n, 3), optional
+        Air velocities ``u_g, v_g, w_g`` along the body axes, m/s, each row held over its
+        interval as the inputs are (e.g. :func:`validation.vehicles.turbulence.dryden_gusts`).
+        The derivatives act on the velocity relative to the air, so the columns of ``A`` (the
+        effects' own, with changed derivatives) for the states ``u, v, w`` act on ``x - gust``:
+        ``x_dot = A x + B u - A[:, (u, v, w)] gust``, as the flight-test stand-in's turbulence
+        enters (:mod:`validation.vehicles.bo105_flight`). The reference must have states named
+        ``u``, ``v`` and ``w``.
 
     Returns
     -------
@@ -123,6 +132,12 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
         The states as recorded, in ``reference.state_names`` order.
     """
     time, inputs, step = check_history(time, inputs, reference.input_names)
+    if gusts is not None:
+        gusts = np.asarray(gusts, dtype=float)
+        missing = [name for name in ("u", "v", "w") if name not in reference.state_names]
+        if missing or gusts.shape != (len(time), 3):
+            raise ValueError(f"gusts: need shape ({len(time)}, 3) and states u, v, w of {reference.name}; got "
+                             f"shape {gusts.shape}" + (f", no state {', '.join(missing)}" if missing else ""))
     derivatives = {e["term"]: e["value"] for e in effects
                    if e["effect"] in ("control_derivative", "stability_derivative")}
     polynomial = [(e["term"], e["value"]) for e in effects
@@ -177,6 +192,11 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
             if fraction > 1e-12 else np.zeros(size)
         forcing += np.outer(_delayed(held[:, column], whole), gamma_late)
         forcing += np.outer(_delayed(held[:, column], whole + 1), gamma_early)
+    if gusts is not None:
+        columns = [reference.state_names.index(name) for name in ("u", "v", "w")]
+        gust_input = np.zeros((size, 3))
+        gust_input[:n_states] = -A[:, columns]
+        forcing += gusts[:-1] @ zero_order_hold(F, gust_input, step)[1].T
     if polynomial:
         signal_names = reference.state_names + reference.input_names
         terms = [parse_term(term, reference.row_letters, signal_names) for term, _ in polynomial]

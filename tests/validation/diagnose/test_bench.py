@@ -37,7 +37,10 @@ def test_every_named_effect_kind_is_in_the_suite_at_realistic_magnitude():
                      "nonlinear_damping", "dead_band", "backlash", "saturation", "rate_limit", "search_term",
                      "nonlinear_stiffness", "quadratic_stiffness", "sensor_lag", "output_scale", "sensor_drift",
                      "sensor_cross_axis"}
-    assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous", "changing"}
+    assert {case.kind for case in cases} == {"single", "pair", "none", "ambiguous", "changing", "turbulence"}
+    # Turbulence of each intensity the bench flies, with nothing missing and with an effect.
+    assert {c.turbulence for c in cases if c.kind == "turbulence"} == {"light", "moderate"}
+    assert {c.turbulence for c in cases if c.kind == "single" and c.turbulence} == {"light", "moderate"}
     assert len({case.name for case in cases}) == len(cases)
     for case in cases:
         for effect in case.effects:
