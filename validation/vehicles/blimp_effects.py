@@ -82,12 +82,10 @@ from validation.vehicles.blimp_jax import compiled_replay
 from validation.vehicles.effects import (
     Hypothesis,
     apply_measurement_chains,
-    backlash_inputs,
     check_trim_start,
-    dead_band_inputs,
     delayed_interval_means,
     lagged_interval_means,
-    rate_limited_interval_means,
+    shaped_inputs,
     simulate_each_recording,
     starts_at_trim,
 )
@@ -194,7 +192,7 @@ def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarr
     held = np.repeat(inputs[None, :-1], len(effect_lists), axis=0)
     lags = []  # (member, input column, time constant)
     for b, effects in enumerate(effect_lists):
-        commanded = _shaped_inputs(effects, time, inputs)
+        commanded = shaped_inputs(effects, time, inputs, INPUT_NAMES)  # about rest (0)
         held[b] = commanded[:-1]
         for effect in effects:  # delays first: a lag acts on the delayed input
             if effect["effect"] == "time_delay" and effect["value"] > 0:
@@ -206,26 +204,6 @@ def _held_inputs(effect_lists, time: np.ndarray, inputs: np.ndarray) -> np.ndarr
         members, columns, time_constants = (np.array(values) for values in zip(*lags))
         held[members, :, columns] = lagged_interval_means(held[members, :, columns], time_constants, np.diff(time))
     return held
-
-
-def _shaped_inputs(effects, time: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-    """The inputs (n, 3) through ``effects``' dead bands, then free play, then limits about rest (0), then rate
-    limits (interval means of the ramps, rows 0 .. n-2; the last row as recorded), in that order
-    whatever the order of ``effects``, as on every reference."""
-    shaped = inputs
-    for kind in ("dead_band", "backlash", "saturation", "rate_limit"):  # this order, whatever the list's
-        for effect in (e for e in effects if e["effect"] == kind):
-            shaped = shaped.copy() if shaped is inputs else shaped
-            j = INPUT_NAMES.index(effect["input"])
-            if kind == "dead_band":
-                shaped[:, j] = dead_band_inputs(shaped[:, j], effect["value"])
-            elif kind == "backlash":
-                shaped[:, j] = backlash_inputs(shaped[:, j], effect["value"])
-            elif kind == "saturation":
-                np.clip(shaped[:, j], -effect["value"], effect["value"], out=shaped[:, j])
-            else:
-                shaped[:-1, j] = rate_limited_interval_means(shaped[:-1, j], effect["value"], np.diff(time))
-    return shaped
 
 
 @dataclass

@@ -417,6 +417,52 @@ def backlash_inputs(signal_: np.ndarray, half_width: float, *, centre: float = 0
     return np.repeat(positions, np.diff(np.append(starts, len(commands))))
 
 
+#: The effects that shape an input before it acts, in the order every reference applies them,
+#: whatever the order of the list (:func:`shaped_inputs`).
+SHAPING_KINDS = ("dead_band", "backlash", "saturation", "rate_limit")
+
+
+def shaped_inputs(effects, time: np.ndarray, inputs: np.ndarray, input_names, *, centre=None) -> np.ndarray:
+    """The inputs through ``effects``' dead bands, free play, position limits and rate limits
+    (:data:`SHAPING_KINDS`, in that order), each about ``centre``: :func:`dead_band_inputs`,
+    :func:`backlash_inputs`, a clip at ``centre +- limit`` and :func:`rate_limited_interval_means`
+    (interval means of the ramps over rows 0 .. n-2; the last row is left as given).
+
+    Parameters
+    ----------
+    effects : list of dict
+        Checked effects (:func:`check_effects`); those of other kinds are ignored.
+    time : ndarray, shape (n,)
+        s.
+    inputs : ndarray, shape (n, m)
+        Commands held over each interval, in ``input_names`` order.
+    input_names : sequence of str
+    centre : ndarray, shape (m,), optional
+        Trim or rest of each input (default 0: inputs that are perturbations from trim), or
+        the commands held at the start of a recording.
+
+    Returns
+    -------
+    ndarray, shape (n, m)
+        ``inputs`` itself when no effect shapes them, otherwise a new array.
+    """
+    centre = np.zeros(inputs.shape[1]) if centre is None else np.asarray(centre, dtype=float)
+    shaped = inputs
+    for kind in SHAPING_KINDS:
+        for effect in (e for e in effects if e["effect"] == kind):
+            shaped = shaped.copy() if shaped is inputs else shaped
+            j, value = list(input_names).index(effect["input"]), effect["value"]
+            if kind == "dead_band":
+                shaped[:, j] = dead_band_inputs(shaped[:, j], value, centre=centre[j])
+            elif kind == "backlash":
+                shaped[:, j] = backlash_inputs(shaped[:, j], value, centre=centre[j])
+            elif kind == "saturation":
+                np.clip(shaped[:, j], centre[j] - value, centre[j] + value, out=shaped[:, j])
+            else:
+                shaped[:-1, j] = rate_limited_interval_means(shaped[:-1, j], value, np.diff(time), centre=centre[j])
+    return shaped
+
+
 def rate_limited_interval_means(held: np.ndarray, rate: float, steps: np.ndarray, *,
                                 centre: float = 0.0) -> np.ndarray:
     """Interval means of an actuator that follows a zero-order-held command no faster than

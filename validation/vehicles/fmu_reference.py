@@ -49,11 +49,9 @@ from validation.core.sampling import check_history
 from validation.vehicles.effects import (
     Hypothesis,
     apply_measurement_chain,
-    backlash_inputs,
-    dead_band_inputs,
     delayed_interval_means,
     lagged_interval_means,
-    rate_limited_interval_means,
+    shaped_inputs,
     simulate_each_recording,
     true_first_values,
 )
@@ -507,23 +505,8 @@ class FMUEffects:
         (interval means, so row k is the mean over interval k; the last row repeats; before the
         recording, the input held its first value), then scaled (``gain * u``)."""
         first = inputs[0].copy()
-        held = inputs.copy()
+        held = shaped_inputs(effects, time, inputs, self.input_names, centre=first).copy()
         steps = np.diff(time)
-        for effect in effects:
-            if effect["effect"] == "dead_band" and effect["value"] > 0:
-                j = self.input_names.index(effect["input"])
-                held[:, j] = dead_band_inputs(held[:, j], effect["value"], centre=first[j])
-        for effect in effects:  # free play after every dead band, as on every reference
-            if effect["effect"] == "backlash" and effect["value"] > 0:
-                j = self.input_names.index(effect["input"])
-                held[:, j] = backlash_inputs(held[:, j], effect["value"], centre=first[j])
-            if effect["effect"] == "saturation":
-                j = self.input_names.index(effect["input"])
-                held[:, j] = np.clip(held[:, j], first[j] - effect["value"], first[j] + effect["value"])
-        for effect in effects:
-            if effect["effect"] == "rate_limit":
-                j = self.input_names.index(effect["input"])
-                held[:-1, j] = rate_limited_interval_means(held[:-1, j], effect["value"], steps, centre=first[j])
         moved = held.copy()
         for effect in effects:
             if effect["effect"] == "time_delay" and effect["value"] > 0:

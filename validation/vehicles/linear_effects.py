@@ -67,10 +67,8 @@ from validation.core.sampling import check_history
 from validation.vehicles.effects import (
     Hypothesis,
     apply_measurement_chain,
-    backlash_inputs,
     check_trim_start,
-    dead_band_inputs,
-    rate_limited_interval_means,
+    shaped_inputs,
     simulate_each_recording,
     starts_at_trim,
 )
@@ -160,25 +158,12 @@ def simulate_linear_with_effects(reference: LinearReference, effects, time, inpu
         F[extra, extra] = -1.0 / time_constant
         G[extra, column] = 1.0 / time_constant
     Phi, Gamma = zero_order_hold(F, G, step)
-    held = inputs[:-1]
-    bands = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
-             if e["effect"] == "dead_band" and e["value"] > 0]
-    plays = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
-             if e["effect"] == "backlash" and e["value"] > 0]
+    # About trim (0): the inputs are perturbations from it; the gain last, as on every reference.
+    held = shaped_inputs(effects, time, inputs, reference.input_names)[:-1]
     gains = [(reference.input_names.index(e["input"]), e["value"]) for e in effects
              if e["effect"] == "input_gain" and e["value"] != 1.0]
-    limits = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "saturation"]
-    rates = [(reference.input_names.index(e["input"]), e["value"]) for e in effects if e["effect"] == "rate_limit"]
-    if bands or plays or gains or limits or rates:  # about trim (0): the inputs are perturbations from it
+    if gains:
         held = held.copy()
-        for column, half_width in bands:  # the order of every reference: band, play, limit, rate limit, gain
-            held[:, column] = dead_band_inputs(held[:, column], half_width)
-        for column, half_width in plays:
-            held[:, column] = backlash_inputs(held[:, column], half_width)
-        for column, limit in limits:
-            np.clip(held[:, column], -limit, limit, out=held[:, column])
-        for column, rate in rates:
-            held[:, column] = rate_limited_interval_means(held[:, column], rate, np.full(len(held), step))
         for column, gain in gains:
             held[:, column] *= gain
     undelayed = [column for column in range(n_inputs) if column not in delays]
