@@ -42,3 +42,25 @@ def theil_inequality(measured: np.ndarray, predicted: np.ndarray) -> float:
     """
     denominator = math.sqrt(np.mean(measured**2)) + math.sqrt(np.mean(predicted**2))
     return float(rmse(measured, predicted) / denominator) if denominator > 0 else 0.0
+
+
+def robust_sd(values: np.ndarray, *, axis: int | None = None) -> np.ndarray | float:
+    """A standard deviation robust to outliers: 1.4826 times the median absolute deviation from
+    the median (Hampel, JASA 69(346), 1974; the factor makes it the standard deviation of a
+    normal sample).
+
+    Parameters
+    ----------
+    values : ndarray
+    axis : int, optional
+        Along this axis (default: over every value).
+
+    Returns
+    -------
+    float or ndarray
+        In the unit of ``values``.
+    """
+    values = np.asarray(values, dtype=float)
+    centre = np.median(values, axis=axis, keepdims=True)
+    spread = 1.4826 * np.median(np.abs(values - centre), axis=axis)
+    return float(spread) if axis is None else spread

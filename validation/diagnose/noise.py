@@ -7,6 +7,8 @@ import math
 import numpy as np
 from scipy import stats
 
+from validation.core.metrics import robust_sd
+
 #: False-alarm probability of one test against the noise: one moving-RMS window, one frequency
 #: bin, one coherence peak, one output's residual.
 LOCATE_ALPHA = 1e-4
@@ -51,7 +53,7 @@ def estimate_noise_sd(measured: np.ndarray, *, time: np.ndarray | None = None) -
         span = gaps[:-1] + gaps[1:]
         before, after = gaps[1:] / span, gaps[:-1] / span  # a_k, b_k
     e = (before * measured[:-2] + after * measured[2:] - measured[1:-1]) / np.sqrt(before**2 + after**2 + 1)
-    sd = 1.4826 * float(np.median(np.abs(e - np.median(e))))
+    sd = robust_sd(e)
     return max(sd, 1e-6 * float(np.sqrt(np.mean(measured**2))) + 1e-12)
 
 

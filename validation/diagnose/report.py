@@ -292,7 +292,7 @@ def statement(finding: dict, fit: dict, reference: EffectModel, *, extent: dict 
             text = (f"The {words} response is smoothed by a first-order lag of {_number(value)} s "
                     f"{interval} on {control}: unmodelled actuator or rotor dynamics.")
     elif kind == "dead_band":
-        text = (f"A dead band (free play) on {_input_words(finding['input'])}: nothing passes within "
+        text = (f"A dead band on {_input_words(finding['input'])}: nothing passes within "
                 f"{_number(value)} {unit} {interval} of where it started, and beyond that the input arrives short "
                 "by as much.")
     elif kind == "backlash":

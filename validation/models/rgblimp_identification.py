@@ -58,6 +58,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from validation.core.errors import BadInputError
+from validation.core.metrics import robust_sd
 from validation.models.blimp_identification import cluster_robust_covariance
 from validation.vehicles.rgblimp_equations import (
     SAMPLE_TIME,
@@ -481,9 +482,9 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
 
 
 def between_spread(results) -> np.ndarray:
-    """How much the identified coefficients differ between configurations: per coefficient,
-    1.4826 times the median absolute deviation of ``results``' values from their median (a
-    standard deviation robust to a few configurations whose fit went astray; Hampel 1974).
+    """How much the identified coefficients differ between configurations: per coefficient, the
+    robust standard deviation of ``results``' values (:func:`validation.core.metrics.robust_sd`,
+    robust to a few configurations whose fit went astray).
 
     Parameters
     ----------
@@ -495,12 +496,11 @@ def between_spread(results) -> np.ndarray:
     ndarray, shape (p,)
         In each coefficient's unit.
     """
-    values = np.array([r.values for r in results])
-    return 1.4826 * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
+    return robust_sd(np.array([r.values for r in results]), axis=0)
 
 
 def identify_configurations(groups, initial: RGBlimpModel, *, shrinkage: float | None = SHRINKAGE,
-                            names=IDENTIFIED_PARAMETERS, **options) -> list[IdentificationResult]:
+                            names=IDENTIFIED_PARAMETERS, alone=None, **options) -> list[IdentificationResult]:
     """Each configuration's coefficients identified on its own flights and drawn toward the
     vehicle's (a hierarchical model, estimated by empirical Bayes: Efron & Morris, JASA 70(350),
     1975). A configuration's two flights show one steady spiral each, and coefficients fitted to
@@ -526,17 +526,24 @@ def identify_configurations(groups, initial: RGBlimpModel, *, shrinkage: float |
         as does a set of fewer than three configurations (no spread to estimate).
     names : sequence of str
         The coefficients (:data:`IDENTIFIED_PARAMETERS`).
+    alone : list of IdentificationResult, optional
+        The first fits, if made already (by this function with ``shrinkage=None`` and the same
+        groups, start, names and options): they do not depend on ``shrinkage``.
     **options
         ``segment_duration``, ``max_segments``, ``max_iterations`` of :func:`identify_parameters`.
 
     Returns
     -------
     list of IdentificationResult
-        One per group, in order; ``seconds`` counts both fits of the group.
+        One per group, in order; ``seconds`` counts both fits of the group (the first only if
+        made here).
     """
     if shrinkage is not None and not (np.isfinite(shrinkage) and shrinkage > 0):
         raise BadInputError(f"shrinkage must be a positive number or None, got {shrinkage!r}")
-    alone = [identify_parameters(flights, names=names, initial=initial, **options) for flights in groups]
+    if alone is None:
+        alone = [identify_parameters(flights, names=names, initial=initial, **options) for flights in groups]
+    elif len(alone) != len(groups):
+        raise BadInputError(f"{len(alone)} first fits for {len(groups)} configurations")
     if shrinkage is None or len(groups) < 3:
         return alone
     # A coefficient every configuration fits alike keeps a tiny prior width, not zero.

@@ -356,6 +356,8 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
     dict
         The content of ``results.json``.
     """
+    if setup.shrinkage is not None and not (np.isfinite(setup.shrinkage) and setup.shrinkage > 0):
+        raise BadInputError(f"shrinkage must be a positive number or None, got {setup.shrinkage!r}")
     started = clock.perf_counter()
     require_pysindy()  # before any fit: the peer needs it
     out_dir = Path(out_dir)
@@ -415,7 +417,9 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
                                     "include the thrusts and the gondola position) and each configuration's "
                                     "coefficients refined with it, fitted once on all fitting flights"},
         "default_model": DEFAULT_MODEL,
-        "setup": {"identified_parameters": list(setup.identified_parameters), "shrinkage": setup.shrinkage,
+        "setup": {"identified_parameters": list(setup.identified_parameters),
+                  # None where fewer than three configurations give no spread to draw them by.
+                  "shrinkage": setup.shrinkage if len(splits) >= 3 else None,
                   "segment_duration_s": setup.segment_duration, "max_segments": setup.max_segments,
                   "global_max_segments": setup.global_max_segments, "max_iterations": setup.max_iterations,
                   "gp_inputs": list(GP_INPUT_NAMES), "training_points": setup.training_points,
@@ -460,15 +464,16 @@ def fit_global(fitting, setup: RGBlimpSetup, *, seed: int, with_rkgp: bool = Tru
                                 min_noise_variance=setup.min_noise_variance, smoothing=setup.smoothing, seed=seed)
 
 
-def identify_all_configurations(groups, initial: RGBlimpModel, *, setup: RGBlimpSetup) -> list:
+def identify_all_configurations(groups, initial: RGBlimpModel, *, setup: RGBlimpSetup, alone=None) -> list:
     """Every configuration's coefficients identified on its fitting flights (``groups``: one
     sequence of flights per configuration), each drawn toward ``initial`` (the global model) by
     ``setup.shrinkage`` times the spread between configurations
     (:func:`~validation.models.rgblimp_identification.identify_configurations`): one
-    :class:`~validation.models.rgblimp_identification.IdentificationResult` per group."""
+    :class:`~validation.models.rgblimp_identification.IdentificationResult` per group
+    (``alone``: the first fits, made already with ``shrinkage=None``)."""
     return identify_configurations(groups, initial, shrinkage=setup.shrinkage, names=setup.identified_parameters,
-                                   segment_duration=setup.segment_duration, max_segments=setup.max_segments,
-                                   max_iterations=setup.max_iterations)
+                                   alone=alone, segment_duration=setup.segment_duration,
+                                   max_segments=setup.max_segments, max_iterations=setup.max_iterations)
 
 
 def identify_configuration(fitting, initial: RGBlimpModel, *, setup: RGBlimpSetup):

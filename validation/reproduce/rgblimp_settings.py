@@ -104,7 +104,7 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
     flights = {n: read_rgblimp_flight(Path(data_dir) / f"data_{n}.csv")
                for s in splits for n in (*s.fit, s.test)}
     fitting = [flights[n] for s in splits for n in s.fit]
-    scored, globals_, identified_, physics_ = {}, {}, {}, {}
+    scored, globals_, alone_, identified_, physics_ = {}, {}, {}, {}, {}
     with progress_bar("rgblimp settings", enabled=progress, total=len(candidates) * len(splits),
                       unit="fit") as update:
         for name, setup in candidates.items():
@@ -114,8 +114,11 @@ def study_settings(data_dir, *, configurations=None, candidates=None, seed: int 
             if key not in globals_:
                 globals_[key] = fit_global(fitting, setup, seed=seed, with_rkgp=False)[0]
             if (key, setup.shrinkage) not in identified_:  # the configurations are drawn toward each other
-                results = identify_all_configurations([[flights[n] for n in s.fit] for s in splits],
-                                                      globals_[key].model, setup=setup)
+                groups = [[flights[n] for n in s.fit] for s in splits]
+                if key not in alone_:  # the first fits do not depend on the shrinkage
+                    alone_[key] = identify_all_configurations(groups, globals_[key].model,
+                                                              setup=replace(setup, shrinkage=None))
+                results = identify_all_configurations(groups, globals_[key].model, setup=setup, alone=alone_[key])
                 identified_[key, setup.shrinkage] = {}
                 for split, result in zip(splits, results):
                     test = flights[split.test].recording

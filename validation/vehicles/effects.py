@@ -350,7 +350,7 @@ def lagged_interval_means(signals: np.ndarray, time_constants: np.ndarray, steps
 
 
 def dead_band_inputs(signal_: np.ndarray, half_width: float, *, centre: float = 0.0) -> np.ndarray:
-    """A command through a dead band (free play) of ``half_width`` about ``centre``: nothing
+    """A command through a dead band of ``half_width`` about ``centre``: nothing
     passes while the command stays within ``half_width`` of the centre, and beyond it the command
     arrives short by ``half_width`` (continuous, slope 1 outside: the dead-zone nonlinearity of
     Slotine and Li, *Applied Nonlinear Control*, 1991, sec. 5.2).

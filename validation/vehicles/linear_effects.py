@@ -21,7 +21,7 @@ How each effect enters ``x_dot = A x + B u``:
 - the effects of the measurement chain (``output_scale``, ``sensor_cross_axis``, ``sensor_lag``,
   ``sensor_bias``, ``sensor_drift``) act on the replayed states as recorded, through
   :func:`validation.vehicles.effects.apply_measurement_chain`, as on every reference;
-- ``dead_band`` on input ``j``: the input passes through a dead band (free play) of the given
+- ``dead_band`` on input ``j``: the input passes through a dead band of the given
   half-width about trim (:func:`validation.vehicles.effects.dead_band_inputs`) before it acts;
   ``backlash``: free play of the half-width, centred at trim at the start
   (:func:`validation.vehicles.effects.backlash_inputs`), after the dead band;

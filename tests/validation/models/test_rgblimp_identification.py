@@ -134,17 +134,19 @@ def test_configurations_are_drawn_toward_the_vehicle_by_their_spread():
     np.testing.assert_allclose([r.values[0] for r in alone], gains, atol=1e-4)
     # 1.4826 times the median absolute deviation from the median 0.975: (0.075, 0.075, 0.175, 0.325).
     np.testing.assert_allclose(between_spread(alone), [1.4826 * 0.125], rtol=1e-3)
-    loose, tight = (np.array([r.values[0] for r in identify_configurations(groups, RGBlimpModel(), shrinkage=s,
-                                                                           **options)]) for s in (0.1, 0.01))
+    loose, tight = (np.array([r.values[0] for r in identify_configurations(
+        groups, RGBlimpModel(), shrinkage=s, alone=alone, **options)]) for s in (0.1, 0.01))
     own = np.array(gains) - 1.0
     assert np.all(np.abs(tight - 1.0) < np.abs(loose - 1.0) - 1e-4)
     assert np.all(np.abs(loose - 1.0) <= np.abs(own) + 1e-6)
     assert np.all(np.sign(tight - 1.0) == np.sign(own))
     # Two configurations give no spread to estimate: each is fitted alone.
-    pair = identify_configurations(groups[:2], RGBlimpModel(), shrinkage=0.01, **options)
-    np.testing.assert_allclose([r.values[0] for r in pair], gains[:2], atol=1e-4)
+    pair = identify_configurations(groups[:2], RGBlimpModel(), shrinkage=0.01, alone=alone[:2], **options)
+    assert all(p is a for p, a in zip(pair, alone[:2], strict=True))
     with pytest.raises(BadInputError, match="shrinkage"):
-        identify_configurations(groups, RGBlimpModel(), shrinkage=0.0, **options)
+        identify_configurations(groups, RGBlimpModel(), shrinkage=0.0, alone=alone, **options)
+    with pytest.raises(BadInputError, match="3 first fits for 4"):
+        identify_configurations(groups, RGBlimpModel(), shrinkage=0.1, alone=alone[:3], **options)
 
 
 def test_short_flights_give_one_masked_segment_and_long_ones_are_thinned():

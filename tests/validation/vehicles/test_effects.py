@@ -300,3 +300,19 @@ def test_free_play_on_the_bo105_leaves_the_cyclic_off_trim_after_the_manoeuvre(m
     assert flown[-1, 1] == pytest.approx(-width) and np.abs(got[-1] - band[-1]).max() > 1e-3
     with pytest.raises(BadInputError, match="half-width cannot be negative"):
         check_effects([{"effect": "backlash", "input": "theta_1s", "value": -0.01}], Bo105Effects(Bo105Reference(80)))
+
+
+def test_inputs_are_shaped_in_one_order_whatever_the_order_of_the_effects():
+    """Free play then a limit, about the first command, however the list orders them (listed the
+    other way, a limit first would give 0.3 where free play first gives 0.5)."""
+    from validation.vehicles.effects import shaped_inputs
+
+    time = np.arange(5) * 0.1
+    inputs = np.array([[0.0, 2.0], [1.0, 2.0], [1.0, 2.0], [0.0, 2.0], [0.0, 2.0]])
+    effects = [{"effect": "saturation", "input": "a", "value": 0.5},
+               {"effect": "backlash", "input": "a", "value": 0.2}]
+    forward = shaped_inputs(effects, time, inputs, ("a", "b"), centre=inputs[0])
+    np.testing.assert_array_equal(shaped_inputs(effects[::-1], time, inputs, ("a", "b"), centre=inputs[0]), forward)
+    np.testing.assert_allclose(forward[:, 0], [0.0, 0.5, 0.5, 0.2, 0.2])
+    np.testing.assert_array_equal(forward[:, 1], inputs[:, 1])
+    assert shaped_inputs([], time, inputs, ("a", "b")) is inputs

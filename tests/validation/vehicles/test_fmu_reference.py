@@ -318,4 +318,4 @@ def test_a_dead_band_is_named_when_the_manoeuvre_has_two_amplitudes(fmu):
     first = findings[0]
     assert (first["effect"], first["input"]) == ("dead_band", "theta_1s"), findings
     assert first["interval"][0] <= width <= first["interval"][1]
-    assert "dead band (free play) on theta_1s" in first["statement"]
+    assert "dead band on theta_1s" in first["statement"]
