@@ -450,11 +450,17 @@ class AirCompetitor:
             self._fits[key] = fit_gusts(self.data, self.reference, model.effects())
         return self._fits[key]
 
+    def at_noise(self, model) -> bool:
+        """Whether ``model``'s residual is the sensor noise's alone (its RSS within the
+        chi-squared quantile of the residual count at
+        :data:`~validation.diagnose.fitting.FAMILY_ALPHA`): no air is left to weigh against."""
+        return model.rss <= self._noise_only
+
     def in_play(self, model) -> bool:
         """Whether the air explains some of ``model``'s residual: not noise alone, and the
         gusts' likelihood ratio against still air passes a chi-squared test with four degrees of
         freedom (the gust parameters) at :data:`~validation.diagnose.fitting.FAMILY_ALPHA`."""
-        if model.rss <= self._noise_only:
+        if self.at_noise(model):
             return False
         fit = self.fit(model)
         return fit is not None and fit.likelihood_ratio > stats.chi2.isf(FAMILY_ALPHA, 4)
@@ -510,7 +516,7 @@ class AirCompetitor:
         effect is not credited with a better value of the others); ``(result, refined
         candidate)``, ``(None, candidate)`` where the candidate leaves only noise (class
         docstring)."""
-        if candidate.rss <= self._noise_only:
+        if self.at_noise(candidate):
             return None, candidate
         refined = self.refine(candidate)
         return weigh_against_air(self.fit(self.refine(model)), self.fit(refined), n_tested=n_tested), refined
@@ -583,7 +589,7 @@ class AirCompetitor:
     def final_fit(self, model) -> GustFit | None:
         """The gust fit of the search's final ``model``: still air (no fit made) where its
         residual is the noise's (class docstring)."""
-        if model.rss <= self._noise_only:
+        if self.at_noise(model):
             return GustFit(np.zeros(3), math.nan, model.rss, model.rss,
                            excess=max(model.rss - self.data.n_residuals, 0.0), n_residuals=self.data.n_residuals)
         return self.fit(model)

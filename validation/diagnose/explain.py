@@ -426,10 +426,27 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
     offered the terms the residual search finds on the model so far
     (:func:`validation.diagnose.search.search_candidates`; ``excited``: the inputs that move,
     None for no residual search)."""
+    air = AirCompetitor(data, reference) if gust_dynamics(reference, []) is not None else None
+    # Output error first: where its effects leave only the noise, no air is left to weigh them
+    # against (gusts large enough to matter are not whitened by a few constant effects), and the
+    # filter error's fits are not made; otherwise the search is made again with the air.
+    model, null_rss, steps, rejected, searches = _stepwise(data, reference, hypotheses, None, progress, excited)
+    if air is not None and not air.at_noise(model):
+        model, null_rss, steps, rejected, searches = _stepwise(data, reference, hypotheses, air, progress, excited)
+    in_air = air is not None and bool(model.hypotheses) and air.in_play(model)
+    drop_lr = _drop_one_against_air(air, model) if in_air else _drop_one_lr(data, reference, model, null_rss)
+    return Selection(model, null_rss, steps, drop_lr, rejected, len(hypotheses), _search_summary(searches),
+                     air.final_fit(model) if air else None)
+
+
+def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], air: AirCompetitor | None,
+              progress, excited) -> tuple:
+    """The forward stepwise search of :func:`select_effects`, each step's effect weighed against
+    ``air`` where given: the final model, the null model's RSS, the steps, the last step's
+    rejected effect and the residual searches."""
     model = null_model(data, reference)
     null_rss = model.rss
     steps, rejected, searches = [], None, []
-    air = AirCompetitor(data, reference) if gust_dynamics(reference, []) is not None else None
     for _ in range(MAX_EFFECTS):
         taken = {h.key for h in model.hypotheses}
         candidates = [h for h in hypotheses if h.key not in taken]
@@ -449,10 +466,7 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
             break
         steps.append(step)
         model = best
-    in_air = air is not None and bool(model.hypotheses) and air.in_play(model)
-    drop_lr = _drop_one_against_air(air, model) if in_air else _drop_one_lr(data, reference, model, null_rss)
-    return Selection(model, null_rss, steps, drop_lr, rejected, len(hypotheses), _search_summary(searches),
-                     air.final_fit(model) if air else None)
+    return model, null_rss, steps, rejected, searches
 
 
 def _drop_one_against_air(air: AirCompetitor, model: FittedModel) -> dict:

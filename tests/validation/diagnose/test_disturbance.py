@@ -2,10 +2,13 @@
 (validation.diagnose.disturbance) on the concealed-effect bench's turbulence cases."""
 import numpy as np
 import pytest
+from scipy import stats
 
+from validation.diagnose import disturbance
 from validation.diagnose.bench import case_recordings, concealed_cases
 from validation.diagnose.data import prepare
 from validation.diagnose.disturbance import describe, fit_gusts, gust_dynamics
+from validation.diagnose.fitting import FAMILY_ALPHA
 from validation.diagnose.pipeline import diagnose
 from validation.diagnose.report import report_markdown
 from validation.vehicles.effect_vehicle import effect_model
@@ -47,7 +50,7 @@ def test_still_air_does_not_look_like_turbulence():
     data = prepare([recordings.fit], reference, holdout=[recordings.holdout])
     described = describe(fit_gusts(data, reference, []))
     assert described["tested"] and not described["looks_like_turbulence"]
-    assert described["likelihood_ratio"] < 20  # chi-squared, 4 degrees of freedom: 1 % at 13.3
+    assert described["likelihood_ratio"] < stats.chi2.isf(FAMILY_ALPHA, 4)  # the gate of the air
 
 
 def test_a_concealed_delay_in_turbulence_is_preferred_by_the_filter_error():
@@ -79,3 +82,19 @@ def test_a_model_error_that_gusts_would_whiten_is_not_taken_for_the_air():
     described = describe(fit_gusts(data, reference, []))
     assert described["likelihood_ratio"] > 1000  # the gusts explain much of it
     assert described["input_p_value"] < 1e-6 and not described["looks_like_turbulence"]
+
+
+def test_effects_that_leave_only_the_noise_are_not_weighed_against_the_air(monkeypatch):
+    """An 80 ms lag and M_q -30 % in still air: after the first step the second effect is still
+    in the residual, yet output error's two effects end at the noise, so the filter error's gust
+    fits (seconds each) are never made, and the diagnosis says still air."""
+    recordings = case_recordings(CASES["pair-lag+M_q"], seed=0, duration=10.0)
+
+    def refuse(*_, **__):
+        raise AssertionError("a gust fit was made")
+
+    monkeypatch.setattr(disturbance.AirCompetitor, "fit", refuse)
+    result = diagnose([recordings.fit], reference="bo105-80kt", holdout=[recordings.holdout], seed=0).as_dict()
+    named = {(f["effect"], f.get("input") or f.get("term")) for f in result["findings"]}
+    assert named == {("input_lag", "theta_1c"), ("stability_derivative", "M_q")}
+    assert result["disturbance"]["tested"] and not result["disturbance"]["looks_like_turbulence"]
