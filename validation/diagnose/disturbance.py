@@ -49,6 +49,7 @@ from scipy.optimize import minimize
 
 from validation.diagnose.fitting import FAMILY_ALPHA, MIN_EXCESS_FRACTION, FitData
 from validation.diagnose.noise import UNEXPLAINED_RATIO
+from validation.vehicles.bo105 import KNOT
 from validation.vehicles.effects import EffectModel
 from validation.vehicles.linear_discretisation import expm
 from validation.vehicles.state_space import propagate
@@ -67,9 +68,9 @@ _TIME_CONSTANT_BOUNDS = (0.5, 200.0)
 #: :func:`validation.vehicles.turbulence.low_altitude_turbulence`). A residual that wants more is
 #: not the air's; without the bound the filter takes any misfit for gusts.
 _SIGMA_CEILING = 10.0
-#: Gauss-Newton steps of a candidate's value towards the filter error's optimum when ranking
-#: (:meth:`AirCompetitor.rank`), and their forward difference as a fraction of the hypothesis'
-#: screening step.
+#: Gauss-Newton steps of a candidate's value towards the filter error's optimum when refining and
+#: screening (:meth:`AirCompetitor.refine`, :meth:`AirCompetitor.screen`), and their forward
+#: difference as a fraction of the hypothesis' screening step.
 _FILTER_ERROR_STEPS, _DIFFERENCE_STEP = 3, 0.1
 #: Hypotheses fitted by filter error per step, the best of the score test
 #: (:meth:`AirCompetitor.screen`).
@@ -137,9 +138,10 @@ class GustFit:
 
 def trim_airspeed(reference: EffectModel) -> float | None:
     """The speed the aircraft flies through the air at trim, m/s, where the reference says it (a
-    Bo105's ``speed_kt``), else None."""
+    Bo105's ``speed_kt``), else None; None in the hover too, where the gusts are not advected
+    past the aircraft and have no scale length to state."""
     speed = getattr(getattr(reference, "reference", None), "speed_kt", None)
-    return None if speed is None else float(speed) * 1852.0 / 3600.0
+    return float(speed) * KNOT if speed else None
 
 
 def gust_dynamics(reference: EffectModel, effects: list) -> np.ndarray | None:
@@ -231,14 +233,10 @@ def _minus_two_log_likelihood(A, uvw, outputs, residuals, masks, noise_sd, step,
     return (total, innovation_energy) if energy else total
 
 
-def fit_gusts(data: FitData, reference: EffectModel, effects: list, *, replays: list | None = None) -> GustFit | None:
+def fit_gusts(data: FitData, reference: EffectModel, effects: list) -> GustFit | None:
     """The turbulence that best explains the residual of the reference with ``effects`` on
     ``data``'s fitted samples (module docstring); None where the model cannot carry gusts
-    (:func:`gust_dynamics`) or the recordings are not evenly sampled.
-
-    ``replays`` (per recording, (n_r, n_out)), optional: the model's replayed outputs, when at
-    hand.
-    """
+    (:func:`gust_dynamics`) or the recordings are not evenly sampled."""
     A = gust_dynamics(reference, effects)
     if A is None:
         return None
@@ -252,7 +250,7 @@ def fit_gusts(data: FitData, reference: EffectModel, effects: list, *, replays: 
     names = reference.state_names
     uvw = [names.index(name) for name in ("u", "v", "w")]
     outputs = [names.index(name) for name in data.output_names]
-    replays = replays if replays is not None else data.simulate(reference, effects)
+    replays = data.simulate(reference, effects)
     residuals = [data.measured[i] - replays[i] for i in chosen]
     masks = [data.fit_mask[i] for i in chosen]
     noise_sd = [data.noise_sd[i] for i in chosen]
@@ -426,7 +424,7 @@ class AirCompetitor:
     """"The air moved" in one stepwise search (:func:`validation.diagnose.explain.select_effects`):
     the gust fit of each model it meets, each fitted once.
 
-    Where a model's weighted residual sum of squares is below the 1 % quantile of the noise's
+    Where a model's weighted residual sum of squares is below the upper 1 % quantile of the noise's
     (chi-squared with one degree of freedom per residual), the residual is the sensor noise:
     there is no air to weigh against, and no gust fit is made.
 

@@ -537,10 +537,13 @@ def _weigh_against_air(air: AirCompetitor, data: FitData, reference: EffectModel
         if trials >= MAX_AIR_TRIALS or (chosen and fitted.hypotheses[-1].key == chosen[0].hypotheses[-1].key):
             break  # output error's choice is the filter error's too
         trials += 1
-        against, fitted = air.weigh(model, fitted, n_tested=n_tested)
-        if against is None:  # only the noise is left with it: output error's estimate
+        if air.at_noise(fitted):  # only the noise is left with it: output error's estimate
             fitted = fit_many(data, reference, [(fitted.hypotheses, fitted.values)])[0]
             against = {"likelihood_ratio": math.inf, "passes": True, "weight": 1.0}
+        else:
+            against, fitted = air.weigh(model, fitted, n_tested=n_tested)
+            if against is None:  # its gust fit failed: not weighed, so not accepted
+                continue
         if not against["passes"]:
             first_rejected = note(fitted, against)
             continue
