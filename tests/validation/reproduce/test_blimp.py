@@ -23,7 +23,7 @@ from validation.models.blimp_greybox import (
     smoothed_states,
     step_inputs,
 )
-from validation.reproduce import blimp_control
+from validation.reproduce import blimp_control, blimp_prediction
 from validation.reproduce.blimp_prediction import GROUPS, METHODS, RK_MAX_STEP, START_KINDS, random_command_flight
 from validation.reproduce.blimp_report import format_results
 from validation.reproduce.blimp_spread import (
@@ -47,13 +47,18 @@ def quick(tmp_path_factory):
     the command printed.
 
     Table III's policy search gets 6 cost evaluations per simulator instead of the quick setup's
-    12 (the 4-parameter Nelder-Mead's start simplex, 5 evaluations, and one step): its tests
-    check what holds for any budget (finite errors of a turn that moved, the best vertex no
-    worse than the start), and the search is most of the campaign's time."""
+    12 (the 4-parameter Nelder-Mead's start simplex, 5 evaluations, and one step), one PEGASUS
+    scenario instead of 2 and 4 s turns instead of 6 s (a full-command turn takes about 3 s): its
+    tests check what holds for any budget (finite errors of a turn that moved, the best vertex no
+    worse than the start), and the search is most of the campaign's time. Table I scores 10
+    start states instead of 20 (its tests check bounds that hold for every start and the physics
+    integrators' agreement)."""
     out = tmp_path_factory.mktemp("blimp")
     printed = io.StringIO()
     with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(printed):
-        patch.setattr(blimp_control, "QUICK_SETUP", dataclasses.replace(blimp_control.QUICK_SETUP, max_evaluations=6))
+        patch.setattr(blimp_control, "QUICK_SETUP", dataclasses.replace(
+            blimp_control.QUICK_SETUP, max_evaluations=6, n_scenarios=1, horizon_s=4.0))
+        patch.setattr(blimp_prediction, "QUICK_SETUP", dataclasses.replace(blimp_prediction.QUICK_SETUP, n_starts=10))
         assert main(["reproduce", "blimp", "--out", str(out), "--quick", "--seeds", str(SEED)]) == 0
     return out, json.loads((out / "results.json").read_text()), printed.getvalue()
 
