@@ -183,7 +183,8 @@ def test_rotor_flapping_is_unexplained_and_the_gp_models_it():
     the noise after the named effects, so diagnose says `unexplained` and fits the GP."""
     vehicle = Bo105FlightTest(80, dynamic_inflow=False, actuators=False, transport_delay=False,
                               off_axis_coupling=False, turbulence=False)
-    fit, held = _recordings(vehicle)
+    # 10 s: the cyclic 3-2-1-1s, which excite the flapping (20 s adds the pedal and collective doublets).
+    fit, held = _recordings(vehicle, duration=10.0)
     result = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()
     unexplained = [f for f in result["findings"] if f["effect"] == "unexplained"]
     assert unexplained and result["verdict"] == "missing_physics"
