@@ -246,6 +246,14 @@ def bo105_cases(*, reference: EffectModel) -> list[ConcealedCase]:
                        {"effect": "stability_derivative", "term": "M_q",
                         "value": reference.model_value("M_q") * 0.7}),
                       description="80 ms lag on theta_1c and M_q -30 %"),
+        # Two pitch effects at once: fitted alone, the damping soaks up part of the control
+        # power, and a first step can take a term that explains part of both; the search must
+        # take it back and name the two.
+        ConcealedCase("pair-M_q+M_theta_1s", "pair",
+                      ({"effect": "stability_derivative", "term": "M_q", "value": reference.model_value("M_q") * 0.7},
+                       {"effect": "control_derivative", "term": "M_theta_1s",
+                        "value": reference.model_value("M_theta_1s") * 0.75}),
+                      description="M_q -30 % and M_theta_1s -25 % at once"),
         ConcealedCase("none", "none", description="the reference itself, with sensor noise"),
         # A dead band of 30 % of the 1 deg steps: on one amplitude it is exactly a lower control
         # derivative (the honest answer says so); flown at 1 and 2 deg it must be named.

@@ -46,7 +46,7 @@ small excursions; every accepted effect is checked for a change during the fligh
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
@@ -54,6 +54,7 @@ from scipy import stats
 from validation.diagnose.data import PreparedData
 from validation.diagnose.disturbance import AirCompetitor, describe, gust_dynamics, trim_airspeed
 from validation.diagnose.fitting import (
+    FAMILY_ALPHA,
     MAX_ALTERNATIVES,
     MAX_EVIDENCE_RATIO,
     FitData,
@@ -78,6 +79,9 @@ from validation.vehicles.effects import (
 
 #: Most named effects in one diagnosis (pairs must be found; three leaves room for one more).
 MAX_EFFECTS = 3
+#: Most effects taken back in one search (:func:`_take_back`): each drop buys one more step, and
+#: no effect taken back is offered again, so the search cannot cycle.
+MAX_TAKEN_BACK = 2
 #: Effects that claim a constant change (a derivative, a gain, an FMU's parameter), checked for
 #: amplitude dependence (:func:`amplitude_check`).
 LINEAR_KINDS = ("control_derivative", "stability_derivative", "input_gain", "fmu_parameter")
@@ -136,6 +140,10 @@ class Selection:
         The turbulence that best explains the final model's residual
         (:meth:`validation.diagnose.disturbance.AirCompetitor.final_fit`); None where the model
         cannot carry gusts.
+    taken_back : list of dict
+        Effects accepted at one step and dropped at a later one (:func:`_take_back`): ``key``,
+        ``lr`` (against the model without it, when dropped), ``threshold``, ``after`` (the key
+        whose acceptance made it redundant).
     """
 
     model: FittedModel
@@ -146,6 +154,7 @@ class Selection:
     n_screened: int
     residual_search: dict | None = None
     air: object = None
+    taken_back: list = field(default_factory=list)
 
 
 @dataclass
@@ -273,7 +282,8 @@ def explain(data: PreparedData, location: Location, reference: EffectModel, *, p
             amplitude_check=check, time_check=over_time))
     search = {"hypotheses_tested": selection.n_screened, "null_rss": selection.null_rss,
               "final_rss": fitted.rss, "n_residuals": data.n_residuals,
-              "rejected": _describe_rejected(selection.rejected), "residual_search": selection.residual_search}
+              "rejected": _describe_rejected(selection.rejected), "residual_search": selection.residual_search,
+              "taken_back": [_describe_taken_back(dropped) for dropped in selection.taken_back]}
     return Explanation(fitted.effects(), sorted(named, key=lambda n: -n.likelihood_ratio), search, fitted,
                        disturbance, selection.air)
 
@@ -371,6 +381,13 @@ def _describe_rejected(rejected: dict | None) -> dict | None:
     return described
 
 
+def _describe_taken_back(dropped: dict) -> dict:
+    kind, target = dropped["key"]
+    after_kind, after_target = dropped["after"]
+    return {"effect": kind, TARGET_KEYS[kind]: target, "likelihood_ratio": dropped["lr"],
+            "threshold": dropped["threshold"], "after": {"effect": after_kind, TARGET_KEYS[after_kind]: after_target}}
+
+
 def hypotheses_for(reference: EffectModel, *, excited_inputs, output_names, noise_sd,
                    excursions=None) -> list[Hypothesis]:
     """Every testable hypothesis on ``reference``: a delay (up to ``MAX_DELAY``), a lag (up to
@@ -430,25 +447,30 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
     # Output error first: where its effects leave only the noise, no air is left to weigh them
     # against (gusts large enough to matter are not whitened by a few constant effects), and the
     # filter error's fits are not made; otherwise the search is made again with the air.
-    model, null_rss, steps, rejected, searches = _stepwise(data, reference, hypotheses, None, progress, excited)
+    model, null_rss, steps, rejected, searches, taken_back = _stepwise(data, reference, hypotheses, None, progress,
+                                                                        excited)
     if air is not None and not air.at_noise(model):
-        model, null_rss, steps, rejected, searches = _stepwise(data, reference, hypotheses, air, progress, excited)
+        model, null_rss, steps, rejected, searches, taken_back = _stepwise(data, reference, hypotheses, air, progress,
+                                                                            excited)
     in_air = air is not None and bool(model.hypotheses) and air.in_play(model)
     drop_lr = _drop_one_against_air(air, model) if in_air else _drop_one_lr(data, reference, model, null_rss)
     return Selection(model, null_rss, steps, drop_lr, rejected, len(hypotheses), _search_summary(searches),
-                     air.final_fit(model) if air else None)
+                     air.final_fit(model) if air else None, taken_back)
 
 
 def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], air: AirCompetitor | None,
               progress, excited) -> tuple:
     """The forward stepwise search of :func:`select_effects`, each step's effect weighed against
-    ``air`` where given: the final model, the null model's RSS, the steps, the last step's
-    rejected effect and the residual searches."""
+    ``air`` where given, earlier effects the new one makes redundant taken back
+    (:func:`_take_back`, output error only): the final model, the null model's RSS, the steps, the
+    last step's rejected effect, the residual searches and the effects taken back."""
     model = null_model(data, reference)
     null_rss = model.rss
-    steps, rejected, searches = [], None, []
-    for _ in range(MAX_EFFECTS):
-        taken = {h.key for h in model.hypotheses}
+    steps, rejected, searches, taken_back = [], None, [], []
+    for _ in range(MAX_EFFECTS + MAX_TAKEN_BACK):
+        if len(model.hypotheses) >= MAX_EFFECTS:
+            break
+        taken = {h.key for h in model.hypotheses} | {dropped["key"] for dropped in taken_back}
         candidates = [h for h in hypotheses if h.key not in taken]
         n_tested = len(candidates)
         if excited is not None:
@@ -466,7 +488,40 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
             break
         steps.append(step)
         model = best
-    return model, null_rss, steps, rejected, searches
+        if air is None and len(model.hypotheses) > 1 and len(taken_back) < MAX_TAKEN_BACK:
+            model, dropped = _take_back(data, reference, model, n_tested=n_tested)
+            if dropped is not None:
+                taken_back.append(dropped)
+                steps = [s for s in steps if s["key"] != dropped["key"]]
+    return model, null_rss, steps, rejected, searches, taken_back
+
+
+def _take_back(data: FitData, reference: EffectModel, model: FittedModel, *, n_tested: int) -> tuple:
+    """The drop step of Efroymson's stepwise regression (Efroymson 1960, in Ralston & Wilf,
+    *Mathematical Methods for Digital Computers*; Miller, *Subset Selection in Regression*, 2nd
+    ed., 2002, sec. 3.2): after ``model``'s last effect was accepted, each earlier one is refitted
+    out, and the one whose likelihood ratio against ``model`` is smallest is dropped when that
+    ratio no longer passes the step's Bonferroni threshold. A first effect that soaked up part of
+    two true ones (a term fitted to what a pitch damping and a control power leave between them)
+    is so taken back once the true ones are in.
+
+    Returns
+    -------
+    model : FittedModel
+        ``model``, or the refit without the dropped effect.
+    dropped : dict or None
+        ``key``, ``lr``, ``threshold``, ``after`` (the last accepted effect's key).
+    """
+    earlier = range(len(model.hypotheses) - 1)
+    reduced = fit_many(data, reference, [([h for i, h in enumerate(model.hypotheses) if i != k],
+                                          np.delete(model.values, k)) for k in earlier])
+    ratios = np.array([fitted.rss - model.rss for fitted in reduced])
+    weakest = int(np.argmin(ratios))
+    threshold = float(stats.chi2.isf(FAMILY_ALPHA / n_tested, 1))
+    if ratios[weakest] > threshold:
+        return model, None
+    return reduced[weakest], {"key": model.hypotheses[weakest].key, "lr": float(max(ratios[weakest], 0.0)),
+                              "threshold": threshold, "after": model.hypotheses[-1].key}
 
 
 def _drop_one_against_air(air: AirCompetitor, model: FittedModel) -> dict:
@@ -603,15 +658,45 @@ def _drop_one_lr(data: FitData, reference: EffectModel, model: FittedModel, null
             for index, h in enumerate(model.hypotheses)}
 
 
+def _accepted_steps(model: FittedModel) -> list[tuple]:
+    """``(hypothesis, value + step, step)`` for each accepted effect of ``model``: its finite
+    difference step inside the hypothesis' bounds (backwards where forwards would leave them)."""
+    steps = []
+    for h, value in zip(model.hypotheses, model.values):
+        step = h.step if h.lower <= value + h.step <= h.upper else -h.step
+        steps.append((h, float(value + step), float(step)))
+    return steps
+
+
 def _screen(data: FitData, reference: EffectModel, model: FittedModel, candidates: list, progress) -> list:
-    """One Gauss-Newton step per candidate on top of ``model``: (score, one-step value) each."""
+    """One Gauss-Newton step per candidate on top of ``model``, the accepted effects' values
+    free to move with it: (score, one-step value) each.
+
+    The score is Rao's with the accepted values as nuisance parameters (Rao 1948; Seber & Wild,
+    *Nonlinear Regression*, 1989, sec. 5.9): the candidate's output sensitivity ``g`` is first
+    made orthogonal to the accepted effects' sensitivities ``J`` (``g - Q Q^T g``, ``J = Q R``),
+    so it scores what the candidate explains that the accepted effects, readjusted, cannot. With
+    the raw ``g`` a first effect that soaked up part of a second (a pitch damping fitted alone
+    where the pitch control power is low too) hides the second behind candidates that only look
+    like the first's error.
+    """
     base_effects = model.effects()
     r0 = data.weighted_residuals(reference, base_effects)
-    perturbed_all = data.weighted_residuals_many(
-        reference, [base_effects + [h.as_effect(h.null + h.step)] for h in candidates])
+    accepted = _accepted_steps(model)
+    replays = data.weighted_residuals_many(
+        reference, [base_effects + [h.as_effect(h.null + h.step)] for h in candidates]
+        + [[*base_effects[:k], h.as_effect(value), *base_effects[k + 1:]] for k, (h, value, _) in enumerate(accepted)])
+    perturbed_all = replays[:len(candidates)]
+    basis = None
+    if accepted:
+        jacobian = np.stack([(r0 - replay) / step for replay, (_, _, step) in zip(replays[len(candidates):], accepted)],
+                            axis=1)
+        basis = np.linalg.qr(jacobian)[0]
     scores = []
     for h, perturbed in zip(candidates, perturbed_all):
         g = (r0 - perturbed) / h.step  # d(replay)/d(parameter), weighted
+        if basis is not None:
+            g = g - basis @ (basis.T @ g)
         gg = float(g @ g)
         delta = float(g @ r0) / gg if gg > 0 else 0.0
         if h.lower == h.null and delta < 0:  # one-sided (delays, lags): no gain below zero

@@ -635,6 +635,11 @@ def _search_notes(search: dict, untestable: list) -> list[str]:
         target = rejected[TARGET_KEYS[rejected["effect"]]]
         lines.append(f"Best hypothesis not accepted: {rejected['effect']} on {target} "
                      f"(LR {rejected['likelihood_ratio']:.3g} below the threshold {rejected['threshold']:.3g}).")
+    for dropped in search.get("taken_back", []):
+        after = dropped["after"]
+        lines.append(f"Taken back: {dropped['effect']} on {dropped[TARGET_KEYS[dropped['effect']]]}, accepted at an "
+                     f"earlier step, once {after['effect']} on {after[TARGET_KEYS[after['effect']]]} was in "
+                     f"(LR {dropped['likelihood_ratio']:.3g} below the threshold {dropped['threshold']:.3g}).")
     return lines + [f"- Not testable: {note}" for note in untestable]
 
 
