@@ -512,9 +512,7 @@ def _take_back(data: FitData, reference: EffectModel, model: FittedModel, *, n_t
     dropped : dict or None
         ``key``, ``lr``, ``threshold``, ``after`` (the last accepted effect's key).
     """
-    earlier = range(len(model.hypotheses) - 1)
-    reduced = fit_many(data, reference, [([h for i, h in enumerate(model.hypotheses) if i != k],
-                                          np.delete(model.values, k)) for k in earlier])
+    reduced = _refits_without(data, reference, model, range(len(model.hypotheses) - 1))
     ratios = np.array([fitted.rss - model.rss for fitted in reduced])
     weakest = int(np.argmin(ratios))
     threshold = float(stats.chi2.isf(FAMILY_ALPHA / n_tested, 1))
@@ -650,12 +648,17 @@ def _fit_promising(data: FitData, reference: EffectModel, model: FittedModel, ca
 
 def _drop_one_lr(data: FitData, reference: EffectModel, model: FittedModel, null_rss: float) -> dict:
     """LR of each effect of ``model`` against ``model`` refitted without it."""
-    n_accepted = len(model.hypotheses)
-    reduced = fit_many(data, reference, [([model.hypotheses[i] for i in range(n_accepted) if i != index],
-                                          model.values[[i for i in range(n_accepted) if i != index]])
-                                         for index in range(n_accepted)]) if n_accepted > 1 else []
-    return {h.key: float((reduced[index].rss if reduced else null_rss) - model.rss)
-            for index, h in enumerate(model.hypotheses)}
+    if len(model.hypotheses) <= 1:
+        return {h.key: float(null_rss - model.rss) for h in model.hypotheses}
+    reduced = _refits_without(data, reference, model, range(len(model.hypotheses)))
+    return {h.key: float(fitted.rss - model.rss) for h, fitted in zip(model.hypotheses, reduced)}
+
+
+def _refits_without(data: FitData, reference: EffectModel, model: FittedModel, indices) -> list[FittedModel]:
+    """``model`` refitted without each of its effects ``indices`` in turn, the others started at
+    their values (one batch of fits)."""
+    return fit_many(data, reference, [([h for i, h in enumerate(model.hypotheses) if i != k],
+                                       np.delete(model.values, k)) for k in indices])
 
 
 def _accepted_steps(model: FittedModel) -> list[tuple]:

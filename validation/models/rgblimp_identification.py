@@ -481,6 +481,14 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
         flights=tuple(sorted({int(n) for n in segments.flights})), seconds=time.perf_counter() - started)
 
 
+def check_shrinkage(shrinkage) -> None:
+    """Refuse a ``shrinkage`` of :func:`identify_configurations` that is neither None nor a
+    positive number (:class:`~validation.core.errors.BadInputError`, one line)."""
+    if shrinkage is not None and not (isinstance(shrinkage, (int, float)) and np.isfinite(shrinkage)
+                                      and shrinkage > 0):
+        raise BadInputError(f"shrinkage must be a positive number or None, got {shrinkage!r}")
+
+
 def between_spread(results) -> np.ndarray:
     """How much the identified coefficients differ between configurations: per coefficient, the
     robust standard deviation of ``results``' values (:func:`validation.core.metrics.robust_sd`,
@@ -538,8 +546,7 @@ def identify_configurations(groups, initial: RGBlimpModel, *, shrinkage: float |
         One per group, in order; ``seconds`` counts both fits of the group (the first only if
         made here).
     """
-    if shrinkage is not None and not (np.isfinite(shrinkage) and shrinkage > 0):
-        raise BadInputError(f"shrinkage must be a positive number or None, got {shrinkage!r}")
+    check_shrinkage(shrinkage)
     if alone is None:
         alone = [identify_parameters(flights, names=names, initial=initial, **options) for flights in groups]
     elif len(alone) != len(groups):

@@ -72,6 +72,7 @@ from validation.models.rgblimp_identification import (
     SEGMENT_DURATION,
     SHRINKAGE,
     RGBlimpModel,
+    check_shrinkage,
     identify_configurations,
     identify_parameters,
     wrapped_difference,
@@ -143,6 +144,9 @@ class RGBlimpSetup:
     smoothing: tuple = (SMOOTHING_WINDOW, SMOOTHING_ORDER)
     shrinkage: float | None = SHRINKAGE
     rollout: RolloutSetup = RolloutSetup()
+
+    def __post_init__(self):
+        check_shrinkage(self.shrinkage)  # refused before any fit, not after the global one
 
 
 DEFAULT_SETUP = RGBlimpSetup()
@@ -357,8 +361,6 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
     dict
         The content of ``results.json``.
     """
-    if setup.shrinkage is not None and not (np.isfinite(setup.shrinkage) and setup.shrinkage > 0):
-        raise BadInputError(f"shrinkage must be a positive number or None, got {setup.shrinkage!r}")
     started = clock.perf_counter()
     require_pysindy()  # before any fit: the peer needs it
     out_dir = Path(out_dir)

@@ -237,3 +237,12 @@ def test_each_configurations_hybrid_is_written_and_reads_back_to_its_free_run(sm
         ranges = read_score_ranges(data, kinds=[entry["kind"]])[entry["kind"]]
         predicted, _ = hybrid.band(test.outputs[0], test.inputs)  # as the reproduction runs it
         assert math.isclose(entry["score"]["hybrid"], source_score(predicted, test.outputs, ranges), rel_tol=1e-12)
+
+
+@pytest.mark.parametrize("shrinkage", [0.0, -0.25, float("nan"), "0.25"])
+def test_a_setup_with_a_bad_shrinkage_is_refused_when_it_is_made(shrinkage):
+    """Refused in one line where the setup is made, before any fit (the global fit alone takes
+    minutes); None (each configuration alone) and a positive number are taken."""
+    with pytest.raises(BadInputError, match="shrinkage must be a positive number or None"):
+        RGBlimpSetup(shrinkage=shrinkage)
+    assert RGBlimpSetup(shrinkage=None).shrinkage is None
