@@ -18,9 +18,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/flightgp demo
 
-# Lint first (ruff, configured in pyproject.toml), then two pytest workers on two cores (an idle
-# worker steals queued tests, so the long end-to-end runs do not leave one core idle): one
-# BLAS thread each, or they fight over the cores.
+# Lint first (ruff, configured in pyproject.toml), then two pytest workers on two cores, a test
+# module at a time (a module's fixtures are made once; a worker that finishes a module is sent
+# the next one queued, so the long end-to-end modules do not leave one core idle): one BLAS
+# thread each, or they fight over the cores.
 test: $(STAMP)
 	$(BIN)/ruff check gp_model validation fmu_src tests
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadscope $(PYTEST_ARGS)

@@ -38,7 +38,6 @@ held-out scores are no longer an unbiased test. Keep recordings beyond the diagn
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +46,7 @@ from validation.core.metrics import rmse
 from validation.diagnose.data import PreparedData
 from validation.diagnose.disturbance import held_out_cost
 from validation.diagnose.explain import Explanation, NamedEffect
+from validation.diagnose.fitting import akaike_weights
 from validation.diagnose.locate import Location
 from validation.vehicles.effects import EffectModel, effect_key
 
@@ -168,7 +168,7 @@ def _weigh(named: NamedEffect, data: PreparedData, cost_reference: float, cost_a
     floor = UNEXERCISED * cost_reference
     if abs(gain_alone) <= floor and abs(gain_in_model) <= floor:
         return HeldOutEffect(alone, 0.0, 0.0, None, 0.5)
-    weight = 1.0 / (1.0 + math.exp(min(-gain_in_model / 2.0, 700.0)))
+    weight = akaike_weights([cost_without, cost_final])[1]  # predictive: no count of parameters
     return HeldOutEffect(alone, gain_alone / cost_reference, gain_in_model / max(cost_without, 1e-300),
                          bool(gain_in_model > 0), weight)
 

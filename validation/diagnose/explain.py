@@ -59,6 +59,7 @@ from validation.diagnose.fitting import (
     MAX_EVIDENCE_RATIO,
     FitData,
     FittedModel,
+    akaike_weights,
     fit_many,
     null_model,
     weigh_step,
@@ -350,7 +351,7 @@ def amplitude_check(data: FitData, reference: EffectModel, model: FittedModel, i
     return {"value_small": h.effect_value(parts[0].values[index]),
             "value_large": h.effect_value(parts[1].values[index]), "likelihood_ratio": wald,
             "amplitude_dependent": bool(wald > stats.chi2.isf(AMPLITUDE_ALPHA, 1)),
-            "weight_linear": float(1.0 / (1.0 + math.exp(min((wald - 2.0) / 2.0, 700.0))))}
+            "weight_linear": float(akaike_weights([wald + 2.0, 4.0])[0])}  # AIC of one value, of two
 
 
 def _excursions(data: PreparedData) -> dict:
@@ -583,9 +584,7 @@ def _weigh_against_air(air: AirCompetitor, data: FitData, reference: EffectModel
     screened = air.screen(model, candidates) if air.in_play(model) else []
     if screened:
         null = air.fit(model).minus_two_log_likelihood
-        criteria = np.array([null] + [value + 2 for _, value in screened])  # AIC, up to a constant
-        weights = np.exp(-(criteria - criteria.min()) / 2)
-        weights /= weights.sum()
+        weights = akaike_weights([null] + [value + 2 for _, value in screened])  # AIC, up to a constant
     for index, (fitted, value) in enumerate(screened):
         if trials >= MAX_AIR_TRIALS or (chosen and fitted.hypotheses[-1].key == chosen[0].hypotheses[-1].key):
             break  # output error's choice is the filter error's too

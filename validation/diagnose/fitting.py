@@ -334,6 +334,16 @@ def _fit_batched(data: FitData, reference: EffectModel, problems: list) -> list[
             for state in states]
 
 
+def akaike_weights(criteria) -> np.ndarray:
+    """Akaike weights ``w_i = exp(-(AIC_i - AIC_min) / 2) / sum_j exp(-(AIC_j - AIC_min) / 2)``
+    of models with information criteria ``criteria`` (K,), each up to one shared constant
+    (Akaike, IEEE Trans. Automatic Control 19(6), 1974; Burnham & Anderson, *Model Selection and
+    Multimodel Inference*, 2nd ed., 2002, sec. 2.9): shape (K,), summing to 1."""
+    criteria = np.asarray(criteria, dtype=float)
+    relative = np.exp(-(criteria - criteria.min()) / 2)
+    return relative / relative.sum()
+
+
 def weigh_step(data: FitData, model: FittedModel, fits: list[FittedModel], *,
                n_tested: int) -> tuple[FittedModel, dict | None, dict | None]:
     """One step of a stepwise search: the best of ``fits`` (each ``model`` plus one hypothesis)
@@ -371,9 +381,7 @@ def weigh_step(data: FitData, model: FittedModel, fits: list[FittedModel], *,
     if lr <= threshold:
         return best, None, {"key": new.key, "value": new.effect_value(best.values[-1]), "lr": float(lr),
                             "threshold": float(threshold)}
-    aic = np.array([model.rss] + [fitted.rss + 2 for fitted in fits])  # AIC = RSS + 2 p, up to a constant
-    weights = np.exp(-(aic - aic.min()) / 2)
-    weights /= weights.sum()
+    weights = akaike_weights([model.rss] + [fitted.rss + 2 for fitted in fits])  # AIC = RSS + 2 p, up to a constant
     ranked = sorted(zip(fits, weights[1:]), key=lambda pair: pair[0].rss)
     alternatives = []
     for fitted, _ in ranked[1:]:

@@ -39,7 +39,7 @@ from dataclasses import replace
 import numpy as np
 from scipy import stats
 
-from validation.diagnose.fitting import FitData, FittedModel, fit_many
+from validation.diagnose.fitting import FitData, FittedModel, akaike_weights, fit_many
 from validation.vehicles.effects import EffectModel
 
 #: Consecutive windows the fitted samples are cut into.
@@ -117,9 +117,7 @@ def time_check(model: FittedModel, index: int, fits: list[FittedModel | None]) -
     design = np.column_stack([np.ones_like(tau), tau]) * np.sqrt(weight)[:, None]
     line, *_ = np.linalg.lstsq(design, v * np.sqrt(weight), rcond=None)
     q_drift = float(np.sum(weight * (v - line[0] - line[1] * tau) ** 2))
-    aic = np.array([q + 2.0, q_drift + 4.0, 2.0 * len(kept)])
-    relative = np.exp(-0.5 * (aic - aic.min()))
-    weights = relative / relative.sum()
+    weights = akaike_weights([q + 2.0, q_drift + 4.0, 2.0 * len(kept)])  # AIC = misfit + 2 k
     p_value = float(stats.chi2.sf(q, len(kept) - 1))
     changes = p_value < CHANGE_ALPHA
     by_window = dict(zip(kept, values))

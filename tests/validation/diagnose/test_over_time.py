@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from validation.diagnose.bench import _drifting_derivative_states
-from validation.diagnose.fitting import FitData, FittedModel
+from validation.diagnose.fitting import FitData, FittedModel, akaike_weights
 from validation.diagnose.over_time import WINDOWS, time_check, window_masks
 from validation.vehicles.bo105 import STATE_NAMES, Bo105Reference
 from validation.vehicles.bo105_effects import identification_manoeuvre
@@ -108,3 +108,11 @@ def test_the_statement_of_a_changing_finding_gives_its_parts_and_its_drift():
     assert "M_q shrinks from -3.8 to -2.6 1/s over the flights" in text
     steady = {**finding, "time_check": time_check(_model(), 0, _windows([-3.2, -3.21, -3.19], [0.01] * 3))}
     assert "changes during" not in statement(steady, {"rmse_reference": {}}, reference)
+
+
+def test_akaike_weights_sum_to_one_favour_the_smaller_criterion_and_do_not_overflow():
+    # Two models two AIC units apart: weights 1 / (1 + e^-1) and e^-1 / (1 + e^-1).
+    assert np.allclose(akaike_weights([10.0, 12.0]), [1 / (1 + np.exp(-1)), np.exp(-1) / (1 + np.exp(-1))])
+    weights = akaike_weights([3.0, 1.0, 2.0])
+    assert weights.sum() == pytest.approx(1.0) and np.argmax(weights) == 1
+    assert np.array_equal(akaike_weights([1e6, 0.0]), [0.0, 1.0])  # criteria far apart: no inf or NaN
