@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats
@@ -448,23 +449,34 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
     # Output error first: where its effects leave only the noise, no air is left to weigh them
     # against (gusts large enough to matter are not whitened by a few constant effects), and the
     # filter error's fits are not made; otherwise the search is made again with the air.
-    model, null_rss, steps, rejected, searches, taken_back = _stepwise(data, reference, hypotheses, None, progress,
-                                                                        excited)
-    if air is not None and not air.at_noise(model):
-        model, null_rss, steps, rejected, searches, taken_back = _stepwise(data, reference, hypotheses, air, progress,
-                                                                            excited)
+    path = _stepwise(data, reference, hypotheses, None, progress, excited)
+    if air is not None and not air.at_noise(path.model):
+        path = _stepwise(data, reference, hypotheses, air, progress, excited)
+    model = path.model
     in_air = air is not None and bool(model.hypotheses) and air.in_play(model)
-    drop_lr = _drop_one_against_air(air, model) if in_air else _drop_one_lr(data, reference, model, null_rss)
-    return Selection(model, null_rss, steps, drop_lr, rejected, len(hypotheses), _search_summary(searches),
-                     air.final_fit(model) if air else None, taken_back)
+    drop_lr = _drop_one_against_air(air, model) if in_air else _drop_one_lr(data, reference, model, path.null_rss)
+    return Selection(model, path.null_rss, path.steps, drop_lr, path.rejected, len(hypotheses),
+                     _search_summary(path.searches), air.final_fit(model) if air else None, path.taken_back)
+
+
+class _Path(NamedTuple):
+    """Where one stepwise search (:func:`_stepwise`) ended: the final model, the null model's
+    RSS, the accepted steps, the last step's rejected effect, the residual searches and the
+    effects taken back (as :class:`Selection`'s attributes)."""
+
+    model: FittedModel
+    null_rss: float
+    steps: list
+    rejected: dict | None
+    searches: list
+    taken_back: list
 
 
 def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], air: AirCompetitor | None,
-              progress, excited) -> tuple:
+              progress, excited) -> _Path:
     """The forward stepwise search of :func:`select_effects`, each step's effect weighed against
     ``air`` where given, earlier effects the new one makes redundant taken back
-    (:func:`_take_back`, output error only): the final model, the null model's RSS, the steps, the
-    last step's rejected effect, the residual searches and the effects taken back."""
+    (:func:`_take_back`, output error only)."""
     model = null_model(data, reference)
     null_rss = model.rss
     steps, rejected, searches, taken_back = [], None, [], []
@@ -494,7 +506,7 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
             if dropped is not None:
                 taken_back.append(dropped)
                 steps = [s for s in steps if s["key"] != dropped["key"]]
-    return model, null_rss, steps, rejected, searches, taken_back
+    return _Path(model, null_rss, steps, rejected, searches, taken_back)
 
 
 def _take_back(data: FitData, reference: EffectModel, model: FittedModel, *, n_tested: int) -> tuple:
