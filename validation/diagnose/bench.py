@@ -152,7 +152,8 @@ def blimp_cases(*, reference: EffectModel | None = None) -> list[ConcealedCase]:
     chain, the bias) at sizes a real
     indoor blimp could show (delays of a radio link and fan spin-up, 15-30 % drag and thrust
     errors, a buoyancy imbalance of 0.3 g, a command limit and a slew limit), a pair, no effect,
-    and a fan nonlinearity outside the named list (:data:`COMMAND_MAPS`). ``reference``: the blimp's effect model
+    a fan nonlinearity outside the named list (:data:`COMMAND_MAPS`) and a pitch moment the
+    residual search must find. ``reference``: the blimp's effect model
     (default: the ``blimp`` reference's)."""
     reference = reference or effect_model("blimp", purpose="diagnose-bench")
     noise = reference.sensor_noise_sd
@@ -189,6 +190,9 @@ def blimp_cases(*, reference: EffectModel | None = None) -> list[ConcealedCase]:
         ConcealedCase("none", "none", description="the reference itself, with sensor noise"),
         ConcealedCase("outside-quadratic-thrust-u_tail", "outside", outside=("quadratic_thrust", "u_tail", None),
                       description="tail-fan thrust quadratic in its command, u|u| (not a named effect)"),
+        single({"effect": "search_term", "term": "M_U", "value": 0.02}, "search-pitch-moment-M_U",
+               "pitch moment linear in surge speed, 0.02 N m/(m/s) (10 mN m at 0.5 m/s): on no named list, "
+               "the residual search must find it"),
         # The gondola steps of 0.8, -0.6 and 0.5: a limit at 0.6 bites the largest only.
         single({"effect": "saturation", "input": "u_gondola", "value": 0.6}, "saturation-u_gondola-0.6",
                "gondola thrust command limited at 60 % (the 0.8 steps clip)"),

@@ -41,8 +41,18 @@ library together), so a nonlinear term competes with the linear derivative it wo
 taken for. Accepted terms are reported as found by search, not as named effects.
 
 The terms are evaluated on the model's replayed states, so outputs need not all be measured; the
-search needs a reference that takes ``search_term`` (the linear references) and otherwise
-reports why it did not run.
+search needs a reference that takes ``search_term`` and otherwise reports why it did not run.
+
+**On a nonlinear reference** that takes them (the blimp: a term is a generalised force of its
+row, :mod:`validation.vehicles.blimp_effects`) there is no linear model to propagate the
+forcing through, so each term's sensitivity is replayed: the model with the term added at a
+small coefficient, one batch of replays for the whole library, exact to first order through the
+reference's own equations (the "output sensitivities from replays" of a model without
+linearisation). The axes come from the reference's Jacobian of its row forces along the replay
+(``search_jacobian``), the sensitivities are scaled to unit length before the regression (the
+terms' units span many decades), and, because the blimp's named list holds few derivatives, the
+linear terms that are not named compete in the forward selection beside the nonlinear ones
+(``M_U``, a pitch moment linear in surge speed, is then a finding of the search).
 """
 from __future__ import annotations
 
@@ -70,6 +80,10 @@ COLLINEAR = 1e-3
 #: one Gauss-Newton step stays near linear; the floor keeps a step where the coefficient is 0.
 SEARCH_STEP = 0.05
 SEARCH_STEP_FLOOR = 1e-12
+#: Generalised force (N, or N m) a library term is added with to find its sensitivity by replay
+#: on a nonlinear reference (:func:`_replayed_normal_equations`), over the RMS of its factor:
+#: about 3e-6 of the blimp's weight (3.4 N), so its response is linear, yet far above rounding.
+SENSITIVITY_FORCE = 1e-5
 #: Survivors offered to each step of the stepwise search, the largest |t| first (each with its
 #: sibling, :func:`_sibling`).
 MAX_CANDIDATES = 4
@@ -118,36 +132,44 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
     SearchCandidates
     """
     linear = getattr(reference, "reference", None)
-    if "search_term" not in reference.kinds or not hasattr(linear, "row_letters"):
+    if "search_term" in reference.kinds and hasattr(linear, "row_letters"):
+        letters, signal_names = linear.row_letters, linear.state_names + linear.input_names
+        equations = _normal_equations(data, reference, linear, model.effects(), excited)
+    elif "search_term" in reference.kinds and hasattr(reference, "search_jacobian"):
+        letters, signal_names = reference.search_rows, reference.search_signals
+        equations = _replayed_normal_equations(data, reference, model.effects(), excited)
+    else:
         return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms "
-                                       "(the linear references do)")
-    equations = _normal_equations(data, reference, linear, model.effects(), excited)
+                                       "(the linear references and the blimp do)")
     if equations is None:
         return SearchCandidates(reason="no fitted samples")
-    gram, projection, energy, count, names = equations
+    gram, projection, energy, count, names, *scaled = equations
+    # Coefficients per unit of a column scaled to unit length back to the term's unit.
+    unit = dict(zip(names, scaled[0])) if scaled else dict.fromkeys(names, 1.0)
     # Terms already hypotheses, or named effects screened as such, are not offered again.
     taken = {h.target for h in model.hypotheses if h.effect == "search_term"}
     taken |= {term for kind, terms in reference.terms.items() if kind != "search_term" for term in terms}
-    survivors = sorted(_sparse_regression(gram, projection, energy, count, names, offered_not=taken),
-                       key=lambda survivor: -abs(survivor[2]))
+    survivors = sorted(_sparse_regression(gram, projection, energy, count, names, offered_not=taken,
+                                          linear_offered=bool(scaled)), key=lambda survivor: -abs(survivor[2]))
     offered = {}
     for term, coefficient, _ in survivors[:MAX_CANDIDATES]:
-        offered.setdefault(term, coefficient)
-        sibling = _sibling(term, linear, coefficient, gram=gram, names=names)
+        offered.setdefault(term, coefficient / unit[term])
+        sibling = _sibling(term, letters, signal_names, coefficient, gram=gram, names=names)
         if sibling is not None and sibling[0] not in taken:
-            offered.setdefault(*sibling)
+            offered.setdefault(sibling[0], sibling[1] / unit[sibling[0]])
+    survivors = [(term, coefficient / unit[term], t) for term, coefficient, t in survivors]
     return SearchCandidates([_hypothesis(term, coefficient) for term, coefficient in offered.items()], len(names),
                             [{"term": term, "coefficient": coefficient, "t": t} for term, coefficient, t in survivors])
 
 
-def _sibling(term: str, linear, coefficient: float, *, gram: np.ndarray, names: list):
+def _sibling(term: str, letters, signal_names, coefficient: float, *, gram: np.ndarray, names: list):
     """The other odd power of the same signal in the same row (``M_w^3`` for ``M_w|w|`` and
     back), its coefficient matching the survivor's weighted sensitivity in least squares, or
     None for a product or a sibling not in the library: one amplitude barely tells a signed
     square from a cube, so output error chooses between them (and reports the other with its
     evidence ratio)."""
-    parsed = parse_term(term, linear.row_letters, linear.state_names + linear.input_names)
-    if parsed.kind == "product":
+    parsed = parse_term(term, letters, signal_names)
+    if parsed is None or parsed.kind == "product":
         return None
     other = term_name(parsed.letter, "cube" if parsed.kind == "signed_square" else "signed_square", parsed.signals[0])
     if other not in names:
@@ -231,18 +253,66 @@ def _normal_equations(data: FitData, reference: EffectModel, linear, effects: li
     return gram, projection, energy, count, names
 
 
+def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: list, excited):
+    """:func:`_normal_equations` for a nonlinear reference that takes ``search_term`` and says how
+    strongly each signal drives each row (``search_jacobian``, the blimp's): each library term's
+    weighted sensitivity is the change of the replayed outputs when the term is added with a
+    small coefficient (:data:`SENSITIVITY_FORCE` over the factor's RMS), divided by it: one
+    batch of replays, exact to first order as the linear references' responses are, through the
+    reference's own nonlinear equations (module docstring)."""
+    replays = data.simulate_states(reference, [effects], fitted_only=True)
+    parts = [(replay[0], u, mask) for replay, u, mask in zip(replays, data.inputs, data.fit_mask)
+             if replay is not None]
+    if not parts:
+        return None
+    signal_names = list(reference.search_signals)
+    states, inputs = list(reference.state_names), list(reference.input_names)
+    columns = [(0, states.index(s)) if s in states else (1, inputs.index(s)) for s in signal_names]
+    signals = [np.stack([(x, u)[where][:, column] for where, column in columns], axis=1) for x, u, _ in parts]
+    fitted = np.concatenate([z[mask] for z, (*_, mask) in zip(signals, parts)])
+    rms = np.sqrt(np.mean(fitted ** 2, axis=0))
+    contribution = reference.search_jacobian([x for x, _, _ in parts], [u for _, u, _ in parts]) * rms
+    allowed = set(reference.terms["search_term"])
+    names = []
+    for row, (letter, own) in enumerate(reference.search_rows.items()):
+        usable = [s for s in signal_names if s not in reference.input_names or s in excited]
+        axis = [s for s in usable if s == own or contribution[row, signal_names.index(s)]
+                >= AXIS_FRACTION * contribution[row].max()]
+        names += [name for name in [f"{letter}_{s}" for s in usable] + library([letter], axis) if name in allowed]
+    factors = [parse_term(name, reference.search_rows, signal_names) or name.partition("_")[2] for name in names]
+    size = np.array([rms[signal_names.index(f)] if isinstance(f, str) else
+                     float(np.sqrt(np.mean(factor_values([f], signal_names, fitted) ** 2))) for f in factors])
+    kept = size > 0
+    names = [name for name, keep in zip(names, kept) if keep]
+    steps = SENSITIVITY_FORCE / size[kept]
+    base = data.weighted_residuals(reference, effects)
+    moved = data.weighted_residuals_many(reference, [effects + [{"effect": "search_term", "term": name, "value": step}]
+                                                     for name, step in zip(names, steps)])
+    sensitivity = (base[None, :] - moved) / steps[:, None]  # (L, N): d(replay)/d(coefficient), weighted
+    # Each column to unit length (the coefficients' units span many decades, a cube of a rate
+    # beside a command): the regression is unchanged, its pseudo-inverses well conditioned.
+    norms = np.linalg.norm(sensitivity, axis=1)
+    kept = norms > 0
+    unit = sensitivity[kept] / norms[kept, None]
+    return (unit @ unit.T, unit @ base, float(base @ base), len(base), [n for n, k in zip(names, kept) if k],
+            norms[kept])
+
+
 def _sparse_regression(gram: np.ndarray, projection: np.ndarray, energy: float, count: int,
-                       names: list, *, offered_not=frozenset()) -> list:
+                       names: list, *, offered_not=frozenset(), linear_offered: bool = False) -> list:
     """Forward selection of nonlinear terms on t statistics beside every linear term (module
     docstring), from the normal equations: the survivors as ``(term, coefficient, t)``, at most
     :data:`MAX_CANDIDATES`, in the order selected. Terms in ``offered_not`` are left out, so they
     take no candidate's place; not regressed either, as they are screened on their own, and a
-    sibling the data barely tell from one of them (``N_v|v|`` for ``N_v^3``) may stand in for it."""
+    sibling the data barely tell from one of them (``N_v|v|`` for ``N_v^3``) may stand in for it.
+    ``linear_offered``: the linear terms not in ``offered_not`` compete in the pool too (a reference
+    whose named list lacks most derivatives, the blimp's); the named ones stay in the base."""
     nonlinear = np.array([_is_nonlinear(name) for name in names])
     usable = (np.diag(gram) > 0) & ~(nonlinear & _linear_in_these_data(gram, nonlinear))
     kept_out = np.array([name in offered_not for name in names])
-    base = list(np.flatnonzero(usable & ~nonlinear))
-    pool = list(np.flatnonzero(usable & nonlinear & ~kept_out))
+    offered = nonlinear | linear_offered
+    base = list(np.flatnonzero(usable & ~nonlinear & (kept_out | ~offered)))
+    pool = list(np.flatnonzero(usable & offered & ~kept_out))
     critical = stats.norm.isf(SCREEN_ALPHA / 2)
     selected = []
     for _ in range(MAX_CANDIDATES):

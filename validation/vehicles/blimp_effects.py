@@ -38,6 +38,14 @@ blimp's system inertia matrix, so an extra generalised force ``tau`` adds ``M^-1
 - ``force_offset``, terms ``X_0``, ``Y_0`` (body-axis forces, N), ``N_0`` (yaw moment, N m) and
   ``Z_0`` (net downward force, weight minus buoyancy, N, along the earth vertical and acting at
   the centre of buoyancy: a buoyancy imbalance; the model's is ``-net_lift``);
+- ``search_term`` ``<row>_<factor>`` (:mod:`validation.vehicles.polynomial_terms`; the terms the
+  residual search of ``flightgp diagnose`` regresses on, :data:`SEARCH_ROWS`): an extra
+  generalised force ``value * factor`` on the row's axis (``X``, ``Y``, ``Z`` forces in N, ``L``,
+  ``M``, ``N`` moments in N m, per unit of the factor), the factor a signed square, cube or
+  product of :data:`SEARCH_SIGNALS` (body velocities and rates, roll and pitch, and the commands
+  as the ODE receives them, after delays and lags, before the thrust gains) or, for the
+  search's linear columns, one signal itself (``M_Q``: a force linear in it); at most
+  :data:`SEARCH_SLOTS` per replay;
 - the effects of the measurement chain on any of the 12 states (``output_scale``,
   ``sensor_cross_axis``, ``sensor_lag``, ``sensor_bias``, ``sensor_drift``), on the replayed
   states as recorded, through :func:`~validation.vehicles.effects.apply_measurement_chain`;
@@ -89,6 +97,7 @@ from validation.vehicles.effects import (
     simulate_each_recording,
     starts_at_trim,
 )
+from validation.vehicles.polynomial_terms import library, parse_term, term_name
 
 #: Control-derivative terms: fan, command column, sign of the commands it applies to.
 CONTROL_TERMS = {"gondola_thrust_forward": ("u_gondola", 1.0), "gondola_thrust_backward": ("u_gondola", -1.0),
@@ -99,8 +108,26 @@ STABILITY_TERMS = {"L_P": 0, "M_Q": 1, "N_R": 2}
 DRAG_TERMS = {"X_UU": 0, "Y_VV": 1, "Z_WW": 2}
 #: Force-offset terms: the generalised-force column (0-2 forces, 5 yaw moment; Z_0 earth-vertical).
 OFFSET_TERMS = {"X_0": 0, "Y_0": 1, "Z_0": 2, "N_0": 5}
+#: Factor kinds of a search term, in the order the replays index them (``linear``: the signal
+#: itself, the residual search's linear columns).
+SEARCH_FACTOR_KINDS = ("signed_square", "cube", "product", "linear")
+#: Rows a search term adds to: the generalised force (0-2 forces, 3-5 moments) and the body
+#: velocity or rate it accelerates (the row's own state, for the residual search's axes).
+SEARCH_ROWS = {"X": "U", "Y": "V", "Z": "W", "L": "P", "M": "Q", "N": "R"}
+#: Signals a search term's factor may use: the body velocities and rates, roll and pitch (the
+#: heading and position carry no force) and the commands.
+SEARCH_SIGNALS = ("U", "V", "W", "P", "Q", "R", "phi", "theta", *INPUT_NAMES)
+#: Search terms one replay holds at most (a diagnosis names at most three effects, and the
+#: residual search adds one to them): a fixed size, so that the compiled replay compiles once.
+SEARCH_SLOTS = 4
+#: Search terms the named terms already are (``X_U|U|`` is ``X_UU``): not searched.
+NAMED_SEARCH_TERMS = {term_name(letter, "signed_square", state): named
+                      for named, (letter, state) in {"X_UU": ("X", "U"), "Y_VV": ("Y", "V"),
+                                                     "Z_WW": ("Z", "W")}.items()}
+SEARCH_TERMS = tuple(f"{letter}_{signal}" for letter in SEARCH_ROWS for signal in SEARCH_SIGNALS) + tuple(
+    term for term in library(SEARCH_ROWS, SEARCH_SIGNALS) if term not in NAMED_SEARCH_TERMS)
 TERMS = {"control_derivative": tuple(CONTROL_TERMS), "stability_derivative": tuple(STABILITY_TERMS),
-         "quadratic_drag": tuple(DRAG_TERMS), "force_offset": tuple(OFFSET_TERMS)}
+         "quadratic_drag": tuple(DRAG_TERMS), "force_offset": tuple(OFFSET_TERMS), "search_term": SEARCH_TERMS}
 TERM_UNITS = {**dict.fromkeys(CONTROL_TERMS, "N"), **dict.fromkeys(STABILITY_TERMS, "N m s/rad"),
               **dict.fromkeys(DRAG_TERMS, "N s^2/m^2"), "X_0": "N", "Y_0": "N", "Z_0": "N", "N_0": "N m"}
 #: Every term in words (module docstring), for the statements of a diagnosis.
@@ -112,6 +139,35 @@ TERM_DESCRIPTIONS = {"gondola_thrust_forward": "gondola thrust per unit forward 
                      "X_UU": "quadratic surge drag", "Y_VV": "quadratic sway drag", "Z_WW": "quadratic heave drag",
                      "X_0": "constant surge force", "Y_0": "constant side force",
                      "Z_0": "buoyancy imbalance (net downward force)", "N_0": "constant yaw moment"}
+
+#: Units of the search terms' signals (:data:`SEARCH_SIGNALS`; the commands of the fans are
+#: fractions of full thrust, the gondola's elevation angle ``mu`` in rad).
+SEARCH_SIGNAL_UNITS = {**dict.fromkeys(("U", "V", "W"), "m/s"), **dict.fromkeys(("P", "Q", "R"), "rad/s"),
+                       "phi": "rad", "theta": "rad", "u_gondola": "1", "mu": "rad", "u_tail": "1"}
+_SEARCH_ROW_WORDS = {"X": "surge force", "Y": "side force", "Z": "heave force", "L": "roll moment",
+                     "M": "pitch moment", "N": "yaw moment"}
+
+
+def search_term_unit(term: str) -> str:
+    """A search term's unit: its row's (N or N m) per unit of its factor (``N m/(rad/s)^2`` for
+    ``M_Q|Q|``, ``N/(m/s rad/s)`` for ``Y_U*R``)."""
+    letter, _, factor = term.partition("_")
+    row = "N" if letter in "XYZ" else "N m"
+    parsed = parse_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
+    if parsed is None:
+        return f"{row}/({SEARCH_SIGNAL_UNITS[factor]})"
+    first = SEARCH_SIGNAL_UNITS[parsed.signals[0]]
+    power = {"signed_square": f"({first})^2", "cube": f"({first})^3"}.get(
+        parsed.kind, f"({first} {SEARCH_SIGNAL_UNITS[parsed.signals[-1]]})")
+    return f"{row}/{power}"
+
+
+def search_term_description(term: str) -> str:
+    """``"<row force or moment> proportional to <factor>"`` (``"yaw moment proportional to
+    V|V|"``)."""
+    letter, _, factor = term.partition("_")
+    return f"{_SEARCH_ROW_WORDS[letter]} proportional to {factor}"
+
 
 #: White sensor noise per state of the blimp recordings (the ``blimp-flight`` stand-in's marker
 #: noise, 1 mm and 0.5 deg; velocities and rates at the noise of its 5-sample quadratic-fit
@@ -136,8 +192,8 @@ def model_value(reference: BlimpReference, term: str) -> float:
         return -float(params.quadratic_drag[DRAG_TERMS[term]])
     if term == "Z_0":
         return -float(params.net_lift)
-    if term in OFFSET_TERMS:
-        return 0.0
+    if term in OFFSET_TERMS or term in SEARCH_TERMS:
+        return 0.0  # no constant force, no term beyond the model's
     raise KeyError(term)
 
 
@@ -219,17 +275,42 @@ class _TermChanges:
     extra_drag: np.ndarray
     constant: np.ndarray
     extra_down: np.ndarray
+    search_kind: np.ndarray
+    search_first: np.ndarray
+    search_second: np.ndarray
+    search_row: np.ndarray
+    search_value: np.ndarray
 
     @classmethod
     def of(cls, reference: BlimpReference, effect_lists) -> _TermChanges:
-        batch = len(effect_lists)
+        batch, slots = len(effect_lists), (len(effect_lists), SEARCH_SLOTS)
         changes = cls(np.ones((batch, 3)), np.ones((batch, 3)), np.zeros((batch, 3)), np.zeros((batch, 3)),
-                      np.zeros((batch, 6)), np.zeros(batch))
+                      np.zeros((batch, 6)), np.zeros(batch), np.zeros(slots, dtype=np.int32),
+                      np.zeros(slots, dtype=np.int32), np.zeros(slots, dtype=np.int32),
+                      np.zeros(slots, dtype=np.int32), np.zeros(slots))
         for b, effects in enumerate(effect_lists):
+            searched = [effect for effect in effects if effect["effect"] == "search_term"]
+            if len(searched) > SEARCH_SLOTS:
+                raise ValueError(f"at most {SEARCH_SLOTS} search terms per replay, got {len(searched)}")
+            for slot, effect in enumerate(searched):
+                changes.set_search_term(b, slot, effect["term"], effect["value"])
             for effect in effects:
-                if "term" in effect:
+                if "term" in effect and effect["effect"] != "search_term":
                     changes.set_term(b, effect["term"], effect["value"], model_value(reference, effect["term"]))
         return changes
+
+    def set_search_term(self, member: int, slot: int, term: str, value: float) -> None:
+        """Search term ``term`` (module docstring) of member ``member`` in slot ``slot`` at
+        ``value``: its factor kind (:data:`SEARCH_FACTOR_KINDS`), the indices of its one or two
+        signals in :data:`SEARCH_SIGNALS`, its row (0-5) and its coefficient."""
+        letter, _, factor = term.partition("_")
+        parsed = parse_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
+        kind, signals = ("linear", (factor,)) if parsed is None else (parsed.kind, parsed.signals)
+        self.search_kind[member, slot] = SEARCH_FACTOR_KINDS.index(kind)
+        self.search_first[member, slot] = SEARCH_SIGNALS.index(signals[0])
+        self.search_second[member, slot] = SEARCH_SIGNALS.index(signals[-1])
+        self.search_row[member, slot] = list(SEARCH_ROWS).index(letter)
+        self.search_value[member, slot] = value
 
     def set_term(self, member: int, term: str, value: float, model: float) -> None:
         """Term ``term`` of member ``member`` at ``value`` instead of the model's ``model``."""
@@ -256,6 +337,11 @@ class _TermChanges:
         force = self.constant.copy()
         force[:, :3] += self.extra_drag * np.abs(v) * v + self.extra_down[:, None] * down
         force[:, 3:] += self.extra_damping * w
+        signals = np.concatenate([state[:, 6:12], state[:, 3:5], command], axis=-1)  # SEARCH_SIGNALS
+        first = np.take_along_axis(signals, self.search_first, axis=1)
+        second = np.take_along_axis(signals, self.search_second, axis=1)
+        factor = np.choose(self.search_kind, [first * np.abs(first), first**3, first * second, first])
+        np.add.at(force, (np.arange(len(state))[:, None], self.search_row), self.search_value * factor)
         rates = blimp_dynamics(state, effective, params)
         rates[:, 6:] += force @ inverse.T
         return rates
@@ -331,8 +417,10 @@ class BlimpEffects:
     family = "blimp"
     kinds = ("time_delay", "input_lag", "control_derivative", "stability_derivative", "sensor_bias", "quadratic_drag",
              "force_offset", "dead_band", "backlash", "saturation", "rate_limit", "output_scale", "sensor_cross_axis",
-             "sensor_lag", "sensor_drift")
+             "sensor_lag", "sensor_drift", "search_term")
     terms = TERMS
+    search_rows = SEARCH_ROWS
+    search_signals = SEARCH_SIGNALS
     batches_simulations = True
     absolute_inputs = False
     needs_even_sampling = False
@@ -351,12 +439,14 @@ class BlimpEffects:
         return model_value(self.reference, term)
 
     def term_unit(self, term: str) -> str:
-        """:data:`TERM_UNITS`."""
-        return TERM_UNITS[term]
+        """:data:`TERM_UNITS`; a search term's :func:`search_term_unit`."""
+        return TERM_UNITS[term] if term in TERM_UNITS else search_term_unit(term)
 
     def term_description(self, term: str) -> str:
-        """:data:`TERM_DESCRIPTIONS`; ``term`` itself for another."""
-        return TERM_DESCRIPTIONS.get(term, term)
+        """:data:`TERM_DESCRIPTIONS`; a search term's :func:`search_term_description`."""
+        if term in TERM_DESCRIPTIONS:
+            return TERM_DESCRIPTIONS[term]
+        return search_term_description(term) if term in SEARCH_TERMS else term
 
     def term_value_problem(self, term: str, value: float) -> str | None:
         """Fan thrust per unit command (the control-derivative terms) must be positive."""
@@ -380,6 +470,40 @@ class BlimpEffects:
         for term, step in _OFFSET_STEPS.items():
             hypotheses.append(Hypothesis("force_offset", term, self.model_value(term), -math.inf, math.inf, step))
         return hypotheses
+
+    def search_jacobian(self, states, inputs) -> np.ndarray:
+        """How strongly each search signal drives each search row: the RMS over the samples of
+        ``d tau_row / d signal`` (``tau = M nu_dot``, the generalised force of the row,
+        :data:`SEARCH_ROWS`; signals :data:`SEARCH_SIGNALS`), by central differences of the
+        reference's ODE at the given states, for the residual search's axes.
+
+        Parameters
+        ----------
+        states : list of ndarray, each shape (n_r, 12)
+            Replayed states per recording.
+        inputs : list of ndarray, each shape (n_r, 3)
+            The recordings' inputs.
+
+        Returns
+        -------
+        ndarray, shape (6, len(SEARCH_SIGNALS))
+        """
+        params = self.reference.params
+        matrix, _ = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
+                                params.cg_position)
+        x, u = np.concatenate(states), np.concatenate(inputs)
+        columns = [("state", STATE_NAMES.index(s)) if s in STATE_NAMES else ("input", INPUT_NAMES.index(s))
+                   for s in SEARCH_SIGNALS]
+        jacobian = np.empty((len(SEARCH_ROWS), len(SEARCH_SIGNALS)))
+        for j, (where, column) in enumerate(columns):
+            step = 1e-6 * max(1.0, float(np.sqrt(np.mean((x if where == "state" else u)[:, column] ** 2))))
+            forces = []
+            for sign in (1.0, -1.0):
+                moved_x, moved_u = x.copy(), u.copy()
+                (moved_x if where == "state" else moved_u)[:, column] += sign * step
+                forces.append(blimp_dynamics(moved_x, moved_u, params)[:, 6:] @ matrix.T)
+            jacobian[:, j] = np.sqrt(np.mean(((forces[0] - forces[1]) / (2 * step)) ** 2, axis=0))
+        return jacobian
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
         """:func:`simulate_batch`, shape (B, n, 12), from the hanging state (``start`` must be

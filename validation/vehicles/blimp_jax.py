@@ -3,7 +3,7 @@
 
 The equations are :func:`validation.vehicles.blimp_equations.blimp_dynamics` plus the term
 changes of :mod:`validation.vehicles.blimp_effects` (thrust gains, extra damping and drag,
-constant forces, a buoyancy imbalance), written again for a batch of states (B, 12) with the
+constant forces, a buoyancy imbalance, search terms), written again for a batch of states (B, 12) with the
 changes as arrays, so that JAX can trace and compile one RK4 step per recording interval inside
 a ``lax.scan``. The inputs each member sees (dead bands, limits, rate limits, delays and lags)
 are shaped beforehand in numpy, exactly as for the numpy step. Everything is in double precision;
@@ -28,6 +28,7 @@ def _rates(jnp, state, command, p, changes, inverse):
     ``command`` (B, 3) (the equations of
     :func:`~validation.vehicles.blimp_equations.blimp_dynamics` and
     :meth:`~validation.vehicles.blimp_effects._TermChanges.rates`)."""
+    raw_command = command
     command = command * jnp.where(command >= 0, changes["gain_positive"], changes["gain_negative"])
     angles, v, w = state[:, 3:6], state[:, 6:9], state[:, 9:12]
     nu = state[:, 6:12]
@@ -60,6 +61,14 @@ def _rates(jnp, state, command, p, changes, inverse):
     extra = changes["constant"] + jnp.concatenate(
         [changes["extra_drag"] * jnp.abs(v) * v + changes["extra_down"][:, None] * down, changes["extra_damping"] * w],
         axis=-1)
+    signals = jnp.concatenate([nu, angles[:, :2], raw_command], axis=-1)  # SEARCH_SIGNALS
+    first = jnp.take_along_axis(signals, changes["search_first"], axis=1)
+    second = jnp.take_along_axis(signals, changes["search_second"], axis=1)
+    kind = changes["search_kind"]
+    factor = jnp.where(kind == 0, first * jnp.abs(first),
+                       jnp.where(kind == 1, first**3, jnp.where(kind == 2, first * second, first)))
+    rows = changes["search_row"][:, :, None] == jnp.arange(6)[None, None, :]  # (B, slots, 6)
+    extra = extra + jnp.sum(jnp.where(rows, (changes["search_value"] * factor)[:, :, None], 0.0), axis=1)
     nu_dot = (jnp.concatenate([force, moment], axis=-1) + extra) @ inverse.T
     return jnp.concatenate([x_dot, euler, nu_dot], axis=-1)
 
@@ -95,7 +104,9 @@ def compiled_replay(params, changes: dict, start: np.ndarray, held: np.ndarray, 
     params : BlimpParameters
     changes : dict of str to ndarray
         The term changes per member: ``gain_positive``, ``gain_negative``, ``extra_damping``,
-        ``extra_drag`` (B, 3), ``constant`` (B, 6), ``extra_down`` (B,).
+        ``extra_drag`` (B, 3), ``constant`` (B, 6), ``extra_down`` (B,), and the search terms'
+        slots (B, SEARCH_SLOTS): ``search_kind``, ``search_first``, ``search_second``,
+        ``search_row`` (integers) and ``search_value``.
     start : ndarray, shape (12,)
     held : ndarray, shape (B, n - 1, 3)
         What acts over each interval for each member.

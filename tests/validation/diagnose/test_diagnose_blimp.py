@@ -17,8 +17,9 @@ from validation.core.recordings import write_recording
 from validation.diagnose import diagnose
 from validation.diagnose.bench import concealed_cases
 from validation.diagnose.noise import estimate_noise_sd
-from validation.vehicles.blimp import SAMPLE_TIME, BlimpParameters, BlimpReference
+from validation.vehicles.blimp import SAMPLE_TIME, BlimpParameters, BlimpReference, hanging_state
 from validation.vehicles.blimp_effects import SENSOR_NOISE_STD, identification_manoeuvre, simulate_batch
+from validation.vehicles.blimp_equations import blimp_dynamics, mass_matrix
 from validation.vehicles.effect_vehicle import EffectVehicle
 
 DEFAULT = BlimpParameters()
@@ -79,11 +80,56 @@ def test_compiled_replay_equals_the_numpy_step_for_every_effect_kind(manoeuvre):
               {"effect": "sensor_bias", "output": "Q", "value": 0.01}],
              [{"effect": "dead_band", "input": "u_gondola", "value": 0.2},
               {"effect": "rate_limit", "input": "u_tail", "value": 2.0},
-              {"effect": "control_derivative", "term": "tail_thrust_negative", "value": 0.02}]]
+              {"effect": "control_derivative", "term": "tail_thrust_negative", "value": 0.02}],
+             [{"effect": "search_term", "term": "M_U*Q", "value": 0.05},
+              {"effect": "search_term", "term": "N_V|V|", "value": 0.2},
+              {"effect": "search_term", "term": "X_u_gondola^3", "value": 0.01},
+              {"effect": "search_term", "term": "L_phi", "value": -0.002}]]
     compiled = simulate_batch(REFERENCE, lists, time, inputs)
     numpy_step = simulate_batch(REFERENCE, lists, time, inputs, compiled=False)
     assert np.abs(numpy_step[1:] - numpy_step[0]).max() > 1e-2  # every member changes the flight
     np.testing.assert_allclose(compiled, numpy_step, rtol=0, atol=1e-12)
+
+
+def test_search_terms_are_the_generalised_forces_they_name(manoeuvre):
+    """A search term adds ``value * factor`` to its row's force or moment: a linear one on a rate
+    is the damping derivative, a signed square of a velocity the quadratic drag, and a product
+    and a cube of a command equal an independent integration of the ODE with that force added
+    (scipy's adaptive Runge-Kutta, the inputs held over each interval)."""
+    time, inputs = manoeuvre
+    for term, named, change in (("N_R", {"effect": "stability_derivative", "term": "N_R"}, -0.02),
+                                ("Y_V|V|", {"effect": "quadratic_drag", "term": "Y_VV"}, -1.0)):
+        model = -(DEFAULT.rotational_damping[2] if term == "N_R" else DEFAULT.quadratic_drag[1])
+        searched = simulate_batch(REFERENCE, [[{"effect": "search_term", "term": term, "value": change}]], time, inputs)
+        changed = simulate_batch(REFERENCE, [[{**named, "value": model + change}]], time, inputs)
+        assert np.abs(searched - _states([], time, inputs)).max() > 1e-3
+        np.testing.assert_allclose(searched, changed, rtol=0, atol=1e-12)
+    terms = [{"effect": "search_term", "term": "M_U*Q", "value": 0.05},
+             {"effect": "search_term", "term": "Y_u_gondola^3", "value": 0.004}]
+    time, inputs = time[:121], inputs[:121]  # the gondola's steps (6 s)
+    _, inverse = mass_matrix(DEFAULT.mass, DEFAULT.added_mass, DEFAULT.inertia, DEFAULT.added_inertia,
+                             DEFAULT.cg_position)
+
+    def exact(gain):
+        def rates(_, state, command):
+            force = np.zeros(6)
+            force[4] = gain * 0.05 * state[6] * state[10]
+            force[1] = gain * 0.004 * command[0] ** 3
+            return blimp_dynamics(state[None], command[None], DEFAULT)[0] + np.concatenate([np.zeros(6),
+                                                                                            inverse @ force])
+
+        state, states = hanging_state(DEFAULT), [hanging_state(DEFAULT)]
+        for k in range(len(time) - 1):
+            state = integrate.solve_ivp(rates, (time[k], time[k + 1]), state, args=(inputs[k],), rtol=1e-11,
+                                        atol=1e-13).y[:, -1]
+            states.append(state)
+        return np.array(states)
+
+    # What the terms change, by RK4 at 20 Hz and exactly (the integrators' own errors, 3e-6, cancel).
+    got = simulate_batch(REFERENCE, [terms], time, inputs)[0] - _states([], time, inputs)
+    expected = exact(1.0) - exact(0.0)
+    assert np.abs(expected).max() > 1e-2
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-3 * np.abs(expected).max())
 
 
 def test_whole_sample_delay_equals_shifted_input_and_small_lags_vanish(manoeuvre):
@@ -162,6 +208,8 @@ BLIMP_CASES = {
     "quadratic_drag": [{"effect": "quadratic_drag", "term": "X_UU", "value": 1.5 * -DEFAULT.quadratic_drag[0]}],
     "buoyancy": [{"effect": "force_offset", "term": "Z_0", "value": 0.003}],
     "tail_lag": [{"effect": "input_lag", "input": "u_tail", "value": 0.3}],
+    # On no named list: the residual search finds it.
+    "pitch_moment_in_U": [{"effect": "search_term", "term": "M_U", "value": 0.02}],
 }
 
 
@@ -213,7 +261,7 @@ def test_blimp_bench_suite_covers_every_blimp_effect_kind():
     cases = concealed_cases(reference="blimp")
     kinds = {effect["effect"] for case in cases for effect in case.effects}
     assert kinds == {"time_delay", "input_lag", "control_derivative", "stability_derivative",
-                     "quadratic_drag", "force_offset", "sensor_bias", "saturation", "rate_limit"}
+                     "quadratic_drag", "force_offset", "sensor_bias", "saturation", "rate_limit", "search_term"}
     assert {case.kind for case in cases} == {"single", "pair", "none", "outside"}
     assert len({case.name for case in cases}) == len(cases)
 

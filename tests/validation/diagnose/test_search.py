@@ -66,8 +66,8 @@ def test_an_inputs_odd_powers_at_one_amplitude_are_linear_in_the_data():
 
 def test_the_search_says_why_it_did_not_run():
     data, reference = _prepared(CUBIC)
-    blimp = effect_model("blimp", purpose="diagnose")
-    found = search_candidates(data, blimp, null_model(data, reference), excited=data.excited)
+    other = effect_model("rgblimp", purpose="diagnose")  # takes no search_term
+    found = search_candidates(data, other, null_model(data, reference), excited=data.excited)
     assert found.hypotheses == [] and "takes no searched terms" in found.reason
 
 
@@ -136,12 +136,14 @@ def test_a_siblings_coefficient_matches_the_survivors_sensitivity():
     from validation.diagnose.search import _sibling
 
     linear = effect_model("bo105-80kt", purpose="test").reference
-    names = ["N_v|v|", "N_v^3", "N_v*p"]
-    gram = np.array([[4.0, 2.0, 0.0], [2.0, 8.0, 0.0], [0.0, 0.0, 1.0]])
-    assert _sibling("N_v|v|", linear, 3.0, gram=gram, names=names) == ("N_v^3", 3.0 * 2.0 / 8.0)
-    assert _sibling("N_v^3", linear, 1.0, gram=gram, names=names) == ("N_v|v|", 2.0 / 4.0)
-    assert _sibling("N_v*p", linear, 1.0, gram=gram, names=names) is None
-    assert _sibling("N_v^3", linear, 1.0, gram=gram[1:, 1:], names=names[1:]) is None
+    rows, signals = linear.row_letters, linear.state_names + linear.input_names
+    names = ["N_v|v|", "N_v^3", "N_v*p", "N_v"]
+    gram = np.array([[4.0, 2.0, 0.0, 1.0], [2.0, 8.0, 0.0, 1.0], [0.0, 0.0, 1.0, 0.0], [1.0, 1.0, 0.0, 1.0]])
+    assert _sibling("N_v|v|", rows, signals, 3.0, gram=gram, names=names) == ("N_v^3", 3.0 * 2.0 / 8.0)
+    assert _sibling("N_v^3", rows, signals, 1.0, gram=gram, names=names) == ("N_v|v|", 2.0 / 4.0)
+    assert _sibling("N_v*p", rows, signals, 1.0, gram=gram, names=names) is None
+    assert _sibling("N_v", rows, signals, 1.0, gram=gram, names=names) is None  # a linear term has none
+    assert _sibling("N_v^3", rows, signals, 1.0, gram=gram[1:, 1:], names=names[1:]) is None
 
 
 def test_a_step_is_accepted_only_past_both_thresholds_and_lists_its_close_competitors():
