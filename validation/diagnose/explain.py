@@ -630,7 +630,7 @@ def _weigh_against_air(air: AirCompetitor, data: FitData, reference: EffectModel
 
 def _search_summary(searches: list) -> dict | None:
     """diagnosis.json's ``search.residual_search``: ``ran``, ``reason`` (why not),
-    ``library_terms`` (at the first step) and per step the regression's nonlinear survivors
+    ``library_terms`` (at the first step) and per step the regression's survivors
     (``term``, ``coefficient``, ``t``); None without a residual search."""
     if not searches:
         return None

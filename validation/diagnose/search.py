@@ -31,9 +31,9 @@ drops them together. That is a screen, not the decision (the residual is not whi
 physics is missing, so its t statistics are optimistic); the decision below has the
 multiplicity correction.
 
-Surviving nonlinear terms (linear survivors are derivative errors, the named hypotheses'
-business, and are not offered, nor are terms a named hypothesis already has, ``M_q|q|`` or
-``N_v^3``)
+Surviving nonlinear terms (on the linear references linear survivors are derivative errors,
+the named hypotheses' business, and are not offered, nor are terms a named hypothesis already
+has, ``M_q|q|`` or ``N_v^3``; on the blimp, below, the linear terms it does not name are offered too)
 become ``search_term`` hypotheses beside the named ones, the :data:`MAX_CANDIDATES` largest |t|
 with their siblings: screened, fitted by output error and accepted by the same rule
 (:func:`validation.diagnose.fitting.weigh_step`, Bonferroni over the named hypotheses and the
@@ -96,7 +96,8 @@ class SearchCandidates:
     Attributes
     ----------
     hypotheses : list of Hypothesis
-        One ``search_term`` hypothesis per nonlinear survivor, null 0, unbounded.
+        One ``search_term`` hypothesis per offered survivor (nonlinear; on the blimp also a
+        linear term it does not name) and its sibling, null 0, unbounded.
     library_terms : int
         Terms regressed on, over every row (the size of the family the survivors come from).
     survivors : list of dict
@@ -113,7 +114,7 @@ class SearchCandidates:
 
 def search_candidates(data: FitData, reference: EffectModel, model: FittedModel, *, excited) -> SearchCandidates:
     """Regress the error of ``model`` on the term library (module docstring) and return its
-    nonlinear survivors as hypotheses.
+    survivors as hypotheses.
 
     Parameters
     ----------
@@ -121,7 +122,8 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
         The recordings; the terms' inputs are the recorded ones (a screen: output error then
         replays each survivor with the model's own input effects).
     reference : EffectModel
-        A linear reference (one that takes ``search_term``); any other gets a reason.
+        A reference that takes ``search_term``: a linear one, or one with ``search_jacobian``
+        (the blimp); any other gets a reason.
     model : FittedModel
         The effects found so far, jointly fitted.
     excited : sequence of str
@@ -142,7 +144,7 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
         return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms "
                                        "(the linear references and the blimp do)")
     if equations is None:
-        return SearchCandidates(reason="no fitted samples")
+        return SearchCandidates(reason="no fitted samples, or no term of the library moves the outputs")
     gram, projection, energy, count, names, *scaled = equations
     # Coefficients per unit of a column scaled to unit length back to the term's unit.
     unit = dict(zip(names, scaled[0])) if scaled else dict.fromkeys(names, 1.0)
@@ -272,7 +274,7 @@ def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: l
     fitted = np.concatenate([z[mask] for z, (*_, mask) in zip(signals, parts)])
     rms = np.sqrt(np.mean(fitted ** 2, axis=0))
     contribution = reference.search_jacobian([x for x, _, _ in parts], [u for _, u, _ in parts]) * rms
-    allowed = set(reference.terms["search_term"])
+    allowed = set(getattr(reference, "search_library", reference.terms["search_term"]))
     names = []
     for row, (letter, own) in enumerate(reference.search_rows.items()):
         usable = [s for s in signal_names if s not in reference.input_names or s in excited]
@@ -284,6 +286,8 @@ def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: l
                      float(np.sqrt(np.mean(factor_values([f], signal_names, fitted) ** 2))) for f in factors])
     kept = size > 0
     names = [name for name, keep in zip(names, kept) if keep]
+    if not names:
+        return None
     steps = SENSITIVITY_FORCE / size[kept]
     base = data.weighted_residuals(reference, effects)
     moved = data.weighted_residuals_many(reference, [effects + [{"effect": "search_term", "term": name, "value": step}]
@@ -292,7 +296,9 @@ def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: l
     # Each column to unit length (the coefficients' units span many decades, a cube of a rate
     # beside a command): the regression is unchanged, its pseudo-inverses well conditioned.
     norms = np.linalg.norm(sensitivity, axis=1)
-    kept = norms > 0
+    kept = norms > 1e-9 * norms.max(initial=0.0)  # not a column of rounding noise made unit length
+    if not kept.any():
+        return None
     unit = sensitivity[kept] / norms[kept, None]
     return (unit @ unit.T, unit @ base, float(base @ base), len(base), [n for n, k in zip(names, kept) if k],
             norms[kept])

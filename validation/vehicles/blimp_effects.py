@@ -75,6 +75,7 @@ from functools import partial
 
 import numpy as np
 
+from validation.core.errors import BadInputError
 from validation.core.manoeuvres import doublet, time_grid
 from validation.vehicles.blimp import (
     INPUT_NAMES,
@@ -124,8 +125,13 @@ SEARCH_SLOTS = 4
 NAMED_SEARCH_TERMS = {term_name(letter, "signed_square", state): named
                       for named, (letter, state) in {"X_UU": ("X", "U"), "Y_VV": ("Y", "V"),
                                                      "Z_WW": ("Z", "W")}.items()}
-SEARCH_TERMS = tuple(f"{letter}_{signal}" for letter in SEARCH_ROWS for signal in SEARCH_SIGNALS) + tuple(
+#: The residual search's library on the blimp: every row's linear terms and its polynomial terms,
+#: less those the named ``quadratic_drag`` is. The linear ``L_P``, ``M_Q`` and ``N_R`` are the
+#: named damping: the search regresses on them (its base columns) but never offers them.
+SEARCH_LIBRARY = tuple(f"{letter}_{signal}" for letter in SEARCH_ROWS for signal in SEARCH_SIGNALS) + tuple(
     term for term in library(SEARCH_ROWS, SEARCH_SIGNALS) if term not in NAMED_SEARCH_TERMS)
+#: The search terms an effect may name: the library less the named damping.
+SEARCH_TERMS = tuple(term for term in SEARCH_LIBRARY if term not in STABILITY_TERMS)
 TERMS = {"control_derivative": tuple(CONTROL_TERMS), "stability_derivative": tuple(STABILITY_TERMS),
          "quadratic_drag": tuple(DRAG_TERMS), "force_offset": tuple(OFFSET_TERMS), "search_term": SEARCH_TERMS}
 TERM_UNITS = {**dict.fromkeys(CONTROL_TERMS, "N"), **dict.fromkeys(STABILITY_TERMS, "N m s/rad"),
@@ -150,16 +156,23 @@ _SEARCH_ROW_WORDS = {"X": "surge force", "Y": "side force", "Z": "heave force", 
 
 def search_term_unit(term: str) -> str:
     """A search term's unit: its row's (N or N m) per unit of its factor (``N m/(rad/s)^2`` for
-    ``M_Q|Q|``, ``N/(m/s rad/s)`` for ``Y_U*R``)."""
+    ``M_Q|Q|``, ``N/(m/s rad/s)`` for ``Y_U*R``, ``N m/rad`` for ``M_mu``; a command is a fraction
+    of full thrust, no unit: ``N`` for ``X_u_gondola^3``)."""
     letter, _, factor = term.partition("_")
     row = "N" if letter in "XYZ" else "N m"
     parsed = parse_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
-    if parsed is None:
-        return f"{row}/({SEARCH_SIGNAL_UNITS[factor]})"
-    first = SEARCH_SIGNAL_UNITS[parsed.signals[0]]
-    power = {"signed_square": f"({first})^2", "cube": f"({first})^3"}.get(
-        parsed.kind, f"({first} {SEARCH_SIGNAL_UNITS[parsed.signals[-1]]})")
-    return f"{row}/{power}"
+    kind, signals = ("linear", (factor,)) if parsed is None else (parsed.kind, parsed.signals)
+    power = {"signed_square": 2, "cube": 3}.get(kind, 1)
+    units = [SEARCH_SIGNAL_UNITS[s] for s in (signals if kind == "product" else signals[:1])]
+    units = [u for u in units if u != "1"]
+    if not units:
+        return row
+    if len(units) == 2:
+        return f"{row}/({units[0]} {units[1]})"
+    unit = units[0]
+    if power > 1:
+        return f"{row}/({unit})^{power}"
+    return f"{row}/({unit})" if "/" in unit else f"{row}/{unit}"
 
 
 def search_term_description(term: str) -> str:
@@ -290,8 +303,8 @@ class _TermChanges:
                       np.zeros(slots, dtype=np.int32), np.zeros(slots))
         for b, effects in enumerate(effect_lists):
             searched = [effect for effect in effects if effect["effect"] == "search_term"]
-            if len(searched) > SEARCH_SLOTS:
-                raise ValueError(f"at most {SEARCH_SLOTS} search terms per replay, got {len(searched)}")
+            if len(searched) > SEARCH_SLOTS:  # check_effects refuses it first (max_search_terms)
+                raise BadInputError(f"at most {SEARCH_SLOTS} search terms per replay, got {len(searched)}")
             for slot, effect in enumerate(searched):
                 changes.set_search_term(b, slot, effect["term"], effect["value"])
             for effect in effects:
@@ -421,6 +434,8 @@ class BlimpEffects:
     terms = TERMS
     search_rows = SEARCH_ROWS
     search_signals = SEARCH_SIGNALS
+    search_library = SEARCH_LIBRARY
+    max_search_terms = SEARCH_SLOTS
     batches_simulations = True
     absolute_inputs = False
     needs_even_sampling = False

@@ -740,8 +740,8 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
         ``M_theta_1s`` a control derivative), a cross-axis sensitivity whose recorded output
         and source are not two outputs of the same unit, a non-finite value, a delay or a lag
         (of an input or a sensor) outside ``[0, MAX_DELAY]`` / ``[0, MAX_LAG]`` s, a value the reference refuses
-        (:meth:`EffectModel.term_value_problem`), or two effects of the same kind on the same
-        target.
+        (:meth:`EffectModel.term_value_problem`), two effects of the same kind on the same
+        target, or more search terms than the reference's ``max_search_terms`` (where it has one).
     """
     checked, seen = [], set()
     for index, effect in enumerate(effects):
@@ -782,6 +782,10 @@ def check_effects(effects, reference: EffectModel) -> list[dict]:
             raise BadInputError(f"{where}: a second {kind} on {target}; give each effect once")
         seen.add((kind, target))
         checked.append({"effect": kind, key: target, "value": value})
+    most = getattr(reference, "max_search_terms", None)
+    searched = sum(effect["effect"] == "search_term" for effect in checked)
+    if most is not None and searched > most:
+        raise BadInputError(f"{searched} search terms; the {reference.name} reference replays at most {most} at once")
     return checked
 
 

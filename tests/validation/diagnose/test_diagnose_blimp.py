@@ -434,3 +434,15 @@ def test_bo105_refuses_uneven_sampling_with_exit_2(tmp_path, capsys):
     assert "uneven sampling" in err and "evenly sampled recordings" in err and "bo105-80kt" in err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert not out.exists()
+
+
+def test_search_terms_are_checked_against_the_blimps_library_and_replay_limit():
+    named = [{"effect": "search_term", "term": "M_Q", "value": 0.01}]  # the named pitch damping
+    with pytest.raises(BadInputError, match="stability_derivative"):
+        EffectVehicle("blimp", named)
+    five = [{"effect": "search_term", "term": term, "value": 0.01}
+            for term in ("M_U", "N_V", "X_U^3", "Y_V*R", "L_phi")]
+    with pytest.raises(BadInputError, match="at most 4"):
+        EffectVehicle("blimp", five)
+    four = EffectVehicle("blimp", five[:4])
+    assert [e["term"] for e in four.effects] == ["M_U", "N_V", "X_U^3", "Y_V*R"]
