@@ -63,12 +63,14 @@ def test_the_fast_free_run_is_within_2_percent_of_the_predicted_sd_of_the_exact_
     assert_fast_free_run_within_tolerance(case.path, bo105_flights[flight].input("theta_1s")[::10])
 
 
-def test_the_build_defaults_to_the_exact_moments_where_its_check_of_the_fast_path_fails(bo105_model_file, tmp_path,
+def test_the_build_defaults_to_the_exact_moments_where_its_check_of_the_fast_path_fails(rate_predictor_fmu,
+                                                                                        bo105_model_file, tmp_path,
                                                                                         monkeypatch):
     """The build free-runs a test 3-2-1-1 with both paths (fast_path_error): on the paper's model
     the fast path is off by 6.1e-4 of the sd, under the check's 1 %, so exact_moments defaults to
-    false and the description says what was measured; a model whose check fails (its error stood
-    in for here) gets exact_moments = true by default, in the pythonfmu and the native FMU alike."""
+    false and the description says what was measured (the session's FMU of that model, built with
+    the defaults); a model whose check fails (its error stood in for here) gets exact_moments =
+    true by default, in the pythonfmu and the native FMU alike."""
     from fmpy import read_model_description
 
     import fmu_src.rate_predictor.build as build
@@ -79,7 +81,7 @@ def test_the_build_defaults_to_the_exact_moments_where_its_check_of_the_fast_pat
         start = next(v.start for v in description.modelVariables if v.name == "exact_moments")
         return start in (True, "true"), description.description
 
-    exact, text = default(build_rate_predictor_fmu(bo105_model_file, tmp_path / "checked"))
+    exact, text = default(rate_predictor_fmu)
     error = float(text.split("by at most ")[1].split(" % of the predicted standard deviation")[0]) / 100
     assert not exact and 0 < error <= build.FAST_PATH_CHECK and "(within the 1 % allowed), so exact_moments " \
         "defaults to false." in text
