@@ -19,17 +19,18 @@ demo: $(STAMP)
 	$(BIN)/flightgp demo
 
 # Lint first (ruff, configured in pyproject.toml), then two pytest workers on two cores, a test
-# module at a time (a module's fixtures are made once; a worker that finishes a module is sent
-# the next one queued, so the long end-to-end modules do not leave one core idle): one BLAS
-# thread each, or they fight over the cores.
+# file at a time (--dist loadfile: a module's fixtures are made once, its contract class's tests
+# included, which loadscope sends apart; a worker that finishes a file is sent the next one
+# queued, so the long end-to-end modules do not leave one core idle): one BLAS thread each, or
+# they fight over the cores.
 test: $(STAMP)
 	$(BIN)/ruff check gp_model validation fmu_src tests
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadscope $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile $(PYTEST_ARGS)
 
 # Local shortcut: skip the end-to-end tests marked slow.
 test-fast: $(STAMP)
 	$(BIN)/ruff check gp_model validation fmu_src tests
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadscope -m "not slow" $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile -m "not slow" $(PYTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) build/* .pytest_cache

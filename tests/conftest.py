@@ -114,7 +114,7 @@ def qtg_flights(tmp_path_factory):
 
 def pytest_collection_modifyitems(config, items):
     """Run the modules holding slow end-to-end tests first: on two workers (``make test``:
-    pytest-xdist, ``--dist loadscope``, a module's tests on one worker, so its module-scoped
+    pytest-xdist, ``--dist loadfile``, a module's tests on one worker, so its module-scoped
     fixtures, e.g. an end-to-end run whose results its tests check, are made once) the longest
     jobs then start early instead of leaving one worker running a minute-long fixture while the
     other idles at the end (longest processing time first, Graham, SIAM J. Appl. Math. 17(2),
