@@ -112,7 +112,8 @@ GOAL_POSITION_RMSE_M = 0.15
 #: (docs/rgblimp.md, "The hybrids on the test flights"): fitted on each configuration's first two
 #: flights, the global hybrid scored best on the third (mean score 0.83x the identified model's,
 #: position RMSE 0.441 against 0.482 m, 95 % coverage 0.965; started from the identification drawn
-#: toward the vehicle, 0.79x, 0.440 m and 0.972, better on 27 of 35). Those third flights are validation
+#: toward the vehicle, 0.79x, 0.440 m and 0.972, better on 27 of 35, level with the per-configuration
+#: hybrid's 0.80x and no flight worse than 1.74x, its 6.3x). Those third flights are validation
 #: flights for a run that fits on the first three and tests on the fourth, which flightgp does not
 #: have (the blind evaluation's); fitted on one flight and validated on the second, the hybrids
 #: had not beaten the identified model (3 of 8 per configuration, 16 of 35 global).
