@@ -136,23 +136,23 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
     linear = getattr(reference, "reference", None)
     if "search_term" in reference.kinds and hasattr(linear, "row_letters"):
         letters, signal_names = linear.row_letters, linear.state_names + linear.input_names
-        equations = _normal_equations(data, reference, linear, model.effects(), excited)
+        equations, linear_offered = _normal_equations(data, reference, linear, model.effects(), excited), False
     elif "search_term" in reference.kinds and hasattr(reference, "search_jacobian"):
         letters, signal_names = reference.search_rows, reference.search_signals
-        equations = _replayed_normal_equations(data, reference, model.effects(), excited)
+        equations, linear_offered = _replayed_normal_equations(data, reference, model.effects(), excited), True
     else:
         return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms "
                                        "(the linear references and the blimp do)")
     if equations is None:
         return SearchCandidates(reason="no fitted samples, or no term of the library moves the outputs")
-    gram, projection, energy, count, names, *scaled = equations
+    gram, projection, energy, count, names, column_norms = equations
     # Coefficients per unit of a column scaled to unit length back to the term's unit.
-    unit = dict(zip(names, scaled[0])) if scaled else dict.fromkeys(names, 1.0)
+    unit = dict(zip(names, column_norms))
     # Terms already hypotheses, or named effects screened as such, are not offered again.
     taken = {h.target for h in model.hypotheses if h.effect == "search_term"}
     taken |= {term for kind, terms in reference.terms.items() if kind != "search_term" for term in terms}
     survivors = sorted(_sparse_regression(gram, projection, energy, count, names, offered_not=taken,
-                                          linear_offered=bool(scaled)), key=lambda survivor: -abs(survivor[2]))
+                                          linear_offered=linear_offered), key=lambda survivor: -abs(survivor[2]))
     offered = {}
     for term, coefficient, _ in survivors[:MAX_CANDIDATES]:
         offered.setdefault(term, coefficient / unit[term])
@@ -213,7 +213,7 @@ def _library(linear, A: np.ndarray, signal_rms: np.ndarray, excited) -> tuple[li
 
 
 def _normal_equations(data: FitData, reference: EffectModel, linear, effects: list, excited):
-    """``(gram, projection, energy, n, names)`` of the regression of the weighted residual on the
+    """``(gram, projection, energy, n, names, column_norms)`` of the regression of the weighted residual on the
     weighted sensitivities (module docstring): ``G^T G`` (L, L), ``G^T r`` (L,), ``r^T r``, the
     number of residuals and the library's names; None when nothing is fitted."""
     derivatives = {e["term"]: e["value"] for e in effects if e["effect"] in ("control_derivative",
@@ -252,7 +252,7 @@ def _normal_equations(data: FitData, reference: EffectModel, linear, effects: li
         projection = projection + weighted.T @ residual
         energy += float(residual @ residual)
         count += len(residual)
-    return gram, projection, energy, count, names
+    return gram, projection, energy, count, names, np.ones(len(names))
 
 
 def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: list, excited):
@@ -275,9 +275,9 @@ def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: l
     rms = np.sqrt(np.mean(fitted ** 2, axis=0))
     contribution = reference.search_jacobian([x for x, _, _ in parts], [u for _, u, _ in parts]) * rms
     allowed = set(getattr(reference, "search_library", reference.terms["search_term"]))
+    usable = [s for s in signal_names if s not in reference.input_names or s in excited]
     names = []
     for row, (letter, own) in enumerate(reference.search_rows.items()):
-        usable = [s for s in signal_names if s not in reference.input_names or s in excited]
         axis = [s for s in usable if s == own or contribution[row, signal_names.index(s)]
                 >= AXIS_FRACTION * contribution[row].max()]
         names += [name for name in [f"{letter}_{s}" for s in usable] + library([letter], axis) if name in allowed]
@@ -289,19 +289,19 @@ def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: l
     if not names:
         return None
     steps = SENSITIVITY_FORCE / size[kept]
-    base = data.weighted_residuals(reference, effects)
-    moved = data.weighted_residuals_many(reference, [effects + [{"effect": "search_term", "term": name, "value": step}]
-                                                     for name, step in zip(names, steps)])
-    sensitivity = (base[None, :] - moved) / steps[:, None]  # (L, N): d(replay)/d(coefficient), weighted
+    base, *moved = data.weighted_residuals_many(  # the model itself, then with each term
+        reference, [effects] + [effects + [{"effect": "search_term", "term": name, "value": step}]
+                                for name, step in zip(names, steps)])
+    sensitivity = (base[None, :] - np.array(moved)) / steps[:, None]  # (L, N): d(replay)/d(coefficient), weighted
     # Each column to unit length (the coefficients' units span many decades, a cube of a rate
     # beside a command): the regression is unchanged, its pseudo-inverses well conditioned.
     norms = np.linalg.norm(sensitivity, axis=1)
-    kept = norms > 1e-9 * norms.max(initial=0.0)  # not a column of rounding noise made unit length
-    if not kept.any():
+    moves = norms > 1e-9 * norms.max(initial=0.0)  # not a column of rounding noise made unit length
+    if not moves.any():
         return None
-    unit = sensitivity[kept] / norms[kept, None]
-    return (unit @ unit.T, unit @ base, float(base @ base), len(base), [n for n, k in zip(names, kept) if k],
-            norms[kept])
+    unit = sensitivity[moves] / norms[moves, None]
+    return (unit @ unit.T, unit @ base, float(base @ base), len(base), [n for n, m in zip(names, moves) if m],
+            norms[moves])
 
 
 def _sparse_regression(gram: np.ndarray, projection: np.ndarray, energy: float, count: int,
