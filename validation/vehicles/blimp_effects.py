@@ -154,14 +154,21 @@ _SEARCH_ROW_WORDS = {"X": "surge force", "Y": "side force", "Z": "heave force", 
                      "M": "pitch moment", "N": "yaw moment"}
 
 
+def parse_search_term(term: str) -> tuple[str, str, tuple]:
+    """``(row letter, factor kind, signals)`` of a search term (module docstring): the kind one
+    of :data:`SEARCH_FACTOR_KINDS` (``linear`` for ``M_U``), the one or two signals of
+    :data:`SEARCH_SIGNALS` in its factor."""
+    letter, _, factor = term.partition("_")
+    parsed = parse_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
+    return (letter, "linear", (factor,)) if parsed is None else (letter, parsed.kind, parsed.signals)
+
+
 def search_term_unit(term: str) -> str:
     """A search term's unit: its row's (N or N m) per unit of its factor (``N m/(rad/s)^2`` for
     ``M_Q|Q|``, ``N/(m/s rad/s)`` for ``Y_U*R``, ``N m/rad`` for ``M_mu``; a command is a fraction
     of full thrust, no unit: ``N`` for ``X_u_gondola^3``)."""
-    letter, _, factor = term.partition("_")
+    letter, kind, signals = parse_search_term(term)
     row = "N" if letter in "XYZ" else "N m"
-    parsed = parse_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
-    kind, signals = ("linear", (factor,)) if parsed is None else (parsed.kind, parsed.signals)
     power = {"signed_square": 2, "cube": 3}.get(kind, 1)
     units = [SEARCH_SIGNAL_UNITS[s] for s in (signals if kind == "product" else signals[:1])]
     units = [u for u in units if u != "1"]
@@ -316,9 +323,7 @@ class _TermChanges:
         """Search term ``term`` (module docstring) of member ``member`` in slot ``slot`` at
         ``value``: its factor kind (:data:`SEARCH_FACTOR_KINDS`), the indices of its one or two
         signals in :data:`SEARCH_SIGNALS`, its row (0-5) and its coefficient."""
-        letter, _, factor = term.partition("_")
-        parsed = parse_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
-        kind, signals = ("linear", (factor,)) if parsed is None else (parsed.kind, parsed.signals)
+        letter, kind, signals = parse_search_term(term)
         self.search_kind[member, slot] = SEARCH_FACTOR_KINDS.index(kind)
         self.search_first[member, slot] = SEARCH_SIGNALS.index(signals[0])
         self.search_second[member, slot] = SEARCH_SIGNALS.index(signals[-1])
