@@ -484,8 +484,8 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
 def check_shrinkage(shrinkage) -> None:
     """Refuse a ``shrinkage`` of :func:`identify_configurations` that is neither None nor a
     positive number (:class:`~validation.core.errors.BadInputError`, one line)."""
-    if shrinkage is not None and not (isinstance(shrinkage, (int, float)) and np.isfinite(shrinkage)
-                                      and shrinkage > 0):
+    if shrinkage is not None and not (isinstance(shrinkage, (int, float)) and not isinstance(shrinkage, bool)
+                                      and np.isfinite(shrinkage) and shrinkage > 0):
         raise BadInputError(f"shrinkage must be a positive number or None, got {shrinkage!r}")
 
 

@@ -239,7 +239,7 @@ def test_each_configurations_hybrid_is_written_and_reads_back_to_its_free_run(sm
         assert math.isclose(entry["score"]["hybrid"], source_score(predicted, test.outputs, ranges), rel_tol=1e-12)
 
 
-@pytest.mark.parametrize("shrinkage", [0.0, -0.25, float("nan"), "0.25"])
+@pytest.mark.parametrize("shrinkage", [0.0, -0.25, float("nan"), "0.25", True])
 def test_a_setup_with_a_bad_shrinkage_is_refused_when_it_is_made(shrinkage):
     """Refused in one line where the setup is made, before any fit (the global fit alone takes
     minutes); None (each configuration alone) and a positive number are taken."""
