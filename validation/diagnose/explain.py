@@ -454,7 +454,8 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
         path = _stepwise(data, reference, hypotheses, air, progress, excited)
     model = path.model
     in_air = air is not None and bool(model.hypotheses) and air.in_play(model)
-    drop_lr = _drop_one_against_air(air, model) if in_air else _drop_one_lr(data, reference, model, path.null_rss)
+    drop_lr = (_drop_one_against_air(air, model) if in_air
+               else _drop_one_lr(data, reference, model, path.null_rss, refitted=path.refits_without))
     return Selection(model, path.null_rss, path.steps, drop_lr, path.rejected, len(hypotheses),
                      _search_summary(path.searches), air.final_fit(model) if air else None, path.taken_back)
 
@@ -462,7 +463,9 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
 class _Path(NamedTuple):
     """Where one stepwise search (:func:`_stepwise`) ended: the final model, the null model's
     RSS, the accepted steps, the last step's rejected effect, the residual searches and the
-    effects taken back (as :class:`Selection`'s attributes)."""
+    effects taken back (as :class:`Selection`'s attributes); ``refits_without``: the final model
+    refitted without each of its effects but the last, where :func:`_take_back` made them for
+    it, else None."""
 
     model: FittedModel
     null_rss: float
@@ -470,6 +473,7 @@ class _Path(NamedTuple):
     rejected: dict | None
     searches: list
     taken_back: list
+    refits_without: list | None
 
 
 def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], air: AirCompetitor | None,
@@ -479,7 +483,7 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
     (:func:`_take_back`, output error only)."""
     model = null_model(data, reference)
     null_rss = model.rss
-    steps, rejected, searches, taken_back = [], None, [], []
+    steps, rejected, searches, taken_back, refits_without = [], None, [], [], None
     for _ in range(MAX_EFFECTS + MAX_TAKEN_BACK):
         if len(model.hypotheses) >= MAX_EFFECTS:
             break
@@ -500,13 +504,15 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
         if step is None:
             break
         steps.append(step)
-        model = best
+        model, refits_without = best, None
         if air is None and len(model.hypotheses) > 1 and len(taken_back) < MAX_TAKEN_BACK:
-            model, dropped = _take_back(data, reference, model, n_tested=n_tested)
-            if dropped is not None:
+            model, dropped, reduced = _take_back(data, reference, model, n_tested=n_tested)
+            if dropped is None:
+                refits_without = reduced
+            else:
                 taken_back.append(dropped)
                 steps = [s for s in steps if s["key"] != dropped["key"]]
-    return _Path(model, null_rss, steps, rejected, searches, taken_back)
+    return _Path(model, null_rss, steps, rejected, searches, taken_back, refits_without)
 
 
 def _take_back(data: FitData, reference: EffectModel, model: FittedModel, *, n_tested: int) -> tuple:
@@ -524,15 +530,17 @@ def _take_back(data: FitData, reference: EffectModel, model: FittedModel, *, n_t
         ``model``, or the refit without the dropped effect.
     dropped : dict or None
         ``key``, ``lr``, ``threshold``, ``after`` (the last accepted effect's key).
+    reduced : list of FittedModel
+        ``model`` refitted without each of its effects but the last (:func:`_refits_without`).
     """
     reduced = _refits_without(data, reference, model, range(len(model.hypotheses) - 1))
     ratios = np.array([fitted.rss - model.rss for fitted in reduced])
     weakest = int(np.argmin(ratios))
     threshold = float(stats.chi2.isf(FAMILY_ALPHA / n_tested, 1))
     if ratios[weakest] > threshold:
-        return model, None
+        return model, None, reduced
     return reduced[weakest], {"key": model.hypotheses[weakest].key, "lr": float(max(ratios[weakest], 0.0)),
-                              "threshold": threshold, "after": model.hypotheses[-1].key}
+                              "threshold": threshold, "after": model.hypotheses[-1].key}, reduced
 
 
 def _drop_one_against_air(air: AirCompetitor, model: FittedModel) -> dict:
@@ -657,11 +665,15 @@ def _fit_promising(data: FitData, reference: EffectModel, model: FittedModel, ca
     return fits
 
 
-def _drop_one_lr(data: FitData, reference: EffectModel, model: FittedModel, null_rss: float) -> dict:
-    """LR of each effect of ``model`` against ``model`` refitted without it."""
+def _drop_one_lr(data: FitData, reference: EffectModel, model: FittedModel, null_rss: float, *,
+                 refitted: list | None = None) -> dict:
+    """LR of each effect of ``model`` against ``model`` refitted without it; ``refitted``: the
+    refits without each effect but the last, where already made (:func:`_take_back`'s), so only
+    the last is refitted here."""
     if len(model.hypotheses) <= 1:
         return {h.key: float(null_rss - model.rss) for h in model.hypotheses}
-    reduced = _refits_without(data, reference, model, range(len(model.hypotheses)))
+    done = list(refitted or [])
+    reduced = done + _refits_without(data, reference, model, range(len(done), len(model.hypotheses)))
     return {h.key: float(fitted.rss - model.rss) for h, fitted in zip(model.hypotheses, reduced)}
 
 

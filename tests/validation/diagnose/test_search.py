@@ -218,8 +218,8 @@ def test_the_screen_lets_found_effects_move_and_a_redundant_one_is_taken_back():
     first = candidates[ranked[0]]
     assert first.key == power.key and scores[ranked[0]][1] == pytest.approx(truth["M_theta_1s"], rel=0.01)
     three = fit_many(data, reference, [([decoy, damping, power], [decoy.null, truth["M_q"], truth["M_theta_1s"]])])[0]
-    two, dropped = _take_back(data, reference, three, n_tested=len(hypotheses))
+    two, dropped, _ = _take_back(data, reference, three, n_tested=len(hypotheses))
     assert dropped is not None and dropped["key"] == decoy.key and dropped["lr"] <= dropped["threshold"]
     assert [h.key for h in two.hypotheses] == [damping.key, power.key]
-    kept, none = _take_back(data, reference, two, n_tested=len(hypotheses))
+    kept, none, _ = _take_back(data, reference, two, n_tested=len(hypotheses))
     assert none is None and kept is two
