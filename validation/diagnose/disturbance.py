@@ -47,7 +47,7 @@ import numpy as np
 from scipy import linalg, signal, stats
 from scipy.optimize import minimize
 
-from validation.diagnose.fitting import FAMILY_ALPHA, MIN_EXCESS_FRACTION, FitData, akaike_weights
+from validation.diagnose.fitting import FAMILY_ALPHA, FitData, akaike_weights, step_threshold
 from validation.diagnose.noise import UNEXPLAINED_RATIO
 from validation.vehicles.bo105 import KNOT
 from validation.vehicles.effects import EffectModel
@@ -349,7 +349,7 @@ def weigh_against_air(model_fit: GustFit | None, with_effect: GustFit | None, *,
     if model_fit is None or with_effect is None:
         return None
     lr = model_fit.minus_two_log_likelihood - with_effect.minus_two_log_likelihood
-    threshold = max(float(stats.chi2.isf(FAMILY_ALPHA / max(n_tested, 1), 1)), MIN_EXCESS_FRACTION * model_fit.excess)
+    threshold = step_threshold(n_tested, excess=model_fit.excess)
     weight = akaike_weights([lr, 2.0])[1]  # AIC without the effect, with it, less the shared -2 log L
     return {"likelihood_ratio": float(lr), "threshold": threshold, "passes": bool(lr > threshold),
             "weight": float(weight), "intensity": with_effect.intensity}

@@ -55,7 +55,6 @@ from scipy import stats
 from validation.diagnose.data import PreparedData
 from validation.diagnose.disturbance import AirCompetitor, describe, gust_dynamics, trim_airspeed
 from validation.diagnose.fitting import (
-    FAMILY_ALPHA,
     MAX_ALTERNATIVES,
     MAX_EVIDENCE_RATIO,
     FitData,
@@ -63,6 +62,7 @@ from validation.diagnose.fitting import (
     akaike_weights,
     fit_many,
     null_model,
+    step_threshold,
     weigh_step,
 )
 from validation.diagnose.locate import Location
@@ -536,7 +536,7 @@ def _take_back(data: FitData, reference: EffectModel, model: FittedModel, *, n_t
     reduced = _refits_without(data, reference, model, range(len(model.hypotheses) - 1))
     ratios = np.array([fitted.rss - model.rss for fitted in reduced])
     weakest = int(np.argmin(ratios))
-    threshold = float(stats.chi2.isf(FAMILY_ALPHA / n_tested, 1))
+    threshold = step_threshold(n_tested)
     if ratios[weakest] > threshold:
         return model, None, reduced
     return reduced[weakest], {"key": model.hypotheses[weakest].key, "lr": float(max(ratios[weakest], 0.0)),

@@ -334,6 +334,15 @@ def _fit_batched(data: FitData, reference: EffectModel, problems: list) -> list[
             for state in states]
 
 
+def step_threshold(n_tested: int, *, excess: float = 0.0) -> float:
+    """The likelihood ratio an effect must exceed to be accepted at a step of the search: the
+    Bonferroni-corrected chi-squared quantile at :data:`FAMILY_ALPHA` over the ``n_tested``
+    hypotheses (1 degree of freedom), and at least :data:`MIN_EXCESS_FRACTION` of ``excess``,
+    the residual energy noise does not explain (``RSS - N``, or the filter error's excess; 0
+    where only the test counts)."""
+    return max(float(stats.chi2.isf(FAMILY_ALPHA / max(n_tested, 1), 1)), MIN_EXCESS_FRACTION * excess)
+
+
 def akaike_weights(criteria) -> np.ndarray:
     """Akaike weights ``w_i = exp(-(AIC_i - AIC_min) / 2) / sum_j exp(-(AIC_j - AIC_min) / 2)``
     of models with information criteria ``criteria`` (K,), each up to one shared constant
@@ -376,7 +385,7 @@ def weigh_step(data: FitData, model: FittedModel, fits: list[FittedModel], *,
     """
     best = min(fits, key=lambda fitted: fitted.rss)
     lr = model.rss - best.rss
-    threshold = max(stats.chi2.isf(FAMILY_ALPHA / n_tested, 1), MIN_EXCESS_FRACTION * (model.rss - data.n_residuals))
+    threshold = step_threshold(n_tested, excess=model.rss - data.n_residuals)
     new = best.hypotheses[-1]
     if lr <= threshold:
         return best, None, {"key": new.key, "value": new.effect_value(best.values[-1]), "lr": float(lr),
