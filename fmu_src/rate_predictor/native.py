@@ -53,7 +53,7 @@ MODEL_FLAGS = ("-O3", "-fopenmp-simd", "-DFLIGHTGP_OPENMP_SIMD", "-ffp-contract=
 _DATA_MAGIC = b"FGPNARX2"
 
 
-def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None) -> Path:
+def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = None, extra_flags=()) -> Path:
     """Build the native (C, Python-free) GP-NARX rate predictor FMU of a trained model file.
 
     Parameters
@@ -65,6 +65,9 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     name : str, optional
         The FMU's model identifier and file name (``<name>.fmu``): a letter, then letters,
         digits or underscores. Default: the model file's stem, made into such a name.
+    extra_flags : sequence of str, optional
+        gcc flags added after :data:`MODEL_FLAGS`, e.g. ``("-pedantic", "-Werror")`` to build
+        only if the sources compile without warnings under pedantic C99. Default: none.
 
     Returns
     -------
@@ -94,7 +97,7 @@ def build_native_rate_predictor_fmu(model_path, out_dir, *, name: str | None = N
     return package_native_fmu(
         parts.target, slave_class=slave_class, model_source=MODEL_SOURCE,
         config=lambda guid: _narx_config(guid, identifier, variables, predictor, parts.arrays, n_doubles),
-        data=data, extra_flags=MODEL_FLAGS)
+        data=data, extra_flags=(*MODEL_FLAGS, *extra_flags))
 
 
 def _narx_config(guid: str, name: str, variables: tuple, predictor: NarxPredictor, arrays: dict,
