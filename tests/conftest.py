@@ -25,6 +25,12 @@ from validation.vehicles import get_vehicle
 # computation, so a changed model compiles anew.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / "build" / "jax-cache"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+# The same for the native FMUs' C (fmu_src/fmi/native.py, compile_shared_library): an object file
+# of identical code, e.g. the paper model's narx_model.c, which the FMU tests, the FMU and
+# co-simulation benchmarks and the build-fmu command each compile (4-10 s at -O3), is compiled
+# once and then taken from build/native-cache; a changed source, header, flag or compiler
+# compiles anew.
+os.environ.setdefault("FLIGHTGP_NATIVE_CACHE_DIR", str(Path(__file__).resolve().parents[1] / "build" / "native-cache"))
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # One BLAS thread per test worker: the workers already fill the cores, and OpenBLAS threads

@@ -23,7 +23,10 @@ native FMU holds (:func:`package_native_fmu`):
 """
 from __future__ import annotations
 
+import functools
+import hashlib
 import io
+import os
 import platform
 import shutil
 import subprocess
@@ -139,8 +142,23 @@ def fmi_headers() -> Path:
     return folder
 
 
+#: Environment variable naming a folder where :func:`compile_shared_library` keeps each compiled
+#: object file under a digest of its content (unset: no cache, every build compiles everything).
+CACHE_VARIABLE = "FLIGHTGP_NATIVE_CACHE_DIR"
+
+
 def compile_shared_library(sources: dict, name: str, *, extra_flags=()) -> bytes:
     """Compile C sources into a shared library with the system gcc.
+
+    Each ``.c`` file is compiled to an object file on its own, then the objects are linked (what
+    gcc does given them all at once). When the environment variable :data:`CACHE_VARIABLE` names
+    a folder, an object file is kept there under a digest of what determines it: the compiler
+    (its path and version), the flags and the file as the preprocessor leaves it (its headers
+    included, line markers left out), so a build of identical code (another FMU of the same
+    model: the name and GUID appear only in the FMI layer's file) takes the object compiled
+    before instead of compiling it again, and any change of code or flags compiles anew. Only
+    successful compiles are kept; objects are written atomically, so processes may share the
+    folder.
 
     Parameters
     ----------
@@ -167,18 +185,65 @@ def compile_shared_library(sources: dict, name: str, *, extra_flags=()) -> bytes
     gcc = shutil.which("gcc")
     if gcc is None:
         raise BadInputError("building a native FMU needs a C compiler: install gcc")
+    cache = os.environ.get(CACHE_VARIABLE)
+    flags = [*COMPILE_FLAGS, *extra_flags]
     with tempfile.TemporaryDirectory(prefix="flightgp_native_") as work:
         work = Path(work)
         for file, content in sources.items():
             (work / file).write_bytes(content)
+        includes = [f"-I{work}", f"-I{fmi_headers()}"]
+        objects = []
+        for file in (f for f in sources if f.endswith(".c")):
+            objects.append(work / f"{Path(file).stem}.o")
+            command = [gcc, *flags, *includes, "-c", str(work / file), "-o", str(objects[-1])]
+            key = None if not cache else _object_key(gcc, [*flags, *includes], work / file, name)
+            kept = None if key is None else Path(cache) / f"{key}.o"
+            if kept is not None and kept.is_file():
+                shutil.copyfile(kept, objects[-1])
+                continue
+            _run_gcc(command, name)
+            if kept is not None:
+                kept.parent.mkdir(parents=True, exist_ok=True)
+                partial = kept.with_name(f"{key}.{os.getpid()}.partial")
+                shutil.copyfile(objects[-1], partial)
+                os.replace(partial, kept)
         output = work / f"{name}.so"
-        command = [gcc, *COMPILE_FLAGS, *extra_flags, f"-I{work}", f"-I{fmi_headers()}",
-                   *[str(work / f) for f in sources if f.endswith(".c")], "-o", str(output), "-lm"]
-        result = subprocess.run(command, capture_output=True, text=True)
-        if result.returncode != 0 or not output.is_file():
-            raise RuntimeError(f"gcc failed to compile {name}.so (exit {result.returncode}): "
-                               f"{result.stderr.strip()[-3000:]}")
+        _run_gcc([gcc, *flags, *[str(o) for o in objects], "-o", str(output), "-lm"], name)
+        if not output.is_file():
+            raise RuntimeError(f"gcc failed to compile {name}.so: it wrote no library")
         return output.read_bytes()
+
+
+def _run_gcc(command: list, name: str) -> None:
+    """Run one gcc command of :func:`compile_shared_library`; RuntimeError with its output if it
+    fails."""
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeError(f"gcc failed to compile {name}.so (exit {result.returncode}): "
+                           f"{result.stderr.strip()[-3000:]}")
+
+
+def _object_key(gcc: str, flags: list, source: Path, name: str) -> str:
+    """The cache key of one object file of :func:`compile_shared_library`: a SHA-256 digest of
+    the compiler's path and version, the flags (the include folders left out: their headers
+    count through the preprocessed text) and the preprocessed ``source`` without line markers
+    (which would name the temporary folder)."""
+    compile_flags = [f for f in flags if not f.startswith("-I")]
+    preprocessed = subprocess.run([gcc, *flags, "-E", "-P", str(source)], capture_output=True)
+    if preprocessed.returncode != 0:
+        raise RuntimeError(f"gcc failed to compile {name}.so (exit {preprocessed.returncode}): "
+                           f"{preprocessed.stderr.decode(errors='replace').strip()[-3000:]}")
+    digest = hashlib.sha256()
+    for part in (gcc, _compiler_version(gcc), "\0".join(compile_flags)):
+        digest.update(part.encode() + b"\0")
+    digest.update(preprocessed.stdout)
+    return digest.hexdigest()
+
+
+@functools.cache
+def _compiler_version(gcc: str) -> str:
+    """``gcc --version``'s output (the compiler's identity in :func:`_object_key`)."""
+    return subprocess.run([gcc, "--version"], capture_output=True, text=True, check=True).stdout
 
 
 def _model_description(slave_class, c_files: list) -> tuple[bytes, str]:
