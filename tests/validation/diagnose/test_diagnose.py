@@ -1,6 +1,8 @@
 """flightgp diagnose: each stage on small cases, the acceptance criteria of docs/diagnose.md on
 concealed effects (EffectVehicle as ground truth, sensor noise on), and exit-2 errors."""
+import contextlib
 import fnmatch
+import io
 import json
 import math
 
@@ -145,10 +147,17 @@ CASES = {
 }
 
 
+#: Recording length per case, s: 10 s holds the cyclic 3-2-1-1s, which identify the single
+#: effects (each named with the truth inside an interval of a few per cent); the pairs keep 20 s,
+#: the pedal doublet (from 10 s) for the lag on theta_0T, and, at 10 s, the roll-rate bias's
+#: interval ends just below its truth.
+DURATIONS = dict.fromkeys(CASES, 10.0) | {"pair_delay_bias": 20.0, "pair_lag_derivative": 20.0}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("case", CASES)
 def test_concealed_effect_is_named_with_its_value(case):
-    fit, held = _concealed(CASES[case])
+    fit, held = _concealed(CASES[case], duration=DURATIONS[case])
     _check_named(diagnose([fit], reference="bo105-80kt", holdout=[held], seed=0).as_dict(), CASES[case])
 
 
@@ -165,9 +174,27 @@ def test_no_effect_is_consistent_and_the_progress_counts_every_stage():
         assert result["fit"]["rmse_reference"][name] < 1.2 * SENSOR_NOISE_STD[name]
 
 
-def test_delay_finding_flags_the_gp_that_would_absorb_it():
+@pytest.fixture(scope="module")
+def delay_diagnosed(tmp_path_factory):
+    """An 80 ms delay on longitudinal cyclic (10 s recordings) diagnosed once by ``flightgp
+    diagnose``: ``(out folder, what it printed, the diagnosed recording)``; its diagnosis.json
+    is exactly :func:`diagnose`'s ``as_dict()``."""
     fit, held = _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.08}], duration=10.0)
-    finding = diagnose([fit], reference="bo105-80kt", holdout=[held]).as_dict()["findings"][0]
+    folder = tmp_path_factory.mktemp("delay")
+    write_recording(folder / "fit.csv", fit)
+    write_recording(folder / "held.csv", held)
+    out = folder / "out"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(["diagnose", str(folder / "fit.csv"), "--holdout", str(folder / "held.csv"),
+                     "--reference", "bo105-80kt", "--out", str(out), "--no-progress"])
+    assert code == 0
+    return out, printed.getvalue(), fit
+
+
+def test_delay_finding_flags_the_gp_that_would_absorb_it(delay_diagnosed):
+    out, _, _ = delay_diagnosed
+    finding = json.loads((out / "diagnosis.json").read_text())["findings"][0]
     assert finding["effect"] == "time_delay" and finding["main_output"] == "q"
     assert finding["gp_absorbs"] > 0.5 and finding["carries_over"]
     # The lag competitor is listed or overwhelmingly disfavoured; either way the delay wins.
@@ -246,13 +273,8 @@ def test_noise_excess_needs_both_the_chi_squared_test_and_the_ratio():
 
 # -- command line, files, bad input -------------------------------------------------------------
 
-def test_cli_writes_report_json_plots_and_a_loadable_corrected_model(tmp_path, capsys):
-    fit, held = _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.08}], duration=10.0)
-    write_recording(tmp_path / "fit.csv", fit)
-    write_recording(tmp_path / "held.csv", held)
-    out = tmp_path / "out"
-    assert main(["diagnose", str(tmp_path / "fit.csv"), "--holdout", str(tmp_path / "held.csv"),
-                 "--reference", "bo105-80kt", "--out", str(out), "--no-progress"]) == 0
+def test_cli_writes_report_json_plots_and_a_loadable_corrected_model(delay_diagnosed):
+    out, printed, fit = delay_diagnosed
     result = json.loads((out / "diagnosis.json").read_text())
     assert {"reference", "verdict", "mismatch", "findings", "fit"} <= set(result)
     assert result["findings"][0]["effect"] == "time_delay"
@@ -269,7 +291,7 @@ def test_cli_writes_report_json_plots_and_a_loadable_corrected_model(tmp_path, c
     assert (out / "holdout_q.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     corrected = EffectVehicle.load(out / "corrected_model.json")
     assert corrected.effects[0]["input"] == "theta_1s"
-    assert "lags the model" in capsys.readouterr().out
+    assert "lags the model" in printed
 
 
 def _write_table(path, header, rows):
