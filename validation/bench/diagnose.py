@@ -21,14 +21,16 @@ DIAGNOSE_GOAL_S = 15.0
 FMU_GOAL_S = 120.0
 
 
-def run(*, seed: int = 0, cases=None, fmu_cases=FMU_CASES, progress: bool = True) -> dict:
+def run(*, seed: int = 0, cases=None, fmu_cases=FMU_CASES, workers: int | None = None,
+        progress: bool = True) -> dict:
     """Wall-clock time of ``flightgp diagnose`` on the concealed-effect cases of the Bo105 suite
     (:mod:`validation.diagnose.bench`; 20 s at 100 Hz plus a 20 s held-out recording) against
     the recording's duration (real time) and the goal of :data:`DIAGNOSE_GOAL_S` per case; and
     of :data:`FMU_CASES` diagnosed through the Bo105 reference FMU (pythonfmu, built here),
     against :data:`FMU_GOAL_S` and as a ratio to the same case built in (the peer, same process).
     ``cases``: the names of the Bo105 suite's cases to time (default: every one);
-    ``fmu_cases``: those timed through the FMU as well.
+    ``fmu_cases``: those timed through the FMU as well; ``workers``: the processes that replay
+    the FMU's candidates (default: the cores this process may use).
 
     Returns
     -------
@@ -53,7 +55,8 @@ def run(*, seed: int = 0, cases=None, fmu_cases=FMU_CASES, progress: bool = True
         report = run_bench(cases, seed=seed, duration=DURATION, progress=update)
         with tempfile.TemporaryDirectory(prefix="flightgp-bench-") as folder:
             fmu = str(build_bo105_reference_fmu(80, folder))
-            fmu_report = run_bench(through_fmu, through=fmu, seed=seed, duration=DURATION, progress=update)
+            fmu_report = run_bench(through_fmu, through=fmu, seed=seed, duration=DURATION, workers=workers,
+                                   progress=update)
     rows = [{"case": row["case"], "seconds": row["seconds"], "over_recording": row["seconds"] / DURATION,
              "passed": row["passed"]} for row in report["cases"]]
     built_in = {row["case"]: row["seconds"] for row in rows}
@@ -67,7 +70,7 @@ def run(*, seed: int = 0, cases=None, fmu_cases=FMU_CASES, progress: bool = True
     return {"cases": rows, "goal_s": DIAGNOSE_GOAL_S, "max_seconds": worst,
             "goal_met": worst <= DIAGNOSE_GOAL_S, "recording_s": DURATION,
             "fmu": {"cases": fmu_rows, "goal_s": FMU_GOAL_S, "max_seconds": worst_fmu,
-                    "goal_met": worst_fmu <= FMU_GOAL_S, "workers": available_cores()}}
+                    "goal_met": worst_fmu <= FMU_GOAL_S, "workers": workers or available_cores()}}
 
 
 def format_table(report: dict) -> str:
