@@ -227,7 +227,9 @@ class FMUReference:
         before that row: outputs up to row ``k`` depend only on the inputs of rows before ``k``
         (zero-order hold), so the shared beginning is not integrated again. Candidates that
         change one input of a manoeuvre that moves the inputs one after the other share most of
-        their replay. The last :data:`KEPT_REPLAYS` replays are kept.
+        their replay. The last :data:`KEPT_REPLAYS` replays are kept. An input row equal to the
+        one before is not set again (an FMU's inputs keep their values until set; the inputs
+        are held over long stretches of a manoeuvre): one call into the FMU fewer on such a step.
         """
         fmu = self._fmu()
         settings = dict(parameters or {})
@@ -236,7 +238,8 @@ class FMUReference:
             fmu.setReal([self._references[n] for n in settings], [float(v) for v in settings.values()])
         input_refs = [self._references[n] for n in self.input_names]
         output_refs = [self._references[n] for n in self.state_names]
-        fmu.setReal(input_refs, [float(v) for v in inputs[0]])
+        rows = np.asarray(inputs, dtype=float).tolist()
+        fmu.setReal(input_refs, rows[0])
         fmu.setupExperiment(startTime=float(time[0]))
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
@@ -249,7 +252,8 @@ class FMUReference:
         for k in range(resumed, len(time) - 1):
             if self._can_save and k % every == 0 and k > resumed:
                 checkpoints.append((k, fmu.getFMUstate()))
-            fmu.setReal(input_refs, [float(v) for v in inputs[k]])
+            if k == resumed or rows[k] != rows[k - 1]:
+                fmu.setReal(input_refs, rows[k])
             fmu.doStep(currentCommunicationPoint=float(time[k]), communicationStepSize=float(time[k + 1] - time[k]))
             outputs[k + 1] = fmu.getReal(output_refs)
         if self._can_save:
