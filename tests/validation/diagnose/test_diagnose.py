@@ -244,11 +244,12 @@ def test_a_dead_band_flown_at_one_amplitude_is_not_stated_with_certainty_and_the
     """A +/-0.3 deg dead band on longitudinal cyclic, flown with the manoeuvre's 1 deg steps only:
     there it is exactly a gain of 0.7 on the input, and a limit at 0.7 deg. diagnose names one of
     the three with another as the alternative at even odds (confidence at most 0.9, measured
-    0.33) and says which manoeuvre tells them apart."""
+    0.33) and says which manoeuvre tells them apart. 14 s recordings (the bench's are 20 s): the
+    cyclic 3-2-1-1s and the pedal doublet, all at the one amplitude."""
     from validation.diagnose.bench import case_recordings, concealed_cases
 
     case = next(c for c in concealed_cases() if c.name == "dead-band-theta_1s-one-amplitude")
-    recordings = case_recordings(case, seed=0)
+    recordings = case_recordings(case, seed=0, duration=14.0)
     result = diagnose([recordings.fit], reference="bo105-80kt", holdout=[recordings.holdout]).as_dict()
     first = result["findings"][0]
     same = {"dead_band", "input_gain", "saturation"}  # one effect on one amplitude (test_bench.py)
