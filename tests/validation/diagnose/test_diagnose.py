@@ -161,11 +161,20 @@ def test_concealed_effect_is_named_with_its_value(case):
     _check_named(diagnose([fit], reference="bo105-80kt", holdout=[held], seed=0).as_dict(), CASES[case])
 
 
-def test_no_effect_is_consistent_and_the_progress_counts_every_stage():
+@pytest.fixture(scope="module")
+def no_effect():
+    """The reference itself with sensor noise (20 s recordings) diagnosed once: ``(diagnosis,
+    the progress calls it made)``."""
     fit, held = _concealed([])
     calls = []
-    result = diagnose([fit], reference="bo105-80kt", holdout=[held],
-                      progress=lambda n, **status: calls.append((n, status))).as_dict()
+    diagnosis = diagnose([fit], reference="bo105-80kt", holdout=[held],
+                         progress=lambda n, **status: calls.append((n, status)))
+    return diagnosis, calls
+
+
+def test_no_effect_is_consistent_and_the_progress_counts_every_stage(no_effect):
+    diagnosis, calls = no_effect
+    result = diagnosis.as_dict()
     assert result["verdict"] == "consistent" and result["findings"] == []
     # A bar of stage_count() stages fills exactly, stage by stage; the fits show in between.
     assert [status["stage"] for n, status in calls if n] == list(STAGES[:stage_count()])
@@ -372,9 +381,8 @@ def test_an_input_that_moves_only_in_the_held_out_data_skips_the_held_out_check(
     assert any(note.startswith("theta_0T: moves only in the held-out data") for note in result["untestable"])
 
 
-def test_write_diagnosis_is_all_or_nothing_and_writes_the_files_diagnose_checks_first(tmp_path):
-    fit, held = _concealed([], duration=4.0)
-    diagnosis = diagnose([fit], reference="bo105-80kt", holdout=[held])
+def test_write_diagnosis_is_all_or_nothing_and_writes_the_files_diagnose_checks_first(no_effect, tmp_path):
+    diagnosis, _ = no_effect
     blocker = tmp_path / "out"
     blocker.mkdir()
     (blocker / "report.md").mkdir()  # a folder where a file must go: the write fails
