@@ -23,6 +23,7 @@ native FMU holds (:func:`package_native_fmu`):
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import io
@@ -158,7 +159,7 @@ def compile_shared_library(sources: dict, name: str, *, extra_flags=()) -> bytes
     model: the name and GUID appear only in the FMI layer's file) takes the object compiled
     before instead of compiling it again, and any change of code or flags compiles anew. Only
     successful compiles are kept; objects are written atomically, so processes may share the
-    folder.
+    folder; a folder that cannot be read or written is passed over (compiled as without it).
 
     Parameters
     ----------
@@ -196,22 +197,42 @@ def compile_shared_library(sources: dict, name: str, *, extra_flags=()) -> bytes
         for file in (f for f in sources if f.endswith(".c")):
             objects.append(work / f"{Path(file).stem}.o")
             command = [gcc, *flags, *includes, "-c", str(work / file), "-o", str(objects[-1])]
-            key = None if not cache else _object_key(gcc, [*flags, *includes], work / file, name)
-            kept = None if key is None else Path(cache) / f"{key}.o"
-            if kept is not None and kept.is_file():
-                shutil.copyfile(kept, objects[-1])
+            kept = None if not cache else Path(cache) / f"{_object_key(gcc, [*flags, *includes], work / file, name)}.o"
+            if kept is not None and _copied(kept, objects[-1]):
                 continue
             _run_gcc(command, name)
             if kept is not None:
-                kept.parent.mkdir(parents=True, exist_ok=True)
-                partial = kept.with_name(f"{key}.{os.getpid()}.partial")
-                shutil.copyfile(objects[-1], partial)
-                os.replace(partial, kept)
+                _keep(objects[-1], kept)
         output = work / f"{name}.so"
         _run_gcc([gcc, *flags, *[str(o) for o in objects], "-o", str(output), "-lm"], name)
         if not output.is_file():
             raise RuntimeError(f"gcc failed to compile {name}.so: it wrote no library")
         return output.read_bytes()
+
+
+def _copied(kept: Path, target: Path) -> bool:
+    """Whether the cached object ``kept`` was copied to ``target``; False where it is not there
+    or cannot be read (then the file is compiled: the cache only saves time, it never fails a
+    build)."""
+    try:
+        shutil.copyfile(kept, target)
+    except OSError:
+        return False
+    return True
+
+
+def _keep(built: Path, kept: Path) -> None:
+    """Keep the object ``built`` in the cache as ``kept``, atomically (a copy under a name of
+    this process, then renamed), so processes may share the folder; a folder that cannot be
+    written is left alone (the build goes on without the cache)."""
+    partial = kept.with_name(f"{kept.stem}.{os.getpid()}.partial")
+    try:
+        kept.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(built, partial)
+        os.replace(partial, kept)
+    except OSError:
+        with contextlib.suppress(OSError):
+            partial.unlink()
 
 
 def _run_gcc(command: list, name: str) -> None:

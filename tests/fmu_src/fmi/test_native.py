@@ -64,3 +64,15 @@ def test_identical_code_is_compiled_once_and_any_change_compiles_anew(monkeypatc
     with pytest.raises(RuntimeError, match="unused"):
         compile_shared_library(broken, "broken", extra_flags=("-Werror",))
     assert len(compiles) == 7 and len(list(cache.glob("*.o"))) == 6 and not list(cache.glob("*.partial"))
+
+
+def test_a_cache_folder_that_cannot_be_written_does_not_fail_the_build(monkeypatch, tmp_path):
+    """The cache only saves time: named at a path under a file (no folder can be made there),
+    every file is compiled and the library is built as without it, nothing left behind."""
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv(CACHE_VARIABLE, str(blocker / "cache"))
+    compiles = _compiles(monkeypatch)
+    for index in range(2):
+        assert _values(compile_shared_library(SOURCES, "uncached"), tmp_path / f"uncached_{index}.so") == (7, 14)
+    assert len(compiles) == 4 and blocker.read_text() == "not a folder"
