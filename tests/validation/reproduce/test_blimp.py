@@ -23,7 +23,7 @@ from validation.models.blimp_greybox import (
     smoothed_states,
     step_inputs,
 )
-from validation.reproduce import blimp_control, blimp_prediction
+from validation.reproduce import blimp_control, blimp_prediction, blimp_spread
 from validation.reproduce.blimp_prediction import GROUPS, METHODS, RK_MAX_STEP, START_KINDS, random_command_flight
 from validation.reproduce.blimp_report import format_results
 from validation.reproduce.blimp_spread import (
@@ -39,6 +39,8 @@ from validation.reproduce.blimp_spread import (
 from validation.vehicles.blimp import STATE_NAMES
 
 SEED = 3
+#: Table II in the quick campaign of :func:`quick`: 4 stand-in runs and 8 samples instead of 8 and 20.
+SPREAD_SETUP = dataclasses.replace(QUICK_SETUP, stand_in_runs=4, n_samples=8)
 
 
 @pytest.fixture(scope="module")
@@ -48,17 +50,22 @@ def quick(tmp_path_factory):
 
     Table III's policy search gets 6 cost evaluations per simulator instead of the quick setup's
     12 (the 4-parameter Nelder-Mead's start simplex, 5 evaluations, and one step), one PEGASUS
-    scenario instead of 2 and 4 s turns instead of 6 s (a full-command turn takes about 3 s): its
-    tests check what holds for any budget (finite errors of a turn that moved, the best vertex no
-    worse than the start), and the search is most of the campaign's time. Table I scores 10
-    start states instead of 20 (its tests check bounds that hold for every start and the physics
-    integrators' agreement)."""
+    scenario instead of 2, 3 s turns instead of 6 s (a full-command turn takes about 3 s) and one
+    stand-in turn per controller instead of 2: its tests check what holds for any budget (finite
+    errors of a turn that moved, the best vertex no worse than the start), and the search is most
+    of the campaign's time. Table I scores 5 start states instead of 20 on an 8 s held-out flight
+    instead of 15 s (its tests check bounds that hold for every start and the physics
+    integrators' agreement; the 30 s training flight stays: the identification takes twice as
+    many iterations on 15 s). Table II takes :data:`SPREAD_SETUP` (what it checks holds for any
+    number of runs and samples above one)."""
     out = tmp_path_factory.mktemp("blimp")
     printed = io.StringIO()
     with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(printed):
         patch.setattr(blimp_control, "QUICK_SETUP", dataclasses.replace(
-            blimp_control.QUICK_SETUP, max_evaluations=6, n_scenarios=1, horizon_s=4.0))
-        patch.setattr(blimp_prediction, "QUICK_SETUP", dataclasses.replace(blimp_prediction.QUICK_SETUP, n_starts=10))
+            blimp_control.QUICK_SETUP, max_evaluations=6, n_scenarios=1, horizon_s=3.0, stand_in_runs=1))
+        patch.setattr(blimp_prediction, "QUICK_SETUP", dataclasses.replace(
+            blimp_prediction.QUICK_SETUP, n_starts=5, held_out_duration=8.0))
+        patch.setattr(blimp_spread, "QUICK_SETUP", SPREAD_SETUP)
         assert main(["reproduce", "blimp", "--out", str(out), "--quick", "--seeds", str(SEED)]) == 0
     return out, json.loads((out / "results.json").read_text()), printed.getvalue()
 
@@ -133,7 +140,7 @@ def test_table2_rows_and_their_properties(quick):
     assert second["rkgp_sampled"]["position_spread_m"] > 0 and second["stand_in"]["position_spread_m"] > 0
     assert second["spread_ratio_noise"] == pytest.approx(
         second["rkgp_sampled_noise"]["position_spread_m"] / second["stand_in"]["position_spread_m"], rel=1e-12)
-    assert second["setup"]["stand_in_runs"] == QUICK_SETUP.stand_in_runs and "Table II" in printed
+    assert second["setup"]["stand_in_runs"] == SPREAD_SETUP.stand_in_runs and "Table II" in printed
     # The calibrated rows: the same normals at the scale chosen on validation repeats.
     calibration = second["calibration"]
     assert set(CALIBRATED_ROWS) <= set(second) and calibration["spread_scale"] > 0
