@@ -9,49 +9,78 @@ stderr, no traceback), 1 internal error.
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import os
 import sys
 
-from gp_model import ModelFileError
-from validation.cli import (
-    bench,
-    build_fmu,
-    campaign,
-    cosim,
-    demo,
-    diagnose,
-    diagnose_bench,
-    inspect,
-    predict,
-    qtg,
-    record,
-    reproduce,
-    state_space,
-    train,
-)
 from validation.core.errors import BadInputError
 
-#: The command modules, in the order ``--help`` lists their commands.
-COMMAND_MODULES = (demo, record, inspect, train, predict, reproduce, cosim, bench, build_fmu, diagnose,
-                   diagnose_bench, state_space, qtg, campaign)
+#: The commands, in the order ``--help`` lists them: name, its module in :mod:`validation.cli`,
+#: and the one line ``--help`` shows for it (the module's ``register`` gives its subparser the
+#: same). :func:`main` imports only the module of the command it runs (each pulls in its own
+#: numerical stack), so ``flightgp COMMAND`` starts without importing the others.
+COMMANDS = (
+    ("demo", "demo", "run the built-in Bo105 case end to end"),
+    ("record", "record", "fly a test manoeuvre on a vehicle and write the recording"),
+    ("inspect", "inspect", "check a recording and print a summary"),
+    ("train", "train", "train a GP-NARX model on recordings"),
+    ("predict", "predict", "predict a recording with a GP-NARX model"),
+    ("reproduce", "reproduce", "reproduce a seed paper's experiment"),
+    ("cosim", "cosim", "co-simulate a GP FMU and a reference FMU against a recording"),
+    ("bench", "bench", "speed benchmarks, each as a ratio against a peer run in the same process"),
+    ("build-fmu", "build_fmu", "build an FMI 2.0 co-simulation FMU from a trained model or a reference"),
+    ("diagnose", "diagnose", "locate a simulation/recording mismatch, name the missing physics, model it"),
+    ("diagnose-bench", "diagnose_bench", "score flightgp diagnose on recordings with concealed effects"),
+    ("state-space", "state_space", "write a built-in linear reference as a state-space JSON file"),
+    ("qtg", "qtg", "run a qualification test guide (QTG) against an FMU or a reference"),
+    ("campaign", "campaign", "run many co-simulations, diagnoses, bench cases, reproductions or QTGs on Dask"),
+)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_module(module_name: str):
+    return importlib.import_module(f"validation.cli.{module_name}")
+
+
+def build_parser(*, only: str | None = None) -> argparse.ArgumentParser:
+    """The ``flightgp`` parser with every command's subparser; with ``only`` (a command name),
+    that command's in full and the others' name and help line alone (what ``--help`` lists),
+    so only ``only``'s module is imported."""
     parser = argparse.ArgumentParser(
         prog="flightgp",
         description="Gaussian-process flight-dynamics models, FMU export and simulation diagnosis.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in COMMAND_MODULES:
-        module.register(subparsers)
+    for name, module_name, help_line in COMMANDS:
+        if only is None or name == only:
+            _command_module(module_name).register(subparsers)
+        else:
+            subparsers.add_parser(name, help=help_line)
     return parser
+
+
+def _command_word(argv: list[str]) -> str | None:
+    """The command ``argv`` names: its first word that is not an option (the options before the
+    command take no value), if that is a command's name."""
+    names = {name for name, _, _ in COMMANDS}
+    word = next((word for word in argv if not word.startswith("-")), None)
+    return word if word in names else None
+
+
+def _is_model_file_error(error: BaseException) -> bool:
+    """Whether ``error`` is a :class:`gp_model.ModelFileError` (without importing gp_model where
+    the command never did: then none can have been raised)."""
+    gp_model = sys.modules.get("gp_model")
+    return gp_model is not None and isinstance(error, gp_model.ModelFileError)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``flightgp``; returns the exit code (also used by the console script)."""
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # Every command listed, only the one named built in full (and its module imported); with
+    # none named (--help, a typo) the help lines alone, which is all argparse then shows.
+    parser = build_parser(only=_command_word(argv) or "")
     args = parser.parse_args(argv)  # usage errors exit 2 with argparse's one-line message
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
@@ -59,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return int(args.func(args) or 0)
-    except (BadInputError, ModelFileError) as error:
+    except BadInputError as error:
         print(f"flightgp {args.command}: error: {error}", file=sys.stderr)
         return 2
     except BrokenPipeError:
@@ -80,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"flightgp {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as error:  # noqa: BLE001 - last line of defence: say what broke, exit 1
+        if _is_model_file_error(error):  # a ValueError: no other clause above takes it
+            print(f"flightgp {args.command}: error: {error}", file=sys.stderr)
+            return 2
         if args.verbose:
             raise
         print(

@@ -41,6 +41,45 @@ def test_usage_error_exits_2_without_traceback():
     assert "invalid choice" in result.stderr and "Traceback" not in result.stderr
 
 
+def test_help_lists_every_command_with_its_own_help_line(capsys):
+    """``flightgp --help`` lists every command with the help line its module gives its subparser
+    (main lists them without importing the modules: COMMANDS)."""
+    from validation.cli.main import COMMANDS, build_parser
+
+    def help_lines(parser):
+        subparsers = next(a for a in parser._actions if a.dest == "command")  # noqa: SLF001
+        return {action.dest: action.help for action in subparsers._choices_actions}  # noqa: SLF001
+
+    full = help_lines(build_parser())
+    assert list(full) == [name for name, _, _ in COMMANDS]
+    assert help_lines(build_parser(only="")) == full == help_lines(build_parser(only="train"))
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0
+    printed = " ".join(capsys.readouterr().out.split())  # argparse wraps long help lines
+    assert all(f"{name} {help_line}" in printed for name, help_line in full.items())
+
+
+def test_a_command_imports_its_own_module_only():
+    """``flightgp record`` starts without the other commands' modules (nor the GP core)."""
+    script = ("import sys; from validation.cli import main; from validation.cli.main import COMMANDS; "
+              "sys.argv = ['flightgp', 'record', '--help']\n"
+              "try:\n    main()\nexcept SystemExit:\n    pass\n"
+              "print(sorted(m for _, m, _ in COMMANDS if 'validation.cli.' + m in sys.modules), "
+              "'gp_model' in sys.modules)")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert result.stdout.splitlines()[-1] == "['record'] False"
+
+
+def test_a_broken_model_file_exits_2_with_one_line(tmp_path, capsys):
+    model, recording = tmp_path / "model.npz", tmp_path / "run.csv"
+    model.write_bytes(b"not a model")
+    recording.write_text("time,theta_1s,p,q,r\n0,0,0,0,0\n0.01,0,0,0,0\n")
+    assert main(["predict", str(model), str(recording), "--out", str(tmp_path / "pred.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("flightgp predict: error:") and len(err.splitlines()) == 1 and "Traceback" not in err
+
+
 @pytest.mark.slow
 def test_demo_runs_the_bo105_case_end_to_end(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path)]) == 0
