@@ -505,16 +505,18 @@ def case_gusts(case: ConcealedCase, reference: EffectModel, time: np.ndarray, *,
 
 
 def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed: int = 0,
-                    duration: float = DURATION) -> CaseRecordings:
+                    duration: float = DURATION, sample_time: float | None = None) -> CaseRecordings:
     """The diagnosed and the held-out recording of ``case`` on the reference called
-    ``reference`` (``duration`` s each), and the held-out truth (module docstring). A case with
+    ``reference`` (``duration`` s each, sampled every ``sample_time`` s, by default the
+    reference's sample time), and the held-out truth (module docstring). A case with
     ``turbulence`` is flown in the gusts of :func:`case_gusts`; its held-out truth is the flight
     without them (what a model can predict)."""
     reference = effect_model(reference, purpose="diagnose-bench")
+    sample_time = reference.sample_time if sample_time is None else sample_time
     vehicle = EffectVehicle(reference, case.effects, noise_sd=reference.sensor_noise_sd)
     recordings = []
     for variant in (case.fit_variant, 1):
-        time, inputs = reference.identification_manoeuvre(duration=duration, sample_time=reference.sample_time,
+        time, inputs = reference.identification_manoeuvre(duration=duration, sample_time=sample_time,
                                                           variant=variant)
         if case.outside is None:
             states = vehicle.simulate_states(time, inputs)
@@ -532,7 +534,7 @@ def case_recordings(case: ConcealedCase, *, reference: str = "bo105-80kt", seed:
         noise = np.array([reference.sensor_noise_sd[name] for name in vehicle.state_names])
         measured = states + rng.standard_normal(states.shape) * noise
         metadata = {"vehicle": reference.name, "simulator": f"diagnose-bench case {case.name}",
-                    "sample_time": reference.sample_time, "seed": seed,
+                    "sample_time": sample_time, "seed": seed,
                     "sensor_noise_std": dict(reference.sensor_noise_sd)}
         recordings.append((Recording(time, inputs, vehicle.input_names, measured, vehicle.state_names, metadata),
                            truth))
