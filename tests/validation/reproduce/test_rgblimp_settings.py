@@ -1,6 +1,7 @@
 """Tests of the RGBlimp settings study (validation/reproduce/rgblimp_settings.py): its split never
-reads a configuration's test flight, and a short study on the shipped excerpt scores every
-candidate on the validation flights. The measured numbers are in docs/rgblimp.md."""
+reads a configuration's test flight, and a short study on the first two seconds of the shipped
+excerpt's flights scores every candidate on the validation flights. The measured numbers are in
+docs/rgblimp.md."""
 import contextlib
 import io
 import json
@@ -22,9 +23,8 @@ from validation.reproduce.rgblimp_settings import (
     study_settings,
     validation_splits,
 )
-from validation.vehicles.rgblimp_data import EXCERPT_FOLDER
 
-from .test_rgblimp import QUICK, _folder
+from .test_rgblimp import QUICK, _folder, _short_excerpt
 
 
 def test_validation_split_fits_on_the_first_flight_and_leaves_the_test_flight_unread(tmp_path):
@@ -39,9 +39,7 @@ def test_validation_split_fits_on_the_first_flight_and_leaves_the_test_flight_un
 
 @pytest.mark.slow
 def test_a_short_study_scores_each_candidate_without_reading_a_test_flight(tmp_path, monkeypatch):
-    data = _folder(tmp_path / "data", [])
-    for number in (117, 118, 119, 121, 122, 123):
-        (data / f"data_{number}.csv").symlink_to(EXCERPT_FOLDER / f"data_{number}.csv")
+    data = _short_excerpt(tmp_path / "data")
     read = []
     original = rgblimp_settings.read_rgblimp_flight
     monkeypatch.setattr(rgblimp_settings, "read_rgblimp_flight", lambda path: read.append(path.name) or original(path))
@@ -67,9 +65,7 @@ def test_a_short_study_scores_each_candidate_without_reading_a_test_flight(tmp_p
 
 @pytest.mark.slow
 def test_a_short_hybrid_study_scores_each_candidate_without_reading_a_test_flight(tmp_path, monkeypatch):
-    data = _folder(tmp_path / "data", [])
-    for number in (121, 122, 123):
-        (data / f"data_{number}.csv").symlink_to(EXCERPT_FOLDER / f"data_{number}.csv")
+    data = _short_excerpt(tmp_path / "data", (121, 122, 123))
     read = []
     original = rgblimp_settings.read_rgblimp_flight
     monkeypatch.setattr(rgblimp_settings, "read_rgblimp_flight", lambda path: read.append(path.name) or original(path))

@@ -1,6 +1,6 @@
 """Tests of the study of configurations never flown (validation/reproduce/rgblimp_unseen.py): the
-folds, a short study on the shipped excerpt whose fits never see the held-out configuration, and
-the command's one-line errors. The measured numbers are in docs/rgblimp.md."""
+folds, a short study on the first two seconds of the shipped excerpt's flights whose fits never see
+the held-out configuration, and the command's one-line errors. The measured numbers are in docs/rgblimp.md."""
 import contextlib
 import io
 import json
@@ -14,9 +14,8 @@ from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.reproduce import rgblimp_unseen
 from validation.reproduce.rgblimp_unseen import UNSEEN_MODELS, fold_of, study_unseen
-from validation.vehicles.rgblimp_data import EXCERPT_FOLDER
 
-from .test_rgblimp import QUICK, _folder
+from .test_rgblimp import QUICK, _folder, _short_excerpt
 
 
 def test_folds_deal_the_configurations_in_turn():
@@ -29,9 +28,7 @@ def test_a_short_study_never_fits_on_the_held_out_configuration(tmp_path, monkey
     """Configurations 29 and 30 of the excerpt in two folds: each fold's vehicle identification
     and hybrid see only the other configuration's fitting flights; each held-out test flight is
     scored by the three models; results.json and report.md agree with the entries."""
-    data = _folder(tmp_path / "data", [])
-    for number in (117, 118, 119, 121, 122, 123):
-        (data / f"data_{number}.csv").symlink_to(EXCERPT_FOLDER / f"data_{number}.csv")
+    data = _short_excerpt(tmp_path / "data")
     seen = []
     fit_global, fit_rollout_global = rgblimp_unseen.fit_global, rgblimp_unseen.fit_rollout_global
 
