@@ -35,11 +35,13 @@ FREE_RUN_REPEATS = 5
 REPLAY_REPEATS, REPLAY_MEMBERS = 3, 24
 
 
-def run(*, progress: bool = True, setup=None) -> dict:
+def run(*, progress: bool = True, setup=None, identification_iterations: int | None = None) -> dict:
     """Time the free runs and the fit (module docstring).
 
     ``setup``: the hybrid's :class:`~validation.models.rgblimp_rollout.RolloutSetup` (default
-    the reproduction's).
+    the reproduction's). ``identification_iterations``: at most this many iterations of the
+    identification the hybrid starts from (default the identification's own limit,
+    :data:`~validation.models.rgblimp_identification.MAX_ITERATIONS`).
 
     Returns
     -------
@@ -59,7 +61,8 @@ def run(*, progress: bool = True, setup=None) -> dict:
     with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 4 * REPLAY_REPEATS + 2,
                       unit="run") as update:
         began = clock.perf_counter()
-        identified = identify_parameters(fitting).model
+        limit = {} if identification_iterations is None else {"max_iterations": identification_iterations}
+        identified = identify_parameters(fitting, **limit).model
         identification_s = clock.perf_counter() - began
         if update:
             update(1, stage="identification")

@@ -8,12 +8,13 @@ from validation.models.rgblimp_rollout import RolloutSetup
 
 @pytest.mark.slow
 def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
-    # Two timed runs and a 2-iteration fit: the report's rows and their arithmetic are what is
-    # checked here, not the speed.
+    # Two timed runs, replays of two effect lists, a 1-iteration identification and a 2-iteration
+    # fit: the report's rows and their arithmetic are what is checked here, not the speed.
     monkeypatch.setattr(rgblimp, "FREE_RUN_REPEATS", 2)
     monkeypatch.setattr(rgblimp, "REPLAY_REPEATS", 1)
-    report = rgblimp.run(progress=False, setup=RolloutSetup(inducing_points=8, segment_duration=2.0,
-                                                            max_segments=8, max_iterations=2))
+    monkeypatch.setattr(rgblimp, "REPLAY_MEMBERS", 2)
+    report = rgblimp.run(progress=False, identification_iterations=1,
+                         setup=RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=8, max_iterations=2))
     free, fit = report["free_run"], report["fit"]
     assert len(free["numpy_s"]) == len(free["jax_s"]) == 2
     ratios = sorted(n / j for n, j in zip(free["numpy_s"], free["jax_s"]))
@@ -24,6 +25,7 @@ def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
     assert rows["rgblimp.hybrid.fit_s"].met == fit["goal_met"]
     assert rows["rgblimp.free_run.jax_over_numpy"].value == free["speedup"]
     replay = report["replay"]
+    assert replay["members"] == report["blimp_replay"]["members"] == 2
     assert len(replay["jax_s"]) == 1 and replay["speedup"] == pytest.approx(replay["numpy_s"][0] / replay["jax_s"][0])
     assert rows["rgblimp.diagnose_replay.compiled_over_numpy"].value == replay["speedup"]
     blimp = report["blimp_replay"]
