@@ -30,9 +30,9 @@ from validation.vehicles.rgblimp_equations import (
 
 @pytest.fixture(scope="module")
 def flights():
-    """The first 4 s of two excerpt flights of different configurations (29 and 30)."""
+    """The first 2 s of two excerpt flights of different configurations (29 and 30)."""
     recordings = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv").recording for n in (117, 121)]
-    return [Recording(r.time[:240], r.inputs[:240], r.input_names, r.outputs[:240], r.output_names, r.metadata)
+    return [Recording(r.time[:120], r.inputs[:120], r.input_names, r.outputs[:120], r.output_names, r.metadata)
             for r in recordings]
 
 
