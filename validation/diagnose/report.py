@@ -672,11 +672,12 @@ def _locate_notes(mismatch: list, locate: dict) -> list[str]:
 DIAGNOSIS_FILES = ("diagnosis.json", "report.md", "corrected_model.json", "holdout_*.png")
 
 
-def diagnosis_files(diagnosis: Diagnosis, out_dir) -> dict:
-    """``{path: str or bytes}`` of everything :func:`write_diagnosis` writes to ``out_dir``."""
+def diagnosis_files(diagnosis: Diagnosis, out_dir, *, figures: bool = True) -> dict:
+    """``{path: str or bytes}`` of everything :func:`write_diagnosis` writes to ``out_dir``
+    (without ``figures``: no PNGs, and a report that names none)."""
     out_dir = Path(out_dir)
     files, plot_names = {}, {}
-    for name, trace in diagnosis.holdout_traces.items():
+    for name, trace in diagnosis.holdout_traces.items() if figures else ():
         file_name = f"holdout_{name}.png"
         files[out_dir / file_name] = png_bytes(_output_figure(name, trace, diagnosis.fit))
         plot_names[name] = file_name

@@ -53,7 +53,8 @@ SCORED = ("physics", "all_named", "corrected")
 
 
 def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONFIGURATIONS, seed: int = 0,
-                               pooled: bool = False, workers: int | None = None, progress: bool = True) -> dict:
+                               pooled: bool = False, workers: int | None = None, progress: bool = True,
+                               figures: bool = True) -> dict:
     """Diagnose, validate and test (module docstring); writes ``out_dir/results.json``,
     ``out_dir/report.md`` and each diagnosis in ``out_dir/diagnosis/`` (``configuration_<j>/``
     per configuration; the pooled one in ``diagnosis/`` itself), all at once.
@@ -74,6 +75,8 @@ def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONF
         use, at most the number of configurations; 1 runs them here).
     progress : bool
         A progress bar over the configurations (over the diagnosis' stages when pooled).
+    figures : bool
+        Each diagnosis' PNGs of its held-out flight (without: none, and its report names none).
 
     Returns
     -------
@@ -110,13 +113,13 @@ def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONF
         if pooled or workers == 1:
             outcomes = []
             for job in jobs:
-                outcomes.append(_diagnose(*job, progress=update if pooled else None))
+                outcomes.append(_diagnose(*job, figures=figures, progress=update if pooled else None))
                 if update and not pooled:
                     update(1)
         else:
             with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
                 outcomes = []
-                for outcome in pool.map(_diagnose, *zip(*jobs), [True] * len(jobs)):
+                for outcome in pool.map(_diagnose, *zip(*jobs), [True] * len(jobs), [figures] * len(jobs)):
                     outcomes.append(outcome)
                     if update:
                         update(1)
@@ -144,11 +147,11 @@ def reproduce_rgblimp_diagnose(data_dir, out_dir, *, configurations=DEFAULT_CONF
     return results
 
 
-def _diagnose(diagnosed, validation, folder, seed, one_thread=False, *, progress=None) -> tuple:
+def _diagnose(diagnosed, validation, folder, seed, one_thread=False, figures=True, *, progress=None) -> tuple:
     """One diagnosis (in this process or a worker): diagnosis.json's content, every named effect,
-    the corrected model's effects and the diagnosis' files under ``folder``. ``one_thread``: a
-    worker beside others, one BLAS and one XLA thread (threads of several workers fight over
-    the cores)."""
+    the corrected model's effects and the diagnosis' files under ``folder`` (its PNGs with
+    ``figures``). ``one_thread``: a worker beside others, one BLAS and one XLA thread (threads of
+    several workers fight over the cores)."""
     if not one_thread:
         diagnosis = diagnose(diagnosed, reference="rgblimp", holdout=validation, seed=seed, progress=progress)
     else:
@@ -159,7 +162,8 @@ def _diagnose(diagnosed, validation, folder, seed, one_thread=False, *, progress
                                        "intra_op_parallelism_threads=1").strip()
         with threadpool_limits(1):
             diagnosis = diagnose(diagnosed, reference="rgblimp", holdout=validation, seed=seed)
-    return diagnosis.as_dict(), diagnosis.named_effects, diagnosis.corrected.effects, diagnosis_files(diagnosis, folder)
+    return (diagnosis.as_dict(), diagnosis.named_effects, diagnosis.corrected.effects,
+            diagnosis_files(diagnosis, folder, figures=figures))
 
 
 def _test_flight(path: Path, split, ranges: dict, all_named: EffectVehicle, corrected: EffectVehicle) -> dict:

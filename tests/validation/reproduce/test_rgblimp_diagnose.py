@@ -29,7 +29,9 @@ def run(tmp_path_factory):
     for path in (EXCERPT_FOLDER / "data_info").iterdir():
         (data / "data_info" / path.name).write_bytes(path.read_bytes())
     out = tmp_path_factory.mktemp("rgblimp_diagnose_out")
-    return data, out, reproduce_rgblimp_diagnose(data, out, configurations=(29, 30), workers=1, progress=False)
+    # No PNGs (a fifth of the run; diagnose's own tests draw them): the bookkeeping, not the plots.
+    return data, out, reproduce_rgblimp_diagnose(data, out, configurations=(29, 30), workers=1, progress=False,
+                                                 figures=False)
 
 
 @pytest.mark.slow
@@ -49,6 +51,7 @@ def test_results_diagnosis_and_report_are_written(run):
             assert finding["in_corrected_model"] == any(
                 e["effect"] == finding["effect"] and e["value"] == finding["value"] for e in corrected.effects)
     assert (out / "report.md").read_text().startswith("# RGBlimp diagnosis on real flights")
+    assert not list(out.rglob("*.png"))  # figures=False
 
 
 @pytest.mark.slow
