@@ -27,8 +27,9 @@ small, well-founded correction and exact gradients:
   (:func:`validation.models.rgblimp_identification.cut_segments`); each is free-run from its
   recorded first state through the recorded inputs, one RK4 step per 1/60 s sample as the source
   integrates; the loss is the mean over samples of the squared state errors, each state divided
-  by :data:`~validation.models.rgblimp_identification.STATE_SCALE` (yaw wrapped), plus the
-  prior's ``||v||^2`` times :attr:`RolloutSetup.prior_weight` over the number of residuals.
+  by :attr:`RolloutSetup.state_scale` (:data:`LOSS_SCALE`: the pose weighed as the source's score
+  weighs it; yaw wrapped), plus the prior's ``||v||^2`` times :attr:`RolloutSetup.prior_weight`
+  over the number of residuals.
   The gradient is exact: reverse-mode automatic differentiation through every RK4 stage of every
   segment (JAX, ``jax.value_and_grad`` of a ``lax.scan`` over the steps, vectorised over the
   segments with ``vmap``); scipy's L-BFGS-B minimises it (docs/rgblimp.md, "Rollout-trained
@@ -57,7 +58,7 @@ from validation.models.rgblimp_hybrid_step import (
     air_features,
 )
 from validation.models.rgblimp_hybrid_step import features as feature_values
-from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
+from validation.models.rgblimp_identification import RGBlimpModel, Segments, cut_segments
 from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
 from validation.vehicles.compiled_runs import jax_modules
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, RGBlimpParameters
@@ -74,6 +75,16 @@ from validation.vehicles.rgblimp_jax import held_inputs, parameter_arrays, rollo
 CORRECTION_UNITS = ("m/s^2",) * 3 + ("rad/s^2",) * 3
 #: Identified coefficients that :attr:`RolloutSetup.tune_physics` refines with the correction.
 TUNED_COEFFICIENTS = ("thrust_gain", "buoyancy_mass", "c_d0", "c_l0", "c_my0", "c_mx0", "wind_x", "wind_y")
+#: The (max - min) of x, y, z (m), roll, pitch and yaw (rad) over the source's spiral flights, the
+#: normalisers of its score (Zhu, Cheng & Zhang, IEEE RA-L 2024; the statistics the source's
+#: recordings ship with, ``data_info``, rows 2 and 3; docs/rgblimp.md, "Identification and RKGP").
+SCORE_RANGES = (4.0681, 3.9454, 1.7766, 0.24762, 0.23524, 6.2831)
+#: Divides each state's error in the fit's loss (:attr:`RolloutSetup.state_scale`): the pose in
+#: proportion to :data:`SCORE_RANGES` (the score's weights), scaled so that x's is 5 cm as in the
+#: identification; the velocities and rates as the identification's (2 cm/s, 0.02 rad/s). Chosen
+#: on validation flights over the identification's scales, which weigh roll and pitch 40 times
+#: less against position than the score does (docs/rgblimp.md, "The hybrid's settings").
+LOSS_SCALE = tuple(0.05 * r / SCORE_RANGES[0] for r in SCORE_RANGES) + (0.02,) * 6
 #: The random accelerations of :meth:`RolloutHybrid.band`: standard deviations (m/s^2 for the
 #: forces, rad/s^2 for the moments) and correlation time (s), calibrated on validation flights
 #: (docs/rgblimp.md, "Rollout-trained hybrid").
@@ -115,6 +126,8 @@ class RolloutSetup:
         At most about this many segments (every flight keeps a share).
     prior_weight : float
         Weight of the GP prior's ``||v||^2`` against the mean squared scaled state error.
+    state_scale : tuple of 12 float
+        Divides each state's error in the loss (:data:`LOSS_SCALE`): m, rad, m/s, rad/s.
     initial_amplitude : tuple of 6 float
         Starting ``s_o``: m/s^2 for the three forces, rad/s^2 for the moments.
     initial_length_scale : float
@@ -131,6 +144,7 @@ class RolloutSetup:
     segment_duration: float = 20.0
     max_segments: int = 24
     prior_weight: float = 10.0
+    state_scale: tuple = LOSS_SCALE
     initial_amplitude: tuple = (0.02, 0.02, 0.02, 0.05, 0.05, 0.05)
     initial_length_scale: float = 3.0
     tune_physics: bool = True
@@ -140,6 +154,7 @@ class RolloutSetup:
     def __post_init__(self):
         checks = {"inducing_points": self.inducing_points >= 1, "segment_duration": self.segment_duration > 0,
                   "max_segments": self.max_segments >= 1, "prior_weight": self.prior_weight >= 0,
+                  "state_scale": len(self.state_scale) == 12 and min(self.state_scale) > 0,
                   "initial_length_scale": self.initial_length_scale > 0,
                   "initial_amplitude": len(self.initial_amplitude) == 6 and min(self.initial_amplitude) > 0,
                   "max_iterations": self.max_iterations >= 1}
@@ -222,12 +237,12 @@ def _compiled():
     if not _COMPILED:
         jax, jnp = jax_modules()
         rollout = rollout_function(jax, jnp, correction_of=_correction_of)
-        scale = jnp.asarray(STATE_SCALE)
         by_segment = jax.vmap(rollout, in_axes=(0, None, 0, 0))
 
-        def loss(p, theta, group_of_segment, starts, inputs, targets, mask, prior_weight):
-            """Mean squared scaled state error of the segments' free runs plus the prior; ``p``
-            holds each group's parameters stacked (G, ...), ``group_of_segment`` (S,) picks them."""
+        def loss(p, theta, group_of_segment, starts, inputs, targets, mask, prior_weight, scale):
+            """Mean squared state error over ``scale`` (12,) of the segments' free runs plus the
+            prior; ``p`` holds each group's parameters stacked (G, ...), ``group_of_segment`` (S,)
+            picks them."""
             path = by_segment(jax.tree_util.tree_map(lambda a: a[group_of_segment], p), theta, starts, inputs)
             error = path - targets
             error = error.at[..., 5].set((error[..., 5] + jnp.pi) % (2 * jnp.pi) - jnp.pi)
@@ -548,10 +563,12 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), shared_p
         theta = {name: piece.reshape(shapes[name]) for name, piece in zip(shapes, pieces[1:])}
         return p, theta
 
+    scale = jnp.asarray(setup.state_scale, dtype=float)
+
     def objective(x):
         p, theta = unpack(x)
         value, (gp, gtheta) = compiled["value_and_grad"](_as_jax(jnp, p), _as_jax(jnp, theta), group_of_segment,
-                                                         *data, setup.prior_weight)
+                                                         *data, setup.prior_weight, scale)
         value = float(value)
         if not np.isfinite(value):
             return 1e10, np.zeros_like(x)

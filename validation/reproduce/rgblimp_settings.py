@@ -26,7 +26,7 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.progress import progress_bar
 from validation.models.rgblimp_greybox import continuous_states, fit_rkgp, physics_step
-from validation.models.rgblimp_identification import IDENTIFIED_PARAMETERS, RGBlimpModel
+from validation.models.rgblimp_identification import IDENTIFIED_PARAMETERS, STATE_SCALE, RGBlimpModel
 from validation.reproduce.rgblimp import (
     DEFAULT_SETUP,
     Split,
@@ -190,6 +190,7 @@ HYBRID_CANDIDATES = {
     "segments 6 s": replace(DEFAULT_SETUP.rollout, segment_duration=6.0),
     "prior weight 1": replace(DEFAULT_SETUP.rollout, prior_weight=1.0),
     "8 inducing inputs": replace(DEFAULT_SETUP.rollout, inducing_points=8),
+    "loss scales of the identification": replace(DEFAULT_SETUP.rollout, state_scale=STATE_SCALE),
 }
 
 

@@ -35,7 +35,7 @@ def test_jax_physics_equals_the_numpy_free_run_with_wind_and_thrust_gain():
     assert np.max(np.abs(wrapped_difference(path, expected))) < 1e-9
 
 
-def _loss_and_gradient(x_physics, theta, segments):
+def _loss_and_gradient(x_physics, theta, segments, *, prior_weight=0.7, state_scale=rollout.LOSS_SCALE):
     """The module's loss and its gradient at one physics and correction, and the loss as a
     function of both (its value from the same compiled function)."""
     compiled = rollout._compiled()  # noqa: SLF001 - the test differentiates the module's own loss
@@ -48,7 +48,7 @@ def _loss_and_gradient(x_physics, theta, segments):
         p = {name: jnp.repeat(jnp.asarray(value)[None], rollout._GROUP_BATCH, axis=0)  # noqa: SLF001
              for name, value in physics.items()}
         th = {name: jnp.asarray(value) for name, value in correction.items()}
-        return compiled["value_and_grad"](p, th, groups, *data, 0.7)
+        return compiled["value_and_grad"](p, th, groups, *data, prior_weight, jnp.asarray(state_scale))
 
     value, (gp, gtheta) = evaluate(x_physics, theta)
     gp = {name: np.asarray(value)[0] for name, value in gp.items()}
@@ -83,6 +83,26 @@ def test_rollout_gradient_equals_central_differences():
         # differs between CPUs: 3e-6 measured on one) and eps |loss| / step ten times.
         rounding = 10 * np.finfo(float).eps * abs(loss_at_start) / step
         assert abs(exact - numeric) <= 1e-5 * abs(exact) + rounding, (name, exact, numeric, rounding)
+
+
+def test_the_loss_divides_each_state_error_by_the_setups_scale():
+    flight = synthetic_flight(RGBlimpModel(), samples=241)
+    segments = cut_segments([flight], duration=QUICK.segment_duration, max_segments=2)
+    theta = rollout.initial_correction([flight], QUICK)
+    theta["whitened"] = 0.3 * np.random.default_rng(2).standard_normal(theta["whitened"].shape)
+    physics = rollout.physics_parameters(RGBlimpModel(wind=(0.01, 0.02)))
+    scale = np.asarray(rollout.LOSS_SCALE)
+    at_scale, *_ = _loss_and_gradient(physics, theta, segments, prior_weight=0.0, state_scale=scale)
+    doubled, *_ = _loss_and_gradient(physics, theta, segments, prior_weight=0.0, state_scale=2 * scale)
+    assert doubled == pytest.approx(at_scale / 4, rel=1e-12)
+    roll_loose = scale.copy()
+    roll_loose[3] *= 10  # the roll error weighs 100 times less
+    loosened, *_ = _loss_and_gradient(physics, theta, segments, prior_weight=0.0, state_scale=roll_loose)
+    assert 0 < loosened < at_scale
+    # The default weighs roll and pitch as the score does: far more than position.
+    assert scale[3] < scale[0] / 10 and scale[4] < scale[0] / 10
+    with pytest.raises(BadInputError, match="state_scale"):
+        rollout.RolloutSetup(state_scale=(0.05,) * 11)
 
 
 def test_correction_returns_to_zero_far_from_its_data():
