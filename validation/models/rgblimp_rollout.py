@@ -83,7 +83,7 @@ SCORE_RANGES = (4.0681, 3.9454, 1.7766, 0.24762, 0.23524, 6.2831)
 #: proportion to :data:`SCORE_RANGES` (the score's weights), scaled so that x's is 5 cm as in the
 #: identification; the velocities and rates as the identification's (2 cm/s, 0.02 rad/s). Chosen
 #: on validation flights over the identification's scales, which weigh roll and pitch 40 times
-#: less against position than the score does (docs/rgblimp.md, "The hybrid's settings").
+#: less against position than the score does (docs/rgblimp.md, "The loss weighed as the score").
 LOSS_SCALE = tuple(0.05 * r / SCORE_RANGES[0] for r in SCORE_RANGES) + (0.02,) * 6
 #: The random accelerations of :meth:`RolloutHybrid.band`: standard deviations (m/s^2 for the
 #: forces, rad/s^2 for the moments) and correlation time (s), calibrated on validation flights
