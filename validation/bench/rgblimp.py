@@ -40,7 +40,7 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
 
     ``setup``: the hybrid's :class:`~validation.models.rgblimp_rollout.RolloutSetup` (default
     the reproduction's). ``identification_iterations``: at most this many iterations of the
-    identification the hybrid starts from (default the identification's own limit,
+    identification the hybrid starts from (default the identification's own,
     :data:`~validation.models.rgblimp_identification.MAX_ITERATIONS`).
 
     Returns
@@ -52,7 +52,7 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
         ``hybrid_s``, ``identification_s``, ``iterations``, ``goal_s``,
         ``goal_met``.
     """
-    from validation.models.rgblimp_identification import identify_parameters
+    from validation.models.rgblimp_identification import MAX_ITERATIONS, identify_parameters
     from validation.models.rgblimp_rollout import RolloutHybrid, RolloutSetup, fit_rollout
     from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 
@@ -61,8 +61,7 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
     with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 4 * REPLAY_REPEATS + 2,
                       unit="run") as update:
         began = clock.perf_counter()
-        limit = {} if identification_iterations is None else {"max_iterations": identification_iterations}
-        identified = identify_parameters(fitting, **limit).model
+        identified = identify_parameters(fitting, max_iterations=identification_iterations or MAX_ITERATIONS).model
         identification_s = clock.perf_counter() - began
         if update:
             update(1, stage="identification")

@@ -58,7 +58,7 @@ from validation.models.rgblimp_hybrid_step import (
     air_features,
 )
 from validation.models.rgblimp_hybrid_step import features as feature_values
-from validation.models.rgblimp_identification import RGBlimpModel, Segments, cut_segments
+from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, Segments, cut_segments
 from validation.models.rgblimp_step import parameters_as_dict, parameters_from_dict
 from validation.vehicles.compiled_runs import jax_modules
 from validation.vehicles.rgblimp_equations import SAMPLE_TIME, RGBlimpParameters
@@ -154,13 +154,22 @@ class RolloutSetup:
     def __post_init__(self):
         checks = {"inducing_points": self.inducing_points >= 1, "segment_duration": self.segment_duration > 0,
                   "max_segments": self.max_segments >= 1, "prior_weight": self.prior_weight >= 0,
-                  "state_scale": len(self.state_scale) == 12 and min(self.state_scale) > 0,
+                  "state_scale": _positive(self.state_scale, 12),
                   "initial_length_scale": self.initial_length_scale > 0,
-                  "initial_amplitude": len(self.initial_amplitude) == 6 and min(self.initial_amplitude) > 0,
+                  "initial_amplitude": _positive(self.initial_amplitude, 6),
                   "max_iterations": self.max_iterations >= 1}
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise BadInputError(f"RolloutSetup: {', '.join(bad)} out of range ({self})")
+
+
+def _positive(values, count: int) -> bool:
+    """Whether ``values`` are ``count`` finite numbers above zero."""
+    try:
+        array = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return array.shape == (count,) and bool(np.all(np.isfinite(array) & (array > 0)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -392,7 +401,9 @@ class RolloutHybrid:
             model = RGBlimpModel(parameters_from_dict(physics["params"]), float(physics["thrust_gain"]),
                                  tuple(float(v) for v in physics["wind"]))
             correction = {name: np.asarray(data["correction"][name], dtype=float) for name in _CORRECTION_SHAPES}
-            setup = RolloutSetup(**{k: tuple(v) if isinstance(v, list) else v for k, v in data["setup"].items()})
+            # A file written before the loss had its own scales was fitted with the identification's.
+            setup = RolloutSetup(**{"state_scale": STATE_SCALE,
+                                    **{k: tuple(v) if isinstance(v, list) else v for k, v in data["setup"].items()}})
             disturbance = data["disturbance"]
             disturbance_sd = tuple(float(v) for v in disturbance["sd"])
             disturbance_time = float(disturbance["correlation_time_s"])

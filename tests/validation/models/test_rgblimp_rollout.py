@@ -15,7 +15,9 @@ import pytest
 from tests.validation.models.test_rgblimp_identification import INPUTS, START, synthetic_flight
 from validation.core.errors import BadInputError
 from validation.models import rgblimp_rollout as rollout
-from validation.models.rgblimp_identification import RGBlimpModel, cut_segments, wrapped_difference
+from validation.models.rgblimp_identification import STATE_SCALE, RGBlimpModel, cut_segments, wrapped_difference
+from validation.reproduce.rgblimp import read_score_ranges
+from validation.vehicles.rgblimp_data import EXCERPT_FOLDER
 from validation.vehicles.rgblimp_equations import RGBlimpParameters, body_accelerations
 
 #: Samples of every free run here (4 s): one compiled run for all of them.
@@ -101,8 +103,12 @@ def test_the_loss_divides_each_state_error_by_the_setups_scale():
     assert 0 < loosened < at_scale
     # The default weighs roll and pitch as the score does: far more than position.
     assert scale[3] < scale[0] / 10 and scale[4] < scale[0] / 10
-    with pytest.raises(BadInputError, match="state_scale"):
-        rollout.RolloutSetup(state_scale=(0.05,) * 11)
+    for wrong in ((0.05,) * 11, (0.05,) * 11 + (float("nan"),), None):
+        with pytest.raises(BadInputError, match="state_scale"):
+            rollout.RolloutSetup(state_scale=wrong)
+    # The score's ranges as the source's statistics give them (the excerpt ships them).
+    spiral = read_score_ranges(EXCERPT_FOLDER, kinds=("spiral",))["spiral"]
+    np.testing.assert_allclose(rollout.SCORE_RANGES, spiral, rtol=1e-4)
 
 
 def test_correction_returns_to_zero_far_from_its_data():
@@ -164,6 +170,14 @@ def test_model_file_round_trip_and_bad_files(concealed, tmp_path):
     bad = json.loads(json.dumps(data))
     bad["correction"]["whitened"][0][0] = float("nan")
     with pytest.raises(BadInputError, match="whitened must be finite"):
+        rollout.RolloutHybrid.from_dict(bad)
+    assert again.setup.state_scale == hybrid.setup.state_scale == rollout.LOSS_SCALE
+    older = json.loads(json.dumps(data))  # a file from before the loss had its own scales
+    del older["setup"]["state_scale"]
+    assert rollout.RolloutHybrid.from_dict(older).setup.state_scale == STATE_SCALE
+    bad = json.loads(json.dumps(data))
+    bad["setup"]["state_scale"][3] = float("nan")
+    with pytest.raises(BadInputError, match="state_scale"):
         rollout.RolloutHybrid.from_dict(bad)
     bad = json.loads(json.dumps(data))
     bad["version"] = 99
