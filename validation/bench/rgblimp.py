@@ -167,12 +167,14 @@ def summary_rows(report: dict) -> list[SummaryRow]:
                        free["speedup"], "x", None,
                        note=f"{free['speedup_range'][0]:.1f}-{free['speedup_range'][1]:.1f} over runs"),
             SummaryRow("rgblimp.diagnose_replay.compiled_over_numpy",
-                       "RGBlimp diagnose replay (24 hypotheses, 3 flights), compiled over numpy step",
+                       f"RGBlimp diagnose replay ({report['replay']['members']} hypotheses, "
+                       f"{len(report['replay']['flights'])} flights), compiled over numpy step",
                        report["replay"]["speedup"], "x", None,
                        note=f"{report['replay']['speedup_range'][0]:.1f}-{report['replay']['speedup_range'][1]:.1f} "
                             "over runs"),
             SummaryRow("blimp.diagnose_replay.compiled_over_numpy",
-                       "blimp diagnose replay (24 hypotheses, 20 s), compiled over numpy step",
+                       f"blimp diagnose replay ({report['blimp_replay']['members']} hypotheses, 20 s), "
+                       "compiled over numpy step",
                        report["blimp_replay"]["speedup"], "x", None,
                        note=f"{report['blimp_replay']['speedup_range'][0]:.1f}-"
                             f"{report['blimp_replay']['speedup_range'][1]:.1f} over runs"),
