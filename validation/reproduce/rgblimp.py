@@ -126,6 +126,11 @@ GOAL_HYBRID_SCORE_FRACTION = 0.5
 GOAL_HYBRID_POSITION_RMSE_M = 0.25
 #: The rollout-trained hybrids the goals above apply to.
 HYBRID_MODELS = ("hybrid", "hybrid_global")
+#: L-BFGS-B iterations of the global hybrid's fit (one correction fitted to every configuration's
+#: segments at once), against :class:`~validation.models.rgblimp_rollout.RolloutSetup`'s 60 for a
+#: configuration's own: chosen on validation flights, where its loss still fell at 60 iterations
+#: and the score followed it (docs/rgblimp.md, "The global hybrid's iterations").
+GLOBAL_ROLLOUT_ITERATIONS = 200
 #: The folder of OUT that holds each configuration's RKGP model file (:func:`rkgp_model_path`).
 MODELS_FOLDER = "models"
 
@@ -145,9 +150,18 @@ class RGBlimpSetup:
     smoothing: tuple = (SMOOTHING_WINDOW, SMOOTHING_ORDER)
     shrinkage: float | None = SHRINKAGE
     rollout: RolloutSetup = RolloutSetup()
+    global_rollout_iterations: int = GLOBAL_ROLLOUT_ITERATIONS
 
     def __post_init__(self):
         check_shrinkage(self.shrinkage)  # refused before any fit, not after the global one
+        if self.global_rollout_iterations < 1:
+            raise BadInputError(f"global_rollout_iterations must be at least 1, got {self.global_rollout_iterations}")
+
+    @property
+    def global_rollout(self) -> RolloutSetup:
+        """The hybrid's settings for a fit shared by several configurations (:attr:`rollout` with
+        :attr:`global_rollout_iterations`)."""
+        return dataclasses.replace(self.rollout, max_iterations=self.global_rollout_iterations)
 
 
 DEFAULT_SETUP = RGBlimpSetup()
@@ -385,7 +399,7 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
         identified_seconds = {split: result.seconds for split, result in identified.items()}
         tick = clock.perf_counter()
         hybrids_global = fit_rollout_global([([flights[n] for n in s.fit], identified[s].model) for s in splits],
-                                            setup=setup.rollout)
+                                            setup=setup.global_rollout)
         seconds["hybrid_global_fit"] = clock.perf_counter() - tick
         if update:
             update(0, stage="global hybrid")
@@ -432,6 +446,7 @@ def reproduce_rgblimp(data_dir, out_dir, *, configurations=None, setup: RGBlimpS
                   "training_states": "recorded" if setup.smoothing is None else
                   f"from the poses, local polynomial of degree {setup.smoothing[1]} over {setup.smoothing[0]} samples",
                   "seed": seed, "rollout": dataclasses.asdict(setup.rollout),
+                  "global_rollout_iterations": setup.global_rollout_iterations,
                   "score_ranges": {kind: [float(v) for v in r] for kind, r in ranges.items()}},
         "global": {"fit": [f"data_{n}.csv" for s in splits for n in s.fit],
                    "identification": global_identified.as_dict(),

@@ -100,7 +100,7 @@ def study_unseen(data_dir, out_dir, *, folds: int = DEFAULT_FOLDS, configuration
             vehicle, _ = fit_global([flights[n] for s in seen for n in s.fit], setup, seed=0, with_rkgp=False)
             identified_seconds = clock.perf_counter() - tick
             hybrid = fit_rollout_global([([flights[n] for n in s.fit], vehicle.model) for s in seen],
-                                        setup=setup.rollout, shared_physics=True)[0]
+                                        setup=setup.global_rollout, shared_physics=True)[0]
             fold_records.append({"fold": k, "held_out": [s.configuration for s in held],
                                  "identification_seconds": identified_seconds,
                                  "hybrid_fit_seconds": hybrid.fit_seconds, "hybrid_iterations": hybrid.iterations,
@@ -129,7 +129,7 @@ def study_unseen(data_dir, out_dir, *, folds: int = DEFAULT_FOLDS, configuration
                           "vehicle_physics": "coefficients identified on every other fold's fitting flights",
                           "vehicle_hybrid": "one correction and one set of refined coefficients fitted through "
                                             "the free runs of every other fold's fitting flights"},
-               "rollout_setup": dataclasses.asdict(setup.rollout),
+               "rollout_setup": dataclasses.asdict(setup.global_rollout),
                "configurations": entries, "fold_fits": fold_records}
     results["summary"] = summarise_unseen(entries)
     results["seconds"] = clock.perf_counter() - started

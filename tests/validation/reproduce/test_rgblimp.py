@@ -152,7 +152,8 @@ def test_options_of_other_papers_are_refused(tmp_path):
 #: Short fits: 3 s segments, 60 GP points; the schema and the bookkeeping, not the numbers.
 QUICK = RGBlimpSetup(segment_duration=3.0, max_segments=8, global_max_segments=12, max_iterations=8,
                      training_points=60, global_training_points=80,
-                     rollout=RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=4, max_iterations=3))
+                     rollout=RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=4, max_iterations=3),
+                     global_rollout_iterations=4)
 
 
 #: Rows of each shortened excerpt flight (2.07 s at 60 Hz; the header besides): enough for every
@@ -251,6 +252,9 @@ def test_each_configurations_hybrid_is_written_and_reads_back_to_its_free_run(sm
     data, out, results = small_run
     for entry in results["configurations"]:
         hybrid = RolloutHybrid.from_dict(json.loads((out / entry["hybrid_model_file"]).read_text()))
+        shared = RolloutHybrid.from_dict(json.loads((out / entry["hybrid_global_model_file"]).read_text()))
+        # Each fitted with its own iteration limit: the global fit's is the setup's own field.
+        assert (hybrid.setup.max_iterations, shared.setup.max_iterations) == (3, QUICK.global_rollout_iterations)
         for name, value in entry["hybrid"]["physics"].items():
             assert hybrid.physics.value(name) == value, name
         test = read_rgblimp_flight(data / entry["test"]).recording
@@ -266,3 +270,10 @@ def test_a_setup_with_a_bad_shrinkage_is_refused_when_it_is_made(shrinkage):
     with pytest.raises(BadInputError, match="shrinkage must be a positive number or None"):
         RGBlimpSetup(shrinkage=shrinkage)
     assert RGBlimpSetup(shrinkage=None).shrinkage is None
+
+
+def test_a_setup_with_no_global_hybrid_iterations_is_refused_and_the_global_fit_takes_its_own():
+    with pytest.raises(BadInputError, match="global_rollout_iterations must be at least 1, got 0"):
+        RGBlimpSetup(global_rollout_iterations=0)
+    setup = RGBlimpSetup(global_rollout_iterations=7)
+    assert setup.global_rollout == replace(setup.rollout, max_iterations=7)
