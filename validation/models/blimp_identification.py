@@ -151,7 +151,7 @@ class IdentificationResult:
 
 def identify_parameters(recordings, *, names=IDENTIFIED_PARAMETERS, initial: BlimpParameters | None = None,
                         segment_duration: float = _SEGMENT_DURATION, state_scale=None,
-                        max_step: float = MAX_STEP) -> IdentificationResult:
+                        max_step: float = MAX_STEP, max_iterations: int | None = None) -> IdentificationResult:
     """Least-squares fit of blimp parameters to one-second segments of recordings.
 
     Parameters
@@ -169,11 +169,17 @@ def identify_parameters(recordings, *, names=IDENTIFIED_PARAMETERS, initial: Bli
         over all recordings (so every state counts in its own units).
     max_step : float
         Largest RK4 step, s.
+    max_iterations : int, optional
+        Most residual evaluations of the least-squares fit (scipy's ``max_nfev``; each also
+        gives the Jacobian), for a fit that need not converge (tests); default: until its
+        tolerances are met.
 
     Returns
     -------
     IdentificationResult
     """
+    if max_iterations is not None and max_iterations < 1:
+        raise BadInputError(f"max_iterations must be at least 1, got {max_iterations}")
     initial = BlimpParameters() if initial is None else initial
     all_names = BlimpParameters.vector_names()
     unknown = [n for n in names if n not in all_names]
@@ -228,7 +234,7 @@ def identify_parameters(recordings, *, names=IDENTIFIED_PARAMETERS, initial: Bli
         np.where([n.startswith("cg_position") for n in names], -np.inf, -base[index] / units * 0.99),
         np.full(12 * n_segments, -np.inf)])
     solution = least_squares(residuals, np.zeros(len(lower)), bounds=(lower, np.inf), method="trf",
-                             jac_sparsity=sparsity, diff_step=1e-6, x_scale=1.0)
+                             jac_sparsity=sparsity, diff_step=1e-6, x_scale=1.0, max_nfev=max_iterations)
     jacobian = solution.jac.toarray() if hasattr(solution.jac, "toarray") else np.asarray(solution.jac)
     residual = solution.fun
     n_residuals = residual.size

@@ -45,7 +45,8 @@ def run_seed(seed: int, *, quick: bool = False, progress: bool = False) -> SeedR
     """Tables I, II and III for one seed (seeds: :func:`reproduce_blimp`)."""
     setup = blimp_prediction.QUICK_SETUP if quick else blimp_prediction.DEFAULT_SETUP
     training, held_out = blimp_prediction.fly_flights(setup, seed=seed, progress=progress)
-    fitted = blimp_prediction.fit_models(training, seed=seed, progress=progress)
+    fitted = blimp_prediction.fit_models(training, seed=seed, identification_iterations=setup.identification_iterations,
+                                         progress=progress)
     first = blimp_prediction.table1(fitted, held_out, setup, seed=seed, progress=progress)
     rkgp, rk = fitted.models["RKGP"], fitted.physics["RK"]
     spread_setup = blimp_spread.QUICK_SETUP if quick else blimp_spread.DEFAULT_SETUP

@@ -90,6 +90,10 @@ class Table1Setup:
         Held-out recordings and their length, s.
     n_starts : int
         Random start states on the held-out recordings.
+    identification_iterations : int or None
+        Most iterations of the ODE's identification
+        (:func:`validation.models.blimp_identification.identify_parameters`'s ``max_iterations``);
+        None (every setup here): until it converges.
     """
 
     training_flights: int = 2
@@ -97,6 +101,7 @@ class Table1Setup:
     held_out_flights: int = 2
     held_out_duration: float = 30.0
     n_starts: int = 100
+    identification_iterations: int | None = None
 
 
 DEFAULT_SETUP = Table1Setup()
@@ -193,12 +198,14 @@ class FittedModels:
         return self.models[method].rollout(starts, inputs, self.physics.get(GP_METHODS[method]))
 
 
-def fit_models(training: list, *, seed: int, progress: bool = False) -> FittedModels:
-    """Identify the ODE on the training flights, then fit the residual GPs."""
+def fit_models(training: list, *, seed: int, identification_iterations: int | None = None,
+               progress: bool = False) -> FittedModels:
+    """Identify the ODE on the training flights (in at most ``identification_iterations``, by
+    default until it converges), then fit the residual GPs."""
     recordings = [flight.recording for flight in training]
     seconds = {}
     began = clock.perf_counter()
-    identified = identify_parameters(recordings, max_step=RK_MAX_STEP)
+    identified = identify_parameters(recordings, max_step=RK_MAX_STEP, max_iterations=identification_iterations)
     seconds["identification"] = clock.perf_counter() - began
     physics = {"RK": physics_step(identified.params, max_step=RK_MAX_STEP), "ODE": adaptive_step(identified.params)}
     models = {}

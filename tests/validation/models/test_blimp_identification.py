@@ -82,10 +82,12 @@ def test_standard_errors_cover_the_truth_on_noisy_data():
     assert 0.8 < result.rms_residual < 1.2
 
 
-def test_bad_names_and_missing_states_are_refused():
+def test_bad_names_missing_states_and_no_iterations_are_refused():
     recording = random_flight(2.0, seed=4)
     with pytest.raises(BadInputError, match="unknown parameter"):
         identify_parameters([recording], names=("drag",))
+    with pytest.raises(BadInputError, match="max_iterations must be at least 1"):
+        identify_parameters([recording], max_iterations=0)
     partial = Recording(recording.time, recording.inputs, recording.input_names,
                         recording.outputs[:, :6], STATE_NAMES[:6], {})
     with pytest.raises(BadInputError, match="lacks U, V, W, P, Q, R"):

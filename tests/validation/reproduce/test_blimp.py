@@ -41,6 +41,12 @@ from validation.vehicles.blimp import STATE_NAMES
 SEED = 3
 #: Table II in the quick campaign of :func:`quick`: 4 stand-in runs and 8 samples instead of 8 and 20.
 SPREAD_SETUP = dataclasses.replace(QUICK_SETUP, stand_in_runs=4, n_samples=8)
+#: Iterations of the ODE's identification in the quick campaign here: on seed 3's 30 s training
+#: flight it converges in 21 (about 10 s); after 10 its RMS residual is the converged one to
+#: 0.01 % (0.53423 against 0.53421). (After 6, 0.536, Table II's calibrated spread with noise
+#: came out below the one without, 0.00264 against 0.00267 m: a comparison of 8 samples each
+#: that holds in expectation, not by construction.)
+IDENTIFICATION_ITERATIONS = 10
 
 
 @pytest.fixture(scope="module")
@@ -56,15 +62,17 @@ def quick(tmp_path_factory):
     of the campaign's time. Table I scores 5 start states instead of 20 on an 8 s held-out flight
     instead of 15 s (its tests check bounds that hold for every start and the physics
     integrators' agreement; the 30 s training flight stays: the identification takes twice as
-    many iterations on 15 s). Table II takes :data:`SPREAD_SETUP` (what it checks holds for any
-    number of runs and samples above one)."""
+    many iterations on 15 s), and the ODE is identified in :data:`IDENTIFICATION_ITERATIONS`
+    iterations instead of until it converges. Table II takes :data:`SPREAD_SETUP` (what it
+    checks holds for any number of runs and samples above one)."""
     out = tmp_path_factory.mktemp("blimp")
     printed = io.StringIO()
     with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(printed):
         patch.setattr(blimp_control, "QUICK_SETUP", dataclasses.replace(
             blimp_control.QUICK_SETUP, max_evaluations=6, n_scenarios=1, horizon_s=3.0, stand_in_runs=1))
         patch.setattr(blimp_prediction, "QUICK_SETUP", dataclasses.replace(
-            blimp_prediction.QUICK_SETUP, n_starts=5, held_out_duration=8.0))
+            blimp_prediction.QUICK_SETUP, n_starts=5, held_out_duration=8.0,
+            identification_iterations=IDENTIFICATION_ITERATIONS))
         patch.setattr(blimp_spread, "QUICK_SETUP", SPREAD_SETUP)
         assert main(["reproduce", "blimp", "--out", str(out), "--quick", "--seeds", str(SEED)]) == 0
     return out, json.loads((out / "results.json").read_text()), printed.getvalue()
