@@ -107,7 +107,8 @@ def choose_settings(*, candidates=CANDIDATES, quick: bool = False, progress: boo
     training, _ = fly_flights(replace(setup, held_out_flights=0), seed=0)
     validation = random_command_flight(VALIDATION_DURATION / (2 if quick else 1), list(VALIDATION_FLIGHT))
     recordings = [flight.recording for flight in training]
-    rk = physics_step(identify_parameters(recordings, max_step=RK_MAX_STEP).params, max_step=RK_MAX_STEP)
+    identified = identify_parameters(recordings, max_step=RK_MAX_STEP, max_iterations=setup.identification_iterations)
+    rk = physics_step(identified.params, max_step=RK_MAX_STEP)
     frames = start_frames([validation], 20 if quick else N_STARTS, np.random.default_rng(list(VALIDATION_FLIGHT)))
     window = np.arange(HORIZON_FRAMES + 1)
     recorded = np.stack([validation.recording.outputs[k + window] for _, k in frames])
