@@ -191,10 +191,12 @@ def test_no_effect_is_consistent_and_the_progress_counts_every_stage(no_effect):
 
 @pytest.fixture(scope="module")
 def delay_diagnosed(tmp_path_factory):
-    """An 80 ms delay on longitudinal cyclic (10 s recordings) diagnosed once by ``flightgp
-    diagnose``: ``(out folder, what it printed, the diagnosed recording)``; its diagnosis.json
-    is exactly :func:`diagnose`'s ``as_dict()``."""
-    fit, held = _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.08}], duration=10.0)
+    """An 80 ms delay on longitudinal cyclic (10 s recordings at the concealed cases' 33 Hz,
+    :data:`CASE_STEP`: the delay between samples) diagnosed once by ``flightgp diagnose``: ``(out
+    folder, what it printed, the diagnosed recording)``; its diagnosis.json is exactly
+    :func:`diagnose`'s ``as_dict()``."""
+    fit, held = _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.08}], duration=10.0,
+                           sample_time=CASE_STEP)
     folder = tmp_path_factory.mktemp("delay")
     write_recording(folder / "fit.csv", fit)
     write_recording(folder / "held.csv", held)
