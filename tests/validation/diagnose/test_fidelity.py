@@ -20,8 +20,10 @@ from validation.vehicles.rgblimp_data import SOURCE_STATE_WIDTH
 
 @pytest.fixture(scope="module")
 def delayed():
-    """A 40 ms delay on longitudinal cyclic (the Bo105 at 80 kt, 12 s at 100 Hz)."""
-    return _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.04}], duration=12.0)
+    """A 40 ms delay on longitudinal cyclic (the Bo105 at 80 kt, 12 s at 33 Hz: the pitch rate
+    still fails its band before correction and passes after)."""
+    return _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.04}], duration=12.0,
+                      sample_time=0.03)
 
 
 def test_the_delay_fails_the_pitch_rate_band_before_correction_and_passes_after(delayed):
