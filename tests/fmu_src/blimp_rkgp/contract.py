@@ -3,6 +3,8 @@
 lagged fan commands), the factory of their cases and the Python reference they equal."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description
@@ -45,9 +47,11 @@ def blimp_rkgp_case(path, trained: dict, *, n_steps: int = 80) -> FmuCase:
     # tolerance 1e-9: the same formulas as GreyBoxGP.rollout, GreyBoxGP.propagate and
     # GaussianProcess.predict evaluated for one state (and its 24 moved copies) instead of a batch
     # (different rounding, ~1e-16 relative per step, divided by the central difference's
-    # 2 * PROPAGATION_STEP in the Jacobian and grown by the dynamics over 80 steps).
+    # 2 * PROPAGATION_STEP in the Jacobian and grown by the dynamics over 80 steps). The reference
+    # is computed once per case (the propagated sds take about a second; the native contract
+    # compares six runs with it).
     return FmuCase(path=path, step=h, n_steps=n_steps, inputs=lambda k: dict(zip(BLIMP_INPUTS, commands[k])),
-                   reference=lambda: (blimp_reference(trained, commands[:n_steps + 1], start), 0),
+                   reference=functools.cache(lambda: (blimp_reference(trained, commands[:n_steps + 1], start), 0)),
                    parameters={f"{s}_start": v for s, v in zip(BLIMP_STATES, start)},
                    far_inputs={"u_gondola": -1.0, "mu": 1.5},  # trained on 0.2 .. 0.8 and -0.2 .. 0.4
                    bands=[], spreads=[f"{s}_sd" for s in ("U", "V", "W", "P", "Q", "R")],
