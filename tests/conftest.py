@@ -13,7 +13,7 @@ import pytest
 from fmu_src import build_bo105_reference_fmu, build_rate_predictor_fmu
 from validation.core.manoeuvres import manoeuvre, time_grid
 from validation.core.recordings import write_recording
-from validation.models.narx import save_trained, train_narx
+from validation.models.narx import save_trained
 from validation.reproduce.bo105 import PAPER_CONFIG, TRAINING_MANOEUVRE, fly_3211
 from validation.vehicles import get_vehicle
 
@@ -66,11 +66,36 @@ def bo105_flights(bo105_speed_kt):
 
 
 @pytest.fixture(scope="session")
-def bo105_trained(bo105_flights):
+def train_narx_once():
+    """:func:`validation.models.narx.train_narx`, each model trained once per test process and
+    then taken from memory: keyed on the recordings' arrays and names, the configuration, the
+    seed and the inference options (``progress`` aside), the arguments its result depends on.
+    The benchmarks that train the paper's model on the training flight of :func:`bo105_flights`
+    (``bench fmu``, ``bench cosim``) are given it in place of ``train_narx``, so the model of
+    :func:`bo105_trained` is not trained again in their process."""
+    from validation.models import narx
+
+    train = narx.train_narx
+    trained = {}
+
+    def cached(recordings, config, *, seed: int = 0, progress: bool = False, **inference_options):
+        recordings = list(recordings)
+        arrays = tuple((r.time.tobytes(), r.inputs.tobytes(), r.outputs.tobytes(), tuple(r.input_names),
+                        tuple(r.output_names)) for r in recordings)
+        key = (arrays, config, seed, tuple(sorted(inference_options.items())))
+        if key not in trained:
+            trained[key] = train(recordings, config, seed=seed, progress=progress, **inference_options)
+        return trained[key]
+
+    return cached
+
+
+@pytest.fixture(scope="session")
+def bo105_trained(bo105_flights, train_narx_once):
     """The paper's configuration on the training flight: 32 training points, annealing with 400
     hyperparameter samples (about 2 s), so FMUs' mixture over samples is exercised as in
     production."""
-    return train_narx([bo105_flights["training"]], PAPER_CONFIG, seed=0)
+    return train_narx_once([bo105_flights["training"]], PAPER_CONFIG, seed=0)
 
 
 @pytest.fixture(scope="session")

@@ -2,12 +2,15 @@
 import pytest
 
 from validation.bench import cosim
+from validation.models import narx
 
 
 @pytest.mark.slow
-def test_reports_real_time_factors_of_both_models_and_both_fmu_kinds():
+def test_reports_real_time_factors_of_both_models_and_both_fmu_kinds(monkeypatch, bo105_trained, train_narx_once):
     # Each time from one run instead of the best of 3 (a third of the co-simulations): what is
-    # checked here is the report, not the timings' noise.
+    # checked here is the report, not the timings' noise. Its models are trained once per test
+    # process (the paper's is bo105_trained, on the same flight; bench fmu trains the other too).
+    monkeypatch.setattr(narx, "train_narx", train_narx_once)
     report = cosim.run(repeats=1, progress=False)
     assert report["simulated_s"] == pytest.approx(8.0) and report["repeats"] == 1
     assert {(r["model"].split(":")[0], r["fmu"]) for r in report["rows"]} == {
