@@ -169,9 +169,9 @@ def test_concealed_effect_is_named_with_its_value(case):
 
 @pytest.fixture(scope="module")
 def no_effect():
-    """The reference itself with sensor noise (20 s recordings) diagnosed once: ``(diagnosis,
-    the progress calls it made)``."""
-    fit, held = _concealed([])
+    """The reference itself with sensor noise (20 s recordings at the concealed cases' 33 Hz,
+    :data:`CASE_STEP`) diagnosed once: ``(diagnosis, the progress calls it made)``."""
+    fit, held = _concealed([], sample_time=CASE_STEP)
     calls = []
     diagnosis = diagnose([fit], reference="bo105-80kt", holdout=[held],
                          progress=lambda n, **status: calls.append((n, status)))
@@ -243,8 +243,8 @@ def test_an_effect_that_does_not_carry_over_to_the_held_out_flight_is_flagged_an
     held-out pitch rate worse, so the finding says it fits only the flights it saw, is not stated
     with confidence, and the corrected model leaves it out (held-out q no worse than the reference)."""
     bias = [{"effect": "sensor_bias", "output": "q", "value": 4 * SENSOR_NOISE_STD["q"]}]
-    fit, _ = _concealed(bias, duration=10.0)
-    _, held = _concealed([], duration=10.0)
+    fit, _ = _concealed(bias, duration=10.0, sample_time=CASE_STEP)
+    _, held = _concealed([], duration=10.0, sample_time=CASE_STEP)
     diagnosis = diagnose([fit], reference="bo105-80kt", holdout=[held])
     result = diagnosis.as_dict()
     finding = next(f for f in result["findings"] if f["effect"] == "sensor_bias")
