@@ -87,8 +87,10 @@ SCORE_RANGES = (4.0681, 3.9454, 1.7766, 0.24762, 0.23524, 6.2831)
 LOSS_SCALE = tuple(0.05 * r / SCORE_RANGES[0] for r in SCORE_RANGES) + (0.02,) * 6
 #: The random accelerations of :meth:`RolloutHybrid.band`: standard deviations (m/s^2 for the
 #: forces, rad/s^2 for the moments) and correlation time (s), calibrated on validation flights
-#: (docs/rgblimp.md, "Rollout-trained hybrid").
-DISTURBANCE_SD = (0.048, 0.048, 0.048, 0.096, 0.096, 0.096)
+#: so that the 95 % bands of the global hybrid cover 0.95 of the recorded positions in the mean
+#: (docs/rgblimp.md, "The global hybrid's iterations"; the correlation time from "Rollout-trained
+#: hybrid").
+DISTURBANCE_SD = (0.032, 0.032, 0.032, 0.064, 0.064, 0.064)
 DISTURBANCE_TIME = 20.0
 #: Disturbed free runs of :meth:`RolloutHybrid.band`.
 BAND_SAMPLES = 32
