@@ -39,6 +39,8 @@ class SeedRun:
     table2_paths: blimp_spread.SpreadPaths
     table3: dict
     table3_paths: dict
+    #: The Table I setup the seed ran (``results.json`` records it).
+    setup: blimp_prediction.Table1Setup
 
 
 def run_seed(seed: int, *, quick: bool = False, progress: bool = False) -> SeedRun:
@@ -56,7 +58,7 @@ def run_seed(seed: int, *, quick: bool = False, progress: bool = False) -> SeedR
     third, third_paths = blimp_control.table3(
         rkgp, rk, fitted.identified.params, blimp_control.QUICK_SETUP if quick else blimp_control.DEFAULT_SETUP,
         seed=seed, progress=progress)
-    return SeedRun(seed, fitted, first, second, second_paths, third, third_paths)
+    return SeedRun(seed, fitted, first, second, second_paths, third, third_paths, setup)
 
 
 def reproduce_blimp(out_dir, *, seeds=DEFAULT_SEEDS, progress: bool = True, quick: bool = False,

@@ -20,13 +20,11 @@ from validation.models.blimp_greybox import COMMAND_LAGS, GP_STATE_COLUMNS, ard_
 from validation.reproduce.blimp_prediction import (
     COMMAND_HOLD,
     COMMAND_RANGES,
-    DEFAULT_SETUP,
     FILTER_WARMUP_FRAMES,
     GROUPS,
     HORIZON_FRAMES,
     METHOD_STYLES,
     METHODS,
-    QUICK_SETUP,
     START_KINDS,
 )
 from validation.vehicles.blimp import INPUT_NAMES, STATE_NAMES
@@ -45,8 +43,9 @@ GROUP_UNITS = {"position": "m", "orientation": "rad", "velocity": "m/s", "angula
 
 def assemble_results(runs, *, quick: bool) -> dict:
     """The content of ``results.json`` (without the FMU and the total time) from the seeds'
-    :class:`validation.reproduce.blimp.SeedRun`."""
-    setup = QUICK_SETUP if quick else DEFAULT_SETUP
+    :class:`validation.reproduce.blimp.SeedRun` (the setup recorded is the one the first seed
+    ran)."""
+    setup = runs[0].setup
     first = runs[0].fitted
     results = {
         "case": "Ko et al. (ICRA 2007) Tables I-III on the blimp-flight stand-in",

@@ -83,6 +83,9 @@ def test_table1_has_every_start_kind_method_and_group_with_its_noise_floor(quick
     out, results, printed = quick
     by_seed = results["table1"]["by_seed"][str(SEED)]
     assert set(by_seed) == {"noise_floor", *START_KINDS}
+    # The setup recorded is the one that ran (the fixture's, not the module's quick setup).
+    assert (results["setup"]["n_starts"], results["setup"]["held_out_duration"], results["setup"]["quick"]) == (
+        5, 8.0, True)
     assert all(math.isfinite(v) and v > 0 for v in by_seed["noise_floor"].values())
     for kind in START_KINDS:
         assert set(by_seed[kind]) == set(METHODS)
