@@ -24,7 +24,15 @@ from validation.models.blimp_greybox import (
     step_inputs,
 )
 from validation.reproduce import blimp_control, blimp_prediction, blimp_spread
-from validation.reproduce.blimp_prediction import GROUPS, METHODS, RK_MAX_STEP, START_KINDS, random_command_flight
+from validation.reproduce.blimp_prediction import (
+    GROUPS,
+    HORIZON_FRAMES,
+    METHODS,
+    RK_MAX_STEP,
+    START_KINDS,
+    horizon_rmse,
+    random_command_flight,
+)
 from validation.reproduce.blimp_report import format_results
 from validation.reproduce.blimp_spread import (
     CALIBRATED_ROWS,
@@ -296,3 +304,19 @@ def test_cli_refuses_blimp_options_for_bo105_and_a_file_as_output_folder(tmp_pat
 def test_format_results_names_every_table(quick):
     text = format_results(quick[1])
     assert all(title in text for title in ("Table I", "Table II", "Table III"))
+
+
+def test_table1_scores_each_group_at_the_one_second_horizon_only():
+    """Errors before the horizon count for nothing; at the horizon, each group's Euclidean norm
+    (yaw wrapped), RMS over the paths."""
+    truth = np.zeros((2, HORIZON_FRAMES + 1, 12))
+    predicted = truth.copy()
+    predicted[:, :-1] = 5.0  # wrong everywhere but at the horizon
+    assert horizon_rmse(predicted, truth) == dict.fromkeys(GROUPS, 0.0)
+    predicted[:, -1] = 0.0
+    predicted[0, -1, :3] = (3.0, 4.0, 0.0)  # position off by 5 m on one path of two
+    predicted[1, -1, 5] = 2 * np.pi - 0.1  # yaw off by -0.1 rad once wrapped
+    rmse = horizon_rmse(predicted, truth)
+    assert rmse["position"] == pytest.approx(5.0 / np.sqrt(2))
+    assert rmse["orientation"] == pytest.approx(0.1 / np.sqrt(2))
+    assert rmse["velocity"] == rmse["angular_velocity"] == 0.0
