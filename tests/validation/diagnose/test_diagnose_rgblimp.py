@@ -73,6 +73,8 @@ def test_replication_names_a_concealed_effect_in_every_fold():
     replication = finding["replication"]
     assert replication["folds"] == 2 and replication["named_in"] == 2 and replication["replicated"]
     assert all(v == pytest.approx(0.06, abs=0.005) for v in replication["values"])
+    # Each fold fitted its own recording alone: its value is not the full diagnosis' of both.
+    assert len(set(replication["values"])) == 2 and finding["value"] not in replication["values"]
     assert "Replicated: each of the 2 folds" in finding["statement"]
     assert [len(fold["recordings"]) for fold in result["replication"]["folds"]] == [1, 1]
 
