@@ -61,7 +61,8 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
     with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 4 * REPLAY_REPEATS + 2,
                       unit="run") as update:
         began = clock.perf_counter()
-        identified = identify_parameters(fitting, max_iterations=identification_iterations or MAX_ITERATIONS).model
+        identified = identify_parameters(fitting, max_iterations=MAX_ITERATIONS if identification_iterations is None
+                                         else identification_iterations).model
         identification_s = clock.perf_counter() - began
         if update:
             update(1, stage="identification")

@@ -328,7 +328,7 @@ class RolloutHybrid:
         acceleration, standard deviation :attr:`disturbance_sd` and correlation time
         :attr:`disturbance_time`, started at its stationary distribution: the model error of a
         free run is correlated over seconds, not white. Its size is calibrated on validation
-        flights (docs/rgblimp.md, "Rollout-trained hybrid").
+        flights (:data:`DISTURBANCE_SD`; docs/rgblimp.md, "The global hybrid's iterations").
 
         Parameters
         ----------

@@ -154,8 +154,9 @@ class RGBlimpSetup:
 
     def __post_init__(self):
         check_shrinkage(self.shrinkage)  # refused before any fit, not after the global one
-        if self.global_rollout_iterations < 1:
-            raise BadInputError(f"global_rollout_iterations must be at least 1, got {self.global_rollout_iterations}")
+        iterations = self.global_rollout_iterations
+        if not (isinstance(iterations, int) and not isinstance(iterations, bool) and iterations >= 1):
+            raise BadInputError(f"global_rollout_iterations must be a whole number of at least 1, got {iterations!r}")
 
     @property
     def global_rollout(self) -> RolloutSetup:

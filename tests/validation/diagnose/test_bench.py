@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from tests.validation.diagnose.test_diagnose import CASE_STEP
 from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.diagnose import diagnose
@@ -337,7 +338,7 @@ def test_a_quadratic_pitch_damping_flown_by_rk4_is_named_first_and_its_correctio
     0.0031 rad/s, the sensor noise; interval -40.3 to -39.7; at the bench's 100 Hz the same
     finding, interval -40.1 to -39.8)."""
     case = next(c for c in concealed_cases() if c.name == "quadratic-damping-M_q|q|")
-    recordings = case_recordings(case, seed=0, duration=10.0, sample_time=0.03)
+    recordings = case_recordings(case, seed=0, duration=10.0, sample_time=CASE_STEP)
     diagnosis = diagnose([recordings.fit], reference="bo105-80kt", holdout=[recordings.holdout], seed=0).as_dict()
     first = diagnosis["findings"][0]
     assert (first["effect"], first["term"]) == ("nonlinear_damping", "M_q|q|")

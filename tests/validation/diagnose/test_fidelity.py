@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.validation.diagnose.test_diagnose import _concealed
+from tests.validation.diagnose.test_diagnose import CASE_STEP, _concealed
 from validation.cli import main
 from validation.core.errors import BadInputError
 from validation.core.recordings import write_recording
@@ -23,7 +23,7 @@ def delayed():
     """A 40 ms delay on longitudinal cyclic (the Bo105 at 80 kt, 12 s at 33 Hz: the pitch rate
     still fails its band before correction and passes after)."""
     return _concealed([{"effect": "time_delay", "input": "theta_1s", "value": 0.04}], duration=12.0,
-                      sample_time=0.03)
+                      sample_time=CASE_STEP)
 
 
 def test_the_delay_fails_the_pitch_rate_band_before_correction_and_passes_after(delayed):

@@ -12,6 +12,7 @@ import contextlib
 import io
 import json
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -254,7 +255,8 @@ def test_each_configurations_hybrid_is_written_and_reads_back_to_its_free_run(sm
         hybrid = RolloutHybrid.from_dict(json.loads((out / entry["hybrid_model_file"]).read_text()))
         shared = RolloutHybrid.from_dict(json.loads((out / entry["hybrid_global_model_file"]).read_text()))
         # Each fitted with its own iteration limit: the global fit's is the setup's own field.
-        assert (hybrid.setup.max_iterations, shared.setup.max_iterations) == (3, QUICK.global_rollout_iterations)
+        assert (hybrid.setup.max_iterations, shared.setup.max_iterations) == (QUICK.rollout.max_iterations,
+                                                                       QUICK.global_rollout_iterations)
         for name, value in entry["hybrid"]["physics"].items():
             assert hybrid.physics.value(name) == value, name
         test = read_rgblimp_flight(data / entry["test"]).recording
@@ -272,8 +274,10 @@ def test_a_setup_with_a_bad_shrinkage_is_refused_when_it_is_made(shrinkage):
     assert RGBlimpSetup(shrinkage=None).shrinkage is None
 
 
-def test_a_setup_with_no_global_hybrid_iterations_is_refused_and_the_global_fit_takes_its_own():
-    with pytest.raises(BadInputError, match="global_rollout_iterations must be at least 1, got 0"):
-        RGBlimpSetup(global_rollout_iterations=0)
+@pytest.mark.parametrize("iterations", [0, -3, 2.5, "200", True, None])
+def test_a_setup_with_no_global_hybrid_iterations_is_refused_and_the_global_fit_takes_its_own(iterations):
+    with pytest.raises(BadInputError, match=f"global_rollout_iterations must be a whole number of at least 1, "
+                                            f"got {re.escape(repr(iterations))}"):
+        RGBlimpSetup(global_rollout_iterations=iterations)
     setup = RGBlimpSetup(global_rollout_iterations=7)
     assert setup.global_rollout == replace(setup.rollout, max_iterations=7)
