@@ -14,6 +14,9 @@ Both on the excerpt shipped with the package (configuration 29: fit on ``data_11
 - the same for the blimp reference's replays (:func:`validation.vehicles.blimp_effects.simulate_batch`:
   24 effect lists over its 20 s identification manoeuvre), compiled
   (:mod:`validation.vehicles.blimp_jax`) against the numpy step;
+- the fit's loss and exact gradient (one L-BFGS-B evaluation) with each RK4 step checkpointed
+  (:func:`validation.models.rgblimp_rollout.gradient_call`) against the same gradient through
+  stored steps, as a ratio, over several runs;
 - the hybrid's fit with the default setup (:func:`validation.models.rgblimp_rollout.fit_rollout`,
   compilation included, as a user meets it) against the goal of :data:`FIT_GOAL_S` per
   configuration, beside the identification the hybrid starts from (the peer).
@@ -48,7 +51,8 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
     dict
         ``free_run``: ``numpy_s`` and ``jax_s`` (lists over runs), ``speedup`` (median ratio),
         ``samples``; ``replay``: the same for diagnose's batched replay, with ``members`` and
-        ``flights``; ``blimp_replay``: the same for the blimp's, with ``members``; ``fit``:
+        ``flights``; ``blimp_replay``: the same for the blimp's, with ``members``; ``gradient``:
+        ``checkpointed_s``, ``stored_s``, ``speedup``, ``speedup_range``, ``flights``; ``fit``:
         ``hybrid_s``, ``identification_s``, ``iterations``, ``goal_s``,
         ``goal_met``.
     """
@@ -58,7 +62,7 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
 
     fitting = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv") for n in (117, 118)]
     test = read_rgblimp_flight(EXCERPT_FOLDER / "data_119.csv").recording
-    with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 4 * REPLAY_REPEATS + 2,
+    with progress_bar("bench rgblimp", enabled=progress, total=2 * FREE_RUN_REPEATS + 6 * REPLAY_REPEATS + 2,
                       unit="run") as update:
         began = clock.perf_counter()
         identified = identify_parameters(fitting, max_iterations=MAX_ITERATIONS if identification_iterations is None
@@ -78,6 +82,7 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
                     update(1, stage="free run")
         replay = _time_replays([f.recording for f in fitting] + [test], update)
         blimp_replay = _time_blimp_replays(update)
+        gradient = _time_gradients(fitting, identified, setup or RolloutSetup(), update)
         hybrid = fit_rollout(fitting, identified, setup=setup or RolloutSetup())
         if update:
             update(1, stage="hybrid fit")
@@ -85,6 +90,7 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
             "replay": {**_ratio(replay["numpy_s"], replay["jax_s"]), "members": REPLAY_MEMBERS,
                        "flights": ["data_117.csv", "data_118.csv", "data_119.csv"]},
             "blimp_replay": {**_ratio(blimp_replay["numpy_s"], blimp_replay["jax_s"]), "members": REPLAY_MEMBERS},
+            "gradient": {**gradient, "flights": ["data_117.csv", "data_118.csv"]},
             "fit": {"hybrid_s": hybrid.fit_seconds, "identification_s": identification_s,
                     "iterations": hybrid.iterations, "flights": ["data_117.csv", "data_118.csv"],
                     "goal_s": FIT_GOAL_S, "goal_met": hybrid.fit_seconds <= FIT_GOAL_S}}
@@ -127,6 +133,21 @@ def _time_blimp_replays(update) -> dict:
                       lambda: simulate_batch(reference, effect_lists, time, inputs, compiled=False), update)
 
 
+def _time_gradients(fitting, identified, setup, update) -> dict:
+    """The fit's loss and gradient at its start, steps checkpointed and stored (the peer):
+    ``checkpointed_s``, ``stored_s`` (:data:`REPLAY_REPEATS` timed calls each, alternating, after
+    one call of each that compiles it), ``speedup`` (median ratio) and ``speedup_range``."""
+    from validation.models.rgblimp_rollout import gradient_call
+
+    checkpointed = gradient_call(fitting, identified, setup=setup)
+    stored = gradient_call(fitting, identified, setup=setup, checkpoint_steps=False)
+    stored()
+    times = _alternate(checkpointed, stored, update)
+    ratio = _ratio(times["numpy_s"], times["jax_s"])
+    return {"checkpointed_s": times["jax_s"], "stored_s": times["numpy_s"], "speedup": ratio["speedup"],
+            "speedup_range": ratio["speedup_range"]}
+
+
 def _alternate(compiled, numpy_step, update) -> dict:
     """``numpy_s`` and ``jax_s``: :data:`REPLAY_REPEATS` timed calls of each, alternating, after
     one call of ``compiled`` that compiles it."""
@@ -157,6 +178,9 @@ def format_table(report: dict) -> str:
         f"blimp replay of {report['blimp_replay']['members']} effect lists over its identification manoeuvre: "
         f"numpy step {np.median(report['blimp_replay']['numpy_s']) * 1e3:.1f} ms, compiled "
         f"{np.median(report['blimp_replay']['jax_s']) * 1e3:.1f} ms, speed-up {report['blimp_replay']['speedup']:.1f}x",
+        f"the fit's loss and gradient: through stored steps {np.median(report['gradient']['stored_s']) * 1e3:.0f} ms, "
+        f"steps checkpointed {np.median(report['gradient']['checkpointed_s']) * 1e3:.0f} ms, "
+        f"speed-up {report['gradient']['speedup']:.1f}x",
         f"rollout-trained hybrid fit on {', '.join(fit['flights'])}: {fit['hybrid_s']:.1f} s "
         f"({fit['iterations']} iterations; goal <= {fit['goal_s']:g} s: {'met' if fit['goal_met'] else 'MISSED'}); "
         f"the identification it starts from {fit['identification_s']:.1f} s"])
@@ -179,6 +203,11 @@ def summary_rows(report: dict) -> list[SummaryRow]:
                        report["blimp_replay"]["speedup"], "x", None,
                        note=f"{report['blimp_replay']['speedup_range'][0]:.1f}-"
                             f"{report['blimp_replay']['speedup_range'][1]:.1f} over runs"),
+            SummaryRow("rgblimp.hybrid.gradient.checkpointed_over_stored",
+                       "RGBlimp hybrid fit's loss and gradient, RK4 steps checkpointed over stored",
+                       report["gradient"]["speedup"], "x", None,
+                       note=f"{report['gradient']['speedup_range'][0]:.1f}-"
+                            f"{report['gradient']['speedup_range'][1]:.1f} over runs"),
             SummaryRow("rgblimp.hybrid.fit_s", "RGBlimp rollout-trained hybrid, fit per configuration",
                        fit["hybrid_s"], "s", FIT_GOAL_S, at_least=False,
                        note=f"identification {fit['identification_s']:.1f} s")]

@@ -1,9 +1,12 @@
 """validation.bench.rgblimp: the RGBlimp JAX free run and diagnose's compiled replay against numpy,
 and the hybrid's fit time."""
+import numpy as np
 import pytest
 
 from validation.bench import rgblimp
-from validation.models.rgblimp_rollout import RolloutSetup
+from validation.models.rgblimp_identification import RGBlimpModel
+from validation.models.rgblimp_rollout import RolloutSetup, gradient_call, initial_correction
+from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 
 
 @pytest.mark.slow
@@ -31,4 +34,26 @@ def test_times_the_free_runs_and_the_fit_against_the_goal(monkeypatch):
     blimp = report["blimp_replay"]
     assert len(blimp["jax_s"]) == 1 and blimp["speedup"] == pytest.approx(blimp["numpy_s"][0] / blimp["jax_s"][0])
     assert rows["blimp.diagnose_replay.compiled_over_numpy"].value == blimp["speedup"]
+    gradient = report["gradient"]
+    assert len(gradient["checkpointed_s"]) == len(gradient["stored_s"]) == 1
+    assert gradient["speedup"] == pytest.approx(gradient["stored_s"][0] / gradient["checkpointed_s"][0])
+    assert rows["rgblimp.hybrid.gradient.checkpointed_over_stored"].value == gradient["speedup"]
     assert "speed-up" in rgblimp.format_table(report)
+
+
+@pytest.mark.slow
+def test_the_checkpointed_gradient_equals_the_stored_one():
+    # The benchmark's two gradients (compiled already by the test above in this process, same
+    # shapes) are one gradient computed two ways: equal to rounding, in every parameter.
+    fitting = [read_rgblimp_flight(EXCERPT_FOLDER / f"data_{n}.csv") for n in (117, 118)]
+    small = RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=8, max_iterations=2)
+    correction = initial_correction(fitting, small)
+    correction["whitened"] = np.random.default_rng(0).normal(size=correction["whitened"].shape)
+    loss, gradient = gradient_call(fitting, RGBlimpModel(), setup=small, correction=correction)()
+    peer_loss, peer_gradient = gradient_call(fitting, RGBlimpModel(), setup=small, correction=correction,
+                                             checkpoint_steps=False)()
+    assert np.abs(gradient["correction"]["inducing"]).max() > 0  # the correction's path is exercised
+    assert loss == pytest.approx(peer_loss, rel=1e-12)
+    for part in ("physics", "correction"):
+        for name, value in gradient[part].items():
+            np.testing.assert_allclose(value, peer_gradient[part][name], rtol=1e-9, atol=1e-12 * np.abs(value).max())
