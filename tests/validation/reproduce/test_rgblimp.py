@@ -150,11 +150,12 @@ def test_options_of_other_papers_are_refused(tmp_path):
     assert "apply to reproduce rgblimp only" in stderr.getvalue()
 
 
-#: Short fits: 3 s segments, 60 GP points; the schema and the bookkeeping, not the numbers.
+#: Short fits: 3 s segments, 60 GP points; the schema and the bookkeeping, not the numbers. The
+#: global hybrid has the per-configuration one's 8 inducing inputs: both share one compiled loss.
 QUICK = RGBlimpSetup(segment_duration=3.0, max_segments=8, global_max_segments=12, max_iterations=8,
                      training_points=60, global_training_points=80,
                      rollout=RolloutSetup(inducing_points=8, segment_duration=2.0, max_segments=4, max_iterations=3),
-                     global_rollout_iterations=4)
+                     global_rollout_iterations=4, global_inducing_points=8)
 
 
 #: Rows of each shortened excerpt flight (2.07 s at 60 Hz; the header besides): enough for every
@@ -254,7 +255,8 @@ def test_each_configurations_hybrid_is_written_and_reads_back_to_its_free_run(sm
     for entry in results["configurations"]:
         hybrid = RolloutHybrid.from_dict(json.loads((out / entry["hybrid_model_file"]).read_text()))
         shared = RolloutHybrid.from_dict(json.loads((out / entry["hybrid_global_model_file"]).read_text()))
-        # Each fitted with its own iteration limit: the global fit's is the setup's own field.
+        # Each fitted with its own iteration limit: the global fit's is the setup's own field, which
+        # the setup's global_rollout carries with the global inducing inputs (tested below).
         assert (hybrid.setup.max_iterations, shared.setup.max_iterations) == (QUICK.rollout.max_iterations,
                                                                        QUICK.global_rollout_iterations)
         for name, value in entry["hybrid"]["physics"].items():
@@ -274,10 +276,14 @@ def test_a_setup_with_a_bad_shrinkage_is_refused_when_it_is_made(shrinkage):
     assert RGBlimpSetup(shrinkage=None).shrinkage is None
 
 
-@pytest.mark.parametrize("iterations", [0, -3, 2.5, "200", True, None])
-def test_a_setup_with_no_global_hybrid_iterations_is_refused_and_the_global_fit_takes_its_own(iterations):
-    with pytest.raises(BadInputError, match=f"global_rollout_iterations must be a whole number of at least 1, "
-                                            f"got {re.escape(repr(iterations))}"):
-        RGBlimpSetup(global_rollout_iterations=iterations)
-    setup = RGBlimpSetup(global_rollout_iterations=7)
-    assert setup.global_rollout == replace(setup.rollout, max_iterations=7)
+@pytest.mark.parametrize("field", ["global_rollout_iterations", "global_inducing_points"])
+@pytest.mark.parametrize("value", [0, -3, 2.5, "200", True, None])
+def test_a_setup_with_no_global_hybrid_iterations_or_inducing_inputs_is_refused(field, value):
+    with pytest.raises(BadInputError, match=f"{field} must be a whole number of at least 1, "
+                                            f"got {re.escape(repr(value))}"):
+        RGBlimpSetup(**{field: value})
+
+
+def test_the_global_fit_takes_the_setups_own_iterations_and_inducing_inputs():
+    setup = RGBlimpSetup(global_rollout_iterations=7, global_inducing_points=5)
+    assert setup.global_rollout == replace(setup.rollout, max_iterations=7, inducing_points=5)
