@@ -1,8 +1,8 @@
-"""``flightgp bench rgblimp``: the RGBlimp rollout-trained hybrid's free run and fit, against the
-numpy free run and the output-error identification in the same process (docs/benchmarks.md).
+"""``flightgp bench rgblimp``: the RGBlimp rollout-trained hybrid's free run, gradient and fit,
+and diagnose's compiled replays, each against its peer in the same process (docs/benchmarks.md).
 
-Both on the excerpt shipped with the package (configuration 29: fit on ``data_117.csv`` and
-``data_118.csv``, 18 and 14 s; free run of ``data_119.csv``, 12 s):
+On the excerpt shipped with the package (configuration 29: fit on ``data_117.csv`` and
+``data_118.csv``, 18 and 14 s; free run of ``data_119.csv``, 12 s) except the blimp's replay:
 
 - the free run of the physics through the JAX step (:mod:`validation.models.rgblimp_rollout`,
   compiled once, then timed) against :meth:`validation.models.rgblimp_identification.RGBlimpModel.simulate`
@@ -39,7 +39,7 @@ REPLAY_REPEATS, REPLAY_MEMBERS = 3, 24
 
 
 def run(*, progress: bool = True, setup=None, identification_iterations: int | None = None) -> dict:
-    """Time the free runs and the fit (module docstring).
+    """Time the free runs, the replays, the gradients and the fit (module docstring).
 
     ``setup``: the hybrid's :class:`~validation.models.rgblimp_rollout.RolloutSetup` (default
     the reproduction's). ``identification_iterations``: at most this many iterations of the
@@ -142,13 +142,13 @@ def _time_gradients(fitting, identified, setup, update) -> dict:
     checkpointed = gradient_call(fitting, identified, setup=setup)
     stored = gradient_call(fitting, identified, setup=setup, checkpoint_steps=False)
     stored()
-    times = _alternate(checkpointed, stored, update)
+    times = _alternate(checkpointed, stored, update, stage="gradient")
     ratio = _ratio(times["numpy_s"], times["jax_s"])
     return {"checkpointed_s": times["jax_s"], "stored_s": times["numpy_s"], "speedup": ratio["speedup"],
             "speedup_range": ratio["speedup_range"]}
 
 
-def _alternate(compiled, numpy_step, update) -> dict:
+def _alternate(compiled, numpy_step, update, *, stage: str = "replay") -> dict:
     """``numpy_s`` and ``jax_s``: :data:`REPLAY_REPEATS` timed calls of each, alternating, after
     one call of ``compiled`` that compiles it."""
     compiled()
@@ -159,7 +159,7 @@ def _alternate(compiled, numpy_step, update) -> dict:
             call()
             times[key].append(clock.perf_counter() - began)
             if update:
-                update(1, stage="replay")
+                update(1, stage=stage)
     return times
 
 

@@ -256,7 +256,8 @@ _COMPILED = {}
 
 
 def _compiled(*, checkpoint_steps: bool = True):
-    """``jax``, ``jnp`` and the jitted functions, built once per process: ``rollout`` (one free
+    """``jax``, ``jnp`` and the jitted functions, built once per process and value of
+    ``checkpoint_steps``: ``rollout`` (one free
     run), ``disturbed`` (free runs of one start under several disturbances) and
     ``value_and_grad`` (the fit's loss and its gradient in the physics and the correction;
     ``checkpoint_steps`` as in :func:`~validation.vehicles.rgblimp_jax.rollout_function`, False
@@ -431,12 +432,7 @@ class RolloutHybrid:
                 envelope = tuple(tuple(float(v) for v in envelope[side]) for side in ("low", "high"))
         except (KeyError, TypeError, ValueError) as error:
             raise BadInputError(f"RGBlimp hybrid model: {error}") from None
-        m = len(correction["whitened"])
-        for name, shape in _CORRECTION_SHAPES.items():
-            expected = tuple(m if d == "M" else d for d in shape)
-            if correction[name].shape != expected or not np.all(np.isfinite(correction[name])):
-                raise BadInputError(f"RGBlimp hybrid model: correction {name} must be finite of shape {expected}, "
-                                    f"got {correction[name].shape}")
+        _check_correction(correction, "RGBlimp hybrid model")
         if envelope is not None and not (len(envelope[0]) == len(envelope[1]) == len(FEATURE_NAMES)
                                          and np.all(np.isfinite(envelope))):
             raise BadInputError(f"RGBlimp hybrid model: the envelope needs {len(FEATURE_NAMES)} finite lows and highs")
@@ -545,19 +541,10 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), shared_p
     """
     from scipy.optimize import minimize
 
-    if not groups:
-        raise BadInputError("no flights to fit the rollout-trained hybrid on")
-    for flights, _ in groups:
-        if not flights:
-            raise BadInputError("no flights to fit the rollout-trained hybrid on")
-        for flight in flights:
-            if not (np.all(np.isfinite(flight.recording.outputs)) and np.all(np.isfinite(flight.recording.inputs))):
-                raise BadInputError(f"flight {flight.number}: non-finite states or inputs; the hybrid fits finite "
-                                    "recordings only")
     began = clock.perf_counter()
+    data, group_of_segment, p0, theta0 = _fit_problem(groups, setup)
     compiled = _compiled()
     jnp = compiled["jnp"]
-    data, group_of_segment, p0, theta0 = _fit_problem(groups, setup)
     tuned = TUNED_COEFFICIENTS if setup.tune_physics else ()
     n_groups, n_tuned = len(groups), len(tuned)
     n_shifted = 1 if shared_physics else n_groups  # sets of coefficient refinements
@@ -622,8 +609,23 @@ def _fit_problem(groups, setup: RolloutSetup) -> tuple:
     inputs, targets, mask; JAX arrays, padded by :func:`_padded`), each segment's group (S,), the
     groups' starting parameters stacked (padded with copies of the first to a multiple of
     ``_GROUP_BATCH``, so that fits of one and of a few configurations share a compiled loss) and
-    the starting correction (:func:`initial_correction`)."""
-    jnp = _compiled()["jnp"]
+    the starting correction (:func:`initial_correction`).
+
+    Raises
+    ------
+    BadInputError
+        No groups, a group without flights, or a flight with non-finite states or inputs.
+    """
+    if not groups:
+        raise BadInputError("no flights to fit the rollout-trained hybrid on")
+    for flights, _ in groups:
+        if not flights:
+            raise BadInputError("no flights to fit the rollout-trained hybrid on")
+        for flight in flights:
+            if not (np.all(np.isfinite(flight.recording.outputs)) and np.all(np.isfinite(flight.recording.inputs))):
+                raise BadInputError(f"flight {flight.number}: non-finite states or inputs; the hybrid fits finite "
+                                    "recordings only")
+    _, jnp = jax_modules()
     cut = [cut_segments(flights, duration=setup.segment_duration, max_segments=setup.max_segments)
            for flights, _ in groups]
     segments = Segments(*(np.concatenate([getattr(c, f.name) for c in cut]) for f in dataclasses.fields(Segments)))
@@ -641,9 +643,26 @@ def gradient_call(flights, physics: RGBlimpModel, *, setup: RolloutSetup = Rollo
                   correction: dict | None = None, checkpoint_steps: bool = True):
     """A call that evaluates :func:`fit_rollout`'s loss and its exact gradient once (the cost of
     one L-BFGS-B evaluation), for timing: ``flightgp bench rgblimp`` runs it with
-    ``checkpoint_steps`` and without (the peer), in the same process. At ``physics`` and
-    ``correction`` (its arrays as :func:`initial_correction` returns them; default that, the
-    fit's start).
+    ``checkpoint_steps`` and without (the peer), in the same process.
+
+    Parameters
+    ----------
+    flights : sequence of RGBlimpFlight
+        The fitting flights, as for :func:`fit_rollout`.
+    physics : RGBlimpModel
+        The physics the loss is evaluated at.
+    setup : RolloutSetup
+    correction : dict, optional
+        The correction's arrays it is evaluated at, as :func:`initial_correction` returns them:
+        ``inducing`` (M, 11) and ``whitened`` (M, 6), ``log_length_scale`` (11,) and
+        ``log_amplitude`` (6,); default that, the fit's start.
+    checkpoint_steps : bool
+        As in :func:`~validation.vehicles.rgblimp_jax.rollout_function`.
+
+    Raises
+    ------
+    BadInputError
+        As :func:`fit_rollout_global`; a correction with other arrays, shapes or non-finite values.
 
     Returns
     -------
@@ -655,7 +674,9 @@ def gradient_call(flights, physics: RGBlimpModel, *, setup: RolloutSetup = Rollo
     compiled = _compiled(checkpoint_steps=checkpoint_steps)
     jnp = compiled["jnp"]
     data, group_of_segment, p0, theta0 = _fit_problem([(flights, physics)], setup)
-    theta0 = theta0 if correction is None else correction
+    if correction is not None:
+        _check_correction(correction, "the correction")
+        theta0 = correction
     arguments = (_as_jax(jnp, p0), _as_jax(jnp, theta0), group_of_segment, *data, setup.prior_weight,
                  jnp.asarray(setup.state_scale, dtype=float))
 
@@ -665,6 +686,19 @@ def gradient_call(flights, physics: RGBlimpModel, *, setup: RolloutSetup = Rollo
                               "correction": {k: np.asarray(v) for k, v in correction_gradient.items()}}
 
     return call
+
+
+def _check_correction(correction, what: str) -> None:
+    """BadInputError unless ``correction`` holds exactly the arrays of :data:`_CORRECTION_SHAPES`,
+    finite, of consistent shapes (``M`` from ``whitened``)."""
+    if not isinstance(correction, dict) or set(correction) != set(_CORRECTION_SHAPES):
+        raise BadInputError(f"{what}: the correction needs the arrays {', '.join(_CORRECTION_SHAPES)}")
+    m = len(np.asarray(correction["whitened"]))
+    for name, shape in _CORRECTION_SHAPES.items():
+        expected = tuple(m if d == "M" else d for d in shape)
+        value = np.asarray(correction[name], dtype=float)
+        if value.shape != expected or not np.all(np.isfinite(value)):
+            raise BadInputError(f"{what}: correction {name} must be finite of shape {expected}, got {value.shape}")
 
 
 def _padded(segments) -> tuple:

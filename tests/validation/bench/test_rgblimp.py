@@ -1,5 +1,5 @@
 """validation.bench.rgblimp: the RGBlimp JAX free run and diagnose's compiled replay against numpy,
-and the hybrid's fit time."""
+the checkpointed gradient against the stored one, and the hybrid's fit time."""
 import numpy as np
 import pytest
 

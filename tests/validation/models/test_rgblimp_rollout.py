@@ -210,3 +210,13 @@ def test_band_is_the_spread_of_disturbed_runs_about_the_free_run(concealed):
     assert np.all(sd[-1, :3] > 5 * sd[60, :3])
     doubled = dataclasses.replace(hybrid, disturbance_sd=(0.004,) * 3 + (0.008,) * 3)
     np.testing.assert_allclose(doubled.band(START, inputs, n_samples=16, seed=3)[1][-1, :3], 2 * sd[-1, :3], rtol=0.02)
+
+
+def test_the_benchmarks_gradient_call_refuses_what_the_fit_refuses():
+    flights = [synthetic_flight(RGBlimpModel(), samples=60)]
+    with pytest.raises(BadInputError, match="no flights to fit"):
+        rollout.gradient_call([], RGBlimpModel())
+    correction = rollout.initial_correction(flights, rollout.RolloutSetup(inducing_points=4))
+    correction["whitened"] = correction["whitened"][:3]
+    with pytest.raises(BadInputError, match=r"the correction: correction inducing must be finite of shape \(3, 11\)"):
+        rollout.gradient_call(flights, RGBlimpModel(), correction=correction)
