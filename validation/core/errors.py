@@ -21,3 +21,11 @@ def unknown_name_message(name: str, known, *, what: str = "key") -> str:
     close = difflib.get_close_matches(str(name), known, n=1, cutoff=0.6)
     hint = f" (did you mean {close[0]!r}?)" if close else ""
     return f"unknown {what} {name!r}{hint}; known: {', '.join(known)}"
+
+
+def check_count(value, name: str, *, minimum: int = 1) -> int:
+    """``value`` if it is a whole number (an ``int``, not a ``bool``) of at least ``minimum``;
+    otherwise :class:`BadInputError`: ``"<name> must be a whole number of at least 1, got 2.5"``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise BadInputError(f"{name} must be a whole number of at least {minimum}, got {value!r}")
+    return value

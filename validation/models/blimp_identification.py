@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from validation.core.errors import BadInputError
+from validation.core.errors import BadInputError, check_count
 from validation.vehicles.blimp import INPUT_NAMES, MAX_STEP, STATE_NAMES, BlimpParameters
 from validation.vehicles.blimp_equations import rk4_advance
 
@@ -178,8 +178,8 @@ def identify_parameters(recordings, *, names=IDENTIFIED_PARAMETERS, initial: Bli
     -------
     IdentificationResult
     """
-    if max_iterations is not None and max_iterations < 1:
-        raise BadInputError(f"max_iterations must be at least 1, got {max_iterations}")
+    if max_iterations is not None:
+        check_count(max_iterations, "max_iterations")
     initial = BlimpParameters() if initial is None else initial
     all_names = BlimpParameters.vector_names()
     unknown = [n for n in names if n not in all_names]

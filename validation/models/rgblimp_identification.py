@@ -57,7 +57,7 @@ from types import SimpleNamespace
 import numpy as np
 from scipy.optimize import least_squares
 
-from validation.core.errors import BadInputError
+from validation.core.errors import BadInputError, check_count
 from validation.core.metrics import robust_sd
 from validation.models.blimp_identification import cluster_robust_covariance
 from validation.vehicles.rgblimp_equations import (
@@ -400,8 +400,7 @@ def identify_parameters(flights, *, names=IDENTIFIED_PARAMETERS, initial: RGBlim
     _check_names(names)
     if not names:
         raise BadInputError("no coefficient to identify")
-    if max_iterations < 1:
-        raise BadInputError(f"max_iterations must be at least 1, got {max_iterations}")
+    check_count(max_iterations, "max_iterations")
     initial = RGBlimpModel() if initial is None else initial
     scale = np.asarray(state_scale, dtype=float)
     if scale.shape != (12,) or not np.all(scale > 0):

@@ -542,7 +542,7 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), shared_p
     from scipy.optimize import minimize
 
     began = clock.perf_counter()
-    data, group_of_segment, p0, theta0 = _fit_problem(groups, setup)
+    fixed, p0, theta0 = _fit_problem(groups, setup)
     compiled = _compiled()
     jnp = compiled["jnp"]
     tuned = TUNED_COEFFICIENTS if setup.tune_physics else ()
@@ -568,12 +568,9 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), shared_p
         theta = {name: piece.reshape(shapes[name]) for name, piece in zip(shapes, pieces[1:])}
         return p, theta
 
-    scale = jnp.asarray(setup.state_scale, dtype=float)
-
     def objective(x):
         p, theta = unpack(x)
-        value, (gp, gtheta) = compiled["value_and_grad"](_as_jax(jnp, p), _as_jax(jnp, theta), group_of_segment,
-                                                         *data, setup.prior_weight, scale)
+        value, (gp, gtheta) = compiled["value_and_grad"](_as_jax(jnp, p), _as_jax(jnp, theta), *fixed)
         value = float(value)
         if not np.isfinite(value):
             return 1e10, np.zeros_like(x)
@@ -605,11 +602,12 @@ def fit_rollout_global(groups, *, setup: RolloutSetup = RolloutSetup(), shared_p
 
 
 def _fit_problem(groups, setup: RolloutSetup) -> tuple:
-    """What :func:`fit_rollout_global` minimises over, at its start: the segments' data (starts,
-    inputs, targets, mask; JAX arrays, padded by :func:`_padded`), each segment's group (S,), the
-    groups' starting parameters stacked (padded with copies of the first to a multiple of
-    ``_GROUP_BATCH``, so that fits of one and of a few configurations share a compiled loss) and
-    the starting correction (:func:`initial_correction`).
+    """What :func:`fit_rollout_global` minimises over, at its start: the loss's arguments after
+    the physics and the correction (each segment's group (S,), the segments' starts, inputs,
+    targets and mask as JAX arrays padded by :func:`_padded`, the prior's weight and the state
+    scales), the groups' starting parameters stacked (padded with copies of the first to a
+    multiple of ``_GROUP_BATCH``, so that fits of one and of a few configurations share a
+    compiled loss) and the starting correction (:func:`initial_correction`).
 
     Raises
     ------
@@ -636,7 +634,8 @@ def _fit_problem(groups, setup: RolloutSetup) -> tuple:
     starting = [physics_parameters(physics) for _, physics in groups]
     starting += [starting[0]] * (-len(starting) % _GROUP_BATCH)
     p0 = {name: np.stack([values[name] for values in starting]) for name in starting[0]}
-    return data, group_of_segment, p0, initial_correction([f for flights, _ in groups for f in flights], setup)
+    fixed = (group_of_segment, *data, setup.prior_weight, jnp.asarray(setup.state_scale, dtype=float))
+    return fixed, p0, initial_correction([f for flights, _ in groups for f in flights], setup)
 
 
 def gradient_call(flights, physics: RGBlimpModel, *, setup: RolloutSetup = RolloutSetup(),
@@ -673,12 +672,11 @@ def gradient_call(flights, physics: RGBlimpModel, *, setup: RolloutSetup = Rollo
     """
     compiled = _compiled(checkpoint_steps=checkpoint_steps)
     jnp = compiled["jnp"]
-    data, group_of_segment, p0, theta0 = _fit_problem([(flights, physics)], setup)
+    fixed, p0, theta0 = _fit_problem([(flights, physics)], setup)
     if correction is not None:
-        _check_correction(correction, "the correction")
+        _check_correction(correction, "gradient_call")
         theta0 = correction
-    arguments = (_as_jax(jnp, p0), _as_jax(jnp, theta0), group_of_segment, *data, setup.prior_weight,
-                 jnp.asarray(setup.state_scale, dtype=float))
+    arguments = (_as_jax(jnp, p0), _as_jax(jnp, theta0), *fixed)
 
     def call() -> tuple:
         value, (physics_gradient, correction_gradient) = compiled["value_and_grad"](*arguments)

@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from gp_model import model_bytes
-from validation.core.errors import BadInputError
+from validation.core.errors import BadInputError, check_count
 from validation.core.files import write_atomically, write_json
 from validation.core.plots import png_bytes
 from validation.core.progress import progress_bar
@@ -165,9 +165,7 @@ class RGBlimpSetup:
     def __post_init__(self):
         check_shrinkage(self.shrinkage)  # refused before any fit, not after the global one
         for name in ("global_rollout_iterations", "global_inducing_points"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
-                raise BadInputError(f"{name} must be a whole number of at least 1, got {value!r}")
+            check_count(getattr(self, name), name)
 
     @property
     def global_rollout(self) -> RolloutSetup:

@@ -121,9 +121,9 @@ def rollout_function(jax, jnp, correction_of=None, *, checkpoint_steps: bool = T
     the body accelerations in every stage (a learned correction,
     :mod:`validation.models.rgblimp_rollout`); ``disturbance`` (L, 6), or None, is added over
     each step. ``checkpoint_steps``: a reverse pass through the run recomputes each step from
-    its carried state instead of storing every stage's intermediates (gradients 1.6x faster on 32
-    segments of 20 s, docs/rgblimp.md, "Exact gradients: why JAX"; False stores them, the peer of ``flightgp bench
-    rgblimp``); a free run without gradient is the same either way."""
+    its carried state instead of storing every stage's intermediates (gradients 1.6x faster on
+    32 segments of 20 s, docs/rgblimp.md, "Exact gradients: why JAX"; False stores them, the
+    peer of ``flightgp bench rgblimp``); a free run without gradient is the same either way."""
     h = SAMPLE_TIME
 
     def rollout(p, theta, start, inputs, disturbance=None):

@@ -86,8 +86,10 @@ def test_bad_names_missing_states_and_no_iterations_are_refused():
     recording = random_flight(2.0, seed=4)
     with pytest.raises(BadInputError, match="unknown parameter"):
         identify_parameters([recording], names=("drag",))
-    with pytest.raises(BadInputError, match="max_iterations must be at least 1"):
-        identify_parameters([recording], max_iterations=0)
+    for iterations in (0, 2.5, True):
+        with pytest.raises(BadInputError, match=f"max_iterations must be a whole number of at least 1, got "
+                                                f"{iterations!r}"):
+            identify_parameters([recording], max_iterations=iterations)
     partial = Recording(recording.time, recording.inputs, recording.input_names,
                         recording.outputs[:, :6], STATE_NAMES[:6], {})
     with pytest.raises(BadInputError, match="lacks U, V, W, P, Q, R"):

@@ -176,11 +176,16 @@ def test_short_flights_give_one_masked_segment_and_long_ones_are_thinned():
         cut_segments([long], duration=float("nan"))
 
 
-def test_unknown_coefficient_names_are_refused():
+def test_unknown_coefficient_names_and_no_iterations_are_refused():
     with pytest.raises(BadInputError, match="c_d1"):
         RGBlimpModel().replaced({"c_d1": 0.3})
+    flight = synthetic_flight(RGBlimpModel(), samples=200)
     with pytest.raises(BadInputError, match="unknown or repeated"):
-        identify_parameters([synthetic_flight(RGBlimpModel(), samples=200)], names=("c_d0", "c_d0"))
+        identify_parameters([flight], names=("c_d0", "c_d0"))
+    for iterations in (0, 2.5, True):
+        with pytest.raises(BadInputError, match=f"max_iterations must be a whole number of at least 1, got "
+                                                f"{iterations!r}"):
+            identify_parameters([flight], max_iterations=iterations)
 
 
 def test_identified_model_free_runs_its_fitting_flights_better_than_the_published_one():

@@ -218,5 +218,22 @@ def test_the_benchmarks_gradient_call_refuses_what_the_fit_refuses():
         rollout.gradient_call([], RGBlimpModel())
     correction = rollout.initial_correction(flights, rollout.RolloutSetup(inducing_points=4))
     correction["whitened"] = correction["whitened"][:3]
-    with pytest.raises(BadInputError, match=r"the correction: correction inducing must be finite of shape \(3, 11\)"):
+    with pytest.raises(BadInputError, match=r"gradient_call: correction inducing must be finite of shape \(3, 11\)"):
         rollout.gradient_call(flights, RGBlimpModel(), correction=correction)
+
+
+def test_only_the_checkpointed_rollout_recomputes_its_steps():
+    # The flag reaches the traced run: with it the scanned step is a checkpoint (remat) and its
+    # reverse pass recomputes it; without it the step's intermediates are stored (the benchmark's
+    # peer). Traced only, not compiled.
+    from validation.vehicles.compiled_runs import jax_modules
+    from validation.vehicles.rgblimp_jax import parameter_arrays, rollout_function
+
+    jax, jnp = jax_modules()
+    p = parameter_arrays(RGBlimpParameters())
+    inputs = jnp.asarray(np.tile(INPUTS, (3, 1)))
+    traced = {flag: str(jax.make_jaxpr(rollout_function(jax, jnp, checkpoint_steps=flag))(p, None, jnp.asarray(START),
+                                                                                         inputs))
+              for flag in (True, False)}
+    assert "checkpoint" in traced[True] or "remat" in traced[True]
+    assert "checkpoint" not in traced[False] and "remat" not in traced[False]
