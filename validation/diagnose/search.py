@@ -44,7 +44,8 @@ The terms are evaluated on the model's replayed states, so outputs need not all 
 search needs a reference that takes ``search_term`` and otherwise reports why it did not run.
 
 **On a nonlinear reference** that takes them (the blimp: a term is a generalised force of its
-row, :mod:`validation.vehicles.blimp_effects`) there is no linear model to propagate the
+row, :mod:`validation.vehicles.blimp_effects`; the RGBlimp: a body acceleration of its row,
+:mod:`validation.vehicles.rgblimp_effects`) there is no linear model to propagate the
 forcing through, so each term's sensitivity is replayed: the model with the term added at a
 small coefficient, one batch of replays for the whole library, exact to first order through the
 reference's own equations (the "output sensitivities from replays" of a model without
@@ -80,9 +81,10 @@ COLLINEAR = 1e-3
 #: one Gauss-Newton step stays near linear; the floor keeps a step where the coefficient is 0.
 SEARCH_STEP = 0.05
 SEARCH_STEP_FLOOR = 1e-12
-#: Generalised force (N, or N m) a library term is added with to find its sensitivity by replay
-#: on a nonlinear reference (:func:`_replayed_normal_equations`), over the RMS of its factor:
-#: about 3e-6 of the blimp's weight (3.4 N), so its response is linear, yet far above rounding.
+#: Generalised force (N, or N m; on the RGBlimp an acceleration, m/s^2 or rad/s^2) a library term
+#: is added with to find its sensitivity by replay on a nonlinear reference
+#: (:func:`_replayed_normal_equations`), over the RMS of its factor: about 3e-6 of the blimp's
+#: weight (3.4 N), 1e-6 of gravity, so its response is linear, yet far above rounding.
 SENSITIVITY_FORCE = 1e-5
 #: Survivors offered to each step of the stepwise search, the largest |t| first (each with its
 #: sibling, :func:`_sibling`).
@@ -123,7 +125,7 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
         replays each survivor with the model's own input effects).
     reference : EffectModel
         A reference that takes ``search_term``: a linear one, or one with ``search_jacobian``
-        (the blimp); any other gets a reason.
+        (the blimp, the RGBlimp); any other gets a reason.
     model : FittedModel
         The effects found so far, jointly fitted.
     excited : sequence of str
@@ -142,7 +144,7 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
         equations, linear_offered = _replayed_normal_equations(data, reference, model.effects(), excited), True
     else:
         return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms "
-                                       "(the linear references and the blimp do)")
+                                       "(the linear references, the blimp and the RGBlimp do)")
     if equations is None:
         return SearchCandidates(reason="no fitted samples, or no term of the library moves the outputs")
     gram, projection, energy, count, names, column_norms = equations
@@ -257,7 +259,7 @@ def _normal_equations(data: FitData, reference: EffectModel, linear, effects: li
 
 def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: list, excited):
     """:func:`_normal_equations` for a nonlinear reference that takes ``search_term`` and says how
-    strongly each signal drives each row (``search_jacobian``, the blimp's): each library term's
+    strongly each signal drives each row (``search_jacobian``, the blimp's and the RGBlimp's): each library term's
     weighted sensitivity is the change of the replayed outputs when the term is added with a
     small coefficient (:data:`SENSITIVITY_FORCE` over the factor's RMS), divided by it: one
     batch of replays, exact to first order as the linear references' responses are, through the

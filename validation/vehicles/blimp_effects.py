@@ -77,6 +77,7 @@ import numpy as np
 
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import doublet, time_grid
+from validation.vehicles import polynomial_terms
 from validation.vehicles.blimp import (
     INPUT_NAMES,
     SAMPLE_TIME,
@@ -98,7 +99,7 @@ from validation.vehicles.effects import (
     simulate_each_recording,
     starts_at_trim,
 )
-from validation.vehicles.polynomial_terms import library, parse_term, term_name
+from validation.vehicles.polynomial_terms import SLOT_KEYS, library, slot_indices, slot_values, term_name
 
 #: Control-derivative terms: fan, command column, sign of the commands it applies to.
 CONTROL_TERMS = {"gondola_thrust_forward": ("u_gondola", 1.0), "gondola_thrust_backward": ("u_gondola", -1.0),
@@ -109,9 +110,6 @@ STABILITY_TERMS = {"L_P": 0, "M_Q": 1, "N_R": 2}
 DRAG_TERMS = {"X_UU": 0, "Y_VV": 1, "Z_WW": 2}
 #: Force-offset terms: the generalised-force column (0-2 forces, 5 yaw moment; Z_0 earth-vertical).
 OFFSET_TERMS = {"X_0": 0, "Y_0": 1, "Z_0": 2, "N_0": 5}
-#: Factor kinds of a search term, in the order the replays index them (``linear``: the signal
-#: itself, the residual search's linear columns).
-SEARCH_FACTOR_KINDS = ("signed_square", "cube", "product", "linear")
 #: Rows a search term adds to: the generalised force (0-2 forces, 3-5 moments) and the body
 #: velocity or rate it accelerates (the row's own state, for the residual search's axes).
 SEARCH_ROWS = {"X": "U", "Y": "V", "Z": "W", "L": "P", "M": "Q", "N": "R"}
@@ -150,36 +148,24 @@ TERM_DESCRIPTIONS = {"gondola_thrust_forward": "gondola thrust per unit forward 
 #: fractions of full thrust, the gondola's elevation angle ``mu`` in rad).
 SEARCH_SIGNAL_UNITS = {**dict.fromkeys(("U", "V", "W"), "m/s"), **dict.fromkeys(("P", "Q", "R"), "rad/s"),
                        "phi": "rad", "theta": "rad", "u_gondola": "1", "mu": "rad", "u_tail": "1"}
+_SEARCH_ROW_UNITS = {**dict.fromkeys("XYZ", "N"), **dict.fromkeys("LMN", "N m")}
 _SEARCH_ROW_WORDS = {"X": "surge force", "Y": "side force", "Z": "heave force", "L": "roll moment",
                      "M": "pitch moment", "N": "yaw moment"}
 
 
 def parse_search_term(term: str) -> tuple[str, str, tuple]:
     """``(row letter, factor kind, signals)`` of a search term (module docstring): the kind one
-    of :data:`SEARCH_FACTOR_KINDS` (``linear`` for ``M_U``), the one or two signals of
-    :data:`SEARCH_SIGNALS` in its factor."""
-    letter, _, factor = term.partition("_")
-    parsed = parse_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
-    return (letter, "linear", (factor,)) if parsed is None else (letter, parsed.kind, parsed.signals)
+    of :data:`~validation.vehicles.polynomial_terms.SLOT_FACTOR_KINDS` (``linear`` for ``M_U``),
+    the one or two signals of :data:`SEARCH_SIGNALS` in its factor."""
+    return polynomial_terms.parse_search_term(term, SEARCH_ROWS, SEARCH_SIGNALS)
 
 
 def search_term_unit(term: str) -> str:
     """A search term's unit: its row's (N or N m) per unit of its factor (``N m/(rad/s)^2`` for
     ``M_Q|Q|``, ``N/(m/s rad/s)`` for ``Y_U*R``, ``N m/rad`` for ``M_mu``; a command is a fraction
     of full thrust, no unit: ``N`` for ``X_u_gondola^3``)."""
-    letter, kind, signals = parse_search_term(term)
-    row = "N" if letter in "XYZ" else "N m"
-    power = {"signed_square": 2, "cube": 3}.get(kind, 1)
-    units = [SEARCH_SIGNAL_UNITS[s] for s in (signals if kind == "product" else signals[:1])]
-    units = [u for u in units if u != "1"]
-    if not units:
-        return row
-    if len(units) == 2:
-        return f"{row}/({units[0]} {units[1]})"
-    unit = units[0]
-    if power > 1:
-        return f"{row}/({unit})^{power}"
-    return f"{row}/({unit})" if "/" in unit else f"{row}/{unit}"
+    return polynomial_terms.search_term_unit(term, SEARCH_ROWS, SEARCH_SIGNALS, row_units=_SEARCH_ROW_UNITS,
+                                             signal_units=SEARCH_SIGNAL_UNITS)
 
 
 def search_term_description(term: str) -> str:
@@ -321,13 +307,11 @@ class _TermChanges:
 
     def set_search_term(self, member: int, slot: int, term: str, value: float) -> None:
         """Search term ``term`` (module docstring) of member ``member`` in slot ``slot`` at
-        ``value``: its factor kind (:data:`SEARCH_FACTOR_KINDS`), the indices of its one or two
-        signals in :data:`SEARCH_SIGNALS`, its row (0-5) and its coefficient."""
-        letter, kind, signals = parse_search_term(term)
-        self.search_kind[member, slot] = SEARCH_FACTOR_KINDS.index(kind)
-        self.search_first[member, slot] = SEARCH_SIGNALS.index(signals[0])
-        self.search_second[member, slot] = SEARCH_SIGNALS.index(signals[-1])
-        self.search_row[member, slot] = list(SEARCH_ROWS).index(letter)
+        ``value`` (:func:`~validation.vehicles.polynomial_terms.slot_indices`: its factor kind,
+        its one or two signals in :data:`SEARCH_SIGNALS`, its row 0-5) with its coefficient."""
+        kind, first, second, row = slot_indices(term, SEARCH_ROWS, SEARCH_SIGNALS)
+        self.search_kind[member, slot], self.search_first[member, slot] = kind, first
+        self.search_second[member, slot], self.search_row[member, slot] = second, row
         self.search_value[member, slot] = value
 
     def set_term(self, member: int, term: str, value: float, model: float) -> None:
@@ -356,10 +340,7 @@ class _TermChanges:
         force[:, :3] += self.extra_drag * np.abs(v) * v + self.extra_down[:, None] * down
         force[:, 3:] += self.extra_damping * w
         signals = np.concatenate([state[:, 6:12], state[:, 3:5], command], axis=-1)  # SEARCH_SIGNALS
-        first = np.take_along_axis(signals, self.search_first, axis=1)
-        second = np.take_along_axis(signals, self.search_second, axis=1)
-        factor = np.choose(self.search_kind, [first * np.abs(first), first**3, first * second, first])
-        np.add.at(force, (np.arange(len(state))[:, None], self.search_row), self.search_value * factor)
+        force += slot_values(np, signals, {key: getattr(self, key) for key in SLOT_KEYS})
         rates = blimp_dynamics(state, effective, params)
         rates[:, 6:] += force @ inverse.T
         return rates

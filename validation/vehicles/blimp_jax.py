@@ -19,6 +19,7 @@ import numpy as np
 
 from validation.vehicles.blimp_equations import STANDARD_GRAVITY, mass_matrix
 from validation.vehicles.compiled_runs import jax_modules, padded_rows, padded_steps
+from validation.vehicles.polynomial_terms import slot_values
 
 _COMPILED = {}
 
@@ -62,13 +63,7 @@ def _rates(jnp, state, command, p, changes, inverse):
         [changes["extra_drag"] * jnp.abs(v) * v + changes["extra_down"][:, None] * down, changes["extra_damping"] * w],
         axis=-1)
     signals = jnp.concatenate([nu, angles[:, :2], raw_command], axis=-1)  # SEARCH_SIGNALS
-    first = jnp.take_along_axis(signals, changes["search_first"], axis=1)
-    second = jnp.take_along_axis(signals, changes["search_second"], axis=1)
-    kind = changes["search_kind"]
-    factor = jnp.where(kind == 0, first * jnp.abs(first),
-                       jnp.where(kind == 1, first**3, jnp.where(kind == 2, first * second, first)))
-    rows = changes["search_row"][:, :, None] == jnp.arange(6)[None, None, :]  # (B, slots, 6)
-    extra = extra + jnp.sum(jnp.where(rows, (changes["search_value"] * factor)[:, :, None], 0.0), axis=1)
+    extra = extra + slot_values(jnp, signals, changes)
     nu_dot = (jnp.concatenate([force, moment], axis=-1) + extra) @ inverse.T
     return jnp.concatenate([x_dot, euler, nu_dot], axis=-1)
 

@@ -101,6 +101,80 @@ def library(letters, signals) -> list[str]:
     return names
 
 
+#: Factor kinds of a search term held in a slot of a batched replay (the nonlinear references'
+#: :func:`slot_values`), by index: the library's three and ``linear``, the signal itself (the
+#: residual search's linear columns).
+SLOT_FACTOR_KINDS = (*FACTOR_KINDS, "linear")
+#: The arrays that hold a replay's search terms, one entry per slot (:func:`slot_values`).
+SLOT_KEYS = ("search_kind", "search_first", "search_second", "search_row", "search_value")
+
+
+def parse_search_term(term: str, letters, signal_names) -> tuple[str, str, tuple]:
+    """``(row letter, factor kind, signals)`` of a search term of a nonlinear reference: a
+    library term (:func:`parse_term`), or ``<letter>_<signal>``, a term linear in one signal
+    (kind ``linear``, :data:`SLOT_FACTOR_KINDS`)."""
+    letter, _, factor = term.partition("_")
+    parsed = parse_term(term, letters, signal_names)
+    return (letter, "linear", (factor,)) if parsed is None else (letter, parsed.kind, parsed.signals)
+
+
+def slot_indices(term: str, letters, signal_names) -> tuple[int, int, int, int]:
+    """Where a search term sits in a replay's slot: the indices of its factor kind in
+    :data:`SLOT_FACTOR_KINDS`, of its first and (for a product, else again the first) second
+    signal in ``signal_names`` and of its row in ``letters``."""
+    letter, kind, signals = parse_search_term(term, letters, signal_names)
+    return (SLOT_FACTOR_KINDS.index(kind), list(signal_names).index(signals[0]),
+            list(signal_names).index(signals[-1]), list(letters).index(letter))
+
+
+def search_term_unit(term: str, letters, signal_names, *, row_units: dict, signal_units: dict) -> str:
+    """A search term's unit: its row's unit (``row_units[letter]``) per unit of its factor
+    (``N m/(rad/s)^2`` for ``M_Q|Q|``, ``N/(m/s rad/s)`` for ``Y_U*R``, ``N m/rad`` for
+    ``M_theta``; a signal of unit ``"1"`` adds none)."""
+    letter, kind, signals = parse_search_term(term, letters, signal_names)
+    row = row_units[letter]
+    power = {"signed_square": 2, "cube": 3}.get(kind, 1)
+    units = [signal_units[s] for s in (signals if kind == "product" else signals[:1])]
+    units = [u for u in units if u != "1"]
+    if not units:
+        return row
+    if len(units) == 2:
+        return f"{row}/({units[0]} {units[1]})"
+    unit = units[0]
+    if power > 1:
+        return f"{row}/({unit})^{power}"
+    return f"{row}/({unit})" if "/" in unit else f"{row}/{unit}"
+
+
+def slot_values(xp, signals, slots: dict, *, rows: int = 6):
+    """What the search terms held in slots add to each row: ``sum_k value_k factor_k`` on row
+    ``row_k``, for numpy or ``jax.numpy`` alike (``xp``).
+
+    Parameters
+    ----------
+    xp : module
+        ``numpy`` or ``jax.numpy``.
+    signals : ndarray, shape (..., n_signals)
+        The signals the factors use.
+    slots : dict of str to ndarray
+        ``search_kind`` (:data:`SLOT_FACTOR_KINDS` by index), ``search_first``,
+        ``search_second`` (signal indices), ``search_row`` (row index; integers) and
+        ``search_value``, each shape (..., K), broadcasting against ``signals``' leading axes.
+    rows : int
+
+    Returns
+    -------
+    ndarray, shape (broadcast leading axes, rows)
+    """
+    first = xp.take_along_axis(signals, slots["search_first"], axis=-1)
+    second = xp.take_along_axis(signals, slots["search_second"], axis=-1)
+    kind = slots["search_kind"]
+    factor = xp.where(kind == 0, first * xp.abs(first),
+                      xp.where(kind == 1, first**3, xp.where(kind == 2, first * second, first)))
+    hits = slots["search_row"][..., None] == xp.arange(rows)
+    return xp.sum(xp.where(hits, (slots["search_value"] * factor)[..., None], 0.0), axis=-2)
+
+
 def factor_values(terms, signal_names, signals: np.ndarray) -> np.ndarray:
     """The factors of ``terms`` at the signal values ``signals``.
 

@@ -35,6 +35,15 @@ equations of :mod:`validation.vehicles.rgblimp_equations` (body axes, SI units) 
 - ``gondola_offset``, terms ``gondola_dx``, ``gondola_dy``, ``gondola_dz``: the gondola's position
   from its recorded one, m, body axes (a mounting or calibration offset), added to the inputs, 0
   in the model.
+- ``search_term`` ``<row>_<factor>`` (:mod:`validation.vehicles.polynomial_terms`; the terms the
+  residual search of ``flightgp diagnose`` regresses on, :data:`SEARCH_LIBRARY`): an extra body
+  acceleration ``value * factor`` of the row (``X``, ``Y``, ``Z``: surge, sway, heave in m/s^2;
+  ``L``, ``M``, ``N``: roll, pitch, yaw in rad/s^2; per unit of the factor), the factor one of
+  :data:`~validation.vehicles.rgblimp_equations.SEARCH_SIGNALS` (the body velocity relative to
+  the steady air, the rates, roll and pitch) or its signed square or cube, or a product of two;
+  at most :data:`SEARCH_SLOTS` per replay. An acceleration rather than a force: the hull's mass
+  matrix couples surge with pitch and sway with roll and yaw through the gondola, so a force
+  would move two rows and a term would no longer say which one the data need.
 
 The cross-flow coefficients (``c_s_beta_abs``, ``c_l_alpha_abs``, ``c_my_alpha_abs``,
 ``c_mz_beta_abs``), the thrust loss, the thrust line and the draught field are the terms a
@@ -69,13 +78,18 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import time_grid
 from validation.vehicles.effects import Hypothesis
+from validation.vehicles.polynomial_terms import SLOT_KEYS, library, search_term_unit, slot_indices
 from validation.vehicles.rgblimp import RGBlimpReference, resting_state
 from validation.vehicles.rgblimp_equations import (
     NOMINAL_GONDOLA_POSITION,
     SAMPLE_TIME,
+    SEARCH_ROWS,
+    SEARCH_SIGNALS,
     STATE_NAMES,
     RGBlimpParameters,
+    body_accelerations,
     free_run,
+    search_accelerations,
 )
 from validation.vehicles.rgblimp_jax import batched_free_runs
 
@@ -102,10 +116,21 @@ DRAUGHT_TERMS = {f"wind_{axis}_d{along}": (f"draught_gradient_{along}", componen
 GONDOLA_TERMS = {"gondola_dx": 0, "gondola_dy": 1, "gondola_dz": 2}
 #: Terms that set one component of a field of :class:`RGBlimpParameters` (0 for a scalar field).
 _FIELD_TERMS = {**ADDED_MASS_TERMS, **THRUST_FIELD_TERMS, **DRAUGHT_TERMS}
+#: Search terms one replay holds at most (a diagnosis names at most three effects, and the
+#: residual search adds one to them): a fixed size, so that the compiled replay compiles once.
+SEARCH_SLOTS = 4
+#: The residual search's library on the RGBlimp: every row's terms linear in each of
+#: :data:`~validation.vehicles.rgblimp_equations.SEARCH_SIGNALS` and its polynomial terms
+#: (:func:`~validation.vehicles.polynomial_terms.library`). The linear ``L_P``, ``M_Q`` and ``N_R``
+#: are the named damping: the search regresses on them (its base columns) but never offers them.
+SEARCH_LIBRARY = tuple(f"{letter}_{signal}" for letter in SEARCH_ROWS for signal in SEARCH_SIGNALS) + tuple(
+    library(SEARCH_ROWS, SEARCH_SIGNALS))
+#: The search terms an effect may name: the library less the named damping.
+SEARCH_TERMS = tuple(term for term in SEARCH_LIBRARY if term not in STABILITY_TERMS)
 TERMS = {"aerodynamic_coefficient": AERODYNAMIC_TERMS, "stability_derivative": tuple(STABILITY_TERMS),
          "control_derivative": (*CONTROL_TERMS, *THRUST_FIELD_TERMS), "force_offset": ("Z_0",),
          "cg_offset": tuple(CG_TERMS), "added_mass": tuple(ADDED_MASS_TERMS), "steady_wind": tuple(WIND_TERMS),
-         "draught_field": tuple(DRAUGHT_TERMS), "gondola_offset": tuple(GONDOLA_TERMS)}
+         "draught_field": tuple(DRAUGHT_TERMS), "gondola_offset": tuple(GONDOLA_TERMS), "search_term": SEARCH_TERMS}
 
 _AERODYNAMIC_WORDS = {
     "c_d0": "drag coefficient at zero angle of attack and sideslip",
@@ -173,6 +198,11 @@ TERM_UNITS = {**{term: _aerodynamic_unit(term) for term in AERODYNAMIC_TERMS},
               "K_Pdot": "kg m^2", "M_Qdot": "kg m^2", "N_Rdot": "kg m^2", **dict.fromkeys(WIND_TERMS, "m/s"),
               "thrust_speed_loss": "s/m", "thrust_line_y": "m", **dict.fromkeys(DRAUGHT_TERMS, "1/s"),
               **dict.fromkeys(GONDOLA_TERMS, "m")}
+_SEARCH_ROW_UNITS = {**dict.fromkeys("XYZ", "m/s^2"), **dict.fromkeys("LMN", "rad/s^2")}
+_SEARCH_ROW_WORDS = {"X": "surge acceleration", "Y": "sway acceleration", "Z": "heave acceleration",
+                     "L": "roll acceleration", "M": "pitch acceleration", "N": "yaw acceleration"}
+_SEARCH_SIGNAL_UNITS = {**dict.fromkeys(("U", "V", "W"), "m/s"), **dict.fromkeys(("P", "Q", "R"), "rad/s"),
+                        "phi": "rad", "theta": "rad"}
 
 #: Floor under the noise that weighs each state's residuals (module docstring), state units.
 MIN_NOISE_SD = {**dict.fromkeys(("x", "y", "z"), 0.05), **dict.fromkeys(("phi", "theta", "psi"), 0.02),
@@ -232,8 +262,8 @@ def model_value(params: RGBlimpParameters, term: str) -> float:
     if term in _FIELD_TERMS:
         field, axis = _FIELD_TERMS[term]
         return float(np.atleast_1d(getattr(params, field))[axis])
-    if term in WIND_TERMS or term in GONDOLA_TERMS:
-        return 0.0
+    if term in WIND_TERMS or term in GONDOLA_TERMS or term in SEARCH_TERMS:
+        return 0.0  # no wind, offset or term beyond the model's
     raise KeyError(term)
 
 
@@ -267,10 +297,20 @@ class _MemberValues:
                        for f in dataclasses.fields(RGBlimpParameters)}
         self.gain, self.asymmetry, self.wind = np.ones(n), np.zeros(n), np.zeros((n, 2))
         self.gondola_offset = np.zeros((n, 3))
+        self.slots = {key: np.zeros((n, SEARCH_SLOTS), dtype=float if key == "search_value" else np.int32)
+                      for key in SLOT_KEYS}
         self.changed = set()
         for member, effects in enumerate(effect_lists):
+            searched = [effect for effect in effects if effect.get("effect") == "search_term"]
+            if len(searched) > SEARCH_SLOTS:  # check_effects refuses it first (max_search_terms)
+                raise BadInputError(f"at most {SEARCH_SLOTS} search terms per replay, got {len(searched)}")
+            for slot, effect in enumerate(searched):
+                indices = slot_indices(effect["term"], SEARCH_ROWS, SEARCH_SIGNALS)
+                for key, value in zip(SLOT_KEYS, (*indices, float(effect["value"]))):
+                    self.slots[key][member, slot] = value
             for effect in effects:
-                self._set(member, effect["term"], float(effect["value"]))
+                if effect.get("effect") != "search_term":
+                    self._set(member, effect["term"], float(effect["value"]))
 
     def _set(self, member: int, term: str, value: float) -> None:
         if term in AERODYNAMIC_TERMS:
@@ -317,9 +357,18 @@ class _MemberValues:
 
     def arrays(self) -> dict:
         """Every member's parameters for :func:`validation.vehicles.rgblimp_jax.batched_free_runs`:
-        the fields (B,) or (B, 3), the thrust factor 1 (applied to the inputs) and the wind (B, 2)."""
+        the fields (B,) or (B, 3), the thrust factor 1 (applied to the inputs), the wind (B, 2) and
+        the search terms' slots (B, :data:`SEARCH_SLOTS`)."""
         values = {name: array if array.shape[1] == 3 else array[:, 0] for name, array in self.fields.items()}
-        return {**values, "thrust_gain": np.ones(len(self.gain)), "wind": self.wind}
+        return {**values, "thrust_gain": np.ones(len(self.gain)), "wind": self.wind, **self.slots}
+
+    def search_acceleration(self):
+        """The search terms' accelerations of every member for the numpy free run (states (B, S,
+        12)), or None when no member has one."""
+        if not np.any(self.slots["search_value"]):
+            return None
+        slots = {key: array[:, None, :] for key, array in self.slots.items()}
+        return lambda state, inputs: search_accelerations(np, state, slots)
 
     def member_parameters(self, member: int) -> RGBlimpParameters:
         """Member ``member``'s parameters as an :class:`RGBlimpParameters`."""
@@ -344,6 +393,10 @@ class RGBlimpEffects:
     family = "rgblimp"
     kinds = tuple(TERMS)
     terms = TERMS
+    search_rows = SEARCH_ROWS
+    search_signals = SEARCH_SIGNALS
+    search_library = SEARCH_LIBRARY
+    max_search_terms = SEARCH_SLOTS
     batches_simulations = True
     absolute_inputs = True
     needs_even_sampling = True
@@ -361,11 +414,19 @@ class RGBlimpEffects:
         return model_value(self.reference.params, term)
 
     def term_unit(self, term: str) -> str:
-        """:data:`TERM_UNITS`."""
-        return TERM_UNITS[term]
+        """:data:`TERM_UNITS`; a search term's, its row's acceleration per unit of its factor
+        (``rad/s^2/(rad/s)^2`` for ``L_P|P|``)."""
+        if term in TERM_UNITS:
+            return TERM_UNITS[term]
+        return search_term_unit(term, SEARCH_ROWS, SEARCH_SIGNALS, row_units=_SEARCH_ROW_UNITS,
+                                signal_units=_SEARCH_SIGNAL_UNITS)
 
     def term_description(self, term: str) -> str:
-        """:data:`TERM_DESCRIPTIONS`; ``term`` itself for another."""
+        """:data:`TERM_DESCRIPTIONS`; a search term's ``"<row> acceleration proportional to
+        <factor>"``; ``term`` itself for another."""
+        if term not in TERM_DESCRIPTIONS and term in SEARCH_TERMS:
+            letter, _, factor = term.partition("_")
+            return f"{_SEARCH_ROW_WORDS[letter]} proportional to {factor}"
         return TERM_DESCRIPTIONS.get(term, term)
 
     def term_value_problem(self, term: str, value: float) -> str | None:
@@ -402,7 +463,7 @@ class RGBlimpEffects:
         model's value, or :data:`_ABSOLUTE_STEPS` where it is zero or tiny)."""
         hypotheses = []
         for kind, terms in TERMS.items():
-            for term in terms:
+            for term in terms if kind != "search_term" else ():  # the residual search offers those
                 value = self.model_value(term)
                 lower, upper = _BOUNDS.get(term, (-math.inf, math.inf))
                 hypotheses.append(Hypothesis(kind, term, value, lower, upper, _screening_step(kind, term, value)))
@@ -439,9 +500,39 @@ class RGBlimpEffects:
         else:
             with np.errstate(over="ignore", invalid="ignore"):
                 path = free_run(first, batch_inputs, members.namespace(self.reference.params),
-                                wind=members.wind[:, None, :])
+                                wind=members.wind[:, None, :], extra_acceleration=members.search_acceleration())
                 path[..., 5] = np.unwrap(path[..., 5], axis=-1)
         return [path[:, s, :n] for s, n in enumerate(lengths)]
+
+    def search_jacobian(self, states, inputs) -> np.ndarray:
+        """How strongly each search signal drives each search row: the RMS over the samples of
+        ``d a_row / d signal`` (``a`` the body accelerations of the reference's equations, rows
+        :data:`~validation.vehicles.rgblimp_equations.SEARCH_ROWS`, signals
+        :data:`~validation.vehicles.rgblimp_equations.SEARCH_SIGNALS`), by central differences
+        at the given states, for the residual search's axes.
+
+        Parameters
+        ----------
+        states : list of ndarray, each shape (n_r, 12)
+            Replayed states per recording.
+        inputs : list of ndarray, each shape (n_r, 5)
+            The recordings' inputs.
+
+        Returns
+        -------
+        ndarray, shape (6, len(SEARCH_SIGNALS))
+        """
+        x, u = np.concatenate(states), np.concatenate(inputs)
+        jacobian = np.empty((len(SEARCH_ROWS), len(SEARCH_SIGNALS)))
+        for j, column in enumerate(STATE_NAMES.index(name) for name in SEARCH_SIGNALS):
+            step = 1e-6 * max(1.0, float(np.sqrt(np.mean(x[:, column] ** 2))))
+            moved = [x.copy(), x.copy()]
+            moved[0][:, column] += step
+            moved[1][:, column] -= step
+            change = (body_accelerations(moved[0], u, self.reference.params)
+                      - body_accelerations(moved[1], u, self.reference.params)) / (2 * step)
+            jacobian[:, j] = np.sqrt(np.mean(change**2, axis=0))
+        return jacobian
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
         """:meth:`simulate_recordings` of one recording, shape (B, n, 12); from ``start``, or

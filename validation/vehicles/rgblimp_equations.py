@@ -101,6 +101,7 @@ import numpy as np
 
 from validation.core.errors import BadInputError
 from validation.vehicles.blimp_equations import euler_rates, rk4, rotation_body_to_earth
+from validation.vehicles.polynomial_terms import slot_values
 
 #: State names, in the order of the last axis of every state array (the source's ``p, e, vb, wb``).
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "U", "V", "W", "P", "Q", "R")
@@ -123,6 +124,16 @@ ZERO_SPEED_GUARD = 1e-10
 #: The gondola's position in the source's ``utils/parameters.py`` (``rb``), m, body axes: the
 #: nominal configuration; the recordings move it along x by -1 .. 4 cm.
 NOMINAL_GONDOLA_POSITION = (0.0747, 0.0006, 0.2380)
+
+#: Rows a search term of the residual search (``flightgp diagnose``,
+#: :mod:`validation.vehicles.rgblimp_effects`) adds to, and the state each accelerates: the six
+#: body accelerations (:func:`search_accelerations`).
+SEARCH_ROWS = {"X": "U", "Y": "V", "Z": "W", "L": "P", "M": "Q", "N": "R"}
+#: States a search term's factor may use: the body velocity relative to the steady air, the
+#: rates, roll and pitch (position and heading carry no force; the inputs are held through a
+#: flight, so a factor of them is a constant, which the named offsets are).
+SEARCH_SIGNALS = ("U", "V", "W", "P", "Q", "R", "phi", "theta")
+_SEARCH_COLUMNS = tuple(STATE_NAMES.index(name) for name in SEARCH_SIGNALS)
 
 
 def _field_width(field: dataclasses.Field) -> int:
@@ -441,6 +452,27 @@ def body_accelerations(state: np.ndarray, inputs: np.ndarray, params, *, masses=
     return np.einsum("...ij,...j->...i", inverse, right_side)
 
 
+def search_accelerations(xp, state, slots):
+    """The body accelerations (m/s^2, rad/s^2) that search terms held in slots add at
+    ``state``: ``sum_k value_k factor_k`` on row ``row_k`` of :data:`SEARCH_ROWS`, each factor
+    of :data:`SEARCH_SIGNALS` (:func:`validation.vehicles.polynomial_terms.slot_values`), for
+    numpy or ``jax.numpy`` (``xp``).
+
+    Parameters
+    ----------
+    xp : module
+    state : ndarray, shape (..., 12)
+        In the steady air's frame, as every stage of a free run sees it (:func:`advance`).
+    slots : dict of str to ndarray
+        :data:`~validation.vehicles.polynomial_terms.SLOT_KEYS`, each shape (..., K).
+
+    Returns
+    -------
+    ndarray, shape (broadcast leading axes, 6)
+    """
+    return slot_values(xp, state[..., xp.asarray(_SEARCH_COLUMNS)], slots)
+
+
 def draught_in_body(state: np.ndarray, params) -> np.ndarray | float:
     """The room's draught ``w(p) = G_x x + G_y y`` at the state's position, in body axes,
     ``R(Theta)^T w(p)``, m/s, shape (..., 3); 0.0 without one (module docstring).
@@ -563,7 +595,7 @@ def advance(states, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0), extra_a
     return _with_velocity_offset(np.concatenate([position, moved[..., 3:]], axis=-1), wind, 1.0)
 
 
-def free_run(initial_state, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0)) -> np.ndarray:
+def free_run(initial_state, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0), extra_acceleration=None) -> np.ndarray:
     """Many :func:`advance` steps at once: the whole run in the air mass's frame, then back.
 
     Equal to stepping :func:`advance` sample by sample (the conversions between the frames
@@ -574,7 +606,7 @@ def free_run(initial_state, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0))
     initial_state : ndarray, shape (..., 12)
     inputs : ndarray, shape (..., n, 5)
         ``inputs[..., k, :]`` held from sample k to k + 1; the last row is unused.
-    params, thrust_gain, wind
+    params, thrust_gain, wind, extra_acceleration
         As for :func:`advance` (``thrust_gain`` broadcasting against ``inputs[..., 0, 0]``,
         ``wind`` against ``initial_state[..., :2]``).
 
@@ -586,8 +618,8 @@ def free_run(initial_state, inputs, params, *, thrust_gain=1.0, wind=(0.0, 0.0))
     inputs = scaled_thrust(inputs, np.asarray(thrust_gain, dtype=float)[..., None])
     wind = np.asarray(wind, dtype=float)
     wind = np.concatenate([wind, np.zeros(wind.shape[:-1] + (1,))], axis=-1)
-    path = simulate(lambda s, u: rk4_step(s, u, params), _with_velocity_offset(np.asarray(initial_state, float),
-                                                                                  wind, -1.0), inputs)
+    path = simulate(lambda s, u: rk4_step(s, u, params, extra_acceleration=extra_acceleration),
+                    _with_velocity_offset(np.asarray(initial_state, float), wind, -1.0), inputs)
     if not np.any(wind):
         return path
     drift = SAMPLE_TIME * np.arange(path.shape[-2])[:, None] * wind[..., None, :]  # t_k = k h

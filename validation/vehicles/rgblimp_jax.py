@@ -20,7 +20,12 @@ import dataclasses
 import numpy as np
 
 from validation.vehicles.compiled_runs import jax_modules, padded_rows, padded_steps
-from validation.vehicles.rgblimp_equations import SAMPLE_TIME, ZERO_SPEED_GUARD, RGBlimpParameters
+from validation.vehicles.rgblimp_equations import (
+    SAMPLE_TIME,
+    ZERO_SPEED_GUARD,
+    RGBlimpParameters,
+    search_accelerations,
+)
 
 _COMPILED = {}
 
@@ -116,7 +121,10 @@ def rollout_function(jax, jnp, correction_of=None, *, checkpoint_steps: bool = T
     """``rollout(p, theta, start, inputs, disturbance) -> states (L, 12)``: the free run from
     ``start`` (12,) through ``inputs`` (L, 5), states at samples 1 .. L, in the earth frame (the
     wind handled as in :func:`validation.vehicles.rgblimp_equations.free_run`, yaw carried
-    continuously), ``p`` the parameters (:func:`parameter_arrays`). ``correction_of(theta)``,
+    continuously), ``p`` the parameters (:func:`parameter_arrays`; with the search terms' slots,
+    :data:`~validation.vehicles.polynomial_terms.SLOT_KEYS`, their accelerations
+    :func:`~validation.vehicles.rgblimp_equations.search_accelerations` are added in every
+    stage). ``correction_of(theta)``,
     when given and ``theta`` is not None, returns a function ``a(state, commands)`` (6,) added to
     the body accelerations in every stage (a learned correction,
     :mod:`validation.models.rgblimp_rollout`); ``disturbance`` (L, 6), or None, is added over
@@ -139,6 +147,8 @@ def rollout_function(jax, jnp, correction_of=None, *, checkpoint_steps: bool = T
             body = accelerations(jnp, state, commands, p, masses, body_to_earth)
             if extra_acceleration is not None:
                 body = body + extra_acceleration(state, commands)
+            if "search_value" in p:  # search terms in slots (diagnose's residual search)
+                body = body + search_accelerations(jnp, state, p)
             if extra is not None:
                 body = body + extra
             return jnp.concatenate([position_rate, angle_rates, body])
@@ -163,6 +173,12 @@ def rollout_function(jax, jnp, correction_of=None, *, checkpoint_steps: bool = T
     return rollout
 
 
+def _float_unless_integer(value) -> np.ndarray:
+    """``value`` as an array of float64, or as it is if it holds integers (slot indices)."""
+    array = np.asarray(value)
+    return array if array.dtype.kind in "iu" else array.astype(float)
+
+
 def held_inputs(inputs: np.ndarray) -> np.ndarray:
     """The inputs (..., L, 5) of a free run of L - 1 steps, the step count padded (to the smaller
     of the next power of two, at least 32, and the next multiple of 600) by holding the last
@@ -181,7 +197,8 @@ def batched_free_runs(parameters: dict, starts, inputs) -> np.ndarray:
     ----------
     parameters : dict
         :func:`parameter_arrays` of each set stacked on a first axis of length B (``wind`` (B,
-        2), ``thrust_gain`` (B,), triples (B, 3), the other fields (B,)).
+        2), ``thrust_gain`` (B,), triples (B, 3), the other fields (B,)); optionally search
+        terms' slots (B, K) (:func:`rollout_function`; integer arrays stay integers).
     starts : ndarray, shape (B, S, 12)
     inputs : ndarray, shape (B, S, L, 5)
         ``inputs[..., k, :]`` held from sample k to k + 1 (the thrusts times ``thrust_gain``).
@@ -205,7 +222,7 @@ def batched_free_runs(parameters: dict, starts, inputs) -> np.ndarray:
     member_of_run = rows // recordings
     steps = length - 1
     held = held_inputs(inputs.reshape(runs, length, 5)[rows])
-    by_run = {name: jnp.asarray(np.asarray(value, dtype=float)[member_of_run]) for name, value in parameters.items()}
+    by_run = {name: jnp.asarray(_float_unless_integer(value)[member_of_run]) for name, value in parameters.items()}
     path = batched(by_run, jnp.asarray(starts.reshape(runs, 12)[rows]), jnp.asarray(held))
     path = np.asarray(path)[:runs, :steps].reshape(members, recordings, steps, 12)
     return np.concatenate([starts[:, :, None, :], path], axis=2)

@@ -1,7 +1,8 @@
 """flightgp diagnose on the RGBlimp and the replication of findings across folds.
 
 - Effects concealed in flights replayed from real recorded starts and inputs (the excerpt's
-  flights of two configurations) are named with their values, from the first recorded states;
+  flights of two configurations) are named with their values, from the first recorded states,
+  one of them a term on no list, which the residual search finds;
 - the replication (validation/diagnose/replicate.py) on the Bo105, whose replays take
   milliseconds: a concealed effect is named in every fold; a finding named with opposite
   changes in the folds is not replicated;
@@ -23,9 +24,11 @@ from validation.vehicles.bo105_flight import SENSOR_NOISE_STD
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 
-#: A buoyancy imbalance and a draught, well above the floors the RGBlimp weighs residuals by.
+#: A buoyancy imbalance and a draught, well above the floors the RGBlimp weighs residuals by, and
+#: a roll acceleration proportional to pitch, which no named effect is (the residual search's).
 TRUTH = [{"effect": "force_offset", "term": "Z_0", "value": 0.12},
-         {"effect": "steady_wind", "term": "wind_x", "value": 0.1}]
+         {"effect": "steady_wind", "term": "wind_x", "value": 0.1},
+         {"effect": "search_term", "term": "L_theta", "value": 0.3}]
 #: Samples of each concealed flight (1 s at 60 Hz).
 SAMPLES = 60
 
@@ -49,11 +52,13 @@ def test_concealed_effects_on_real_starts_are_named_with_their_values():
     fit = [_concealed_flight(n) for n in (117, 121, 118)]
     result = diagnose(fit, reference="rgblimp", holdout=[_concealed_flight(122)]).as_dict()
     named = {f["term"]: f for f in result["findings"] if f["effect"] != "unexplained"}
-    assert set(named) == {"Z_0", "wind_x"}, [f["statement"] for f in result["findings"]]
+    assert set(named) == {"Z_0", "wind_x", "L_theta"}, [f["statement"] for f in result["findings"]]
     for effect in TRUTH:
         assert named[effect["term"]]["value"] == pytest.approx(effect["value"], rel=1e-3)
         assert named[effect["term"]]["carries_over"]
     assert "buoyancy imbalance" in named["Z_0"]["statement"]
+    assert named["L_theta"]["effect"] == "search_term" and result["search"]["residual_search"]["ran"]
+    assert "roll acceleration proportional to theta" in named["L_theta"]["statement"]
     assert result["fit"]["rmse_corrected"]["z"] < 0.01 * result["fit"]["rmse_reference"]["z"]
     pose = result["fidelity"]["pose"]  # the source's score on the held-out flight
     assert pose["corrected"]["score"] < 0.01 * pose["reference"]["score"]

@@ -4,7 +4,8 @@ mass the equations take for them (validation/vehicles/rgblimp_equations.py).
 Properties: with added mass, Kirchhoff's equations keep the kinetic energy of a free body (no
 gravity, air or thrust), which only the right Coriolis and Munk terms do; the batched replay of
 several recordings equals one replay per recording and the identification's own model with the
-same coefficients; and each term moves the flight the way its physics says.
+same coefficients; each term moves the flight the way its physics says; and a residual search's
+term is the body acceleration it names.
 """
 import dataclasses
 
@@ -17,14 +18,18 @@ from validation.diagnose.report import statement
 from validation.models.rgblimp_identification import RGBlimpModel
 from validation.vehicles.blimp_equations import rotation_body_to_earth
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
+from validation.vehicles.polynomial_terms import SLOT_KEYS, slot_indices
 from validation.vehicles.rgblimp_data import EXCERPT_FOLDER, read_rgblimp_flight
 from validation.vehicles.rgblimp_effects import TERMS, RGBlimpEffects, model_value
 from validation.vehicles.rgblimp_equations import (
     NOMINAL_GONDOLA_POSITION,
     SAMPLE_TIME,
+    SEARCH_ROWS,
+    SEARCH_SIGNALS,
     RGBlimpParameters,
     body_accelerations,
     rk4_step,
+    search_accelerations,
 )
 
 
@@ -107,8 +112,9 @@ def test_the_compiled_replay_equals_the_numpy_step(flights):
     the numpy step to 1e-12 in SI units (measured 2e-14), for members changing every kind of
     term at once (thrust factor and asymmetry, wind, added mass, CG, buoyancy, coefficients; the
     thrust loss with airspeed, thrust line, draught field, gondola offset and cross-flow terms)
-    over two recordings of different configurations; a member that diverges (a rate damping of
-    the wrong sign, 50 N m s) ends non-finite in both."""
+    over two recordings of different configurations, and for the residual search's terms (four
+    slots, in a steady wind); a member that diverges (a rate damping of the wrong sign, 50 N m s)
+    ends non-finite in both."""
     reference = effect_model("rgblimp", purpose="test").reference
     compiled, numpy_step = RGBlimpEffects(reference), RGBlimpEffects(reference, compiled=False)
     effect_lists = [[], [{"term": "thrust_gain", "value": 0.9}, {"term": "thrust_asymmetry", "value": 0.1},
@@ -119,13 +125,41 @@ def test_the_compiled_replay_equals_the_numpy_step(flights):
                      {"term": "wind_x_dy", "value": 0.05}, {"term": "wind_z_dx", "value": -0.03},
                      {"term": "wind_y", "value": 0.03}, {"term": "gondola_dz", "value": 0.01},
                      {"term": "c_mz_beta_abs", "value": -0.2}, {"term": "c_l_alpha_abs", "value": 0.5}],
-                    [{"term": "M_Q", "value": 50.0}]]
+                    [{"term": "M_Q", "value": 50.0}],
+                    [{"effect": "search_term", "term": term, "value": value} for term, value in SEARCHED]
+                    + [{"term": "wind_x", "value": 0.05}]]
     args = (effect_lists, [r.time for r in flights], [r.inputs for r in flights],
             [compiled.start_state(r) for r in flights])
     for fast, slow in zip(compiled.simulate_recordings(*args), numpy_step.simulate_recordings(*args)):
-        np.testing.assert_allclose(fast[:4], slow[:4], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast[[0, 1, 2, 3, 5]], slow[[0, 1, 2, 3, 5]], rtol=0, atol=1e-12)
         assert np.abs(fast[3] - fast[0]).max() > 0.01  # the new terms moved the flight
+        assert np.abs(fast[5] - fast[0]).max() > 0.01  # and the search terms
         assert not np.isfinite(fast[4, -1]).any() and not np.isfinite(slow[4, -1]).any()
+
+
+#: Search terms of four kinds, one per slot, with their rows (body-acceleration index) and factors.
+SEARCHED = (("L_theta", 0.3), ("N_V|V|", -2.0), ("M_U*Q", 0.5), ("X_U^3", -0.1))
+
+
+def test_search_terms_are_the_body_accelerations_they_name():
+    """A search term adds ``value * factor`` to its row's acceleration: each slot's on its own
+    row, summed (a roll acceleration linear in pitch, a yaw one in V|V|, a pitch one in U Q, a
+    surge one in U^3); units and words follow the row and the factor, and the named hypotheses
+    hold none (the residual search offers them)."""
+    state = np.array([1.0, 2.0, -1.0, 0.1, -0.2, 0.7, 0.5, -0.1, 0.05, 0.02, -0.03, 0.3])
+    slots = {key: np.array(values) for key, values in zip(SLOT_KEYS, zip(*[
+        (*slot_indices(term, SEARCH_ROWS, SEARCH_SIGNALS), value) for term, value in SEARCHED]))}
+    u, v, q, theta = state[6], state[7], state[10], state[4]
+    expected = [-0.1 * u**3, 0.0, 0.0, 0.3 * theta, 0.5 * u * q, -2.0 * v * abs(v)]
+    np.testing.assert_allclose(search_accelerations(np, state, slots), expected, rtol=0, atol=1e-15)
+    model = effect_model("rgblimp", purpose="test")
+    assert model.term_unit("L_theta") == "rad/s^2/rad" and model.term_unit("M_U*Q") == "rad/s^2/(m/s rad/s)"
+    assert model.term_unit("X_U^3") == "m/s^2/(m/s)^3"
+    assert model.term_description("N_V|V|") == "yaw acceleration proportional to V|V|"
+    assert not [h for h in model.term_hypotheses(()) if h.effect == "search_term"]
+    with pytest.raises(BadInputError, match="replays at most 4"):
+        EffectVehicle("rgblimp", [{"effect": "search_term", "term": t, "value": 0.1}
+                                  for t in ("L_theta", "L_U", "L_V", "L_W", "M_U")])
 
 
 def test_recordings_of_different_lengths_are_padded_and_cut(flights):
