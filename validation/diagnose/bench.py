@@ -21,6 +21,13 @@ told about, records it with sensor noise, diagnoses it and scores the answer aga
   :data:`AMBIGUOUS_CONFIDENCE`;
 - **outside** (the blimp's; the FMU suites' where an effect cannot be named there): physics
   outside the named list, where the honest answer is ``unexplained``;
+- **through_inputs**: a polynomial term of a linear reference's row (``M_q|q|``) diagnosed
+  through an FMU, whose residual search can only add terms to its inputs: named when the
+  search terms of the same factor, mapped onto the rows by the flying reference's control
+  derivatives ``B``, give the truth's row within :data:`THROUGH_INPUTS_TOLERANCE` of the truth
+  (their intervals are reported against it too, but the mapped term also moves the rows the
+  inputs drive besides, so output error settles a little off the truth and the interval is not
+  required to hold it);
 - **turbulence**: the reference itself flown in light and in moderate Dryden turbulence
   (:func:`case_gusts`): nothing may be stated with confidence above
   :data:`TURBULENCE_CONFIDENCE`, and the diagnosis must say that the residual looks like
@@ -99,7 +106,7 @@ class ConcealedCase:
     ----------
     name : str
         Short identifier, e.g. ``"delay-theta_1s-60ms"``.
-    kind : {"single", "pair", "none", "outside", "ambiguous", "changing", "turbulence"}
+    kind : {"single", "pair", "none", "outside", "ambiguous", "changing", "turbulence", "through_inputs"}
     effects : tuple of dict
         The named effects applied (the truth), in the shape of diagnosis findings; empty for
         ``none`` and ``outside``.
@@ -406,13 +413,19 @@ def fmu_cases(*, reference: EffectModel) -> list[ConcealedCase]:
 SUITES = {"bo105": bo105_cases, "blimp": blimp_cases, "fmu": fmu_cases}
 
 
-def diagnosed_truth(case: ConcealedCase, model: EffectModel) -> ConcealedCase:
+def diagnosed_truth(case: ConcealedCase, model: EffectModel, *, flown_on: EffectModel | None = None) -> ConcealedCase:
     """``case`` as a diagnosis through ``model`` names it, when the recordings are flown on
     another reference (``diagnose-bench --through``): a derivative is an FMU's parameter of the
     same name (:class:`~validation.vehicles.fmu_reference.FMUEffects`), and a dead band outside
     the flying reference's list is a named ``dead_band`` where ``model`` takes one. An effect
     ``model`` cannot name makes the case an ``outside`` one where its recordings are flown apart
-    from its effects (the RK4-flown quadratic damping through an FMU), else a BadInputError."""
+    from its effects (the RK4-flown quadratic damping through an FMU), else a BadInputError; a
+    polynomial term flown on a linear reference (``flown_on``) through an FMU that takes search
+    terms on its inputs is a ``through_inputs`` case (module docstring)."""
+    if (case.outside is not None and case.outside[0] == "polynomial_term" and "search_term" in model.kinds
+            and model.family == "fmu" and hasattr(getattr(flown_on, "reference", None), "row_letters")):
+        return replace(case, kind="through_inputs", effects=(),
+                       description=f"{case.description} (through the inputs of {model.name})")
     effects = []
     for effect in case.effects:
         kind = effect["effect"]
@@ -625,6 +638,9 @@ AMBIGUOUS_CONFIDENCE = 0.9
 #: Confidence above which a false finding fails a ``turbulence`` case: in turbulence with nothing
 #: missing, no finding may be stated with more confidence than its absence.
 TURBULENCE_CONFIDENCE = 0.5
+#: Relative error within which the search terms found through an FMU's inputs, mapped onto the
+#: rows by the control derivatives, must give the truth's row to name it (a ``through_inputs`` case).
+THROUGH_INPUTS_TOLERANCE = 0.1
 
 
 @dataclass
@@ -664,6 +680,8 @@ class CaseScore:
             return self.says_turbulence and not self.confident_false
         if kind == "outside":
             return self.says_unexplained
+        if kind == "through_inputs":  # the mapped term named, nothing else, the flight cut
+            return self.named and not self.false_findings and self.cut is not None and self.cut >= REQUIRED_CUT
         if kind == "ambiguous":  # the truth named or offered as an alternative, nothing false certain
             return not self.certain_false and self.offered == {_target(e) for e in self.case.effects}
         if kind == "changing":  # named, said to drift the right way; its average value may miss
@@ -715,6 +733,11 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     score.says_unexplained = any(f["effect"] == "unexplained" for f in findings)
     named = [f for f in findings if f["effect"] != "unexplained"]
     truth = {_target(effect): effect for effect in case.effects}
+    flown_on = effect_model(reference, purpose="diagnose-bench")
+    if case.kind == "through_inputs":
+        factor = case.outside[1].partition("_")[2]
+        truth = {_target(f): f for f in named if f["effect"] == "search_term" and f["term"].partition("_")[2] == factor}
+        score.named, score.in_interval = _mapped_through_inputs(list(truth.values()), case.outside, flown_on.reference)
     matched = {}
     for finding in named:
         key = _target(finding)
@@ -742,13 +765,13 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     elif case.kind in ("single", "pair"):
         # Constant physics said to change during the flight is a false finding.
         score.false_findings += [f"changing {key}" for key in score.changing]
-    if truth:
+    if truth and case.kind != "through_inputs":
         score.named = set(matched) == set(truth)
         score.in_interval = score.named and all(
             f.get("interval") is not None and f["interval"][0] <= truth[key]["value"] <= f["interval"][1]
             for key, f in matched.items())
     # The affected output: the one the concealed physics moves most, relative to its noise.
-    reference = effect_model(reference, purpose="diagnose-bench")
+    reference = flown_on
     replay = reference.simulate_many([[]], holdout.time, holdout.inputs)[0]
     noise_sd, names = reference.sensor_noise_sd, reference.state_names
     outputs = diagnosis["fit"]["outputs"]
@@ -776,6 +799,23 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     return score
 
 
+def _mapped_through_inputs(found: list, outside: tuple, linear) -> tuple[bool, bool]:
+    """Whether search terms ``found`` on a linear reference's inputs (``<input>_<factor>``, the
+    input's name without underscores), mapped onto its rows by the control derivatives ``B``,
+    give the truth's row ``outside`` (``("polynomial_term", term, coefficient)``) within
+    :data:`THROUGH_INPUTS_TOLERANCE`, and whether the interval their intervals map to holds it."""
+    if not found:
+        return False, False
+    term, coefficient = outside[1], outside[2]
+    row = linear.state_names.index(linear.row_letters[term.partition("_")[0]])
+    column = {name.replace("_", ""): j for j, name in enumerate(linear.input_names)}
+    derivatives = np.array([linear.B[row, column[f["term"].partition("_")[0]]] for f in found])
+    value = float(derivatives @ [f["value"] for f in found])
+    ends = np.array([f["interval"] for f in found]) * derivatives[:, None]
+    low, high = float(np.sum(ends.min(axis=1))), float(np.sum(ends.max(axis=1)))
+    return abs(value - coefficient) <= THROUGH_INPUTS_TOLERANCE * abs(coefficient), low <= coefficient <= high
+
+
 def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
              duration: float = DURATION, workers: int | None = None) -> CaseScore:
     """Fly, diagnose and score one case.
@@ -797,7 +837,8 @@ def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str
         Replay processes of an FMU reference (:func:`validation.diagnose.diagnose`).
     """
     recordings = case_recordings(case, reference=reference, seed=seed, duration=duration)
-    truth = diagnosed_truth(case, effect_model(through, purpose="diagnose-bench")) if through else case
+    truth = (diagnosed_truth(case, effect_model(through, purpose="diagnose-bench"),
+                             flown_on=effect_model(reference, purpose="diagnose-bench")) if through else case)
     start = clock.perf_counter()
     diagnosis = diagnose([recordings.fit], reference=through or reference, holdout=[recordings.holdout], seed=seed,
                          workers=workers).as_dict()

@@ -143,8 +143,9 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
         letters, signal_names = reference.search_rows, reference.search_signals
         equations, linear_offered = _replayed_normal_equations(data, reference, model.effects(), excited), True
     else:
-        return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms "
-                                       "(the linear references, the blimp and the RGBlimp do)")
+        return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms (the linear "
+                                       "references, the blimp, the RGBlimp and FMUs whose inputs keep distinct "
+                                       "names without their underscores do)")
     if equations is None:
         return SearchCandidates(reason="no fitted samples, or no term of the library moves the outputs")
     gram, projection, energy, count, names, column_norms = equations
@@ -153,6 +154,8 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
     # Terms already hypotheses, or named effects screened as such, are not offered again.
     taken = {h.target for h in model.hypotheses if h.effect == "search_term"}
     taken |= {term for kind, terms in reference.terms.items() if kind != "search_term" for term in terms}
+    # Library terms the reference does not offer (an FMU's input gain) are regressed on, not offered.
+    taken |= set(getattr(reference, "search_library", ())) - set(reference.terms["search_term"])
     survivors = sorted(_sparse_regression(gram, projection, energy, count, names, offered_not=taken,
                                           linear_offered=linear_offered), key=lambda survivor: -abs(survivor[2]))
     offered = {}

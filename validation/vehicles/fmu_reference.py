@@ -20,7 +20,20 @@ parameters ``<output>_start`` for it. :class:`FMUEffects` is its
   ``sensor_cross_axis``, ``sensor_lag``, ``sensor_bias`` and ``sensor_drift``;
 - ``fmu_parameter``: any Real parameter the FMU exposes (``causality="parameter"``, not a
   ``<output>_start``), set before initialisation; named by the FMU's own name and described by
-  its own description.
+  its own description;
+- ``search_term`` ``<row>_<factor>`` (the terms the residual search of ``flightgp diagnose``
+  regresses on; an FMU's equations are closed, so a term enters through an input): the input
+  of the row (:attr:`FMUEffects.search_rows`: the input's name without its underscores,
+  ``theta1s`` for ``theta_1s``) receives ``value * factor`` on top of what the recording and the
+  input effects give it, the factor one of the FMU's outputs or inputs
+  (:attr:`FMUEffects.search_signals`: the outputs as the FMU gives them at the start of each
+  communication step, the inputs after the input effects), or the signed square or cube of an
+  output or of the row's own input, or a product of two of those
+  (:mod:`validation.vehicles.polynomial_terms`; :attr:`FMUEffects.search_library`). Held over each step at its
+  value at the step's start (explicit feedback: an error of first order in the step, against
+  the second order of the linear references' terms). Through the control the term acts as a
+  force or moment would that the control's derivatives map onto it: ``theta1s_q|q|`` is a pitch
+  damping quadratic in the pitch rate, as seen through the longitudinal cyclic.
 
 A replay the FMU refuses (a status of Error or Fatal, which fmpy raises) ends that candidate as
 diverged (its outputs NaN, so the fit steps back) and is logged once per message; the diagnosis
@@ -56,6 +69,7 @@ from validation.vehicles.effects import (
     true_first_values,
 )
 from validation.vehicles.linear_effects import sequential_three_two_one_one
+from validation.vehicles.polynomial_terms import library, scalar_factor, search_term_unit, slot_indices
 from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME
 
 _log = logging.getLogger(__name__)
@@ -214,12 +228,17 @@ class FMUReference:
         return self._instance
 
     def replay(self, time: np.ndarray, inputs: np.ndarray, *, parameters: dict | None = None,
-               start: dict | None = None) -> np.ndarray:
+               start: dict | None = None, feedback: tuple = ()) -> np.ndarray:
         """Outputs at ``time`` (n,) with ``inputs`` (n, n_inputs) held over each interval.
 
         ``parameters`` (name -> value) and the start values ``start`` (output -> value, for the
-        outputs with a ``<output>_start`` parameter) are set before initialisation. Returns shape
-        (n, n_outputs); raises what fmpy raises when the FMU refuses a call.
+        outputs with a ``<output>_start`` parameter) are set before initialisation. ``feedback``
+        holds terms added to the inputs at each step, ``(input, kind, first, second, value)``:
+        input ``input`` receives ``value`` times the factor of kind ``kind``
+        (:data:`~validation.vehicles.polynomial_terms.SLOT_FACTOR_KINDS` by index) of signals
+        ``first`` and ``second`` of the outputs at the step's start followed by the step's
+        inputs (the search terms of :class:`FMUEffects`). Returns shape (n, n_outputs); raises
+        what fmpy raises when the FMU refuses a call.
 
         When the FMU can save its state (``canGetAndSetFMUstate``), each replay saves it every
         :data:`CHECKPOINT_INTERVAL` s, and a later replay with the same settings and time grid
@@ -244,7 +263,7 @@ class FMUReference:
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
         outputs = np.empty((len(time), len(output_refs)))
-        key = (tuple(sorted(settings.items())), time.tobytes())
+        key = (tuple(sorted(settings.items())), time.tobytes(), tuple(feedback))
         resumed, checkpoints = self._resume(fmu, key, inputs, outputs)
         if not resumed:
             outputs[0] = fmu.getReal(output_refs)
@@ -252,7 +271,9 @@ class FMUReference:
         for k in range(resumed, len(time) - 1):
             if self._can_save and k % every == 0 and k > resumed:
                 checkpoints.append((k, fmu.getFMUstate()))
-            if k == resumed or rows[k] != rows[k - 1]:
+            if feedback:
+                fmu.setReal(input_refs, _fed_back(rows[k], outputs[k], feedback))
+            elif k == resumed or rows[k] != rows[k - 1]:
                 fmu.setReal(input_refs, rows[k])
             fmu.doStep(currentCommunicationPoint=float(time[k]), communicationStepSize=float(time[k + 1] - time[k]))
             outputs[k + 1] = fmu.getReal(output_refs)
@@ -297,7 +318,7 @@ class FMUReference:
 
         Parameters
         ----------
-        requests : sequence of (time, inputs, parameters, start)
+        requests : sequence of (time, inputs, parameters, start, feedback)
             The arguments of :meth:`replay`.
 
         Returns
@@ -360,6 +381,16 @@ _WORKER_CONTEXT = multiprocessing.get_context("fork" if "fork" in multiprocessin
 _WORKER_REFERENCE = None
 
 
+def _fed_back(row: list, outputs: np.ndarray, feedback: tuple) -> list:
+    """The input row ``row`` plus the feedback terms of :meth:`FMUReference.replay` at the
+    step's start (``outputs``)."""
+    signals = [*outputs.tolist(), *row]
+    fed = list(row)
+    for column, kind, first, second, value in feedback:
+        fed[column] += value * scalar_factor(kind, signals[first], signals[second])
+    return fed
+
+
 def _start_worker(path: str) -> None:
     global _WORKER_REFERENCE
     _WORKER_REFERENCE = FMUReference(path, workers=1)
@@ -371,10 +402,10 @@ def _replay_in_worker(request):
 
 def _replay_or_message(reference: FMUReference, request):
     """``reference.replay(*request)``, or the first line of what the FMU said when it refused."""
-    time, inputs, parameters, start = request
+    time, inputs, parameters, start, feedback = request
     try:
         with np.errstate(all="ignore"):  # a candidate that blows the FMU up is refused, not warned about
-            return reference.replay(time, inputs, parameters=parameters, start=start)
+            return reference.replay(time, inputs, parameters=parameters, start=start, feedback=feedback)
     except Exception as error:  # noqa: BLE001 - fmpy raises its own kinds for Error/Fatal
         return str(error).splitlines()[0] if str(error) else type(error).__name__
 
@@ -389,7 +420,8 @@ class FMUEffects:
 
     family = "fmu"
     kinds = ("time_delay", "input_lag", "dead_band", "backlash", "saturation", "rate_limit", "input_gain",
-             "sensor_bias", "output_scale", "sensor_cross_axis", "sensor_lag", "sensor_drift", "fmu_parameter")
+             "sensor_bias", "output_scale", "sensor_cross_axis", "sensor_lag", "sensor_drift", "fmu_parameter",
+             "search_term")
     batches_simulations = True  # a batch's replays run side by side on the reference's workers
     absolute_inputs = False
     needs_even_sampling = True
@@ -401,7 +433,21 @@ class FMUEffects:
         self.name, self.sample_time = reference.name, reference.sample_time
         self.input_names, self.state_names = reference.input_names, reference.state_names
         self.residual_gp_states = reference.state_names
-        self.terms = {"fmu_parameter": tuple(reference.parameters)}
+        self.search_rows = {name.replace("_", ""): name for name in reference.input_names}
+        self.search_signals = reference.state_names + reference.input_names
+        # Per input: every signal linear (another input: the controls mixed); the powers and
+        # products of the outputs and of the input itself (its own nonlinearity, its couplings with
+        # the motion), not of the other inputs.
+        self.search_library = tuple(f"{letter}_{signal}" for letter in self.search_rows
+                                    for signal in self.search_signals) + tuple(
+            term for letter, own in self.search_rows.items() for term in library([letter], (*self.state_names, own)))
+        # A term linear in the row's own input is the named input gain: regressed on, never offered.
+        own = {f"{letter}_{name}" for letter, name in self.search_rows.items()}
+        self.terms = {"fmu_parameter": tuple(reference.parameters),
+                      "search_term": tuple(term for term in self.search_library if term not in own)}
+        if len(self.search_rows) < len(reference.input_names) or not all(
+                letter and letter.isidentifier() for letter in self.search_rows):
+            self.kinds = tuple(kind for kind in self.kinds if kind != "search_term")  # rows cannot be told apart
         self.sensor_noise_sd = {name: BENCH_NOISE_BY_UNIT.get(reference.units[name], 0.0)
                                 for name in reference.state_names}
         self.signal_units = reference.units
@@ -417,15 +463,42 @@ class FMUEffects:
         self.reference.workers = max(1, int(count))
 
     def model_value(self, term: str) -> float:
-        """The parameter's start value in the FMU."""
+        """The parameter's start value in the FMU; 0 for a search term (none in the FMU)."""
+        if term not in self.reference.parameters and term in self.terms["search_term"]:
+            return 0.0
         return self.reference.parameters[term][0]
 
     def term_unit(self, term: str) -> str:
+        """The parameter's unit; a search term's, its input's unit per unit of its factor."""
+        if term not in self.reference.parameters and term in self.terms["search_term"]:
+            units = self.reference.units
+            return search_term_unit(term, self.search_rows, self.search_signals, signal_units=units,
+                                    row_units={letter: units[name] for letter, name in self.search_rows.items()})
         return self.reference.parameters[term][1]
 
     def term_description(self, term: str) -> str:
-        """The FMU's own description of the parameter (its name without one)."""
+        """The FMU's own description of the parameter (its name without one); a search term's
+        ``"extra <input> proportional to <factor>"``."""
+        if term not in self.reference.parameters and term in self.terms["search_term"]:
+            letter, _, factor = term.partition("_")
+            return f"extra {self.search_rows[letter]} input proportional to {factor}"
         return self.reference.parameters.get(term, (None, None, term))[2]
+
+    def search_jacobian(self, states, inputs) -> np.ndarray:
+        """Every signal on every row's axis: one over each signal's RMS along the replays (the
+        search weighs the Jacobian by the RMS), shape (n_inputs, n_signals). An FMU's equations
+        are closed, so which outputs a term of an input should use is not known before the
+        replays, and the library holds every signal's powers and products for each input.
+
+        Parameters
+        ----------
+        states : list of ndarray, each shape (n_r, n_outputs)
+        inputs : list of ndarray, each shape (n_r, n_inputs)
+        """
+        signals = np.concatenate([np.concatenate([x, u], axis=1) for x, u in zip(states, inputs)])
+        rms = np.sqrt(np.mean(signals**2, axis=0))
+        scale = np.divide(1.0, rms, out=np.zeros_like(rms), where=rms > 0)
+        return np.tile(scale, (len(self.search_rows), 1))
 
     def term_value_problem(self, term: str, value: float) -> None:
         """Any finite value: the FMU says at initialisation what it refuses."""
@@ -473,7 +546,7 @@ class FMUEffects:
         starts = {} if start is None else {n: v for n, v in zip(self.state_names, start) if np.isfinite(v)}
         requests = [(time, self._effective_inputs(effects, time, inputs),
                      {e["term"]: e["value"] for e in effects if e["effect"] == "fmu_parameter"},
-                     starts if start is None else self._true_start(effects, starts))
+                     starts if start is None else self._true_start(effects, starts), self._feedback(effects))
                     for effects in effect_lists]
         replays = []
         for effects, result in zip(effect_lists, self.reference.replay_many(requests)):
@@ -484,6 +557,15 @@ class FMUEffects:
                 result = np.full((len(time), len(self.state_names)), math.nan)
             replays.append(apply_measurement_chain(result, time, effects, self.state_names))
         return np.stack(replays)
+
+    def _feedback(self, effects) -> tuple:
+        """The search terms of ``effects`` as :meth:`FMUReference.replay`'s feedback terms."""
+        terms = []
+        for effect in effects:
+            if effect["effect"] == "search_term":
+                kind, first, second, row = slot_indices(effect["term"], self.search_rows, self.search_signals)
+                terms.append((row, kind, first, second, float(effect["value"])))
+        return tuple(terms)
 
     def _true_start(self, effects, starts: dict) -> dict:
         """The start values of a replay from a recording with ``effects``: the recorded start

@@ -253,12 +253,12 @@ def propagate_with_terms(terms, values, rows, *, F: np.ndarray, step: float, Phi
     for k in range(len(forcing)):
         linear = Phi @ x + forcing[k]
         start_values = x.tolist()[:n_states] + held_rows[k]
-        start = [_factor(kind, start_values[a], start_values[b]) for kind, a, b in specs]
+        start = [scalar_factor(kind, start_values[a], start_values[b]) for kind, a, b in specs]
         end_values = list(start_values)
         linear_values = linear.tolist()
         for source in sources:
             end_values[source] = linear_values[source] + sum(g * m for g, m in zip(gamma_rows[source], start))
-        mean = [0.5 * (m + _factor(kind, end_values[a], end_values[b])) for m, (kind, a, b) in zip(start, specs)]
+        mean = [0.5 * (m + scalar_factor(kind, end_values[a], end_values[b])) for m, (kind, a, b) in zip(start, specs)]
         x = linear + Gamma_c @ mean  # Heun: the terms' mean over the interval
         states[k + 1] = x
     return states
@@ -279,10 +279,11 @@ def _propagate_one_state_term(kind: int, source: int, gamma: np.ndarray, Phi, fo
     return states
 
 
-def _factor(kind: int, a: float, b: float) -> float:
-    """One factor (:data:`FACTOR_KINDS` by index): ``a|a|``, ``a^3`` or ``a b``."""
+def scalar_factor(kind: int, a: float, b: float) -> float:
+    """One factor of two numbers (:data:`SLOT_FACTOR_KINDS` by index, whose first three are
+    :data:`FACTOR_KINDS`): ``a|a|``, ``a^3``, ``a b`` or ``a``."""
     if kind == 0:
         return a * abs(a)
     if kind == 1:
         return a * a * a
-    return a * b
+    return a * b if kind == 2 else a

@@ -436,6 +436,12 @@ def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, 
     # RK4 apart from its effects, so through the FMU it is an outside case.
     damping = diagnosed_truth(cases["quadratic-damping-M_q|q|"], through_fmu)
     assert damping.kind == "outside" and damping.effects == () and damping.outside[0] == "polynomial_term"
+    # Flown on the linear reference, whose control derivatives map a term on the FMU's inputs
+    # onto its rows, it is a case for the residual search through the inputs.
+    flown_on = effect_model("bo105-80kt", purpose="test")
+    through_inputs = diagnosed_truth(cases["quadratic-damping-M_q|q|"], through_fmu, flown_on=flown_on)
+    assert through_inputs.kind == "through_inputs" and through_inputs.outside == damping.outside
+    assert diagnosed_truth(cases["delay-theta_1s-60ms"], through_fmu, flown_on=flown_on) == cases["delay-theta_1s-60ms"]
     state_space = tmp_path / "bo105.json"
     assert main(["state-space", "bo105-80kt", "--out", str(state_space)]) == 0
     linear = effect_model(str(state_space), purpose="test")
@@ -443,6 +449,24 @@ def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, 
     blimp_case = ConcealedCase("x", "single", ({"effect": "quadratic_drag", "term": "X_UU", "value": -1.0},))
     with pytest.raises(BadInputError, match="cannot name quadratic_drag X_UU"):
         diagnosed_truth(blimp_case, through_fmu)
+
+
+def test_a_term_found_through_the_inputs_is_mapped_onto_the_rows_by_the_control_derivatives():
+    """M_q|q| = -40 through the cyclic inputs: search terms of the factor q|q| whose values, times
+    the pitch row's control derivatives, sum to -40 within 10 % name it, with or without the
+    truth inside their mapped interval; 20 % off, or another factor only, do not."""
+    from validation.diagnose.bench import _mapped_through_inputs
+    from validation.vehicles.bo105 import Bo105Reference
+
+    linear = Bo105Reference(80)
+    pitch_1s, pitch_1c = linear.B[2, 1], linear.B[2, 2]  # q is state 2; theta_1s, theta_1c inputs 1, 2
+    outside = ("polynomial_term", "M_q|q|", -40.0)
+    lateral = {"term": "theta1c_q|q|", "value": 0.25, "interval": [0.2499, 0.2501]}
+    exact = -(40.0 + pitch_1c * 0.25) / pitch_1s
+    for value, expected in ((exact, (True, True)), (1.05 * exact, (True, False)), (1.2 * exact, (False, False))):
+        found = [{"term": "theta1s_q|q|", "value": value, "interval": [value - 0.01, value + 0.01]}, lateral]
+        assert _mapped_through_inputs(found, outside, linear) == expected
+    assert _mapped_through_inputs([], outside, linear) == (False, False)
 
 
 def test_the_fmu_suite_acts_on_the_fmus_own_inputs_and_outputs(bo105_fmu):

@@ -1,6 +1,7 @@
 """FMU references (validation/vehicles/fmu_reference.py) on flightgp's Bo105 reference FMU: a
-replay through the FMU is the built-in reference's, each effect acts as documented, a refused
-replay ends only its candidate, diagnose names what it names through the built-in reference, and
+replay through the FMU is the built-in reference's, each effect acts as documented (a search term
+as an extra input), a refused replay ends only its candidate, diagnose names what it names
+through the built-in reference, the residual search through the FMU finds a term on no list, and
 bad FMUs exit 2 with one line."""
 import numpy as np
 import pytest
@@ -84,6 +85,49 @@ def test_diagnose_through_the_fmu_names_what_the_built_in_reference_names(fmu):
     for ours, theirs in zip(through_fmu, built_in):
         assert ours["interval"][0] <= theirs["value"] <= ours["interval"][1]
     assert "The parameter M_q (pitch damping, the derivative M_q) is -3" in through_fmu[0]["statement"]
+
+
+def test_search_terms_through_the_fmu_enter_its_inputs(fmu, manoeuvre):
+    """A search term through an FMU is an extra input: ``theta0_theta_1s`` (theta_0 receives c
+    theta_1s) is the built-in reference flown on those inputs, and ``theta1s_q`` (theta_1s
+    receives c times the pitch rate at each step's start) is the reference's discrete model
+    closed through that feedback, both to 1e-9; the unit and words name the input, and the
+    input's own linear term (the named input gain) is refused."""
+    time, inputs = manoeuvre
+    model, built_in = effect_model(fmu, purpose="test"), Bo105Reference(80)
+    linear, fed = model.simulate_many([[{"effect": "search_term", "term": "theta0_theta_1s", "value": 0.3}],
+                                       [{"effect": "search_term", "term": "theta1s_q", "value": -0.2}]], time, inputs)
+    shifted = inputs.copy()
+    shifted[:, 0] += 0.3 * inputs[:, 1]
+    np.testing.assert_allclose(linear, built_in.simulate_states(time, shifted), rtol=0, atol=1e-9)
+    transition, forcing = built_in.discretisation(STEP)
+    state, expected = np.zeros(len(built_in.state_names)), []
+    for row in inputs:
+        expected.append(state)
+        state = transition @ state + forcing @ (row + np.array([0.0, -0.2 * state[2], 0.0, 0.0]))  # q is state 2
+    np.testing.assert_allclose(fed, np.array(expected), rtol=0, atol=1e-9)
+    assert np.abs(fed - linear).max() > 1e-3
+    assert model.term_unit("theta1s_q|q|") == "rad/(rad/s)^2" and model.term_unit("theta0_u*q") == "rad/(m/s rad/s)"
+    assert model.term_description("theta1s_q|q|") == "extra theta_1s input proportional to q|q|"
+    with pytest.raises(BadInputError, match="not one of"):
+        EffectVehicle(fmu, [{"effect": "search_term", "term": "theta1s_theta_1s", "value": 0.1}])
+
+
+@pytest.mark.slow
+def test_the_residual_search_through_the_fmu_finds_a_term_on_no_list(fmu):
+    """The FMU flown with a pitch damping quadratic in the pitch rate, seen through the
+    longitudinal cyclic (``theta1s_q|q|``): the search through the FMU finds that term first,
+    with the truth inside its interval, and it carries over."""
+    truth = [{"effect": "search_term", "term": "theta1s_q|q|", "value": -0.5}]
+    model = effect_model(fmu, purpose="test")
+    aircraft = EffectVehicle(fmu, truth, noise_sd={name: SENSOR_NOISE_STD[name] for name in model.state_names})
+    fit = aircraft.simulate(*identification_manoeuvre(duration=DURATION, sample_time=DIAGNOSE_STEP, variant=0), seed=1)
+    held = aircraft.simulate(*identification_manoeuvre(duration=DURATION, sample_time=DIAGNOSE_STEP, variant=1), seed=2)
+    result = diagnose([fit], reference=fmu, holdout=[held], workers=1).as_dict()
+    found = result["findings"][0]
+    assert (found["effect"], found["term"], found["found_by"]) == ("search_term", "theta1s_q|q|", "search")
+    assert found["interval"][0] <= -0.5 <= found["interval"][1] and found["carries_over"]
+    assert result["search"]["residual_search"]["ran"] and result["search"]["residual_search"]["library_terms"] > 100
 
 
 def test_bad_fmus_exit_2_with_one_line(tmp_path, capsys):
@@ -217,15 +261,18 @@ def test_dead_band_and_delay_act_about_the_inputs_first_value(fmu, manoeuvre):
 
 def test_parallel_and_resumed_replays_equal_fresh_ones(fmu, manoeuvre):
     """Replays on two worker processes, and replays that resume from a kept replay's saved FMU
-    state, are bit for bit the replays of a fresh instance, one at a time."""
+    state, are bit for bit the replays of a fresh instance, one at a time (a replay with a
+    search term's feedback too, which resumes from none without it)."""
     from validation.vehicles.fmu_reference import FMUReference
 
     time, inputs = manoeuvre
     later = inputs.copy()
     later[len(time) // 2:, 2] *= 1.5  # differs from the first replay only in its second half
-    requests = [(time, inputs, {}, {}), (time, later, {}, {}), (time, inputs, {"M_q": -3.0}, {}),
-                (time, later, {"M_q": -3.0}, {"q": 0.01})]
-    fresh = [FMUReference(fmu, workers=1).replay(t, u, parameters=p, start=s) for t, u, p, s in requests]
+    fed_back = ((1, 3, 2, 2, -0.2),)  # theta_1s receives -0.2 q (a linear term, kind 3, of signal 2)
+    requests = [(time, inputs, {}, {}, ()), (time, later, {}, {}, ()), (time, inputs, {"M_q": -3.0}, {}, ()),
+                (time, later, {"M_q": -3.0}, {"q": 0.01}, ()), (time, later, {}, {}, fed_back)]
+    fresh = [FMUReference(fmu, workers=1).replay(t, u, parameters=p, start=s, feedback=f)
+             for t, u, p, s, f in requests]
     kept = FMUReference(fmu, workers=1)
     serial = kept.replay_many(requests)
     assert kept.steps_resumed >= len(time) // 2 - 1  # the second replay resumed halfway
