@@ -95,6 +95,7 @@ from validation.vehicles.effects import (
     check_trim_start,
     delayed_interval_means,
     lagged_interval_means,
+    search_axes_jacobian,
     shaped_inputs,
     simulate_each_recording,
     starts_at_trim,
@@ -492,19 +493,8 @@ class BlimpEffects:
         params = self.reference.params
         matrix, _ = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
                                 params.cg_position)
-        x, u = np.concatenate(states), np.concatenate(inputs)
-        columns = [("state", STATE_NAMES.index(s)) if s in STATE_NAMES else ("input", INPUT_NAMES.index(s))
-                   for s in SEARCH_SIGNALS]
-        jacobian = np.empty((len(SEARCH_ROWS), len(SEARCH_SIGNALS)))
-        for j, (where, column) in enumerate(columns):
-            step = 1e-6 * max(1.0, float(np.sqrt(np.mean((x if where == "state" else u)[:, column] ** 2))))
-            forces = []
-            for sign in (1.0, -1.0):
-                moved_x, moved_u = x.copy(), u.copy()
-                (moved_x if where == "state" else moved_u)[:, column] += sign * step
-                forces.append(blimp_dynamics(moved_x, moved_u, params)[:, 6:] @ matrix.T)
-            jacobian[:, j] = np.sqrt(np.mean(((forces[0] - forces[1]) / (2 * step)) ** 2, axis=0))
-        return jacobian
+        return search_axes_jacobian(lambda x, u: blimp_dynamics(x, u, params)[:, 6:] @ matrix.T, states, inputs,
+                                    SEARCH_SIGNALS, STATE_NAMES, INPUT_NAMES)
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
         """:func:`simulate_batch`, shape (B, n, 12), from the hanging state (``start`` must be

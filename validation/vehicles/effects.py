@@ -508,6 +508,41 @@ def rate_limited_interval_means(held: np.ndarray, rate: float, steps: np.ndarray
     return means
 
 
+def search_axes_jacobian(rows_of, states, inputs, signals, state_names, input_names) -> np.ndarray:
+    """How strongly each signal drives each row of a nonlinear reference, for the residual search's
+    axes (``search_jacobian`` of the blimp and the RGBlimp): the RMS over the samples of
+    ``d rows_of(x, u) / d signal``, by central differences (a step of 1e-6 of the signal's RMS,
+    at least 1e-6).
+
+    Parameters
+    ----------
+    rows_of : callable
+        ``rows_of(states (n, n_states), inputs (n, n_inputs)) -> (n, n_rows)``.
+    states, inputs : list of ndarray
+        Per recording, shapes (n_r, n_states) and (n_r, n_inputs).
+    signals : sequence of str
+        Names of states or inputs.
+    state_names, input_names : sequence of str
+
+    Returns
+    -------
+    ndarray, shape (n_rows, len(signals))
+    """
+    x, u = np.concatenate(states), np.concatenate(inputs)
+    columns = []
+    for name in signals:
+        where, column = (x, list(state_names).index(name)) if name in state_names else \
+            (u, list(input_names).index(name))
+        step = 1e-6 * max(1.0, float(np.sqrt(np.mean(where[:, column] ** 2))))
+        moved = []
+        for sign in (1.0, -1.0):
+            moved_x, moved_u = x.copy(), u.copy()
+            (moved_x if where is x else moved_u)[:, column] += sign * step
+            moved.append(rows_of(moved_x, moved_u))
+        columns.append(np.sqrt(np.mean(((moved[0] - moved[1]) / (2 * step)) ** 2, axis=0)))
+    return np.stack(columns, axis=1)
+
+
 def check_trim_start(start, name: str) -> None:
     """BadInputError unless ``start`` is None: the ``name`` reference replays from its own start."""
     if start is not None:

@@ -77,10 +77,11 @@ import numpy as np
 
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import time_grid
-from validation.vehicles.effects import Hypothesis
+from validation.vehicles.effects import Hypothesis, search_axes_jacobian
 from validation.vehicles.polynomial_terms import SLOT_KEYS, library, search_term_unit, slot_indices
 from validation.vehicles.rgblimp import RGBlimpReference, resting_state
 from validation.vehicles.rgblimp_equations import (
+    INPUT_NAMES,
     NOMINAL_GONDOLA_POSITION,
     SAMPLE_TIME,
     SEARCH_ROWS,
@@ -505,34 +506,14 @@ class RGBlimpEffects:
         return [path[:, s, :n] for s, n in enumerate(lengths)]
 
     def search_jacobian(self, states, inputs) -> np.ndarray:
-        """How strongly each search signal drives each search row: the RMS over the samples of
-        ``d a_row / d signal`` (``a`` the body accelerations of the reference's equations, rows
-        :data:`~validation.vehicles.rgblimp_equations.SEARCH_ROWS`, signals
-        :data:`~validation.vehicles.rgblimp_equations.SEARCH_SIGNALS`), by central differences
-        at the given states, for the residual search's axes.
-
-        Parameters
-        ----------
-        states : list of ndarray, each shape (n_r, 12)
-            Replayed states per recording.
-        inputs : list of ndarray, each shape (n_r, 5)
-            The recordings' inputs.
-
-        Returns
-        -------
-        ndarray, shape (6, len(SEARCH_SIGNALS))
-        """
-        x, u = np.concatenate(states), np.concatenate(inputs)
-        jacobian = np.empty((len(SEARCH_ROWS), len(SEARCH_SIGNALS)))
-        for j, column in enumerate(STATE_NAMES.index(name) for name in SEARCH_SIGNALS):
-            step = 1e-6 * max(1.0, float(np.sqrt(np.mean(x[:, column] ** 2))))
-            moved = [x.copy(), x.copy()]
-            moved[0][:, column] += step
-            moved[1][:, column] -= step
-            change = (body_accelerations(moved[0], u, self.reference.params)
-                      - body_accelerations(moved[1], u, self.reference.params)) / (2 * step)
-            jacobian[:, j] = np.sqrt(np.mean(change**2, axis=0))
-        return jacobian
+        """How strongly each search signal drives each search row, for the residual search's
+        axes: :func:`~validation.vehicles.effects.search_axes_jacobian` of the body accelerations
+        (rows :data:`~validation.vehicles.rgblimp_equations.SEARCH_ROWS`, signals
+        :data:`~validation.vehicles.rgblimp_equations.SEARCH_SIGNALS`) at the replayed ``states``
+        (a list of (n_r, 12)) with the recordings' ``inputs`` (a list of (n_r, 5)); shape (6, 8)."""
+        params = self.reference.params
+        return search_axes_jacobian(lambda x, u: body_accelerations(x, u, params), states, inputs, SEARCH_SIGNALS,
+                                    STATE_NAMES, INPUT_NAMES)
 
     def simulate_many(self, effect_lists, time, inputs, *, start=None) -> np.ndarray:
         """:meth:`simulate_recordings` of one recording, shape (B, n, 12); from ``start``, or
