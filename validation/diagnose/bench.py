@@ -709,7 +709,7 @@ def _target(effect: dict) -> tuple:
 
 
 def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray, holdout: Recording,
-               reference: str, seconds: float) -> CaseScore:
+               reference: str, seconds: float, diagnosed_on: str | None = None) -> CaseScore:
     """Score one diagnosis against the case's truth (module docstring).
 
     Parameters
@@ -725,6 +725,9 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
         The registry name of the reference the case was flown on.
     seconds : float
         Wall-clock seconds of the diagnosis.
+    diagnosed_on : str, optional
+        The reference the diagnosis ran on when not ``reference`` (``--through``): its findings
+        are flown on it.
     """
     findings = diagnosis["findings"]
     score = CaseScore(case, seconds=seconds)
@@ -791,7 +794,7 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
             column = names.index(name)
             corrected = [{"effect": f["effect"], TARGET_KEYS[f["effect"]]: _target(f)[1], "value": f["value"]}
                          for f in named if f.get("in_corrected_model")]
-            flown = EffectVehicle(reference, corrected).simulate_states(holdout.time, holdout.inputs)
+            flown = EffectVehicle(diagnosed_on or reference, corrected).simulate_states(holdout.time, holdout.inputs)
             rms = lambda error: float(np.sqrt(np.mean(error ** 2)))  # noqa: E731
             score.rmse_reference = rms(truth_states[:, column] - replay[:, column])
             score.rmse_corrected = rms(truth_states[:, column] - flown[:, column])
@@ -844,7 +847,7 @@ def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str
                          workers=workers).as_dict()
     seconds = clock.perf_counter() - start
     return score_case(truth, diagnosis, truth_states=recordings.truth_states, holdout=recordings.holdout,
-                      reference=reference, seconds=seconds)
+                      reference=reference, seconds=seconds, diagnosed_on=through)
 
 
 def bench_report(rows, *, reference: str, through: str | None, seed: int, duration: float) -> dict:

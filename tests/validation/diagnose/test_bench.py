@@ -451,6 +451,19 @@ def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, 
         diagnosed_truth(blimp_case, through_fmu)
 
 
+def test_a_turbulence_case_diagnosed_through_an_fmu_flies_its_findings_on_the_fmu(bo105_fmu, delay_case):
+    """In a turbulence case the corrected model's held-out RMSE flies the findings: through an
+    FMU they are its own (an FMU parameter, which the flying reference does not take), so they
+    are flown on the FMU, and a larger pitch damping moves the held-out pitch rate."""
+    case, holdout, truth = delay_case
+    windy = ConcealedCase("w", "single", case.effects, turbulence="light")
+    finding = {"effect": "fmu_parameter", "term": "M_q", "value": -3.0, "interval": [-3.1, -2.9],
+               "in_corrected_model": True}
+    score = score_case(windy, _diagnosis([finding]), truth_states=truth, holdout=holdout, reference="bo105-80kt",
+                       seconds=0.0, diagnosed_on=bo105_fmu)
+    assert score.rmse_reference > 0 and score.rmse_corrected > 0 and score.rmse_corrected != score.rmse_reference
+
+
 def test_a_term_found_through_the_inputs_is_mapped_onto_the_rows_by_the_control_derivatives():
     """M_q|q| = -40 through the cyclic inputs: search terms of the factor q|q| whose values, times
     the pitch row's control derivatives, sum to -40 within 10 % name it, with or without the
