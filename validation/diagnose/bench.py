@@ -109,7 +109,7 @@ class ConcealedCase:
     kind : {"single", "pair", "none", "outside", "ambiguous", "changing", "turbulence", "through_inputs"}
     effects : tuple of dict
         The named effects applied (the truth), in the shape of diagnosis findings; empty for
-        ``none`` and ``outside``.
+        ``none``, ``outside`` and ``through_inputs``.
     outside : tuple, optional
         How the recordings are flown when not by the reference with ``effects``: a physics change
         outside the named list, ``(map, input, parameter)`` with a map of :data:`COMMAND_MAPS`
@@ -737,9 +737,13 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     named = [f for f in findings if f["effect"] != "unexplained"]
     truth = {_target(effect): effect for effect in case.effects}
     flown_on = effect_model(reference, purpose="diagnose-bench")
-    if case.kind == "through_inputs":
-        factor = case.outside[1].partition("_")[2]
-        truth = {_target(f): f for f in named if f["effect"] == "search_term" and f["term"].partition("_")[2] == factor}
+    if case.kind == "through_inputs":  # terms of the truth's factor on an input that moves its row
+        letter, _, factor = case.outside[1].partition("_")
+        linear = flown_on.reference
+        moving = {name.replace("_", "") for j, name in enumerate(linear.input_names)
+                  if linear.B[linear.state_names.index(linear.row_letters[letter]), j] != 0}
+        truth = {_target(f): f for f in named if f["effect"] == "search_term"
+                 and f["term"].partition("_")[2] == factor and f["term"].partition("_")[0] in moving}
         score.named, score.in_interval = _mapped_through_inputs(list(truth.values()), case.outside, flown_on.reference)
     matched = {}
     for finding in named:
@@ -898,8 +902,9 @@ def format_scorecard(report: dict) -> str:
         if row.get("says_turbulence"):
             found += " (the residual looks like atmospheric disturbance)"
         yes = lambda flag: "yes" if flag else "no"  # noqa: E731
-        named = "-" if not row["truth"] else yes(row["named"])
-        in_ci = "-" if not row["truth"] else yes(row["in_interval"])
+        shown = row["truth"] or row["kind"] == "through_inputs"
+        named = yes(row["named"]) if shown else "-"
+        in_ci = yes(row["in_interval"]) if shown else "-"
         number = lambda v: "-" if v is None else f"{v:.4f}"  # noqa: E731
         lines.append(f"{row['case']:<{width}} {named:>5} {in_ci:>5} {row['affected_output'] or '-':>6} "
                      f"{number(row['rmse_reference']):>9} {number(row['rmse_corrected']):>9} {cut:>5} "
@@ -958,8 +963,8 @@ def format_seed_summary(summary: dict) -> str:
         count = {key: f"{c[key]}/{c['runs']}" for key in ("passed", "named", "in_interval",
                                                           "with_false_findings", "says_unexplained")}
         cut = "-" if c["median_cut"] is None else f"{c['median_cut']:.0%}"
-        named = count["named"] if c["kind"] in ("single", "pair") else "-"
-        in_ci = count["in_interval"] if c["kind"] in ("single", "pair") else "-"
+        named = count["named"] if c["kind"] in ("single", "pair", "through_inputs") else "-"
+        in_ci = count["in_interval"] if c["kind"] in ("single", "pair", "through_inputs") else "-"
         lines.append(f"{c['case']:<{width}} {count['passed']:>5} {named:>5} {in_ci:>5} "
                      f"{count['with_false_findings']:>5} {count['says_unexplained']:>6} {cut:>5} "
                      f"{c['max_seconds']:>6.1f}")

@@ -45,15 +45,18 @@ search needs a reference that takes ``search_term`` and otherwise reports why it
 
 **On a nonlinear reference** that takes them (the blimp: a term is a generalised force of its
 row, :mod:`validation.vehicles.blimp_effects`; the RGBlimp: a body acceleration of its row,
-:mod:`validation.vehicles.rgblimp_effects`) there is no linear model to propagate the
+:mod:`validation.vehicles.rgblimp_effects`; an FMU: an extra input of its row's input,
+:mod:`validation.vehicles.fmu_reference`) there is no linear model to propagate the
 forcing through, so each term's sensitivity is replayed: the model with the term added at a
 small coefficient, one batch of replays for the whole library, exact to first order through the
 reference's own equations (the "output sensitivities from replays" of a model without
-linearisation). The axes come from the reference's Jacobian of its row forces along the replay
-(``search_jacobian``), the sensitivities are scaled to unit length before the regression (the
-terms' units span many decades), and, because the blimp's named list holds few derivatives, the
-linear terms that are not named compete in the forward selection beside the nonlinear ones
-(``M_U``, a pitch moment linear in surge speed, is then a finding of the search).
+linearisation; through an FMU, the FMU itself with the term fed into the input). The axes
+come from the reference's Jacobian of its rows along the replay (``search_jacobian``; an FMU,
+whose equations are closed, puts every signal on every input's axis), the sensitivities are
+scaled to unit length before the regression (the terms' units span many decades), and, because
+these named lists hold few derivatives, the linear terms that are not named compete in the
+forward selection beside the nonlinear ones (``M_U``, a pitch moment linear in surge speed, is
+then a finding of the search on the blimp).
 """
 from __future__ import annotations
 

@@ -241,14 +241,15 @@ class FMUReference:
         what fmpy raises when the FMU refuses a call.
 
         When the FMU can save its state (``canGetAndSetFMUstate``), each replay saves it every
-        :data:`CHECKPOINT_INTERVAL` s, and a later replay with the same settings and time grid
-        whose inputs agree with a kept one's up to some row resumes from the last state saved
+        :data:`CHECKPOINT_INTERVAL` s, and a later replay with the same settings, time grid and
+        feedback whose inputs agree with a kept one's up to some row resumes from the last state saved
         before that row: outputs up to row ``k`` depend only on the inputs of rows before ``k``
         (zero-order hold), so the shared beginning is not integrated again. Candidates that
         change one input of a manoeuvre that moves the inputs one after the other share most of
         their replay. The last :data:`KEPT_REPLAYS` replays are kept. An input row equal to the
         one before is not set again (an FMU's inputs keep their values until set; the inputs
-        are held over long stretches of a manoeuvre): one call into the FMU fewer on such a step.
+        are held over long stretches of a manoeuvre): one call into the FMU fewer on such a step
+        (with feedback every row is set).
         """
         fmu = self._fmu()
         settings = dict(parameters or {})
@@ -283,7 +284,7 @@ class FMUReference:
 
     def _resume(self, fmu, key, inputs: np.ndarray, outputs: np.ndarray) -> tuple[int, list]:
         """Restore the kept replay that shares the longest beginning with ``inputs`` (same
-        ``key``: settings and time grid): the row it resumes at (0: none), with ``outputs`` filled
+        ``key``: settings, time grid and feedback): the row it resumes at (0: none), with ``outputs`` filled
         up to it, and the checkpoints up to it (the new replay's own)."""
         best, best_row, best_state = None, 0, None
         for base in self._bases:
@@ -448,6 +449,7 @@ class FMUEffects:
         if len(self.search_rows) < len(reference.input_names) or not all(
                 letter and letter.isidentifier() for letter in self.search_rows):
             self.kinds = tuple(kind for kind in self.kinds if kind != "search_term")  # rows cannot be told apart
+            del self.terms["search_term"]
         self.sensor_noise_sd = {name: BENCH_NOISE_BY_UNIT.get(reference.units[name], 0.0)
                                 for name in reference.state_names}
         self.signal_units = reference.units

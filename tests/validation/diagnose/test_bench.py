@@ -467,7 +467,7 @@ def test_a_turbulence_case_diagnosed_through_an_fmu_flies_its_findings_on_the_fm
 def test_a_term_found_through_the_inputs_is_mapped_onto_the_rows_by_the_control_derivatives():
     """M_q|q| = -40 through the cyclic inputs: search terms of the factor q|q| whose values, times
     the pitch row's control derivatives, sum to -40 within 10 % name it, with or without the
-    truth inside their mapped interval; 20 % off, or another factor only, do not."""
+    truth inside their mapped interval; 20 % off, or none found, do not."""
     from validation.diagnose.bench import _mapped_through_inputs
     from validation.vehicles.bo105 import Bo105Reference
 

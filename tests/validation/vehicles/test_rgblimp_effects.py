@@ -127,13 +127,14 @@ def test_the_compiled_replay_equals_the_numpy_step(flights):
                      {"term": "c_mz_beta_abs", "value": -0.2}, {"term": "c_l_alpha_abs", "value": 0.5}],
                     [{"term": "M_Q", "value": 50.0}],
                     [{"effect": "search_term", "term": term, "value": value} for term, value in SEARCHED]
-                    + [{"term": "wind_x", "value": 0.05}]]
+                    + [{"term": "wind_x", "value": 0.05}],
+                    [{"term": "wind_x", "value": 0.05}]]
     args = (effect_lists, [r.time for r in flights], [r.inputs for r in flights],
             [compiled.start_state(r) for r in flights])
     for fast, slow in zip(compiled.simulate_recordings(*args), numpy_step.simulate_recordings(*args)):
-        np.testing.assert_allclose(fast[[0, 1, 2, 3, 5]], slow[[0, 1, 2, 3, 5]], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast[[0, 1, 2, 3, 5, 6]], slow[[0, 1, 2, 3, 5, 6]], rtol=0, atol=1e-12)
         assert np.abs(fast[3] - fast[0]).max() > 0.01  # the new terms moved the flight
-        assert np.abs(fast[5] - fast[0]).max() > 0.01  # and the search terms
+        assert np.abs(fast[5] - fast[6]).max() > 0.01  # and the search terms, beyond the wind
         assert not np.isfinite(fast[4, -1]).any() and not np.isfinite(slow[4, -1]).any()
 
 
