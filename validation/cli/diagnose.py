@@ -39,6 +39,9 @@ def register(subparsers) -> None:
     parser.add_argument("--workers", type=int, metavar="N",
                         help="processes that replay candidates side by side for an FMU reference "
                              "(default: the cores available)")
+    parser.add_argument("--input-terms", action="store_true",
+                        help="through an FMU, let the residual search also add terms fed into its inputs "
+                             "(e.g. theta1s_q|q|: the cyclic given c q|q|); about 5x the time")
     add_format_argument(parser)
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--seed", type=seed, default=0, help="random seed of the residual GP (default 0)")
@@ -67,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
                       unit="stage") as update:
         diagnosis = diagnose(args.recordings, reference=args.reference, holdout=args.holdout,
                              seed=args.seed, folds=args.folds, column_map=column_map, workers=args.workers,
+                             input_terms=args.input_terms,
                              file_format=args.file_format, tolerances=tolerances, progress=update)
     written = write_diagnosis(diagnosis, args.out)
     result = diagnosis.as_dict()

@@ -38,6 +38,10 @@ def register(subparsers) -> None:
                              "state-space FILE.json of the same vehicle (e.g. flightgp's Bo105 reference "
                              "FMU, or flightgp state-space bo105-80kt); scored against the effects as "
                              "it names them")
+    parser.add_argument("--input-terms", action="store_true",
+                        help="with --through an FMU: let the residual search add terms fed into its inputs "
+                             "(flightgp diagnose --input-terms); polynomial terms of the flying reference are "
+                             "then through_inputs cases; this machine only")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="length of each recording, s (default 20)")
     parser.add_argument("--workers", type=int, metavar="N",
@@ -77,7 +81,9 @@ def run(args: argparse.Namespace) -> int:
         raise BadInputError(f"--duration must be at least 5 s (a 3-2-1-1 on each input), got {args.duration}")
     if args.workers is not None and args.workers < 1:
         raise BadInputError(f"--workers must be at least 1, got {args.workers}")
-    options = {"through": args.through, "workers": args.workers}
+    options = {"through": args.through, "workers": args.workers, "input_terms": args.input_terms}
+    if args.input_terms and args.through is None:
+        raise BadInputError("--input-terms is for a diagnosis --through an FMU")
     if args.duration is not None:
         options["duration"] = args.duration
     seeds = list(dict.fromkeys(args.seed))
@@ -87,6 +93,9 @@ def run(args: argparse.Namespace) -> int:
         if args.workers is not None:
             raise BadInputError("--workers (replay processes) does not apply on Dask: each case runs in one "
                                 "worker process; drop it or drop --scheduler/--cluster-workers")
+        if args.input_terms:
+            raise BadInputError("--input-terms runs on this machine only; drop it or drop "
+                                "--scheduler/--cluster-workers")
         reports = _run_on_dask(args, cases, seeds)
     else:
         with progress_bar("diagnose-bench", enabled=not args.no_progress, total=len(cases) * len(seeds),

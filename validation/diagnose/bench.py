@@ -824,7 +824,7 @@ def _mapped_through_inputs(found: list, outside: tuple, linear) -> tuple[bool, b
 
 
 def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
-             duration: float = DURATION, workers: int | None = None) -> CaseScore:
+             duration: float = DURATION, workers: int | None = None, input_terms: bool = False) -> CaseScore:
     """Fly, diagnose and score one case.
 
     Parameters
@@ -842,13 +842,19 @@ def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str
         Length of each recording, s.
     workers : int, optional
         Replay processes of an FMU reference (:func:`validation.diagnose.diagnose`).
+    input_terms : bool
+        Through an FMU, let the search add terms through its inputs (:func:`validation.diagnose.diagnose`).
     """
     recordings = case_recordings(case, reference=reference, seed=seed, duration=duration)
-    truth = (diagnosed_truth(case, effect_model(through, purpose="diagnose-bench"),
-                             flown_on=effect_model(reference, purpose="diagnose-bench")) if through else case)
+    truth = case
+    if through:
+        model = effect_model(through, purpose="diagnose-bench")
+        if input_terms:
+            model.take_input_terms()
+        truth = diagnosed_truth(case, model, flown_on=effect_model(reference, purpose="diagnose-bench"))
     start = clock.perf_counter()
     diagnosis = diagnose([recordings.fit], reference=through or reference, holdout=[recordings.holdout], seed=seed,
-                         workers=workers).as_dict()
+                         workers=workers, input_terms=input_terms).as_dict()
     seconds = clock.perf_counter() - start
     return score_case(truth, diagnosis, truth_states=recordings.truth_states, holdout=recordings.holdout,
                       reference=reference, seconds=seconds, diagnosed_on=through)
@@ -873,14 +879,15 @@ def bench_report(rows, *, reference: str, through: str | None, seed: int, durati
 
 
 def run_bench(cases, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
-              duration: float = DURATION, workers: int | None = None, progress=None) -> dict:
+              duration: float = DURATION, workers: int | None = None, input_terms: bool = False,
+              progress=None) -> dict:
     """:func:`run_case` of every case, one after the other; returns the scorecard report
     (:func:`bench_report`). ``progress``, optional, is called as ``progress(1, case=name)`` after
     each case; the other parameters are :func:`run_case`'s."""
     rows = []
     for case in cases:
         rows.append(run_case(case, reference=reference, through=through, seed=seed, duration=duration,
-                             workers=workers).as_dict())
+                             workers=workers, input_terms=input_terms).as_dict())
         if progress:
             progress(1, case=case.name)
     return bench_report(rows, reference=reference, through=through, seed=seed, duration=duration)

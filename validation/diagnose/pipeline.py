@@ -33,6 +33,7 @@ The reference takes effects through its :class:`validation.vehicles.effects.Effe
 """
 from __future__ import annotations
 
+from validation.core.errors import BadInputError
 from validation.diagnose.carry_over import carry_over
 from validation.diagnose.data import prepare
 from validation.diagnose.explain import explain
@@ -48,7 +49,7 @@ from validation.vehicles.effect_vehicle import effect_model
 
 def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: int | None = None,
              file_format: str | None = None, tolerances: dict | None = None, column_map: dict | None = None,
-             workers: int | None = None, progress=None) -> Diagnosis:
+             workers: int | None = None, input_terms: bool = False, progress=None) -> Diagnosis:
     """Locate, explain, model and prove (module docstring) on ``recordings``.
 
     Parameters
@@ -86,6 +87,11 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
         Processes that replay candidates side by side, for references that replay in processes
         of their own (an FMU, :class:`validation.vehicles.fmu_reference.FMUReference`); default:
         the cores this process may use.
+    input_terms : bool
+        Through an FMU, let the residual search add terms fed into its inputs
+        (:meth:`validation.vehicles.fmu_reference.FMUEffects.take_input_terms`); off by default
+        (they cost about 5x the time). Refused for any other reference, whose search needs no such
+        terms.
     progress : callable, optional
         ``progress(n, **status)`` (:func:`validation.core.progress.progress_bar` yields one):
         advanced by one at the end of each of the :func:`stage_count` stages (``stage=`` the
@@ -108,6 +114,11 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     reference = effect_model(reference, purpose="diagnose")  # the name's EffectModel from here on
     if workers is not None and hasattr(reference, "workers"):
         reference.workers = workers
+    if input_terms:
+        if not hasattr(reference, "take_input_terms"):
+            raise BadInputError(f"input terms are for an FMU reference; the {reference.name} reference's residual "
+                                "search adds its terms to its equations")
+        reference.take_input_terms()
     data = prepare(recordings, reference, holdout=holdout, file_format=file_format, column_map=column_map)
     check_tolerance_outputs(tolerances, data.output_names)
     if folds is not None:

@@ -21,7 +21,8 @@ parameters ``<output>_start`` for it. :class:`FMUEffects` is its
 - ``fmu_parameter``: any Real parameter the FMU exposes (``causality="parameter"``, not a
   ``<output>_start``), set before initialisation; named by the FMU's own name and described by
   its own description;
-- ``search_term`` ``<row>_<factor>`` (the terms the residual search of ``flightgp diagnose``
+- ``search_term`` ``<row>_<factor>``, when asked for (:meth:`FMUEffects.take_input_terms`,
+  ``flightgp diagnose --input-terms``; the terms the residual search of ``flightgp diagnose``
   regresses on; an FMU's equations are closed, so a term enters through an input): the input
   of the row (:attr:`FMUEffects.search_rows`: the input's name without its underscores,
   ``theta1s`` for ``theta_1s``) receives ``value * factor`` on top of what the recording and the
@@ -421,8 +422,7 @@ class FMUEffects:
 
     family = "fmu"
     kinds = ("time_delay", "input_lag", "dead_band", "backlash", "saturation", "rate_limit", "input_gain",
-             "sensor_bias", "output_scale", "sensor_cross_axis", "sensor_lag", "sensor_drift", "fmu_parameter",
-             "search_term")
+             "sensor_bias", "output_scale", "sensor_cross_axis", "sensor_lag", "sensor_drift", "fmu_parameter")
     batches_simulations = True  # a batch's replays run side by side on the reference's workers
     absolute_inputs = False
     needs_even_sampling = True
@@ -444,16 +444,30 @@ class FMUEffects:
             term for letter, own in self.search_rows.items() for term in library([letter], (*self.state_names, own)))
         # A term linear in the row's own input is the named input gain: regressed on, never offered.
         own = {f"{letter}_{name}" for letter, name in self.search_rows.items()}
-        self.terms = {"fmu_parameter": tuple(reference.parameters),
-                      "search_term": tuple(term for term in self.search_library if term not in own)}
-        if len(self.search_rows) < len(reference.input_names) or not all(
-                letter and letter.isidentifier() for letter in self.search_rows):
-            self.kinds = tuple(kind for kind in self.kinds if kind != "search_term")  # rows cannot be told apart
-            del self.terms["search_term"]
+        self.terms = {"fmu_parameter": tuple(reference.parameters)}
+        self._search_terms = tuple(term for term in self.search_library if term not in own)
         self.sensor_noise_sd = {name: BENCH_NOISE_BY_UNIT.get(reference.units[name], 0.0)
                                 for name in reference.state_names}
         self.signal_units = reference.units
         self._refusals = set()
+
+    def take_input_terms(self) -> None:
+        """Let the residual search add terms through the FMU's inputs (``search_term``, module
+        docstring; off by default: measured on the Bo105 suite through its FMU it names more of
+        what no list holds, loses cases it named without, and costs about 5x the time,
+        docs/diagnose.md, "How it works").
+
+        Raises
+        ------
+        BadInputError
+            Input names that are not distinct without their underscores (the rows' names).
+        """
+        if len(self.search_rows) < len(self.input_names) or not all(
+                letter.isidentifier() for letter in self.search_rows):
+            raise BadInputError(f"{self.name}: the input terms name each input without its underscores, and "
+                                f"the inputs {', '.join(self.input_names)} do not stay distinct that way")
+        self.kinds = (*type(self).kinds, "search_term")
+        self.terms = {**self.terms, "search_term": self._search_terms}
 
     @property
     def workers(self) -> int:
@@ -466,13 +480,13 @@ class FMUEffects:
 
     def model_value(self, term: str) -> float:
         """The parameter's start value in the FMU; 0 for a search term (none in the FMU)."""
-        if term not in self.reference.parameters and term in self.terms["search_term"]:
+        if term not in self.reference.parameters and term in self._search_terms:
             return 0.0
         return self.reference.parameters[term][0]
 
     def term_unit(self, term: str) -> str:
         """The parameter's unit; a search term's, its input's unit per unit of its factor."""
-        if term not in self.reference.parameters and term in self.terms["search_term"]:
+        if term not in self.reference.parameters and term in self._search_terms:
             units = self.reference.units
             return search_term_unit(term, self.search_rows, self.search_signals, signal_units=units,
                                     row_units={letter: units[name] for letter, name in self.search_rows.items()})
@@ -481,7 +495,7 @@ class FMUEffects:
     def term_description(self, term: str) -> str:
         """The FMU's own description of the parameter (its name without one); a search term's
         ``"extra <input> proportional to <factor>"``."""
-        if term not in self.reference.parameters and term in self.terms["search_term"]:
+        if term not in self.reference.parameters and term in self._search_terms:
             letter, _, factor = term.partition("_")
             return f"extra {self.search_rows[letter]} input proportional to {factor}"
         return self.reference.parameters.get(term, (None, None, term))[2]

@@ -439,6 +439,8 @@ def test_the_truth_as_a_diagnosis_through_another_reference_names_it(bo105_fmu, 
     # Flown on the linear reference, whose control derivatives map a term on the FMU's inputs
     # onto its rows, it is a case for the residual search through the inputs.
     flown_on = effect_model("bo105-80kt", purpose="test")
+    assert diagnosed_truth(cases["quadratic-damping-M_q|q|"], through_fmu, flown_on=flown_on) == damping
+    through_fmu.take_input_terms()  # asked for: polynomial terms are through_inputs cases
     through_inputs = diagnosed_truth(cases["quadratic-damping-M_q|q|"], through_fmu, flown_on=flown_on)
     assert through_inputs.kind == "through_inputs" and through_inputs.outside == damping.outside
     assert diagnosed_truth(cases["delay-theta_1s-60ms"], through_fmu, flown_on=flown_on) == cases["delay-theta_1s-60ms"]

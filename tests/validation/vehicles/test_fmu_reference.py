@@ -95,6 +95,8 @@ def test_search_terms_through_the_fmu_enter_its_inputs(fmu, manoeuvre):
     input's own linear term (the named input gain) is refused."""
     time, inputs = manoeuvre
     model, built_in = effect_model(fmu, purpose="test"), Bo105Reference(80)
+    assert "search_term" not in model.kinds  # asked for only
+    model.take_input_terms()
     linear, fed = model.simulate_many([[{"effect": "search_term", "term": "theta0_theta_1s", "value": 0.3}],
                                        [{"effect": "search_term", "term": "theta1s_q", "value": -0.2}]], time, inputs)
     shifted = inputs.copy()
@@ -109,25 +111,31 @@ def test_search_terms_through_the_fmu_enter_its_inputs(fmu, manoeuvre):
     assert np.abs(fed - linear).max() > 1e-3
     assert model.term_unit("theta1s_q|q|") == "rad/(rad/s)^2" and model.term_unit("theta0_u*q") == "rad/(m/s rad/s)"
     assert model.term_description("theta1s_q|q|") == "extra theta_1s input proportional to q|q|"
+    from validation.vehicles.effects import check_effects
+
     with pytest.raises(BadInputError, match="not one of"):
-        EffectVehicle(fmu, [{"effect": "search_term", "term": "theta1s_theta_1s", "value": 0.1}])
+        check_effects([{"effect": "search_term", "term": "theta1s_theta_1s", "value": 0.1}], model)
 
 
 @pytest.mark.slow
 def test_the_residual_search_through_the_fmu_finds_a_term_on_no_list(fmu):
     """The FMU flown with a pitch damping quadratic in the pitch rate, seen through the
-    longitudinal cyclic (``theta1s_q|q|``): the search through the FMU finds that term first,
-    with the truth inside its interval, and it carries over."""
+    longitudinal cyclic (``theta1s_q|q|``): asked for input terms, the search through the FMU
+    finds that term first, with the truth inside its interval, and it carries over; input terms
+    on a reference that is not an FMU are refused with one line."""
     truth = [{"effect": "search_term", "term": "theta1s_q|q|", "value": -0.5}]
     model = effect_model(fmu, purpose="test")
-    aircraft = EffectVehicle(fmu, truth, noise_sd={name: SENSOR_NOISE_STD[name] for name in model.state_names})
-    fit = aircraft.simulate(*identification_manoeuvre(duration=DURATION, sample_time=DIAGNOSE_STEP, variant=0), seed=1)
-    held = aircraft.simulate(*identification_manoeuvre(duration=DURATION, sample_time=DIAGNOSE_STEP, variant=1), seed=2)
-    result = diagnose([fit], reference=fmu, holdout=[held], workers=1).as_dict()
+    model.take_input_terms()
+    noise = {name: SENSOR_NOISE_STD[name] for name in model.state_names}
+    fit, held = [EffectVehicle(model, truth, noise_sd=noise).simulate(
+        *identification_manoeuvre(duration=DURATION, sample_time=DIAGNOSE_STEP, variant=v), seed=v + 1) for v in (0, 1)]
+    result = diagnose([fit], reference=fmu, holdout=[held], workers=1, input_terms=True).as_dict()
     found = result["findings"][0]
     assert (found["effect"], found["term"], found["found_by"]) == ("search_term", "theta1s_q|q|", "search")
     assert found["interval"][0] <= -0.5 <= found["interval"][1] and found["carries_over"]
     assert result["search"]["residual_search"]["ran"] and result["search"]["residual_search"]["library_terms"] > 100
+    with pytest.raises(BadInputError, match="input terms are for an FMU reference"):
+        diagnose([fit], reference="bo105-80kt", input_terms=True)
 
 
 def test_bad_fmus_exit_2_with_one_line(tmp_path, capsys):
