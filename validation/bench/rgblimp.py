@@ -87,18 +87,20 @@ def run(*, progress: bool = True, setup=None, identification_iterations: int | N
         if update:
             update(1, stage="hybrid fit")
     return {"free_run": {**_ratio(numpy_s, jax_s), "samples": len(test.time), "flight": "data_119.csv"},
-            "replay": {**_ratio(replay["numpy_s"], replay["jax_s"]), "members": REPLAY_MEMBERS,
+            "replay": {**replay, "members": REPLAY_MEMBERS,
                        "flights": ["data_117.csv", "data_118.csv", "data_119.csv"]},
-            "blimp_replay": {**_ratio(blimp_replay["numpy_s"], blimp_replay["jax_s"]), "members": REPLAY_MEMBERS},
+            "blimp_replay": {**blimp_replay, "members": REPLAY_MEMBERS},
             "gradient": {**gradient, "flights": ["data_117.csv", "data_118.csv"]},
             "fit": {"hybrid_s": hybrid.fit_seconds, "identification_s": identification_s,
                     "iterations": hybrid.iterations, "flights": ["data_117.csv", "data_118.csv"],
                     "goal_s": FIT_GOAL_S, "goal_met": hybrid.fit_seconds <= FIT_GOAL_S}}
 
 
-def _ratio(numpy_s, jax_s) -> dict:
-    ratios = np.asarray(numpy_s) / np.asarray(jax_s)
-    return {"numpy_s": numpy_s, "jax_s": jax_s, "speedup": float(np.median(ratios)),
+def _ratio(peer_s, fast_s, *, keys=("numpy_s", "jax_s")) -> dict:
+    """The peer's and the fast call's times under ``keys``, ``speedup`` (the median of their
+    ratios) and ``speedup_range``."""
+    ratios = np.asarray(peer_s) / np.asarray(fast_s)
+    return {keys[0]: peer_s, keys[1]: fast_s, "speedup": float(np.median(ratios)),
             "speedup_range": [float(ratios.min()), float(ratios.max())]}
 
 
@@ -142,25 +144,22 @@ def _time_gradients(fitting, identified, setup, update) -> dict:
     checkpointed = gradient_call(fitting, identified, setup=setup)
     stored = gradient_call(fitting, identified, setup=setup, checkpoint_steps=False)
     stored()
-    times = _alternate(checkpointed, stored, update, stage="gradient")
-    ratio = _ratio(times["numpy_s"], times["jax_s"])
-    return {"checkpointed_s": times["jax_s"], "stored_s": times["numpy_s"], "speedup": ratio["speedup"],
-            "speedup_range": ratio["speedup_range"]}
+    return _alternate(checkpointed, stored, update, stage="gradient", keys=("stored_s", "checkpointed_s"))
 
 
-def _alternate(compiled, numpy_step, update, *, stage: str = "replay") -> dict:
-    """``numpy_s`` and ``jax_s``: :data:`REPLAY_REPEATS` timed calls of each, alternating, after
-    one call of ``compiled`` that compiles it."""
-    compiled()
-    times = {"numpy_s": [], "jax_s": []}
+def _alternate(fast, peer, update, *, stage: str = "replay", keys=("numpy_s", "jax_s")) -> dict:
+    """:func:`_ratio` of :data:`REPLAY_REPEATS` timed calls of ``peer`` and ``fast`` each,
+    alternating, after one call of ``fast`` that compiles it (``keys``: the peer's, the fast one's)."""
+    fast()
+    times = ([], [])
     for _ in range(REPLAY_REPEATS):
-        for key, call in (("numpy_s", numpy_step), ("jax_s", compiled)):
+        for kept, call in zip(times, (peer, fast)):
             began = clock.perf_counter()
             call()
-            times[key].append(clock.perf_counter() - began)
+            kept.append(clock.perf_counter() - began)
             if update:
                 update(1, stage=stage)
-    return times
+    return _ratio(*times, keys=keys)
 
 
 def format_table(report: dict) -> str:

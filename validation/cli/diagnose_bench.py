@@ -65,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
         run_bench,
         summarise_seeds,
     )
+    from validation.diagnose.pipeline import take_input_terms
+    from validation.vehicles.effect_vehicle import effect_model
 
     cases = concealed_cases(reference=args.reference)
     if args.list:
@@ -82,8 +84,10 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise BadInputError(f"--workers must be at least 1, got {args.workers}")
     options = {"through": args.through, "workers": args.workers, "input_terms": args.input_terms}
-    if args.input_terms and args.through is None:
-        raise BadInputError("--input-terms is for a diagnosis --through an FMU")
+    if args.input_terms:  # refused before any case flies: a --through that is not an FMU, colliding inputs
+        if args.through is None:
+            raise BadInputError("--input-terms is for a diagnosis --through an FMU")
+        take_input_terms(effect_model(args.through, purpose="diagnose-bench"))
     if args.duration is not None:
         options["duration"] = args.duration
     seeds = list(dict.fromkeys(args.seed))

@@ -79,12 +79,13 @@ import numpy as np
 
 from validation.core.errors import BadInputError
 from validation.core.recordings import Recording
-from validation.diagnose.pipeline import diagnose
+from validation.diagnose.pipeline import diagnose, take_input_terms
 from validation.vehicles.blimp_equations import rk4
 from validation.vehicles.bo105 import KNOT
 from validation.vehicles.bo105_flight import TURBULENCE_MIN_ADVECTION_SPEED
 from validation.vehicles.effect_vehicle import EffectVehicle, effect_model
 from validation.vehicles.effects import TARGET_KEYS, EffectModel, dead_band_inputs, split_cross_axis
+from validation.vehicles.fmu_reference import input_row
 from validation.vehicles.linear_effects import simulate_linear_with_effects
 from validation.vehicles.polynomial_terms import factor_values, parse_term
 from validation.vehicles.turbulence import dryden_gusts, low_altitude_turbulence
@@ -737,14 +738,9 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     named = [f for f in findings if f["effect"] != "unexplained"]
     truth = {_target(effect): effect for effect in case.effects}
     flown_on = effect_model(reference, purpose="diagnose-bench")
-    if case.kind == "through_inputs":  # terms of the truth's factor on an input that moves its row
-        letter, _, factor = case.outside[1].partition("_")
-        linear = flown_on.reference
-        moving = {name.replace("_", "") for j, name in enumerate(linear.input_names)
-                  if linear.B[linear.state_names.index(linear.row_letters[letter]), j] != 0}
-        truth = {_target(f): f for f in named if f["effect"] == "search_term"
-                 and f["term"].partition("_")[2] == factor and f["term"].partition("_")[0] in moving}
-        score.named, score.in_interval = _mapped_through_inputs(list(truth.values()), case.outside, flown_on.reference)
+    if case.kind == "through_inputs":
+        mapped, score.named, score.in_interval = _mapped_through_inputs(named, case.outside, flown_on.reference)
+        truth = {_target(f): f for f in mapped}
     matched = {}
     for finding in named:
         key = _target(finding)
@@ -806,21 +802,26 @@ def score_case(case: ConcealedCase, diagnosis: dict, *, truth_states: np.ndarray
     return score
 
 
-def _mapped_through_inputs(found: list, outside: tuple, linear) -> tuple[bool, bool]:
-    """Whether search terms ``found`` on a linear reference's inputs (``<input>_<factor>``, the
-    input's name without underscores), mapped onto its rows by the control derivatives ``B``,
-    give the truth's row ``outside`` (``("polynomial_term", term, coefficient)``) within
-    :data:`THROUGH_INPUTS_TOLERANCE`, and whether the interval their intervals map to holds it."""
-    if not found:
-        return False, False
+def _mapped_through_inputs(findings: list, outside: tuple, linear) -> tuple[list, bool, bool]:
+    """The search terms among ``findings`` that carry the truth ``outside`` (``("polynomial_term",
+    term, coefficient)``) through a linear reference's inputs: of its factor, on an input
+    (``<input>_<factor>``, :func:`~validation.vehicles.fmu_reference.input_row`) whose control
+    derivative on the truth's row is not zero; whether, mapped onto the row by those derivatives,
+    they give the truth within :data:`THROUGH_INPUTS_TOLERANCE`; and whether the interval their
+    intervals map to holds it."""
     term, coefficient = outside[1], outside[2]
-    row = linear.state_names.index(linear.row_letters[term.partition("_")[0]])
-    column = {name.replace("_", ""): j for j, name in enumerate(linear.input_names)}
-    derivatives = np.array([linear.B[row, column[f["term"].partition("_")[0]]] for f in found])
+    letter, _, factor = term.partition("_")
+    row = linear.B[linear.state_names.index(linear.row_letters[letter])]
+    on_row = {input_row(name): row[j] for j, name in enumerate(linear.input_names) if row[j] != 0}
+    found = [f for f in findings if f["effect"] == "search_term" and f["term"].partition("_")[2] == factor
+             and f["term"].partition("_")[0] in on_row]
+    if not found:
+        return [], False, False
+    derivatives = np.array([on_row[f["term"].partition("_")[0]] for f in found])
     value = float(derivatives @ [f["value"] for f in found])
     ends = np.array([f["interval"] for f in found]) * derivatives[:, None]
     low, high = float(np.sum(ends.min(axis=1))), float(np.sum(ends.max(axis=1)))
-    return abs(value - coefficient) <= THROUGH_INPUTS_TOLERANCE * abs(coefficient), low <= coefficient <= high
+    return found, abs(value - coefficient) <= THROUGH_INPUTS_TOLERANCE * abs(coefficient), low <= coefficient <= high
 
 
 def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str | None = None, seed: int = 0,
@@ -850,7 +851,7 @@ def run_case(case: ConcealedCase, *, reference: str = "bo105-80kt", through: str
     if through:
         model = effect_model(through, purpose="diagnose-bench")
         if input_terms:
-            model.take_input_terms()
+            take_input_terms(model)
         truth = diagnosed_truth(case, model, flown_on=effect_model(reference, purpose="diagnose-bench"))
     start = clock.perf_counter()
     diagnosis = diagnose([recordings.fit], reference=through or reference, holdout=[recordings.holdout], seed=seed,

@@ -47,6 +47,16 @@ from validation.diagnose.scope import scope
 from validation.vehicles.effect_vehicle import effect_model
 
 
+def take_input_terms(reference) -> None:
+    """Let ``reference``'s residual search add terms through its inputs
+    (:meth:`validation.vehicles.fmu_reference.FMUEffects.take_input_terms`); BadInputError for a
+    reference that is not an FMU, whose search adds its terms to its equations."""
+    if not hasattr(reference, "take_input_terms"):
+        raise BadInputError(f"input terms are for an FMU reference; the {reference.name} reference's residual "
+                            "search adds its terms to its equations")
+    reference.take_input_terms()
+
+
 def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: int | None = None,
              file_format: str | None = None, tolerances: dict | None = None, column_map: dict | None = None,
              workers: int | None = None, input_terms: bool = False, progress=None) -> Diagnosis:
@@ -115,10 +125,7 @@ def diagnose(recordings, *, reference: str, holdout=None, seed: int = 0, folds: 
     if workers is not None and hasattr(reference, "workers"):
         reference.workers = workers
     if input_terms:
-        if not hasattr(reference, "take_input_terms"):
-            raise BadInputError(f"input terms are for an FMU reference; the {reference.name} reference's residual "
-                                "search adds its terms to its equations")
-        reference.take_input_terms()
+        take_input_terms(reference)
     data = prepare(recordings, reference, holdout=holdout, file_format=file_format, column_map=column_map)
     check_tolerance_outputs(tolerances, data.output_names)
     if folds is not None:

@@ -84,7 +84,8 @@ COLLINEAR = 1e-3
 #: one Gauss-Newton step stays near linear; the floor keeps a step where the coefficient is 0.
 SEARCH_STEP = 0.05
 SEARCH_STEP_FLOOR = 1e-12
-#: Generalised force (N, or N m; on the RGBlimp an acceleration, m/s^2 or rad/s^2) a library term
+#: Generalised force (N, or N m; on the RGBlimp an acceleration, m/s^2 or rad/s^2; through an FMU
+#: an input, in its unit) a library term
 #: is added with to find its sensitivity by replay on a nonlinear reference
 #: (:func:`_replayed_normal_equations`), over the RMS of its factor: about 3e-6 of the blimp's
 #: weight (3.4 N), 1e-6 of gravity, so its response is linear, yet far above rounding.
@@ -128,7 +129,7 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
         replays each survivor with the model's own input effects).
     reference : EffectModel
         A reference that takes ``search_term``: a linear one, or one with ``search_jacobian``
-        (the blimp, the RGBlimp); any other gets a reason.
+        (the blimp, the RGBlimp, an FMU with input terms); any other gets a reason.
     model : FittedModel
         The effects found so far, jointly fitted.
     excited : sequence of str
@@ -147,8 +148,7 @@ def search_candidates(data: FitData, reference: EffectModel, model: FittedModel,
         equations, linear_offered = _replayed_normal_equations(data, reference, model.effects(), excited), True
     else:
         return SearchCandidates(reason=f"the {reference.name} reference takes no searched terms (the linear "
-                                       "references, the blimp, the RGBlimp and FMUs whose inputs keep distinct "
-                                       "names without their underscores do)")
+                                       "references, the blimp, the RGBlimp and, with input terms, an FMU do)")
     if equations is None:
         return SearchCandidates(reason="no fitted samples, or no term of the library moves the outputs")
     gram, projection, energy, count, names, column_norms = equations
@@ -265,8 +265,8 @@ def _normal_equations(data: FitData, reference: EffectModel, linear, effects: li
 
 def _replayed_normal_equations(data: FitData, reference: EffectModel, effects: list, excited):
     """:func:`_normal_equations` for a nonlinear reference that takes ``search_term`` and says how
-    strongly each signal drives each row (``search_jacobian``, the blimp's and the RGBlimp's): each library term's
-    weighted sensitivity is the change of the replayed outputs when the term is added with a
+    strongly each signal drives each row (``search_jacobian``: the blimp's, the RGBlimp's, an
+    FMU's): each library term's weighted sensitivity is the change of the replayed outputs when the term is added with a
     small coefficient (:data:`SENSITIVITY_FORCE` over the factor's RMS), divided by it: one
     batch of replays, exact to first order as the linear references' responses are, through the
     reference's own nonlinear equations (module docstring)."""

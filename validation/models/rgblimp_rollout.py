@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from validation.core.errors import BadInputError
+from validation.core.errors import BadInputError, check_count
 from validation.models.rgblimp_hybrid_step import (
     FEATURE_NAMES,
     FEATURE_SCALE,
@@ -154,12 +154,12 @@ class RolloutSetup:
     seed: int = 0
 
     def __post_init__(self):
-        checks = {"inducing_points": self.inducing_points >= 1, "segment_duration": self.segment_duration > 0,
-                  "max_segments": self.max_segments >= 1, "prior_weight": self.prior_weight >= 0,
+        for name in ("inducing_points", "max_segments", "max_iterations"):
+            check_count(getattr(self, name), f"RolloutSetup.{name}")
+        checks = {"segment_duration": self.segment_duration > 0, "prior_weight": self.prior_weight >= 0,
                   "state_scale": _positive(self.state_scale, 12),
                   "initial_length_scale": self.initial_length_scale > 0,
-                  "initial_amplitude": _positive(self.initial_amplitude, 6),
-                  "max_iterations": self.max_iterations >= 1}
+                  "initial_amplitude": _positive(self.initial_amplitude, 6)}
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise BadInputError(f"RolloutSetup: {', '.join(bad)} out of range ({self})")

@@ -75,7 +75,6 @@ from functools import partial
 
 import numpy as np
 
-from validation.core.errors import BadInputError
 from validation.core.manoeuvres import doublet, time_grid
 from validation.vehicles import polynomial_terms
 from validation.vehicles.blimp import (
@@ -100,7 +99,7 @@ from validation.vehicles.effects import (
     simulate_each_recording,
     starts_at_trim,
 )
-from validation.vehicles.polynomial_terms import SLOT_KEYS, library, slot_indices, slot_values, term_name
+from validation.vehicles.polynomial_terms import library, search_slots, slot_values, term_name
 
 #: Control-derivative terms: fan, command column, sign of the commands it applies to.
 CONTROL_TERMS = {"gondola_thrust_forward": ("u_gondola", 1.0), "gondola_thrust_backward": ("u_gondola", -1.0),
@@ -172,8 +171,7 @@ def search_term_unit(term: str) -> str:
 def search_term_description(term: str) -> str:
     """``"<row force or moment> proportional to <factor>"`` (``"yaw moment proportional to
     V|V|"``)."""
-    letter, _, factor = term.partition("_")
-    return f"{_SEARCH_ROW_WORDS[letter]} proportional to {factor}"
+    return polynomial_terms.search_term_description(term, _SEARCH_ROW_WORDS)
 
 
 #: White sensor noise per state of the blimp recordings (the ``blimp-flight`` stand-in's marker
@@ -233,7 +231,8 @@ def simulate_batch(reference: BlimpReference, effect_lists, time, inputs, *, com
     held = _held_inputs(effect_lists, time, inputs)
     changes = _TermChanges.of(reference, effect_lists)
     if compiled:
-        changed = {f.name: getattr(changes, f.name) for f in fields(changes)}
+        changed = {**{f.name: getattr(changes, f.name) for f in fields(changes) if f.name != "slots"},
+                   **changes.slots}
         states = compiled_replay(params, changed, hanging_state(params), held, steps)
         return apply_measurement_chains(states, time, effect_lists, STATE_NAMES)
     _, inverse = mass_matrix(params.mass, params.added_mass, params.inertia, params.added_inertia,
@@ -282,38 +281,19 @@ class _TermChanges:
     extra_drag: np.ndarray
     constant: np.ndarray
     extra_down: np.ndarray
-    search_kind: np.ndarray
-    search_first: np.ndarray
-    search_second: np.ndarray
-    search_row: np.ndarray
-    search_value: np.ndarray
+    slots: dict
 
     @classmethod
     def of(cls, reference: BlimpReference, effect_lists) -> _TermChanges:
-        batch, slots = len(effect_lists), (len(effect_lists), SEARCH_SLOTS)
+        batch = len(effect_lists)
         changes = cls(np.ones((batch, 3)), np.ones((batch, 3)), np.zeros((batch, 3)), np.zeros((batch, 3)),
-                      np.zeros((batch, 6)), np.zeros(batch), np.zeros(slots, dtype=np.int32),
-                      np.zeros(slots, dtype=np.int32), np.zeros(slots, dtype=np.int32),
-                      np.zeros(slots, dtype=np.int32), np.zeros(slots))
+                      np.zeros((batch, 6)), np.zeros(batch),
+                      search_slots(effect_lists, SEARCH_ROWS, SEARCH_SIGNALS, SEARCH_SLOTS))
         for b, effects in enumerate(effect_lists):
-            searched = [effect for effect in effects if effect["effect"] == "search_term"]
-            if len(searched) > SEARCH_SLOTS:  # check_effects refuses it first (max_search_terms)
-                raise BadInputError(f"at most {SEARCH_SLOTS} search terms per replay, got {len(searched)}")
-            for slot, effect in enumerate(searched):
-                changes.set_search_term(b, slot, effect["term"], effect["value"])
             for effect in effects:
                 if "term" in effect and effect["effect"] != "search_term":
                     changes.set_term(b, effect["term"], effect["value"], model_value(reference, effect["term"]))
         return changes
-
-    def set_search_term(self, member: int, slot: int, term: str, value: float) -> None:
-        """Search term ``term`` (module docstring) of member ``member`` in slot ``slot`` at
-        ``value`` (:func:`~validation.vehicles.polynomial_terms.slot_indices`: its factor kind,
-        its one or two signals in :data:`SEARCH_SIGNALS`, its row 0-5) with its coefficient."""
-        kind, first, second, row = slot_indices(term, SEARCH_ROWS, SEARCH_SIGNALS)
-        self.search_kind[member, slot], self.search_first[member, slot] = kind, first
-        self.search_second[member, slot], self.search_row[member, slot] = second, row
-        self.search_value[member, slot] = value
 
     def set_term(self, member: int, term: str, value: float, model: float) -> None:
         """Term ``term`` of member ``member`` at ``value`` instead of the model's ``model``."""
@@ -341,7 +321,7 @@ class _TermChanges:
         force[:, :3] += self.extra_drag * np.abs(v) * v + self.extra_down[:, None] * down
         force[:, 3:] += self.extra_damping * w
         signals = np.concatenate([state[:, 6:12], state[:, 3:5], command], axis=-1)  # SEARCH_SIGNALS
-        force += slot_values(np, signals, {key: getattr(self, key) for key in SLOT_KEYS})
+        force += slot_values(np, signals, self.slots)
         rates = blimp_dynamics(state, effective, params)
         rates[:, 6:] += force @ inverse.T
         return rates

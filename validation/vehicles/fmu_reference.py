@@ -70,7 +70,13 @@ from validation.vehicles.effects import (
     true_first_values,
 )
 from validation.vehicles.linear_effects import sequential_three_two_one_one
-from validation.vehicles.polynomial_terms import library, scalar_factor, search_term_unit, slot_indices
+from validation.vehicles.polynomial_terms import (
+    library,
+    scalar_factor,
+    search_term_description,
+    search_term_unit,
+    slot_indices,
+)
 from validation.vehicles.state_space import DEFAULT_SAMPLE_TIME
 
 _log = logging.getLogger(__name__)
@@ -383,6 +389,12 @@ _WORKER_CONTEXT = multiprocessing.get_context("fork" if "fork" in multiprocessin
 _WORKER_REFERENCE = None
 
 
+def input_row(name: str) -> str:
+    """The row letter of an input's search terms: its name without underscores (``theta1s`` for
+    ``theta_1s``; a term's name splits its row from its factor at the first underscore)."""
+    return name.replace("_", "")
+
+
 def _fed_back(row: list, outputs: np.ndarray, feedback: tuple) -> list:
     """The input row ``row`` plus the feedback terms of :meth:`FMUReference.replay` at the
     step's start (``outputs``)."""
@@ -434,7 +446,7 @@ class FMUEffects:
         self.name, self.sample_time = reference.name, reference.sample_time
         self.input_names, self.state_names = reference.input_names, reference.state_names
         self.residual_gp_states = reference.state_names
-        self.search_rows = {name.replace("_", ""): name for name in reference.input_names}
+        self.search_rows = {input_row(name): name for name in reference.input_names}
         self.search_signals = reference.state_names + reference.input_names
         # Per input: every signal linear (another input: the controls mixed); the powers and
         # products of the outputs and of the input itself (its own nonlinearity, its couplings with
@@ -480,13 +492,13 @@ class FMUEffects:
 
     def model_value(self, term: str) -> float:
         """The parameter's start value in the FMU; 0 for a search term (none in the FMU)."""
-        if term not in self.reference.parameters and term in self._search_terms:
+        if self._searched(term):
             return 0.0
         return self.reference.parameters[term][0]
 
     def term_unit(self, term: str) -> str:
         """The parameter's unit; a search term's, its input's unit per unit of its factor."""
-        if term not in self.reference.parameters and term in self._search_terms:
+        if self._searched(term):
             units = self.reference.units
             return search_term_unit(term, self.search_rows, self.search_signals, signal_units=units,
                                     row_units={letter: units[name] for letter, name in self.search_rows.items()})
@@ -494,11 +506,15 @@ class FMUEffects:
 
     def term_description(self, term: str) -> str:
         """The FMU's own description of the parameter (its name without one); a search term's
-        ``"extra <input> proportional to <factor>"``."""
-        if term not in self.reference.parameters and term in self._search_terms:
-            letter, _, factor = term.partition("_")
-            return f"extra {self.search_rows[letter]} input proportional to {factor}"
+        ``"extra <input> input proportional to <factor>"``."""
+        if self._searched(term):
+            return search_term_description(term, {letter: f"extra {name} input"
+                                                  for letter, name in self.search_rows.items()})
         return self.reference.parameters.get(term, (None, None, term))[2]
+
+    def _searched(self, term: str) -> bool:
+        """Whether ``term`` names a search term, not a parameter of the FMU."""
+        return term not in self.reference.parameters and term in self._search_terms
 
     def search_jacobian(self, states, inputs) -> np.ndarray:
         """Every signal on every row's axis: one over each signal's RMS along the replays (the

@@ -25,6 +25,7 @@ from itertools import combinations
 
 import numpy as np
 
+from validation.core.errors import BadInputError
 from validation.vehicles.linear_discretisation import zero_order_hold
 
 #: Factor kinds, in the order the search's library lists them.
@@ -125,6 +126,36 @@ def slot_indices(term: str, letters, signal_names) -> tuple[int, int, int, int]:
     letter, kind, signals = parse_search_term(term, letters, signal_names)
     return (SLOT_FACTOR_KINDS.index(kind), list(signal_names).index(signals[0]),
             list(signal_names).index(signals[-1]), list(letters).index(letter))
+
+
+def search_slots(effect_lists, letters, signal_names, count: int) -> dict:
+    """The search terms (``"effect": "search_term"``) of B effect lists in ``count`` slots each:
+    :data:`SLOT_KEYS` -> arrays (B, count), integers but ``search_value`` (:func:`slot_indices`;
+    an empty slot adds 0), for :func:`slot_values`.
+
+    Raises
+    ------
+    BadInputError
+        More than ``count`` search terms in one list (``check_effects`` refuses them first, by
+        the reference's ``max_search_terms``).
+    """
+    slots = {key: np.zeros((len(effect_lists), count), dtype=float if key == "search_value" else np.int32)
+             for key in SLOT_KEYS}
+    for member, effects in enumerate(effect_lists):
+        searched = [effect for effect in effects if effect.get("effect") == "search_term"]
+        if len(searched) > count:
+            raise BadInputError(f"at most {count} search terms per replay, got {len(searched)}")
+        for slot, effect in enumerate(searched):
+            for key, value in zip(SLOT_KEYS, (*slot_indices(effect["term"], letters, signal_names),
+                                              float(effect["value"]))):
+                slots[key][member, slot] = value
+    return slots
+
+
+def search_term_description(term: str, row_words: dict) -> str:
+    """``"<row's words> proportional to <factor>"`` (``"yaw moment proportional to V|V|"``)."""
+    letter, _, factor = term.partition("_")
+    return f"{row_words[letter]} proportional to {factor}"
 
 
 def search_term_unit(term: str, letters, signal_names, *, row_units: dict, signal_units: dict) -> str:

@@ -78,7 +78,7 @@ import numpy as np
 from validation.core.errors import BadInputError
 from validation.core.manoeuvres import time_grid
 from validation.vehicles.effects import Hypothesis, search_axes_jacobian
-from validation.vehicles.polynomial_terms import SLOT_KEYS, library, search_term_unit, slot_indices
+from validation.vehicles.polynomial_terms import library, search_slots, search_term_description, search_term_unit
 from validation.vehicles.rgblimp import RGBlimpReference, resting_state
 from validation.vehicles.rgblimp_equations import (
     INPUT_NAMES,
@@ -298,17 +298,9 @@ class _MemberValues:
                        for f in dataclasses.fields(RGBlimpParameters)}
         self.gain, self.asymmetry, self.wind = np.ones(n), np.zeros(n), np.zeros((n, 2))
         self.gondola_offset = np.zeros((n, 3))
-        self.slots = {key: np.zeros((n, SEARCH_SLOTS), dtype=float if key == "search_value" else np.int32)
-                      for key in SLOT_KEYS}
+        self.slots = search_slots(effect_lists, SEARCH_ROWS, SEARCH_SIGNALS, SEARCH_SLOTS)
         self.changed = set()
         for member, effects in enumerate(effect_lists):
-            searched = [effect for effect in effects if effect.get("effect") == "search_term"]
-            if len(searched) > SEARCH_SLOTS:  # check_effects refuses it first (max_search_terms)
-                raise BadInputError(f"at most {SEARCH_SLOTS} search terms per replay, got {len(searched)}")
-            for slot, effect in enumerate(searched):
-                indices = slot_indices(effect["term"], SEARCH_ROWS, SEARCH_SIGNALS)
-                for key, value in zip(SLOT_KEYS, (*indices, float(effect["value"]))):
-                    self.slots[key][member, slot] = value
             for effect in effects:
                 if effect.get("effect") != "search_term":
                     self._set(member, effect["term"], float(effect["value"]))
@@ -426,8 +418,7 @@ class RGBlimpEffects:
         """:data:`TERM_DESCRIPTIONS`; a search term's ``"<row> acceleration proportional to
         <factor>"``; ``term`` itself for another."""
         if term not in TERM_DESCRIPTIONS and term in SEARCH_TERMS:
-            letter, _, factor = term.partition("_")
-            return f"{_SEARCH_ROW_WORDS[letter]} proportional to {factor}"
+            return search_term_description(term, _SEARCH_ROW_WORDS)
         return TERM_DESCRIPTIONS.get(term, term)
 
     def term_value_problem(self, term: str, value: float) -> str | None:

@@ -399,6 +399,8 @@ def test_cli_with_several_seeds_writes_the_runs_and_their_summary(tmp_path, caps
     (["--duration", "2"], "--duration must be at least 5 s"),
     (["--workers", "0"], "--workers must be at least 1"),
     (["--through", "missing.fmu", "--cases", "none"], "missing.fmu: no such FMU"),
+    (["--input-terms", "--cases", "none"], "--input-terms is for a diagnosis --through an FMU"),
+    (["--through", "bo105-80kt", "--input-terms", "--cases", "none"], "input terms are for an FMU reference"),
 ])
 def test_cli_bad_input_exits_2(argv, message, tmp_path, capsys):
     assert main(["diagnose-bench", *argv, "--out", str(tmp_path / "o")]) == 2
@@ -469,19 +471,26 @@ def test_a_turbulence_case_diagnosed_through_an_fmu_flies_its_findings_on_the_fm
 def test_a_term_found_through_the_inputs_is_mapped_onto_the_rows_by_the_control_derivatives():
     """M_q|q| = -40 through the cyclic inputs: search terms of the factor q|q| whose values, times
     the pitch row's control derivatives, sum to -40 within 10 % name it, with or without the
-    truth inside their mapped interval; 20 % off, or none found, do not."""
+    truth inside their mapped interval; 20 % off, or none found, do not. Terms of another factor,
+    or on an input that does not move the pitch row, are not counted."""
     from validation.diagnose.bench import _mapped_through_inputs
     from validation.vehicles.bo105 import Bo105Reference
 
     linear = Bo105Reference(80)
     pitch_1s, pitch_1c = linear.B[2, 1], linear.B[2, 2]  # q is state 2; theta_1s, theta_1c inputs 1, 2
     outside = ("polynomial_term", "M_q|q|", -40.0)
-    lateral = {"term": "theta1c_q|q|", "value": 0.25, "interval": [0.2499, 0.2501]}
+    lateral = {"effect": "search_term", "term": "theta1c_q|q|", "value": 0.25, "interval": [0.2499, 0.2501]}
+    others = [{"effect": "search_term", "term": "theta1s_q^3", "value": 9.0, "interval": [8.0, 10.0]},
+              {"effect": "fmu_parameter", "term": "L_v", "value": -0.27, "interval": [-0.28, -0.26]}]
     exact = -(40.0 + pitch_1c * 0.25) / pitch_1s
     for value, expected in ((exact, (True, True)), (1.05 * exact, (True, False)), (1.2 * exact, (False, False))):
-        found = [{"term": "theta1s_q|q|", "value": value, "interval": [value - 0.01, value + 0.01]}, lateral]
-        assert _mapped_through_inputs(found, outside, linear) == expected
-    assert _mapped_through_inputs([], outside, linear) == (False, False)
+        term = {"effect": "search_term", "term": "theta1s_q|q|", "value": value,
+                "interval": [value - 0.01, value + 0.01]}
+        assert _mapped_through_inputs([term, lateral, *others], outside, linear) == ([term, lateral], *expected)
+    assert linear.B[2, 3] == 0  # the tail rotor does not pitch the model: its term is not counted
+    tail = {"effect": "search_term", "term": "theta0T_q|q|", "value": 1.0, "interval": [0.9, 1.1]}
+    assert _mapped_through_inputs([tail], outside, linear) == ([], False, False)
+    assert _mapped_through_inputs(others, outside, linear) == ([], False, False)
 
 
 def test_the_fmu_suite_acts_on_the_fmus_own_inputs_and_outputs(bo105_fmu):

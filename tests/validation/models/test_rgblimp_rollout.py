@@ -106,6 +106,9 @@ def test_the_loss_divides_each_state_error_by_the_setups_scale():
     for wrong in ((0.05,) * 11, (0.05,) * 11 + (float("nan"),), None):
         with pytest.raises(BadInputError, match="state_scale"):
             rollout.RolloutSetup(state_scale=wrong)
+    for name, bad in (("max_iterations", 2.5), ("inducing_points", 0), ("max_segments", True)):
+        with pytest.raises(BadInputError, match=rf"RolloutSetup\.{name} must be a whole number"):
+            rollout.RolloutSetup(**{name: bad})
     # The score's ranges as the source's statistics give them (the excerpt ships them).
     spiral = read_score_ranges(EXCERPT_FOLDER, kinds=("spiral",))["spiral"]
     np.testing.assert_allclose(rollout.SCORE_RANGES, spiral, rtol=1e-4)
