@@ -449,9 +449,10 @@ def select_effects(data: FitData, reference: EffectModel, hypotheses: list[Hypot
     # Output error first: where its effects leave only the noise, no air is left to weigh them
     # against (gusts large enough to matter are not whitened by a few constant effects), and the
     # filter error's fits are not made; otherwise the search is made again with the air.
-    path = _stepwise(data, reference, hypotheses, None, progress, excited)
+    steps_made = {}  # the search with the air repeats output error's steps until the air decides otherwise
+    path = _stepwise(data, reference, hypotheses, None, progress, excited, steps_made)
     if air is not None and not air.at_noise(path.model):
-        path = _stepwise(data, reference, hypotheses, air, progress, excited)
+        path = _stepwise(data, reference, hypotheses, air, progress, excited, steps_made)
     model = path.model
     in_air = air is not None and bool(model.hypotheses) and air.in_play(model)
     drop_lr = (_drop_one_against_air(air, model) if in_air
@@ -477,10 +478,12 @@ class _Path(NamedTuple):
 
 
 def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis], air: AirCompetitor | None,
-              progress, excited) -> _Path:
+              progress, excited, steps_made: dict) -> _Path:
     """The forward stepwise search of :func:`select_effects`, each step's effect weighed against
     ``air`` where given, earlier effects the new one makes redundant taken back
-    (:func:`_take_back`, output error only)."""
+    (:func:`_take_back`, output error only). ``steps_made``: a step's residual search and fits by
+    the model it starts from and the effects it may not offer (:func:`_step_key`), filled here
+    and reused by a later search through the same model: the fits depend on nothing else."""
     model = null_model(data, reference)
     null_rss = model.rss
     steps, rejected, searches, taken_back, refits_without = [], None, [], [], None
@@ -488,15 +491,21 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
         if len(model.hypotheses) >= MAX_EFFECTS:
             break
         taken = {h.key for h in model.hypotheses} | {dropped["key"] for dropped in taken_back}
-        candidates = [h for h in hypotheses if h.key not in taken]
-        n_tested = len(candidates)
-        if excited is not None:
-            found = search_candidates(data, reference, model, excited=excited)
+        key = _step_key(model, taken)
+        if key not in steps_made:
+            candidates = [h for h in hypotheses if h.key not in taken]
+            found = None if excited is None else search_candidates(data, reference, model, excited=excited)
+            if found is not None:
+                candidates = candidates + found.hypotheses
+            fits = _fit_promising(data, reference, model, candidates, progress) if candidates else []
+            steps_made[key] = (candidates, found, fits)
+        candidates, found, fits = steps_made[key]
+        n_tested = len(candidates) - (len(found.hypotheses) if found is not None else 0)
+        if found is not None:
             searches.append(found)
-            candidates, n_tested = candidates + found.hypotheses, n_tested + found.library_terms
+            n_tested += found.library_terms
         if not candidates:
             break
-        fits = _fit_promising(data, reference, model, candidates, progress)
         best, step, rejected = weigh_step(data, model, fits, n_tested=n_tested)
         if air is not None and (step is not None or air.in_play(model)):
             best, step, rejected = _weigh_against_air(air, data, reference, model, candidates, best, step,
@@ -513,6 +522,12 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
                 taken_back.append(dropped)
                 steps = [s for s in steps if s["key"] != dropped["key"]]
     return _Path(model, null_rss, steps, rejected, searches, taken_back, refits_without)
+
+
+def _step_key(model: FittedModel, taken: set) -> tuple:
+    """What a step of :func:`_stepwise` depends on besides the data: the model it starts from
+    (its effects and their values, exactly) and the effects it may not offer."""
+    return (tuple((h.key, float(v)) for h, v in zip(model.hypotheses, model.values)), frozenset(taken))
 
 
 def _take_back(data: FitData, reference: EffectModel, model: FittedModel, *, n_tested: int) -> tuple:
