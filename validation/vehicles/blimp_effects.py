@@ -116,8 +116,8 @@ SEARCH_ROWS = {"X": "U", "Y": "V", "Z": "W", "L": "P", "M": "Q", "N": "R"}
 #: Signals a search term's factor may use: the body velocities and rates, roll and pitch (the
 #: heading and position carry no force) and the commands.
 SEARCH_SIGNALS = ("U", "V", "W", "P", "Q", "R", "phi", "theta", *INPUT_NAMES)
-#: Search terms one replay holds at most (a diagnosis names at most three effects, and the
-#: residual search adds one to them): a fixed size, so that the compiled replay compiles once.
+#: Search terms one replay holds at most (a diagnosis names at most four effects, the candidate
+#: of its last step among them): a fixed size, so that the compiled replay compiles once.
 SEARCH_SLOTS = 4
 #: Search terms the named terms already are (``X_U|U|`` is ``X_UU``): not searched.
 NAMED_SEARCH_TERMS = {term_name(letter, "signed_square", state): named

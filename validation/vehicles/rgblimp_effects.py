@@ -117,8 +117,8 @@ DRAUGHT_TERMS = {f"wind_{axis}_d{along}": (f"draught_gradient_{along}", componen
 GONDOLA_TERMS = {"gondola_dx": 0, "gondola_dy": 1, "gondola_dz": 2}
 #: Terms that set one component of a field of :class:`RGBlimpParameters` (0 for a scalar field).
 _FIELD_TERMS = {**ADDED_MASS_TERMS, **THRUST_FIELD_TERMS, **DRAUGHT_TERMS}
-#: Search terms one replay holds at most (a diagnosis names at most three effects, and the
-#: residual search adds one to them): a fixed size, so that the compiled replay compiles once.
+#: Search terms one replay holds at most (a diagnosis names at most four effects, the candidate
+#: of its last step among them): a fixed size, so that the compiled replay compiles once.
 SEARCH_SLOTS = 4
 #: The residual search's library on the RGBlimp: every row's terms linear in each of
 #: :data:`~validation.vehicles.rgblimp_equations.SEARCH_SIGNALS` and its polynomial terms
