@@ -5,13 +5,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from validation.core.errors import BadInputError
 from validation.diagnose import diagnose
 from validation.diagnose.bench import ConcealedCase, case_recordings, concealed_cases
 from validation.diagnose.data import prepare
-from validation.diagnose.explain import _screen, _take_back, hypotheses_for
+from validation.diagnose.explain import MAX_EFFECTS, _screen, _take_back, hypotheses_for
 from validation.diagnose.fitting import fit_many, null_model
 from validation.diagnose.search import _linear_in_these_data, search_candidates
+from validation.vehicles import blimp_effects, rgblimp_effects
 from validation.vehicles.effect_vehicle import effect_model
+from validation.vehicles.effects import check_effects
 
 CUBIC = next(c for c in concealed_cases() if c.name == "cubic-stiffness-N_v^3")
 CONTROL_POWER = next(c for c in concealed_cases() if c.name == "control-power-M_theta_1s|theta_1s|")
@@ -228,3 +231,17 @@ def test_the_screen_lets_found_effects_move_and_a_redundant_one_is_taken_back():
     assert [h.key for h in two.hypotheses] == [damping.key, power.key]
     kept, none, _ = _take_back(data, reference, two, n_tested=len(hypotheses))
     assert none is None and kept is two
+
+
+def test_the_compiled_replays_hold_as_many_search_terms_as_a_diagnosis_names():
+    # The last step's candidate is the MAX_EFFECTS-th effect of a replay; every one of them may
+    # be a search term, and a replay holding more than its slots is refused.
+    assert blimp_effects.SEARCH_SLOTS >= MAX_EFFECTS
+    assert rgblimp_effects.SEARCH_SLOTS >= MAX_EFFECTS
+    reference = effect_model("rgblimp", purpose="diagnose")
+    terms = list(reference.terms["search_term"])[:rgblimp_effects.SEARCH_SLOTS + 1]
+    effects = [{"effect": "search_term", "term": term, "value": 0.01} for term in terms]
+    assert len(check_effects(effects[:-1], reference)) == rgblimp_effects.SEARCH_SLOTS
+    with pytest.raises(BadInputError, match="search terms"):
+        check_effects(effects, reference)
+
