@@ -496,17 +496,16 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
         taken = {h.key for h in model.hypotheses} | {dropped["key"] for dropped in taken_back}
         key = _step_key(model, taken)
         if key not in steps_made:
-            candidates = [h for h in hypotheses if h.key not in taken]
-            found = None if excited is None else search_candidates(data, reference, model, excited=excited)
-            if found is not None:
-                candidates = candidates + found.hypotheses
+            candidates, found = [h for h in hypotheses if h.key not in taken], None
+            n_tested = len(candidates)
+            if excited is not None:
+                found = search_candidates(data, reference, model, excited=excited)
+                candidates, n_tested = candidates + found.hypotheses, n_tested + found.library_terms
             fits = _fit_promising(data, reference, model, candidates, progress) if candidates else []
-            steps_made[key] = (candidates, found, fits)
-        candidates, found, fits = steps_made[key]
-        n_tested = len(candidates) - (len(found.hypotheses) if found is not None else 0)
+            steps_made[key] = (candidates, n_tested, found, fits)
+        candidates, n_tested, found, fits = steps_made[key]
         if found is not None:
             searches.append(found)
-            n_tested += found.library_terms
         if not candidates:
             break
         best, step, rejected = weigh_step(data, model, fits, n_tested=n_tested)
@@ -529,7 +528,8 @@ def _stepwise(data: FitData, reference: EffectModel, hypotheses: list[Hypothesis
 
 def _step_key(model: FittedModel, taken: set) -> tuple:
     """What a step of :func:`_stepwise` depends on besides the data: the model it starts from
-    (its effects and their values, exactly) and the effects it may not offer."""
+    (its effects and their values, exactly) and the effects it may not offer (the model's and
+    those taken back)."""
     return (tuple((h.key, float(v)) for h, v in zip(model.hypotheses, model.values)), frozenset(taken))
 
 
