@@ -3,6 +3,8 @@ replay through the FMU is the built-in reference's, each effect acts as document
 as an extra input), a refused replay ends only its candidate, diagnose names what it names
 through the built-in reference, the residual search through the FMU finds a term on no list, and
 bad FMUs exit 2 with one line."""
+import copy
+
 import numpy as np
 import pytest
 
@@ -115,6 +117,20 @@ def test_search_terms_through_the_fmu_enter_its_inputs(fmu, manoeuvre):
 
     with pytest.raises(BadInputError, match="not one of"):
         check_effects([{"effect": "search_term", "term": "theta1s_theta_1s", "value": 0.1}], model)
+
+
+def test_input_terms_are_refused_for_inputs_that_collide_without_underscores(fmu):
+    """A search term names its input without underscores (``theta1s``); an FMU whose inputs
+    ``theta_0`` and ``theta0`` would share a row is refused input terms with one line, and its
+    effects stay as they were (the real FMU, its inputs renamed as such an FMU's would be)."""
+    from validation.vehicles.fmu_reference import FMUEffects
+
+    reference = copy.copy(effect_model(fmu, purpose="test").reference)
+    reference.input_names = ("theta_0", "theta0", "theta_1c", "theta_0T")
+    model = FMUEffects(reference)
+    with pytest.raises(BadInputError, match="do not stay distinct"):
+        model.take_input_terms()
+    assert "search_term" not in model.kinds and "search_term" not in model.terms
 
 
 @pytest.mark.slow
